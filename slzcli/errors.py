@@ -1,0 +1,50 @@
+"""The SlzError family: every failure a user can act on, with the file, topic or key it concerns.
+
+Library code raises these; only ``cli.py`` prints them and chooses the exit code.
+Third-party errors are wrapped once, at the boundary where they happen
+(``raise DatasetError(path, str(err)) from err``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class SlzError(Exception):
+    """Base of every error slz reports to a user (exit code 1)."""
+
+
+class ConfigError(SlzError):
+    """A config file, key or value is wrong; the message names the dotted key path."""
+
+    def __init__(self, key: str, reason: str, source: str | None = None) -> None:
+        self.key = key
+        self.reason = reason
+        self.source = source
+        where = f"{source}: " if source else ""
+        super().__init__(f"{where}{key}: {reason}" if key else f"{where}{reason}")
+
+
+class DatasetError(SlzError):
+    """A recording cannot be read or does not hold what slz needs; names the path."""
+
+    def __init__(self, path: str | Path, reason: str) -> None:
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"{self.path}: {reason}")
+
+
+class DecodeError(SlzError):
+    """One message could not be decoded (unsupported encoding, wrong size, ...)."""
+
+
+class NoSiteFound(SlzError):
+    """No landing site qualifies. A result, not a failure: the pipeline reports it as status."""
+
+
+class OutputError(SlzError):
+    """An output folder or file cannot be written."""
+
+    def __init__(self, path: str | Path, reason: str) -> None:
+        self.path = str(path)
+        super().__init__(f"{self.path}: {reason}")
