@@ -1,0 +1,81 @@
+"""Mask quality against ground truth: precision, recall and IoU of the "safe" class.
+
+Precision is the number that matters for landing (a pixel we call safe that is not is a
+crash risk); recall says how much of the truly safe ground we find. Counts are kept so
+that per-frame results add up to an exact overall figure (micro-average), not an average
+of ratios.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class MaskCounts:
+    tp: int
+    fp: int
+    fn: int
+    tn: int
+
+    def __add__(self, other: "MaskCounts") -> "MaskCounts":
+        return MaskCounts(self.tp + other.tp, self.fp + other.fp, self.fn + other.fn, self.tn + other.tn)
+
+    @property
+    def precision(self) -> float | None:
+        """None when nothing was predicted safe (undefined, not perfect)."""
+        return self.tp / (self.tp + self.fp) if self.tp + self.fp else None
+
+    @property
+    def recall(self) -> float | None:
+        return self.tp / (self.tp + self.fn) if self.tp + self.fn else None
+
+    @property
+    def iou(self) -> float | None:
+        union = self.tp + self.fp + self.fn
+        return self.tp / union if union else None
+
+    def as_dict(self) -> dict[str, float | int | None]:
+        return {"precision": self.precision, "recall": self.recall, "iou": self.iou,
+                "tp": self.tp, "fp": self.fp, "fn": self.fn, "tn": self.tn}
+
+
+def mask_counts(predicted: np.ndarray, truth: np.ndarray, known: np.ndarray | None = None) -> MaskCounts:
+    """Confusion counts of ``predicted`` vs ``truth`` (bool HxW), over ``known`` pixels only."""
+    if predicted.shape != truth.shape:
+        raise ValueError(f"mask shapes differ: {predicted.shape} vs {truth.shape}")
+    p, t = predicted.astype(bool), truth.astype(bool)
+    if known is not None:
+        p, t = p[known], t[known]
+    tp = int(np.count_nonzero(p & t))
+    fp = int(np.count_nonzero(p & ~t))
+    fn = int(np.count_nonzero(~p & t))
+    return MaskCounts(tp, fp, fn, int(p.size) - tp - fp - fn)
+
+
+def total(counts: Iterable[MaskCounts]) -> MaskCounts:
+    out = MaskCounts(0, 0, 0, 0)
+    for c in counts:
+        out = out + c
+    return out
+
+
+def precision_recall_curve(score: np.ndarray, truth: np.ndarray, thresholds: np.ndarray,
+                           known: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Precision and recall of ``score > tau`` for every tau, vectorised via a histogram of scores."""
+    s, t = score.astype(np.float64), truth.astype(bool)
+    if known is not None:
+        s, t = s[known], t[known]
+    order = np.sort(thresholds)
+    pos = np.sort(s[t])
+    neg = np.sort(s[~t])
+    tp = pos.size - np.searchsorted(pos, order, side="right")
+    fp = neg.size - np.searchsorted(neg, order, side="right")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
+        recall = tp / max(pos.size, 1)
+    inv = np.argsort(np.argsort(thresholds))
+    return precision[inv], recall[inv]

@@ -1,0 +1,49 @@
+"""Maps as pictures: heat-map PNGs and overlays on the colour image.
+
+Convention: maps are in [0, 1] with 1 = good for landing; the heat map shows good as
+warm (red/yellow) by default. ``reverse=True`` gives the paper's figures' convention,
+where the colour scale runs the other way. NaN / invalid pixels are drawn black.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from slzcli.errors import OutputError
+from slzcli.outputs.files import atomic_path
+
+SAFE_BGR = np.array([60, 200, 60], np.float32)
+UNSAFE_BGR = np.array([40, 40, 220], np.float32)
+
+
+def heatmap_bgr(values: np.ndarray, *, reverse: bool = False, valid: np.ndarray | None = None) -> np.ndarray:
+    """A float map in [0, 1] -> BGR uint8 through the JET colour map."""
+    v = np.nan_to_num(values.astype(np.float32), nan=0.0)
+    v = np.clip(1.0 - v if reverse else v, 0.0, 1.0)
+    img = cv2.applyColorMap((v * 255.0 + 0.5).astype(np.uint8), cv2.COLORMAP_JET)
+    bad = ~np.isfinite(values) if valid is None else ~valid
+    img[bad] = 0
+    return img
+
+
+def overlay_bgr(rgb: np.ndarray, mask: np.ndarray, alpha: float = 0.45) -> np.ndarray:
+    """The colour image with safe pixels tinted green and the rest red."""
+    bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR).astype(np.float32)
+    tint = np.where(mask[..., None], SAFE_BGR, UNSAFE_BGR)
+    return np.clip((1.0 - alpha) * bgr + alpha * tint, 0, 255).astype(np.uint8)
+
+
+def mask_png(mask: np.ndarray) -> np.ndarray:
+    return mask.astype(np.uint8) * 255
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Encode in memory, then write atomically (cv2.imwrite cannot target a temp name safely)."""
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise OutputError(path, "PNG encoding failed")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.tobytes())

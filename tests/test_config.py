@@ -1,0 +1,115 @@
+"""Config: layering, validation with dotted key paths, and the commented dump."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from slzcli.cli import main
+from slzcli.config import DEFAULT_CONFIG, dump, load_config
+from slzcli.errors import ConfigError
+
+
+def test_defaults_load_and_hold_paper_values() -> None:
+    cfg = load_config()
+    assert cfg.camera.fx == pytest.approx(462.137)  # paper Table 1
+    assert (cfg.terrain.flatness.canny_low, cfg.terrain.flatness.canny_high) == (50, 220)  # Table 3
+    assert cfg.terrain.depth_variance.kernel_px == 3
+    assert cfg.terrain.inclination.radius_m == 0.5
+    assert cfg.control.K_i == (0.1, 0.1, 0.001)
+    assert cfg.uav.footprint_m == (0.656, 0.656)
+
+
+def test_every_leaf_of_default_yaml_has_unit_and_source_comment() -> None:
+    for line in DEFAULT_CONFIG.read_text().splitlines():
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#") or stripped.endswith(":"):
+            continue
+        assert "#" in stripped, f"default.yaml leaf without a unit/source comment: {line!r}"
+
+
+def test_file_then_set_layering(tmp_path: Path) -> None:
+    f = tmp_path / "mine.yaml"
+    f.write_text("mask:\n  threshold: 0.7\nterrain:\n  flatness:\n    canny_low: 40\n")
+    cfg = load_config(f, ["mask.threshold=0.8"])
+    assert cfg.mask.threshold == 0.8  # --set wins over the file
+    assert cfg.terrain.flatness.canny_low == 40  # the file wins over the defaults
+    assert cfg.terrain.flatness.canny_high == 220  # untouched keys keep the default
+
+
+@pytest.mark.parametrize(
+    ("override", "key", "words"),
+    [
+        ("terrain.flatnes.canny_low=3", "terrain.flatnes", "did you mean 'flatness'"),
+        ("terrain.flatness.canny_lo=3", "terrain.flatness.canny_lo", "did you mean 'canny_low'"),
+        ("mask.threshold=abc", "mask.threshold", "expected a number"),
+        ("mask.threshold=1.5", "mask.threshold", "<= 1"),
+        ("terrain.depth_variance.kernel_px=4", "terrain.depth_variance.kernel_px", "odd"),
+        ("terrain.depth_variance.kernel_px=3.5", "terrain.depth_variance.kernel_px", "integer"),
+        ("uav.footprint_m=[1, 2, 3]", "uav.footprint_m", "expected 2 values"),
+        ("scoring.method=fuzz", "scoring.method", "did you mean 'fuzzy'"),
+        ("sources.use_ground_truth_pose=1", "sources.use_ground_truth_pose", "true or false"),
+        ("camera.fx=0", "camera.fx", "> 0"),
+        ("mask=3", "mask", "expected a section"),
+    ],
+)
+def test_bad_values_name_the_key(override: str, key: str, words: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_config(overrides=[override])
+    assert info.value.key == key
+    assert words in str(info.value)
+
+
+def test_unknown_key_in_file_names_file_and_path(tmp_path: Path) -> None:
+    f = tmp_path / "bad.yaml"
+    f.write_text("landing:\n  kmeans_kk: 3\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(f)
+    assert info.value.key == "landing.kmeans_kk"
+    assert str(f) in str(info.value) and "kmeans_k" in str(info.value)
+
+
+def test_missing_and_malformed_files(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "nope.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("mask: [1, 2\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(bad)
+    bad.write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="mapping"):
+        load_config(bad)
+
+
+def test_dump_round_trips_and_keeps_comments() -> None:
+    cfg = load_config(overrides=["mask.threshold=0.65", "sources.topics.color=/cam/rgb"])
+    text = dump(cfg)
+    assert yaml.safe_load(text) == cfg.to_dict()
+    assert "threshold: 0.65" in text and "# " in text.split("threshold: 0.65")[1].splitlines()[0]
+
+
+def test_hash_changes_with_values() -> None:
+    assert load_config().hash() == load_config().hash()
+    assert load_config().hash() != load_config(overrides=["mask.threshold=0.6"]).hash()
+
+
+def test_cli_config_dump(runner) -> None:
+    res = runner.invoke(main, ["config", "dump", "--set", "mask.threshold=0.6"])
+    assert res.exit_code == 0, res.output
+    assert yaml.safe_load(res.output)["mask"]["threshold"] == 0.6
+    res = runner.invoke(main, ["config", "dump", "--json"])
+    assert json.loads(res.output)["camera"]["fx"] == pytest.approx(462.137)
+
+
+def test_cli_bad_config_is_one_line_exit_1(runner, tmp_path: Path) -> None:
+    res = runner.invoke(main, ["config", "dump", "--set", "terrain.flatness.canny_lo=1"])
+    assert res.exit_code == 1
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "terrain.flatness.canny_lo" in lines[0] and "Traceback" not in res.output
+    res = runner.invoke(main, ["config", "dump", "--config", str(tmp_path / "missing.yaml")])
+    assert res.exit_code == 1 and "missing.yaml" in res.stderr
+    res = runner.invoke(main, ["config", "dump", "--set", "novalue"])
+    assert res.exit_code == 1 and "KEY=VALUE" in res.stderr
