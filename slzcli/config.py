@@ -157,6 +157,10 @@ class LandingCfg:
     every_nth_frame: int = rng(1)
     kmeans_k: int = rng(1, 100)
     normal_radius_m: float = rng(0, lo_open=True)
+    min_cluster_points: int = rng(3)
+    min_extent_factor: float = rng(0)
+    bayes_min_extent_factor: float = rng(0)
+    seed: int = rng(0)
     edge_clearance_factor: float = rng(0)
     max_tilt_deg: float = rng(0, 90)
 

@@ -1,0 +1,217 @@
+"""The best point to land (METHOD 2.5): SLAM map points through the landing mask, clustered.
+
+Steps, each a pure function: project the keyframe's map points into its image, keep those
+under the mask, k-means them, estimate a normal per point from its 0.5 m neighbourhood,
+and pick the cluster that qualifies (extent at least the footprint) by the method's rule:
+the paper's *minimum normal variance* for fuzzy, the baseline's *largest cluster* for
+Bayes (BASELINE.md). No cluster qualifies: a ``NoSite`` with the reason, never a guess.
+
+Decisions (the paper is silent):
+- Extent is measured along the world x and y axes, the axes of the Eq. 10 square.
+- Normal variance of unit normals is ``1 - |mean(n)|^2`` (the trace of their covariance).
+- A cluster whose centroid projects onto a pixel the mask rejects (a ring around an
+  obstacle) does not qualify: the site never lies where the mask says unsafe.
+- k-means is seeded from config, so a run is reproducible.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.cluster.vq import kmeans2
+from scipy.spatial import cKDTree
+
+from slzcli.landing.corners import square_corners
+
+
+@dataclass(frozen=True)
+class SelectParams:
+    """What selection needs from config, resolved per method by the pipeline."""
+
+    kmeans_k: int
+    normal_radius_m: float
+    min_cluster_points: int
+    footprint_m: tuple[float, float]
+    min_extent_factor: float
+    rule: str  # "min_normal_variance" (fuzzy, METHOD 2.5) | "largest" (bayes, BASELINE)
+    seed: int
+    edge_clearance_m: float  # acceptance test: clearance to the nearest depth edge must exceed this
+    max_tilt_deg: float      # acceptance test: surface tilt at most this
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One k-means cluster and why it did or did not qualify (a row of sites.csv)."""
+
+    cluster: int
+    points: int
+    centroid_world: tuple[float, float, float]
+    normal_variance: float
+    extent_m: tuple[float, float]
+    qualifies: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class Site:
+    pixel: tuple[float, float]
+    center_camera: tuple[float, float, float]
+    center_world: tuple[float, float, float]
+    corners_world: tuple[tuple[float, float, float], ...]
+    normal_world: tuple[float, float, float]
+    cluster_points: int
+    normal_variance: float
+    extent_m: tuple[float, float]
+    score: float
+    tilt_deg: float
+    edge_clearance_m: float | None
+    accepted: bool
+    acceptance_reason: str
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The result for one keyframe: the site (or None), why not, and every candidate."""
+
+    site: Site | None
+    reason: str
+    candidates: tuple[Candidate, ...]
+    projected: np.ndarray  # (N, 2) pixels of all map points in the image
+    kept: np.ndarray       # (N,) bool: under the mask
+    labels: np.ndarray     # (N,) int: cluster of each kept point, -1 for the rest
+
+
+def project(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray,
+            shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of world points in the camera, and which of them are in front and inside the image."""
+    T_cw = np.linalg.inv(T_world_camera)
+    pc = xyz_world @ T_cw[:3, :3].T + T_cw[:3, 3]
+    z = pc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * pc[:, 0] / z + K[0, 2]
+        v = K[1, 1] * pc[:, 1] / z + K[1, 2]
+    h, w = shape
+    inside = (z > 0) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    return np.stack([u, v], axis=1), inside
+
+
+def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray) -> np.ndarray:
+    """Per-point normals from the PCA of all points within ``radius_m``, oriented along ``up``.
+
+    Vectorised: neighbour pairs from a k-d tree, covariance sums by ``np.add.at``, batched
+    ``eigh``. Points with fewer than 3 neighbours (themselves included) get NaN.
+    """
+    n = xyz.shape[0]
+    if n == 0:
+        return np.zeros((0, 3))
+    pairs = cKDTree(xyz).query_pairs(radius_m, output_type="ndarray")
+    i = np.concatenate([np.arange(n), pairs[:, 0], pairs[:, 1]])
+    j = np.concatenate([np.arange(n), pairs[:, 1], pairs[:, 0]])
+    counts = np.bincount(i, minlength=n).astype(np.float64)
+    centred = xyz - xyz.mean(axis=0)  # keeps the second moments well conditioned far from the origin
+    s1 = np.zeros((n, 3))
+    np.add.at(s1, i, centred[j])
+    outer = centred[:, :, None] * centred[:, None, :]
+    s2 = np.zeros((n, 3, 3))
+    np.add.at(s2, i, outer[j])
+    mean = s1 / counts[:, None]
+    cov = s2 / counts[:, None, None] - mean[:, :, None] * mean[:, None, :]
+    _, vecs = np.linalg.eigh(cov)
+    normals = vecs[:, :, 0]
+    normals *= np.where(normals @ up < 0, -1.0, 1.0)[:, None]
+    normals[counts < 3] = np.nan
+    return normals
+
+
+def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray, mask: np.ndarray,
+                score: np.ndarray, params: SelectParams, *, up_world: np.ndarray = np.array([0.0, 0.0, 1.0]),
+                edge_distance_m: np.ndarray | None = None) -> Selection:
+    """Choose the landing site among the map points of one keyframe (METHOD 2.5)."""
+    n = xyz_world.shape[0]
+    pixels, inside = project(xyz_world, T_world_camera, K, mask.shape)
+    kept = np.zeros(n, bool)
+    iu = np.round(pixels[inside]).astype(int)
+    kept[np.flatnonzero(inside)] = mask[iu[:, 1], iu[:, 0]]
+    labels = np.full(n, -1)
+    empty = Selection(None, "", (), pixels, kept, labels)
+    n_kept = int(kept.sum())
+    if n_kept < params.min_cluster_points:
+        why = (f"only {n_kept} of {n} SLAM map points lie on the landing mask "
+               f"(at least {params.min_cluster_points} needed)")
+        return replace(empty, reason=why)
+
+    pts = xyz_world[kept]
+    k = max(1, min(params.kmeans_k, n_kept // params.min_cluster_points))
+    _, lab = kmeans2(pts, k, minit="++", seed=params.seed)
+    labels[kept] = lab
+    up = up_world / np.linalg.norm(up_world)
+    normals = point_normals(pts, params.normal_radius_m, up)
+    min_extent = np.asarray(params.footprint_m) * params.min_extent_factor
+
+    candidates = []
+    for c in range(k):  # k is a handful of clusters: not a per-point loop
+        member = lab == c
+        candidates.append(_candidate(c, pts[member], normals[member], min_extent, params, T_world_camera, K, mask))
+    good = [c for c in candidates if c.qualifies]
+    if not good:
+        reasons = "; ".join(f"cluster {c.cluster}: {c.reason}" for c in candidates)
+        return Selection(None, f"no cluster qualifies ({reasons})", tuple(candidates), pixels, kept, labels)
+    if params.rule == "largest":
+        best = max(good, key=lambda c: (c.points, -c.normal_variance))
+    else:
+        best = min(good, key=lambda c: (c.normal_variance, -c.points))
+    member = lab == best.cluster
+    site = _site(best, pts[member], normals[member], T_world_camera, K, score, params, up, edge_distance_m)
+    return Selection(site, "", tuple(candidates), pixels, kept, labels)
+
+
+def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndarray, params: SelectParams,
+               T_world_camera: np.ndarray, K: np.ndarray, mask: np.ndarray) -> Candidate:
+    centroid = pts.mean(axis=0) if len(pts) else np.full(3, np.nan)
+    extent = np.ptp(pts[:, :2], axis=0) if len(pts) else np.zeros(2)
+    good_n = normals[np.all(np.isfinite(normals), axis=1)]
+    variance = float(1.0 - np.sum(good_n.mean(axis=0) ** 2)) if len(good_n) >= 3 else float("nan")
+    reason = ""
+    if len(pts) < params.min_cluster_points:
+        reason = f"{len(pts)} points (< {params.min_cluster_points})"
+    elif not np.isfinite(variance):
+        reason = f"fewer than 3 points with a normal within {params.normal_radius_m} m"
+    elif np.any(extent < min_extent):
+        reason = f"extent {extent[0]:.2f} x {extent[1]:.2f} m below {min_extent[0]:.2f} x {min_extent[1]:.2f} m"
+    else:
+        (uv,), (inside,) = project(centroid[None], T_world_camera, K, mask.shape)
+        if not inside or not mask[int(round(uv[1])), int(round(uv[0]))]:
+            reason = "centroid falls on a pixel the mask rejects"
+    return Candidate(c, len(pts), tuple(map(float, centroid)), variance, (float(extent[0]), float(extent[1])),
+                     reason == "", reason or "qualifies")
+
+
+def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray,
+          score: np.ndarray, params: SelectParams, up: np.ndarray, edge_distance_m: np.ndarray | None) -> Site:
+    centroid = np.asarray(best.centroid_world)
+    (uv,), _ = project(centroid[None], T_world_camera, K, score.shape)
+    T_cw = np.linalg.inv(T_world_camera)
+    center_camera = T_cw[:3, :3] @ centroid + T_cw[:3, 3]
+    good_n = normals[np.all(np.isfinite(normals), axis=1)]
+    normal = good_n.mean(axis=0)
+    normal /= np.linalg.norm(normal)
+    tilt = float(np.degrees(np.arccos(np.clip(normal @ up, -1.0, 1.0))))
+    iu, iv = int(round(uv[0])), int(round(uv[1]))
+    clearance = None if edge_distance_m is None else float(edge_distance_m[iv, iu])
+    failures = []
+    if clearance is not None and not clearance > params.edge_clearance_m:
+        failures.append(f"edge clearance {clearance:.2f} m <= {params.edge_clearance_m:.2f} m")
+    if tilt > params.max_tilt_deg:
+        failures.append(f"tilt {tilt:.1f} deg > {params.max_tilt_deg:.1f} deg")
+    corners = square_corners(centroid, params.footprint_m)
+    px_pts, inside = project(pts, T_world_camera, K, score.shape)
+    ip = np.round(px_pts[inside]).astype(int)
+    site_score = float(score[ip[:, 1], ip[:, 0]].mean()) if len(ip) else float("nan")
+    return Site(
+        pixel=(float(uv[0]), float(uv[1])), center_camera=tuple(map(float, center_camera)),
+        center_world=tuple(map(float, centroid)), corners_world=tuple(tuple(map(float, c)) for c in corners),
+        normal_world=tuple(map(float, normal)), cluster_points=best.points, normal_variance=best.normal_variance,
+        extent_m=best.extent_m, score=site_score, tilt_deg=tilt, edge_clearance_m=clearance,
+        accepted=not failures,
+        acceptance_reason="; ".join(failures) or ("passed" if clearance is not None else "passed (tilt only: edge clearance not measured)"))
