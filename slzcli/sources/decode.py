@@ -1,0 +1,250 @@
+"""Pure decoders: deserialised ROS messages (ROS 1 or ROS 2 field names) -> numpy and types.
+
+No I/O here. Images follow REP 118 for depth (16UC1/mono16 in millimetres via
+``depth_unit_16u_m``, 0 = no data; 32FC1 in metres, 0/inf/NaN = no data). Poses are
+``T_world_camera`` 4x4 float64. ``header_stamp`` reads a message's ``std_msgs/Header``
+straight from the serialised bytes so that pairing never has to deserialise an image.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any, Mapping
+
+import cv2
+import numpy as np
+
+from slzcli.errors import DecodeError
+from slzcli.types import Intrinsics
+
+# sensor_msgs/image_encodings: (numpy dtype, channels) of the raw layouts we read.
+COLOR_ENCODINGS: dict[str, tuple[str, int]] = {
+    "rgb8": ("u1", 3), "bgr8": ("u1", 3), "rgba8": ("u1", 4), "bgra8": ("u1", 4), "mono8": ("u1", 1),
+    "8UC1": ("u1", 1), "8UC3": ("u1", 3),
+}
+DEPTH_ENCODINGS: dict[str, tuple[str, int]] = {"16UC1": ("u2", 1), "mono16": ("u2", 1), "32FC1": ("f4", 1)}
+# compressed_depth_image_transport ConfigHeader: int32 format, float32 depthQuantA, float32 depthQuantB.
+COMPRESSED_DEPTH_HEADER = struct.Struct("<iff")
+
+
+def _f(msg: Any, ros2: str, ros1: str) -> Any:
+    """A field whose name differs between ROS 1 (upper case) and ROS 2 (lower case)."""
+    value = getattr(msg, ros2, None)
+    return getattr(msg, ros1) if value is None else value
+
+
+def _is(msg: Any, short_type: str) -> bool:
+    """Whether a deserialised message is of type ``pkg/msg/short_type`` (rosbags sets __msgtype__)."""
+    return str(getattr(msg, "__msgtype__", "")).rsplit("/", 1)[-1] == short_type
+
+
+def stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+# ----------------------------------------------------------------------------- raw headers
+def header_stamp(data: bytes | memoryview, ros1: bool) -> tuple[int, str]:
+    """(stamp_ns, frame_id) of a serialised message that starts with ``std_msgs/Header``.
+
+    CDR: 4-byte encapsulation (byte 1 = 1 little endian), int32 sec, uint32 nanosec, string.
+    ROS 1: uint32 seq, uint32 sec, uint32 nsec, string (no NUL). Raises DecodeError if short.
+    """
+    buf = bytes(data[:512]) if len(data) > 512 else bytes(data)
+    try:
+        if ros1:
+            _, sec, nsec, n = struct.unpack_from("<IIII", buf, 0)
+            frame = buf[16:16 + n].decode("utf-8", "replace")
+        else:
+            order = "<" if buf[1] == 1 else ">"
+            sec, nsec, n = struct.unpack_from(order + "iII", buf, 4)
+            frame = buf[16:16 + max(n - 1, 0)].decode("utf-8", "replace")
+    except (struct.error, IndexError) as err:
+        raise DecodeError(f"message too short for a std_msgs/Header ({len(data)} bytes)") from err
+    return int(sec) * 1_000_000_000 + int(nsec), frame
+
+
+# ----------------------------------------------------------------------------- images
+def _raw_array(msg: Any, dtype: str, channels: int) -> np.ndarray:
+    """HxW[xC] view of an Image's data honouring ``step`` (row padding) and ``is_bigendian``."""
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    itemsize = np.dtype(dtype).itemsize
+    row = w * channels * itemsize
+    data = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
+    if step < row or data.size < step * h:
+        raise DecodeError(f"Image {msg.encoding} {w}x{h}: data has {data.size} bytes, step {step}; "
+                          f"expected at least {row} bytes per row and {step * h} in all")
+    rows = data[: step * h].reshape(h, step)[:, :row]
+    order = ">" if msg.is_bigendian else "<"
+    arr = np.ascontiguousarray(rows).view(order + dtype) if itemsize > 1 else rows
+    arr = arr.reshape((h, w, channels) if channels > 1 else (h, w))
+    return arr.astype(arr.dtype.newbyteorder("=")) if itemsize > 1 else arr
+
+
+def decode_color(msg: Any) -> np.ndarray:
+    """``sensor_msgs/Image`` or ``CompressedImage`` (jpeg/png) -> uint8 HxWx3 RGB."""
+    if _is(msg, "CompressedImage"):
+        buf = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
+        if img is None:
+            raise DecodeError(f"CompressedImage format {msg.format!r}: not a decodable jpeg/png")
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    enc = str(msg.encoding)
+    if enc not in COLOR_ENCODINGS:
+        raise DecodeError(f"unsupported colour encoding {enc!r} (supported: {', '.join(COLOR_ENCODINGS)})")
+    arr = _raw_array(msg, *COLOR_ENCODINGS[enc])
+    convert = {"bgr8": cv2.COLOR_BGR2RGB, "rgba8": cv2.COLOR_RGBA2RGB, "bgra8": cv2.COLOR_BGRA2RGB,
+               "mono8": cv2.COLOR_GRAY2RGB, "8UC1": cv2.COLOR_GRAY2RGB}.get(enc)
+    return cv2.cvtColor(arr, convert) if convert is not None else np.ascontiguousarray(arr)
+
+
+def depth_to_metres(raw: np.ndarray, depth_unit_16u_m: float, max_depth_m: float = 0.0) -> np.ndarray:
+    """uint16 counts or float32 metres -> float32 metres with NaN for no data (and beyond max_depth_m)."""
+    if raw.dtype == np.uint16:
+        # Divide by counts per metre: correctly rounded when that is a whole number (1000, 5000).
+        depth = raw.astype(np.float32) / np.float32(1.0 / depth_unit_16u_m)
+        depth[raw == 0] = np.nan
+    else:
+        depth = raw.astype(np.float32, copy=True)
+        depth[(depth <= 0) | ~np.isfinite(depth)] = np.nan
+    if max_depth_m > 0:
+        depth[depth > max_depth_m] = np.nan
+    return depth
+
+
+def decode_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: float = 0.0) -> np.ndarray:
+    """Depth ``Image`` (16UC1, mono16, 32FC1) or ``compressedDepth`` -> float32 metres, NaN = no data."""
+    if _is(msg, "CompressedImage"):
+        return decode_compressed_depth(msg, depth_unit_16u_m, max_depth_m)
+    enc = str(msg.encoding)
+    if enc not in DEPTH_ENCODINGS:
+        raise DecodeError(f"unsupported depth encoding {enc!r} (supported: {', '.join(DEPTH_ENCODINGS)})")
+    return depth_to_metres(_raw_array(msg, *DEPTH_ENCODINGS[enc]), depth_unit_16u_m, max_depth_m)
+
+
+def decode_compressed_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: float = 0.0) -> np.ndarray:
+    """image_transport ``compressedDepth``: 12-byte ConfigHeader then a 16-bit PNG.
+
+    16UC1: the PNG holds the raw counts. 32FC1: it holds inverse-depth codes q with
+    depth = A / (q - B), q = 0 -> NaN (compressed_depth_image_transport/codec.cpp).
+    """
+    fmt = str(msg.format)
+    encoding = fmt.split(";")[0].strip()
+    if "compresseddepth" not in fmt.lower().replace(" ", ""):
+        raise DecodeError(f"CompressedImage format {fmt!r} is not compressedDepth")
+    if "rvl" in fmt.lower():
+        raise DecodeError(f"unsupported compressedDepth codec in format {fmt!r} (only png)")
+    data = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
+    if data.size <= COMPRESSED_DEPTH_HEADER.size:
+        raise DecodeError(f"compressedDepth message of {data.size} bytes has no image after its header")
+    _, quant_a, quant_b = COMPRESSED_DEPTH_HEADER.unpack(data[: COMPRESSED_DEPTH_HEADER.size].tobytes())
+    img = cv2.imdecode(data[COMPRESSED_DEPTH_HEADER.size:], cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype != np.uint16 or img.ndim != 2:
+        raise DecodeError(f"compressedDepth format {fmt!r}: payload is not a 16-bit single-channel PNG")
+    if encoding in ("16UC1", "mono16"):
+        return depth_to_metres(img, depth_unit_16u_m, max_depth_m)
+    if encoding == "32FC1":
+        q = img.astype(np.float32)
+        with np.errstate(divide="ignore"):
+            depth = np.float32(quant_a) / (q - np.float32(quant_b))
+        depth[img == 0] = np.nan
+        return depth_to_metres(depth.astype(np.float32), depth_unit_16u_m, max_depth_m)
+    raise DecodeError(f"unsupported compressedDepth encoding {encoding!r} in format {fmt!r}")
+
+
+def match_depth_to_color(depth_m: np.ndarray, color_shape: tuple[int, int]) -> np.ndarray:
+    """Nearest-neighbour resize of depth to the colour size (never blends depths across edges)."""
+    h, w = color_shape
+    if depth_m.shape == (h, w):
+        return depth_m
+    return cv2.resize(depth_m, (w, h), interpolation=cv2.INTER_NEAREST)
+
+
+# ----------------------------------------------------------------------------- camera info
+def decode_camera_info(msg: Any) -> Intrinsics:
+    """``CameraInfo`` -> Intrinsics (K row-major; distortion model and D recorded)."""
+    k = np.asarray(_f(msg, "k", "K"), dtype=np.float64).reshape(-1)
+    if k.size != 9 or k[0] <= 0 or k[4] <= 0:
+        raise DecodeError(f"CameraInfo has no usable K ({k.tolist()})")
+    d = tuple(float(v) for v in np.asarray(_f(msg, "d", "D"), dtype=np.float64).reshape(-1))
+    return Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]), int(msg.width), int(msg.height),
+                      str(msg.distortion_model), d)
+
+
+# ----------------------------------------------------------------------------- poses
+def quat_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) -> 3x3 rotation (normalised first; zero quaternion rejected)."""
+    q = np.array([x, y, z, w], dtype=np.float64)
+    n = np.linalg.norm(q)
+    if not np.isfinite(n) or n == 0:
+        raise DecodeError(f"invalid quaternion {q.tolist()}")
+    x, y, z, w = q / n
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def matrix_to_quat(R: np.ndarray) -> tuple[float, float, float, float]:
+    """3x3 rotation -> unit quaternion (x, y, z, w), w >= 0."""
+    m = np.asarray(R, dtype=np.float64)
+    t = np.trace(m)
+    if t > 0:
+        s = 2.0 * np.sqrt(t + 1.0)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
+        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
+        q[i] = 0.25 * s
+        q[j] = (m[j, i] + m[i, j]) / s
+        q[k] = (m[k, i] + m[i, k]) / s
+    qa = np.array(q)
+    qa = qa / np.linalg.norm(qa)
+    if qa[3] < 0:
+        qa = -qa
+    return float(qa[0]), float(qa[1]), float(qa[2]), float(qa[3])
+
+
+def transform_matrix(translation: Any, rotation: Any) -> np.ndarray:
+    """geometry_msgs Point/Vector3 + Quaternion -> 4x4."""
+    T = np.eye(4)
+    T[:3, :3] = quat_to_matrix(rotation.x, rotation.y, rotation.z, rotation.w)
+    T[:3, 3] = (translation.x, translation.y, translation.z)
+    return T
+
+
+def decode_pose(msg: Any) -> tuple[int, str, str, np.ndarray]:
+    """PoseStamped or Odometry -> (stamp_ns, parent frame, child frame or '', T_parent_child)."""
+    odom = _is(msg, "Odometry")
+    pose = msg.pose.pose if odom else msg.pose
+    child = str(msg.child_frame_id).lstrip("/") if odom else ""
+    return stamp_ns(msg.header), str(msg.header.frame_id).lstrip("/"), child, transform_matrix(pose.position, pose.orientation)
+
+
+def decode_tf(msg: Any) -> list[tuple[int, str, str, np.ndarray]]:
+    """TFMessage -> [(stamp_ns, parent, child, T_parent_child)] with leading '/' stripped from names."""
+    return [(stamp_ns(t.header), t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/"),
+             transform_matrix(t.transform.translation, t.transform.rotation)) for t in msg.transforms]
+
+
+def compose_chain(tree: Mapping[str, tuple[str, np.ndarray]], frame: str,
+                  stop_at: str | None = None) -> tuple[str, np.ndarray] | None:
+    """Walk child -> parent links from ``frame`` to the root (or ``stop_at``): (top frame, T_top_frame).
+
+    ``tree`` maps child frame -> (parent frame, T_parent_child). None when ``stop_at`` is
+    not on the chain. A cycle is reported as DecodeError naming the frames.
+    """
+    T = np.eye(4)
+    node, seen = frame.lstrip("/"), []
+    while node != stop_at and node in tree:
+        if node in seen:
+            raise DecodeError(f"tf cycle through frames {' -> '.join(seen + [node])}")
+        seen.append(node)
+        parent, T_parent_node = tree[node]
+        T = T_parent_node @ T
+        node = parent
+    if stop_at is not None and node != stop_at:
+        return None
+    return node, T

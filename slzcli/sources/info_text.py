@@ -1,0 +1,34 @@
+"""The human text of ``slz info``: plain aligned columns (readable in a terminal, a pipe or a log)."""
+
+from __future__ import annotations
+
+from slzcli.sources.recording import RecordingInfo
+
+
+def _table(rows: list[tuple[str, ...]]) -> list[str]:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return ["  " + "  ".join(c.ljust(w) if i < len(r) - 1 else c for i, (c, w) in enumerate(zip(r, widths))).rstrip()
+            for r in rows]
+
+
+def info_text(info: RecordingInfo) -> str:
+    """Several lines: header, topic table, chosen streams with reasons, intrinsics, pairing."""
+    lines = [f"{info.path}", f"  format: {info.format}   duration: {info.duration_s:.3f} s", "", "topics:"]
+    rows = [("topic", "type", "count", "rate")]
+    for s in info.streams:
+        rate = f"{s.rate_hz:.2f} Hz" if s.rate_hz is not None else "-"
+        rows.append((s.topic, s.msgtype, str(s.count), rate))
+    lines += _table(rows)
+    lines += ["", "streams slz uses:"]
+    lines += _table([(c.role, c.topic or "(none)", c.reason) for c in info.choices])
+    k = info.intrinsics
+    lines += ["", f"intrinsics ({info.intrinsics_source}):"]
+    if k is not None:
+        lines.append(f"  {k.width}x{k.height}  fx {k.fx:.3f}  fy {k.fy:.3f}  cx {k.cx:.3f}  cy {k.cy:.3f}"
+                     + (f"  {k.distortion_model} {list(k.distortion)}" if k.distortion_model else ""))
+    p = info.pairing
+    lines += ["", f"RGB-D frames that pair: {p.paired}  (unpaired colour {p.unpaired_color}, "
+                  f"unpaired depth {p.unpaired_depth}, unreadable {p.undecodable})"]
+    lines += [f"  note: {n}" for n in p.notes]
+    lines += [f"warning: {w}" for w in info.warnings if w not in p.notes]
+    return "\n".join(lines)

@@ -1,0 +1,190 @@
+"""Bare ``.mcap`` files with ROS 2 (cdr) or ROS 1 (ros1) encoded messages, read as a stream.
+
+The mcap StreamReader reads records in file order without seeking, so a file cut
+short (a recorder killed mid-write) still gives every message before the cut; the
+loss is logged with the number of messages recovered. Message schemas stored in the
+file are registered into a rosbags typestore per message encoding; schemaless
+channels fall back to the ROS 2 Humble / ROS 1 Noetic typestores.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from pathlib import Path
+from typing import Any, BinaryIO, Collection, Iterator
+
+from mcap.exceptions import EndOfFile, InvalidMagic, McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from slzcli.errors import DatasetError, DecodeError
+from slzcli.sources.messages import MessageLog, RawMessage
+from slzcli.sources.topics import normalise_msgtype
+
+log = logging.getLogger(__name__)
+MAGIC = b"\x89MCAP0\r\n"
+ROS1_ENCODING = "ros1"
+CDR_ENCODING = "cdr"
+
+
+class McapLog(MessageLog):
+    """A MessageLog over one bare MCAP file."""
+
+    format = "mcap"
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        self._topics: dict[str, str] = {}
+        self._encoding: dict[str, str] = {}
+        self._stores: dict[str, Typestore] = {}
+        self._registered: set[tuple[str, str]] = set()
+        self._schemas: dict[int, Schema] = {}
+        self._truncation_reported = False
+
+    # ------------------------------------------------------------------ open
+    def open(self) -> None:
+        try:
+            size = self.path.stat().st_size
+        except OSError as err:
+            raise DatasetError(self.path, f"cannot open ({err.strerror or err})") from err
+        if size == 0:
+            raise DatasetError(self.path, "empty file (0 bytes)")
+        with self.path.open("rb") as f:
+            head = f.read(len(MAGIC))
+        if head != MAGIC:
+            raise DatasetError(self.path, "not an MCAP file (bad magic bytes at the start)")
+        if not self._read_summary():
+            self._scan_channels()
+        encodings = {self._encoding[t] for t in self._topics}
+        unknown = encodings - {CDR_ENCODING, ROS1_ENCODING}
+        if unknown and not (encodings - unknown):
+            raise DatasetError(self.path, f"message encoding {', '.join(sorted(unknown))} is not ROS "
+                                          "(only cdr and ros1 MCAP are read)")
+        self.format = "mcap (ros1)" if encodings == {ROS1_ENCODING} else "mcap (ros2 cdr)"
+
+    def _read_summary(self) -> bool:
+        """Channels from the summary section; False when it is missing or unreadable (cut short)."""
+        try:
+            with self.path.open("rb") as f:
+                summary = SeekingReader(f).get_summary()
+        except (McapError, struct.error, ValueError, OSError):
+            return False
+        if summary is None or not summary.channels:
+            return False
+        for ch in summary.channels.values():
+            self._add_channel(ch, summary.schemas.get(ch.schema_id))
+        return True
+
+    def _scan_channels(self) -> None:
+        """No usable summary: one streaming pass to collect the channels (and count the loss)."""
+        for _ in self._records(topics=None, want_messages=False):
+            pass
+
+    def _add_channel(self, ch: Channel, schema: Schema | None) -> None:
+        self._topics[ch.topic] = normalise_msgtype(schema.name) if schema is not None else ""
+        self._encoding[ch.topic] = ch.message_encoding
+        if schema is not None:
+            self._register(ch.message_encoding, schema)
+
+    def _register(self, encoding: str, schema: Schema) -> None:
+        key = (encoding, schema.name)
+        if key in self._registered or encoding not in (CDR_ENCODING, ROS1_ENCODING) or not schema.data:
+            return
+        self._registered.add(key)
+        store = self._store(encoding)
+        text = schema.data.decode("utf-8", "replace")
+        try:
+            types = get_types_from_idl(text) if schema.encoding == "ros2idl" else \
+                get_types_from_msg(text, normalise_msgtype(schema.name))
+            store.register({k: v for k, v in types.items() if k not in store.fielddefs})
+        except Exception as err:  # rosbags parser errors, wrapped once here
+            raise DatasetError(self.path, f"schema {schema.name!r} is not a valid ROS message definition ({err})") from err
+
+    def _store(self, encoding: str) -> Typestore:
+        if encoding not in self._stores:
+            self._stores[encoding] = get_typestore(Stores.EMPTY)
+        return self._stores[encoding]
+
+    def close(self) -> None:
+        return None
+
+    # ------------------------------------------------------------------ reading
+    def topics(self) -> dict[str, str]:
+        return dict(self._topics)
+
+    def is_ros1(self, topic: str) -> bool:
+        return self._encoding.get(topic) == ROS1_ENCODING
+
+    def messages(self, topics: Collection[str]) -> Iterator[RawMessage]:
+        yield from self._records(set(topics) if topics else None, want_messages=True)
+
+    def _records(self, topics: set[str] | None, want_messages: bool) -> Iterator[RawMessage]:
+        channels: dict[int, Channel] = {}
+        n = 0
+        with self.path.open("rb") as f:
+            reader = StreamReader(f, record_size_limit=_file_size(f))
+            try:
+                for rec in reader.records:
+                    if isinstance(rec, Schema):
+                        self._schemas[rec.id] = rec
+                    elif isinstance(rec, Channel):
+                        channels[rec.id] = rec
+                        if rec.topic not in self._topics:
+                            self._add_channel(rec, self._schemas.get(rec.schema_id))
+                    elif isinstance(rec, Message):
+                        ch = channels.get(rec.channel_id)
+                        if ch is None:
+                            continue
+                        n += 1
+                        if want_messages and (topics is None or ch.topic in topics):
+                            yield RawMessage(ch.topic, rec.log_time, rec.data)
+            except InvalidMagic as err:
+                raise DatasetError(self.path, "not an MCAP file (bad magic bytes)") from err
+            except (EndOfFile, McapError, struct.error, ValueError, EOFError) as err:
+                self._truncated(n, f.tell(), err)
+            except Exception as err:  # decompression errors of a torn chunk (zstd/lz4 raise their own types)
+                if "compress" not in type(err).__module__ + type(err).__name__.lower() + str(err).lower():
+                    raise
+                self._truncated(n, f.tell(), err)
+
+    def _truncated(self, n: int, pos: int, err: Exception) -> None:
+        kind = f"{type(err).__module__.split('.')[0]}.{type(err).__name__}"
+        text = (f"file ends early or is damaged near byte {pos} ({kind}); "
+                f"recovered {n} messages before it")
+        if text not in self.warnings:
+            self.warnings.append(text)
+        if not self._truncation_reported:
+            self._truncation_reported = True
+            log.warning("%s: %s", self.path, text)
+
+    def deserialize(self, topic: str, data: Any) -> Any:
+        enc = self._encoding.get(topic, "")
+        msgtype = self._topics.get(topic, "")
+        store = self._stores.get(enc)
+        if store is None or msgtype not in store.fielddefs:
+            store = self._fallback(enc)
+        try:
+            if enc == ROS1_ENCODING:
+                return store.deserialize_ros1(bytes(data), msgtype)
+            return store.deserialize_cdr(bytes(data), msgtype)
+        except Exception as err:  # rosbags SerdeError and friends
+            raise DecodeError(f"{topic}: cannot deserialise {msgtype or 'schemaless message'} ({err})") from err
+
+    def _fallback(self, encoding: str) -> Typestore:
+        key = f"default-{encoding}"
+        if key not in self._stores:
+            self._stores[key] = get_typestore(Stores.ROS1_NOETIC if encoding == ROS1_ENCODING else Stores.ROS2_HUMBLE)
+        return self._stores[key]
+
+
+def _file_size(f: BinaryIO) -> int:
+    """Records cannot be longer than the file: a garbage length fails fast instead of allocating."""
+    pos = f.tell()
+    f.seek(0, 2)
+    size = f.tell()
+    f.seek(pos)
+    return max(size, 1)

@@ -1,0 +1,338 @@
+"""A ``Recording`` over any time-ordered message log (ROS 1/2 bags, MCAP): choose, pair, decode.
+
+The format readers (rosbag.py, mcap.py) only list topics, stream raw messages and
+deserialise one on request. Here: colour and depth stamps are read from the raw
+header bytes, paired in a bounded window (sync.StreamPairer), and only paired
+messages are deserialised and decoded into a ``Frame``. Poses (PoseStamped,
+Odometry, tf with tf_static) are kept in a pruned PoseTrack.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+from collections import deque
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Collection, Iterator
+
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.errors import DatasetError, DecodeError, SlzError
+from slzcli.sources import decode
+from slzcli.sources.recording import Recording, RecordingInfo
+from slzcli.sources.sync import Pair, PoseTrack, StreamPairer
+from slzcli.sources.topics import CAMERA_INFO, ODOMETRY, POSE_STAMPED, TF, Choices, choose_streams
+from slzcli.types import Frame, Intrinsics, PairingReport, StreamInfo
+
+log = logging.getLogger(__name__)
+NS_PER_MS = 1_000_000
+TF_STATIC = "/tf_static"
+
+
+@dataclass(frozen=True)
+class RawMessage:
+    """One serialised message as stored; ``log_ns`` is the recording (receive) time."""
+
+    topic: str
+    log_ns: int
+    data: Any
+
+
+class MessageLog(abc.ABC):
+    """The format-specific part: topics, raw messages in log-time order, deserialisation."""
+
+    format: str = ""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.warnings: list[str] = []
+
+    @abc.abstractmethod
+    def open(self) -> None: ...
+
+    @abc.abstractmethod
+    def close(self) -> None: ...
+
+    @abc.abstractmethod
+    def topics(self) -> dict[str, str]:
+        """topic -> message type name as stored."""
+
+    @abc.abstractmethod
+    def is_ros1(self, topic: str) -> bool:
+        """Whether the topic's messages use the ROS 1 wire format (else CDR)."""
+
+    @abc.abstractmethod
+    def messages(self, topics: Collection[str]) -> Iterator[RawMessage]:
+        """Messages of ``topics`` (all when empty) in log-time order, streamed."""
+
+    @abc.abstractmethod
+    def deserialize(self, topic: str, data: Any) -> Any: ...
+
+
+class MessageRecording(Recording):
+    """Frames from a MessageLog, streamed with bounded memory."""
+
+    def __init__(self, msglog: MessageLog, config: Config) -> None:
+        super().__init__(msglog.path)
+        self.log = msglog
+        self.config = config
+        self.cfg = config.sources
+        self.choices: Choices | None = None
+        self._topics: dict[str, str] = {}
+        self._camera_frame: str | None = None
+
+    # ------------------------------------------------------------------ open / close
+    def open(self) -> None:
+        self.log.open()
+        self._topics = self.log.topics()
+        if not self._topics:
+            why = self.log.warnings[0] if self.log.warnings else "empty or not a recording"
+            raise DatasetError(self.path, f"the recording has no readable topics ({why})")
+        self.choices = choose_streams(self._topics, self.cfg, str(self.path))
+
+    def close(self) -> None:
+        self.log.close()
+
+    def _need_choices(self) -> Choices:
+        if self.choices is None:
+            raise DatasetError(self.path, "recording is not open (use it as a context manager)")
+        return self.choices
+
+    def _wrap(self, it: Iterator[RawMessage]) -> Iterator[RawMessage]:
+        try:
+            yield from it
+        except SlzError:
+            raise
+        except Exception as err:  # third-party reader errors, wrapped once here
+            raise DatasetError(self.path, f"cannot read messages ({type(err).__name__}: {err})") from err
+
+    def _stamp(self, msg: RawMessage) -> tuple[int, str]:
+        stamp, frame = decode.header_stamp(msg.data, self.log.is_ros1(msg.topic))
+        return (stamp if stamp > 0 else msg.log_ns), frame
+
+    # ------------------------------------------------------------------ info
+    def info(self) -> RecordingInfo:
+        ch = self._need_choices()
+        counts: dict[str, list[int]] = {t: [0, 0, 0] for t in self._topics}  # count, first, last
+        pairer = StreamPairer(int(self.cfg.sync_tolerance_ms * NS_PER_MS), int(self.cfg.reorder_window_ms * NS_PER_MS))
+        intrinsics: Intrinsics | None = None
+        undecodable = 0
+        first = last = None
+        for msg in self._wrap(self.log.messages(())):
+            c = counts.setdefault(msg.topic, [0, 0, 0])
+            c[1] = msg.log_ns if c[0] == 0 else min(c[1], msg.log_ns)
+            c[2] = max(c[2], msg.log_ns)
+            c[0] += 1
+            first = msg.log_ns if first is None else min(first, msg.log_ns)
+            last = msg.log_ns if last is None else max(last, msg.log_ns)
+            if msg.topic in (ch.color.topic, ch.depth.topic):
+                try:
+                    stamp, _ = self._stamp(msg)
+                except DecodeError:
+                    undecodable += 1
+                    continue
+                pairer.push("color" if msg.topic == ch.color.topic else "depth", stamp)
+            elif msg.topic == ch.camera_info.topic and intrinsics is None:
+                try:
+                    intrinsics = decode.decode_camera_info(self.log.deserialize(msg.topic, msg.data))
+                except DecodeError as err:  # reported, not fatal for info
+                    log.warning("%s: CameraInfo on %s not decodable: %s", self.path, msg.topic, err)
+        pairer.flush()
+        streams = tuple(StreamInfo(t, self._topics.get(t, "?"), c[0], c[1] if c[0] else None, c[2] if c[0] else None)
+                        for t, c in sorted(counts.items()))
+        source = f"CameraInfo on {ch.camera_info.topic}" if intrinsics is not None else "config camera section"
+        if intrinsics is None:
+            intrinsics = self._config_intrinsics()
+        report = self._report(pairer, 0, undecodable, ())
+        return RecordingInfo(str(self.path), self.log.format, ((last or 0) - (first or 0)) * 1e-9, streams,
+                             ch.all(), intrinsics, source, report, tuple(self.log.warnings))
+
+    def _config_intrinsics(self) -> Intrinsics:
+        cam = self.config.camera
+        return Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
+
+    def _report(self, pairer: StreamPairer, without_pose: int, undecodable: int, notes: tuple[str, ...]) -> PairingReport:
+        extra = (f"{pairer.late} message(s) arrived later than sources.reorder_window_ms and were not paired",) \
+            if pairer.late else ()
+        return PairingReport(pairer.paired, pairer.unpaired["color"], pairer.unpaired["depth"], without_pose,
+                             undecodable, tuple(notes) + extra + tuple(self.log.warnings))
+
+    # ------------------------------------------------------------------ frames
+    def frames(self) -> Iterator[Frame]:
+        ch = self._need_choices()
+        cfg = self.cfg
+        tol_pose = int(cfg.pose_tolerance_ms * NS_PER_MS)
+        window = int(cfg.reorder_window_ms * NS_PER_MS)
+        pairer = StreamPairer(int(cfg.sync_tolerance_ms * NS_PER_MS), window)
+        state = _FrameState()
+        poses = _PoseSource(self, ch, PoseTrack(tol_pose), state)
+        topics = {t for t in (ch.color.topic, ch.depth.topic, ch.camera_info.topic, ch.pose.topic) if t}
+        if ch.pose_type in (TF, ODOMETRY) and TF_STATIC in self._topics:
+            topics.add(TF_STATIC)
+        pending: deque[Pair] = deque()
+        newest: int | None = None
+        has_pose = ch.pose.topic is not None
+        for msg in self._wrap(self.log.messages(topics)):
+            if msg.topic in (ch.color.topic, ch.depth.topic):
+                try:
+                    stamp, frame_id = self._stamp(msg)
+                except DecodeError as err:
+                    state.undecodable(self.path, msg.topic, err)
+                    continue
+                is_color = msg.topic == ch.color.topic
+                if is_color and poses.camera_frame is None:
+                    poses.camera_frame = cfg.pose_frame or frame_id
+                pending.extend(pairer.push("color" if is_color else "depth", stamp, msg))
+                newest = stamp if newest is None else max(newest, stamp)
+            elif msg.topic == ch.camera_info.topic:
+                try:
+                    state.info = decode.decode_camera_info(self.log.deserialize(msg.topic, msg.data))
+                except DecodeError as err:
+                    state.note(f"CameraInfo on {msg.topic} not usable: {err}")
+            else:
+                poses.feed(msg)
+            horizon = None if newest is None else newest - window - (tol_pose if has_pose else 0)
+            while pending and (not has_pose or (horizon is not None and pending[0].stamp_ns < horizon)):
+                frame = self._decode(pending.popleft(), state, poses)
+                if frame is not None:
+                    yield frame
+            if has_pose and newest is not None:
+                # Poses older than any frame still to come are not needed (memory stays bounded).
+                keep = [newest - window, *([pending[0].stamp_ns] if pending else []),
+                        *([pairer.oldest_ns] if pairer.oldest_ns is not None else [])]
+                poses.track.prune(min(keep) - tol_pose)
+        pending.extend(pairer.flush())
+        while pending:
+            frame = self._decode(pending.popleft(), state, poses)
+            if frame is not None:
+                yield frame
+        self.report = self._report(pairer, state.without_pose, state.n_undecodable, tuple(state.notes))
+        if self.log.warnings:
+            log.warning("%s: %d frames recovered (%s)", self.path, state.yielded, "; ".join(self.log.warnings))
+        if state.yielded == 0 and state.first_error is not None:
+            raise DatasetError(self.path, f"no frame could be decoded: {state.first_error}")
+
+    def _first_color_frame_id(self) -> str | None:
+        """The colour header's frame_id, read from the first colour message (for tf composition)."""
+        ch = self._need_choices()
+        for msg in self._wrap(self.log.messages([ch.color.topic] if ch.color.topic else [])):
+            try:
+                return self._stamp(msg)[1] or None
+            except DecodeError:
+                return None
+        return None
+
+    def _decode(self, pair: Pair, state: "_FrameState", poses: "_PoseSource") -> Frame | None:
+        ch = self._need_choices()
+        try:
+            rgb = decode.decode_color(self.log.deserialize(ch.color.topic, pair.color.data))
+            depth = decode.decode_depth(self.log.deserialize(ch.depth.topic, pair.depth.data),
+                                        self.cfg.depth_unit_16u_m, self.cfg.max_depth_m)
+        except DecodeError as err:
+            state.undecodable(self.path, f"{ch.color.topic} / {ch.depth.topic}", err)
+            return None
+        h, w = rgb.shape[:2]
+        if depth.shape != (h, w):
+            state.note(f"depth {depth.shape[1]}x{depth.shape[0]} resized nearest-neighbour to colour {w}x{h} "
+                       f"({ch.depth.topic} is not aligned to colour)")
+            depth = decode.match_depth_to_color(depth, (h, w))
+        intr = state.info
+        if intr is None:
+            state.note("no CameraInfo before the first frame: intrinsics from the config camera section")
+            intr = self._config_intrinsics()
+        if (intr.width, intr.height) != (w, h):
+            state.note(f"intrinsics for {intr.width}x{intr.height} scaled to the colour size {w}x{h}")
+            intr = intr.scaled(w, h)
+        T = poses.track.at(pair.stamp_ns) if ch.pose.topic else None
+        if ch.pose.topic and T is None:
+            state.without_pose += 1
+        frame = Frame(state.yielded, pair.stamp_ns, rgb, depth, intr, T, str(self.path))
+        state.yielded += 1
+        return frame
+
+
+class _FrameState:
+    """Mutable bookkeeping of one ``frames()`` pass (notes are de-duplicated, in order)."""
+
+    def __init__(self) -> None:
+        self.info: Intrinsics | None = None
+        self.yielded = 0
+        self.without_pose = 0
+        self.n_undecodable = 0
+        self.first_error: str | None = None
+        self.notes: list[str] = []
+
+    def note(self, text: str) -> None:
+        if text not in self.notes:
+            self.notes.append(text)
+            log.info("%s", text)
+
+    def undecodable(self, path: Path, topic: str, err: Exception) -> None:
+        self.n_undecodable += 1
+        if self.first_error is None:
+            self.first_error = f"{topic}: {err}"
+            log.warning("%s: %s: %s (further decode errors are counted, not shown)", path, topic, err)
+
+
+class _PoseSource:
+    """Turns pose messages into T_world_camera samples on a PoseTrack (tf chains composed)."""
+
+    def __init__(self, rec: MessageRecording, ch: Choices, track: PoseTrack, state: _FrameState) -> None:
+        self.rec = rec
+        self.state = state
+        self.ch = ch
+        self.track = track
+        self.camera_frame: str | None = rec.cfg.pose_frame or None
+        self.static: dict[str, tuple[str, np.ndarray]] = {}
+        self.dynamic: dict[str, tuple[str, np.ndarray]] = {}
+        if ch.pose_type in (TF, ODOMETRY) and self.camera_frame is None:
+            self.camera_frame = rec._first_color_frame_id()
+
+    def _tree(self) -> dict[str, tuple[str, np.ndarray]]:
+        return {**self.dynamic, **self.static}
+
+    def feed(self, msg: RawMessage) -> None:
+        try:
+            m = self.rec.log.deserialize(msg.topic, msg.data)
+            if msg.topic == TF_STATIC:
+                for _, parent, child, T in decode.decode_tf(m):
+                    self.static[child] = (parent, T)
+            elif self.ch.pose_type == TF:
+                self._feed_tf(decode.decode_tf(m))
+            elif self.ch.pose_type in (POSE_STAMPED, ODOMETRY):
+                self._feed_pose(*decode.decode_pose(m))
+        except DecodeError as err:
+            self.state.note(f"pose on {msg.topic} not usable: {err}")
+
+    def _feed_tf(self, transforms: list[tuple[int, str, str, np.ndarray]]) -> None:
+        if not self.camera_frame:
+            return
+        for _, parent, child, T in transforms:
+            self.dynamic[child] = (parent, T)
+        tree = self._tree()
+        chain = _chain_frames(tree, self.camera_frame)
+        stamps = [s for s, _, child, _ in transforms if child in chain]
+        if stamps:
+            top, T = decode.compose_chain(tree, self.camera_frame)  # type: ignore[misc]
+            if top != self.camera_frame:
+                self.track.add(max(stamps), T)
+
+    def _feed_pose(self, stamp: int, parent: str, child: str, T: np.ndarray) -> None:
+        if child and self.camera_frame and child != self.camera_frame:
+            link = decode.compose_chain(self._tree(), self.camera_frame, stop_at=child)
+            if link is not None:
+                T = T @ link[1]
+            else:
+                self.state.note(f"pose frame {child!r} has no tf link to camera frame {self.camera_frame!r}: "
+                                "its pose is used as the camera pose")
+        self.track.add(stamp, T)
+
+
+def _chain_frames(tree: dict[str, tuple[str, np.ndarray]], frame: str) -> set[str]:
+    out, node = set(), frame
+    while node in tree and node not in out:
+        out.add(node)
+        node = tree[node][0]
+    return out

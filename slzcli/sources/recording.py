@@ -1,0 +1,83 @@
+"""What every reader returns: a context-managed ``Recording`` and its ``RecordingInfo``."""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Iterator
+
+from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
+
+
+@dataclass(frozen=True)
+class RecordingInfo:
+    """What ``slz info`` shows: streams, the choice of topics and why, and how many frames pair."""
+
+    path: str
+    format: str
+    duration_s: float
+    streams: tuple[StreamInfo, ...]
+    choices: tuple[StreamChoice, ...]
+    intrinsics: Intrinsics | None
+    intrinsics_source: str
+    pairing: PairingReport
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def expected_frames(self) -> int:
+        return self.pairing.paired
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready form (the ``--json`` summary of ``slz info``)."""
+        k = self.intrinsics
+        return {
+            "path": self.path,
+            "format": self.format,
+            "duration_s": self.duration_s,
+            "topics": [{"topic": s.topic, "type": s.msgtype, "count": s.count, "rate_hz": s.rate_hz}
+                       for s in self.streams],
+            "streams": {c.role: {"topic": c.topic, "reason": c.reason} for c in self.choices},
+            "intrinsics": None if k is None else {
+                "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height,
+                "distortion_model": k.distortion_model, "distortion": list(k.distortion)},
+            "intrinsics_source": self.intrinsics_source,
+            "frames": self.pairing.paired,
+            "pairing": {"paired": self.pairing.paired, "unpaired_color": self.pairing.unpaired_color,
+                        "unpaired_depth": self.pairing.unpaired_depth, "without_pose": self.pairing.without_pose,
+                        "undecodable": self.pairing.undecodable, "notes": list(self.pairing.notes)},
+            "warnings": list(self.warnings),
+        }
+
+
+class Recording(abc.ABC):
+    """A recording opened for reading. Use as a context manager; ``frames()`` streams once."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.report = PairingReport()
+
+    def __enter__(self) -> "Recording":
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    @abc.abstractmethod
+    def open(self) -> None:
+        """Open the file(s) and choose the streams; DatasetError naming the path on failure."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release file handles."""
+
+    @abc.abstractmethod
+    def info(self) -> RecordingInfo:
+        """Topics, choices and pair count from one pass over stamps (no image decoding)."""
+
+    @abc.abstractmethod
+    def frames(self) -> Iterator[Frame]:
+        """Paired, decoded frames in stamp order; ``self.report`` is final when it ends."""

@@ -1,0 +1,224 @@
+"""Pure pairing of streams by stamp: colour <-> depth, and a pose for each pair.
+
+Rule (colour <-> depth): among all (colour, depth) candidates with |dt| <= tolerance,
+accept the closest first (ties: earlier colour first); each message is used at most
+once. The result depends only on the sets of stamps, not on arrival order, so shuffled
+messages pair as sorted ones would. ``pair_stamps`` applies the rule to whole lists;
+``StreamPairer`` applies it incrementally with bounded memory: it holds messages until
+no later message can still be a candidate (newest stamp seen minus ``window_ns`` is
+taken as a lower bound for any stamp still to come), then settles that group. A
+message that arrives later than the window allows is counted as late and unpaired. A
+chain of overlapping candidates longer than two windows (e.g. 60 Hz depth against 30 Hz
+colour) is settled one window at a time so memory stays bounded (only pairs straddling
+such a cut can differ from ``pair_stamps`` on the whole lists).
+
+Poses: ``PoseTrack.at`` interpolates (linear position, slerp rotation) between the
+poses either side of the stamp when both are within ``tolerance_ns``; otherwise it
+takes the nearest pose within tolerance; otherwise None (the frame has no pose).
+"""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+from dataclasses import dataclass, field
+from typing import Any, Literal, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+Stream = Literal["color", "depth"]
+
+
+def pair_stamps(color_ns: Sequence[int], depth_ns: Sequence[int], tolerance_ns: int) -> list[tuple[int, int]]:
+    """Index pairs (i_color, i_depth), closest first, each index at most once; sorted by colour stamp."""
+    c = np.asarray(color_ns, dtype=np.int64)
+    d = np.asarray(depth_ns, dtype=np.int64)
+    if c.size == 0 or d.size == 0:
+        return []
+    d_order = np.argsort(d, kind="stable")
+    d_sorted = d[d_order]
+    # Candidates: for each colour, the depths within the tolerance window (searchsorted, no N x M matrix).
+    lo = np.searchsorted(d_sorted, c - tolerance_ns, side="left")
+    hi = np.searchsorted(d_sorted, c + tolerance_ns, side="right")
+    counts = hi - lo
+    ci = np.repeat(np.arange(c.size), counts)
+    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    dj = d_order[np.repeat(lo, counts) + offsets]
+    if ci.size == 0:
+        return []
+    dt = np.abs(c[ci] - d[dj])
+    order = np.lexsort((d[dj], c[ci], dt))
+    used_c = np.zeros(c.size, dtype=bool)
+    used_d = np.zeros(d.size, dtype=bool)
+    pairs = []
+    for k in order:  # over candidate edges of a group, not pixels; a handful per frame
+        i, j = int(ci[k]), int(dj[k])
+        if not used_c[i] and not used_d[j]:
+            used_c[i] = used_d[j] = True
+            pairs.append((i, j))
+    pairs.sort(key=lambda p: (int(c[p[0]]), p[0]))
+    return pairs
+
+
+@dataclass(frozen=True)
+class Pair:
+    """A colour and a depth message paired; the frame takes the colour stamp."""
+
+    stamp_ns: int
+    depth_stamp_ns: int
+    color: Any
+    depth: Any
+
+
+@dataclass(order=True)
+class _Item:
+    stamp_ns: int
+    seq: int
+    stream: Stream = field(compare=False)
+    payload: Any = field(compare=False)
+
+
+class StreamPairer:
+    """Incremental ``pair_stamps`` with bounded memory; counts what it cannot pair."""
+
+    def __init__(self, tolerance_ns: int, window_ns: int) -> None:
+        self.tolerance_ns = int(tolerance_ns)
+        self.window_ns = int(window_ns)
+        self._buf: list[_Item] = []
+        self._seq = itertools.count()
+        self._newest: int | None = None
+        self._settled_until: int | None = None
+        self.paired = 0
+        self.unpaired = {"color": 0, "depth": 0}
+        self.late = 0
+
+    def push(self, stream: Stream, stamp_ns: int, payload: Any = None) -> list[Pair]:
+        """Add one message; returns the pairs that can no longer change, in stamp order."""
+        if self._settled_until is not None and stamp_ns <= self._settled_until:
+            self.late += 1
+            self.unpaired[stream] += 1
+            return []
+        bisect.insort(self._buf, _Item(int(stamp_ns), next(self._seq), stream, payload))
+        self._newest = stamp_ns if self._newest is None else max(self._newest, stamp_ns)
+        return self._drain(final=False)
+
+    def flush(self) -> list[Pair]:
+        """Settle everything still held (end of the recording)."""
+        return self._drain(final=True)
+
+    @property
+    def pending(self) -> int:
+        return len(self._buf)
+
+    @property
+    def oldest_ns(self) -> int | None:
+        """Stamp of the oldest message still held (None when none is)."""
+        return self._buf[0].stamp_ns if self._buf else None
+
+    def _first_group_end(self) -> int:
+        """Index of the last item of the first group of mutually reachable candidates."""
+        tol = self.tolerance_ns
+        last_c = last_d = None
+        stamps = [it.stamp_ns for it in self._buf]
+        streams = [it.stream for it in self._buf]
+        # Suffix minima of colour and depth stamps to test each cut in one pass.
+        n = len(stamps)
+        next_c = [None] * (n + 1)
+        next_d = [None] * (n + 1)
+        for i in range(n - 1, -1, -1):
+            next_c[i] = stamps[i] if streams[i] == "color" else next_c[i + 1]
+            next_d[i] = stamps[i] if streams[i] == "depth" else next_d[i + 1]
+        for i in range(n):
+            if streams[i] == "color":
+                last_c = stamps[i]
+            else:
+                last_d = stamps[i]
+            ok_c = last_c is None or next_d[i + 1] is None or next_d[i + 1] - last_c > tol
+            ok_d = last_d is None or next_c[i + 1] is None or next_c[i + 1] - last_d > tol
+            if ok_c and ok_d:
+                return i
+        return n - 1
+
+    def _drain(self, final: bool) -> list[Pair]:
+        out: list[Pair] = []
+        while self._buf:
+            end = self._first_group_end()
+            horizon = None if self._newest is None else self._newest - self.window_ns
+            if not (final or (horizon is not None and horizon > self._buf[end].stamp_ns + self.tolerance_ns)):
+                if horizon is None or self._buf[0].stamp_ns >= horizon - self.window_ns:
+                    break
+                # A chain longer than two windows: settle its older part (all but the last window)
+                # so memory stays bounded; only pairs straddling the cut can come out different.
+                end = max(i for i, it in enumerate(self._buf) if it.stamp_ns < horizon)
+            group, self._buf = self._buf[: end + 1], self._buf[end + 1:]
+            out.extend(self._settle(group))
+            self._settled_until = group[-1].stamp_ns if self._settled_until is None else max(
+                self._settled_until, group[-1].stamp_ns)
+        return out
+
+    def _settle(self, group: list[_Item]) -> list[Pair]:
+        colors = [it for it in group if it.stream == "color"]
+        depths = [it for it in group if it.stream == "depth"]
+        idx = pair_stamps([it.stamp_ns for it in colors], [it.stamp_ns for it in depths], self.tolerance_ns)
+        self.paired += len(idx)
+        self.unpaired["color"] += len(colors) - len(idx)
+        self.unpaired["depth"] += len(depths) - len(idx)
+        return [Pair(colors[i].stamp_ns, depths[j].stamp_ns, colors[i].payload, depths[j].payload) for i, j in idx]
+
+
+class PoseTrack:
+    """Timestamped poses (T_world_camera) with interpolation at a query stamp; prunable."""
+
+    def __init__(self, tolerance_ns: int) -> None:
+        self.tolerance_ns = int(tolerance_ns)
+        self._stamps: list[int] = []
+        self._poses: list[np.ndarray] = []
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    @property
+    def newest_ns(self) -> int | None:
+        return self._stamps[-1] if self._stamps else None
+
+    def add(self, stamp_ns: int, T: np.ndarray) -> None:
+        i = bisect.bisect_right(self._stamps, stamp_ns)
+        if i > 0 and self._stamps[i - 1] == stamp_ns:
+            self._poses[i - 1] = T  # a repeated stamp replaces the earlier pose
+            return
+        self._stamps.insert(i, int(stamp_ns))
+        self._poses.insert(i, np.asarray(T, dtype=np.float64))
+
+    def at(self, stamp_ns: int) -> np.ndarray | None:
+        i = bisect.bisect_left(self._stamps, stamp_ns)
+        tol = self.tolerance_ns
+        after = i if i < len(self._stamps) else None
+        before = i - 1 if i > 0 else None
+        if after is not None and self._stamps[after] == stamp_ns:
+            return self._poses[after].copy()
+        if before is not None and after is not None and stamp_ns - self._stamps[before] <= tol \
+                and self._stamps[after] - stamp_ns <= tol:
+            return _interpolate(self._stamps[before], self._poses[before], self._stamps[after],
+                                self._poses[after], stamp_ns)
+        near = [k for k in (before, after) if k is not None and abs(self._stamps[k] - stamp_ns) <= tol]
+        if not near:
+            return None
+        k = min(near, key=lambda k: abs(self._stamps[k] - stamp_ns))
+        return self._poses[k].copy()
+
+    def prune(self, before_ns: int) -> None:
+        """Forget poses no longer needed, keeping one before ``before_ns`` for interpolation."""
+        i = bisect.bisect_left(self._stamps, before_ns) - 1
+        if i > 0:
+            del self._stamps[:i]
+            del self._poses[:i]
+
+
+def _interpolate(ta: int, Ta: np.ndarray, tb: int, Tb: np.ndarray, t: int) -> np.ndarray:
+    alpha = (t - ta) / (tb - ta)
+    rot = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([Ta[:3, :3], Tb[:3, :3]])))([alpha])
+    T = np.eye(4)
+    T[:3, :3] = rot.as_matrix()[0]
+    T[:3, 3] = (1 - alpha) * Ta[:3, 3] + alpha * Tb[:3, 3]
+    return T

@@ -1,0 +1,172 @@
+"""Which topic slz reads for each role (color, depth, camera_info, pose), with a human reason.
+
+Automatic choice by message type and name; ``sources.topics.*`` overrides it. Rules
+(datasets/README.md): colour = an Image/CompressedImage topic whose name does not say
+depth/infra/ir, preferring names with color/colour/rgb and raw over compressed; depth =
+an Image or compressedDepth topic with "depth" in its name, preferring
+``aligned_depth_to_color`` (same pixel grid as colour), then raw over compressed;
+camera_info = the CameraInfo beside the depth topic when depth is aligned, else beside
+the colour topic, else any; pose = PoseStamped, then Odometry, then /tf, skipping topics
+named as ground truth unless ``sources.use_ground_truth_pose``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Mapping
+
+from slzcli.config import SourcesCfg
+from slzcli.errors import DatasetError
+from slzcli.types import StreamChoice
+
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TF = "tf2_msgs/msg/TFMessage"
+POSE_TYPES = (POSE_STAMPED, ODOMETRY, TF)
+GROUND_TRUTH_TOKENS = {"ground_truth", "groundtruth", "gt"}
+
+
+def normalise_msgtype(msgtype: str) -> str:
+    """``pkg/Type`` (ROS 1, MCAP ros1msg) -> ``pkg/msg/Type`` as rosbags names it."""
+    parts = msgtype.strip().split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else msgtype.strip()
+
+
+def is_ground_truth(topic: str) -> bool:
+    low = topic.lower()
+    tokens = set(re.split(r"[/_\-.]+", low))
+    return bool(tokens & GROUND_TRUTH_TOKENS) or "ground_truth" in low or "groundtruth" in low
+
+
+def namespace(topic: str) -> str:
+    """``/camera/color/image_raw[/compressed]`` -> ``/camera/color``."""
+    parts = topic.rstrip("/").split("/")
+    while parts and parts[-1] in ("compressed", "compressedDepth", "image_raw", "image_rect_raw", "image",
+                                  "image_rect", "image_color", "image_rect_color", "camera_info"):
+        parts.pop()
+    return "/".join(parts)
+
+
+@dataclass(frozen=True)
+class Choices:
+    color: StreamChoice
+    depth: StreamChoice
+    camera_info: StreamChoice
+    pose: StreamChoice
+    pose_type: str | None
+
+    def all(self) -> tuple[StreamChoice, ...]:
+        return (self.color, self.depth, self.camera_info, self.pose)
+
+
+def choose_streams(topics: Mapping[str, str], cfg: SourcesCfg, path: str) -> Choices:
+    """Pick the topic for every role; DatasetError (naming ``path``) when colour or depth is missing."""
+    types = {t: normalise_msgtype(m) for t, m in topics.items()}
+    color = _pick_color(types, cfg.topics.color, path)
+    depth = _pick_depth(types, cfg.topics.depth, path, exclude=color.topic)
+    info = _pick_info(types, cfg.topics.camera_info, color.topic, depth.topic, path)
+    pose = _pick_pose(types, cfg, path)
+    return Choices(color, depth, info, pose, types.get(pose.topic) if pose.topic else None)
+
+
+def _override(types: Mapping[str, str], topic: str, role: str, allowed: tuple[str, ...], path: str) -> StreamChoice:
+    if topic not in types:
+        raise DatasetError(path, f"sources.topics.{role} = {topic!r} is not in the recording "
+                                 f"(topics: {', '.join(sorted(types)) or 'none'})")
+    if types[topic] not in allowed:
+        raise DatasetError(path, f"sources.topics.{role} = {topic!r} has type {types[topic]}, "
+                                 f"expected {' or '.join(allowed)}")
+    return StreamChoice(role, topic, f"set by sources.topics.{role}")
+
+
+def _is_depth_name(topic: str) -> bool:
+    return "depth" in topic.lower()
+
+
+def _pick_color(types: Mapping[str, str], override: str, path: str) -> StreamChoice:
+    if override:
+        return _override(types, override, "color", (IMAGE, COMPRESSED), path)
+    skip = re.compile(r"depth|infra|(^|[/_])ir([/_]|\d|$)|disparity|mask|label|segment", re.I)
+    cands = [t for t, m in types.items() if m in (IMAGE, COMPRESSED) and not skip.search(t)]
+    if not cands:
+        raise DatasetError(path, "no colour stream (no sensor_msgs/Image or CompressedImage topic without "
+                                 "'depth'/'infra' in its name); set sources.topics.color")
+    named = re.compile(r"colou?r|rgb", re.I)
+
+    def rank(t: str) -> tuple[int, int, str]:
+        return (0 if named.search(t) else 1, 0 if types[t] == IMAGE else 1, t)
+
+    best = min(cands, key=rank)
+    why = [types[best].rsplit("/", 1)[-1]]
+    why.append("name says colour" if named.search(best) else "no depth/infrared in the name")
+    if types[best] == IMAGE and any(types[t] == COMPRESSED for t in cands):
+        why.append("raw preferred over compressed")
+    if len(cands) > 1:
+        why.append(f"{len(cands) - 1} other candidate(s)")
+    return StreamChoice("color", best, "; ".join(why))
+
+
+def _pick_depth(types: Mapping[str, str], override: str, path: str, exclude: str | None) -> StreamChoice:
+    if override:
+        return _override(types, override, "depth", (IMAGE, COMPRESSED), path)
+    cands = [t for t, m in types.items() if t != exclude and _is_depth_name(t)
+             and (m == IMAGE or (m == COMPRESSED and "compresseddepth" in t.lower()))]
+    if not cands:
+        raise DatasetError(path, "no depth stream (no Image or compressedDepth topic with 'depth' in its name); "
+                                 "set sources.topics.depth")
+
+    def rank(t: str) -> tuple[int, int, str]:
+        return (0 if "aligned_depth_to_color" in t else 1, 0 if types[t] == IMAGE else 1, t)
+
+    best = min(cands, key=rank)
+    why = ["aligned to colour (aligned_depth_to_color preferred)" if "aligned_depth_to_color" in best
+           else "depth in the name; not aligned to colour: resized to the colour size if sizes differ"]
+    why.append("raw Image" if types[best] == IMAGE else "compressedDepth")
+    if len(cands) > 1:
+        why.append(f"{len(cands) - 1} other candidate(s)")
+    return StreamChoice("depth", best, "; ".join(why))
+
+
+def _pick_info(types: Mapping[str, str], override: str, color: str | None, depth: str | None,
+               path: str) -> StreamChoice:
+    if override:
+        return _override(types, override, "camera_info", (CAMERA_INFO,), path)
+    infos = [t for t, m in types.items() if m == CAMERA_INFO]
+    if not infos:
+        return StreamChoice("camera_info", None, "no CameraInfo topic: intrinsics from the config camera section")
+    aligned = depth is not None and "aligned_depth_to_color" in depth
+    order = ([("depth", depth)] if aligned else []) + [("colour", color)]
+    for label, stream in order:
+        if stream is None:
+            continue
+        for t in infos:
+            if namespace(t) == namespace(stream):
+                return StreamChoice("camera_info", t, f"beside the {label} topic"
+                                    + (" (aligned depth shares the colour intrinsics)" if label == "depth" else ""))
+    best = sorted(infos)[0]
+    return StreamChoice("camera_info", best, "the only CameraInfo topic" if len(infos) == 1
+                        else f"first of {len(infos)} CameraInfo topics (none beside the colour topic)")
+
+
+def _pick_pose(types: Mapping[str, str], cfg: SourcesCfg, path: str) -> StreamChoice:
+    if cfg.topics.pose:
+        return _override(types, cfg.topics.pose, "pose", POSE_TYPES, path)
+    cands = [t for t, m in types.items() if m in POSE_TYPES and t != "/tf_static"]
+    gt = [t for t in cands if is_ground_truth(t)]
+    usable = cands if cfg.use_ground_truth_pose else [t for t in cands if t not in gt]
+    if not usable:
+        if gt:
+            return StreamChoice("pose", None, f"skipped {', '.join(sorted(gt))} (named as ground truth; "
+                                              "set sources.use_ground_truth_pose to use it): frames carry no pose")
+        return StreamChoice("pose", None, "no PoseStamped, Odometry or /tf topic: frames carry no pose")
+    best = min(usable, key=lambda t: (POSE_TYPES.index(types[t]), t))
+    why = [types[best].rsplit("/", 1)[-1] + " (PoseStamped > Odometry > tf)"]
+    if gt and not cfg.use_ground_truth_pose:
+        why.append(f"skipped ground truth {', '.join(sorted(gt))}")
+    if types[best] == TF:
+        why.append("camera pose composed along the tf chain to the root frame")
+    return StreamChoice("pose", best, "; ".join(why))

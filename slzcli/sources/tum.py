@@ -1,0 +1,167 @@
+"""TUM RGB-D benchmark folders: ``rgb.txt``, ``depth.txt``, optional ``groundtruth.txt``.
+
+Lists hold ``timestamp filename`` lines (``#`` comments); depth PNGs are 16-bit counts
+of 1 / ``sources.tum_depth_scale`` metres (5000 per metre in the benchmark), 0 = no
+data. Ground truth lines are ``t tx ty tz qx qy qz qw``, the colour camera's optical
+centre in the world; being ground truth, it is used as the pose input only with
+``sources.use_ground_truth_pose``. TUM has no intrinsics file: an optional
+``camera.yaml`` in the folder (fx, fy, cx, cy, width, height [, distortion_model,
+distortion]) is read, else the config camera section is used.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+import yaml
+
+from slzcli.config import Config
+from slzcli.errors import DatasetError, DecodeError
+from slzcli.sources import decode
+from slzcli.sources.recording import Recording, RecordingInfo
+from slzcli.sources.sync import PoseTrack, pair_stamps
+from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
+
+log = logging.getLogger(__name__)
+NS_PER_MS = 1_000_000
+
+
+def parse_stamp(text: str) -> int:
+    """Seconds as written ('1305031102.175304') -> integer nanoseconds, without float rounding."""
+    whole, _, frac = text.strip().partition(".")
+    return int(whole) * 1_000_000_000 + int((frac + "000000000")[:9] or 0) * (1 if not whole.startswith("-") else -1)
+
+
+def read_list(path: Path, min_fields: int) -> list[list[str]]:
+    """Non-comment lines of a TUM list, split on whitespace or commas; DatasetError on a short line."""
+    rows = []
+    for no, line in enumerate(path.read_text().splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.replace(",", " ").split()
+        if len(parts) < min_fields:
+            raise DatasetError(path, f"line {no}: expected {min_fields} fields, got {len(parts)}")
+        rows.append(parts)
+    return rows
+
+
+class TumRecording(Recording):
+    """A TUM RGB-D folder; lists are read at open, images one frame at a time."""
+
+    def __init__(self, path: Path, config: Config) -> None:
+        super().__init__(path)
+        self.config = config
+        self.cfg = config.sources
+        self._rgb: list[tuple[int, str]] = []
+        self._depth: list[tuple[int, str]] = []
+        self._gt: list[tuple[int, np.ndarray]] = []
+        self._intr: Intrinsics | None = None
+        self._intr_source = ""
+        self._pairs: list[tuple[int, int]] = []
+
+    def open(self) -> None:
+        for name in ("rgb.txt", "depth.txt"):
+            if not (self.path / name).is_file():
+                raise DatasetError(self.path, f"TUM folder without {name} "
+                                              f"({'no colour' if name == 'rgb.txt' else 'no depth'} stream)")
+        try:
+            self._rgb = [(parse_stamp(r[0]), r[1]) for r in read_list(self.path / "rgb.txt", 2)]
+            self._depth = [(parse_stamp(r[0]), r[1]) for r in read_list(self.path / "depth.txt", 2)]
+            gt_file = self.path / "groundtruth.txt"
+            if gt_file.is_file():
+                for r in read_list(gt_file, 8):
+                    T = np.eye(4)
+                    T[:3, :3] = decode.quat_to_matrix(*map(float, r[4:8]))
+                    T[:3, 3] = list(map(float, r[1:4]))
+                    self._gt.append((parse_stamp(r[0]), T))
+        except (ValueError, DecodeError) as err:
+            raise DatasetError(self.path, f"malformed TUM list ({err})") from err
+        if not self._rgb:
+            raise DatasetError(self.path / "rgb.txt", "no colour images listed")
+        if not self._depth:
+            raise DatasetError(self.path / "depth.txt", "no depth images listed")
+        self._intr, self._intr_source = self._read_intrinsics()
+        tol = int(self.cfg.sync_tolerance_ms * NS_PER_MS)
+        self._pairs = pair_stamps([s for s, _ in self._rgb], [s for s, _ in self._depth], tol)
+
+    def close(self) -> None:
+        return None
+
+    def _read_intrinsics(self) -> tuple[Intrinsics, str]:
+        cam_file = self.path / "camera.yaml"
+        if cam_file.is_file():
+            try:
+                c = yaml.safe_load(cam_file.read_text())
+                return Intrinsics(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]), int(c["width"]),
+                                  int(c["height"]), str(c.get("distortion_model", "")),
+                                  tuple(float(v) for v in c.get("distortion", ()))), str(cam_file)
+            except (yaml.YAMLError, KeyError, TypeError, ValueError) as err:
+                raise DatasetError(cam_file, f"needs fx, fy, cx, cy, width, height ({err})") from err
+        cam = self.config.camera
+        return Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height), "config camera section"
+
+    def _pose_choice(self) -> StreamChoice:
+        if not self._gt:
+            return StreamChoice("pose", None, "no groundtruth.txt: frames carry no pose")
+        if not self.cfg.use_ground_truth_pose:
+            return StreamChoice("pose", None, "skipped groundtruth.txt (ground truth; set "
+                                              "sources.use_ground_truth_pose to use it): frames carry no pose")
+        return StreamChoice("pose", "groundtruth.txt", "TUM ground truth (sources.use_ground_truth_pose)")
+
+    def _choices(self) -> tuple[StreamChoice, ...]:
+        return (StreamChoice("color", "rgb.txt", "TUM colour list"),
+                StreamChoice("depth", "depth.txt", f"TUM depth list, {self.cfg.tum_depth_scale:g} counts per metre"),
+                StreamChoice("camera_info", None, f"intrinsics from {self._intr_source}"),
+                self._pose_choice())
+
+    def _report(self, without_pose: int, undecodable: int) -> PairingReport:
+        n = len(self._pairs)
+        return PairingReport(n, len(self._rgb) - n, len(self._depth) - n, without_pose, undecodable)
+
+    def info(self) -> RecordingInfo:
+        def stream(name: str, rows: list) -> StreamInfo:
+            stamps = [r[0] for r in rows]
+            return StreamInfo(name, "TUM list", len(rows), min(stamps, default=None), max(stamps, default=None))
+
+        streams = [stream("rgb.txt", self._rgb), stream("depth.txt", self._depth)]
+        if self._gt:
+            streams.append(stream("groundtruth.txt", self._gt))
+        all_stamps = [s for s, _ in self._rgb] + [s for s, _ in self._depth]
+        return RecordingInfo(str(self.path), "tum folder", (max(all_stamps) - min(all_stamps)) * 1e-9,
+                             tuple(streams), self._choices(), self._intr, self._intr_source, self._report(0, 0))
+
+    def frames(self) -> Iterator[Frame]:
+        track = None
+        if self._pose_choice().topic:
+            track = PoseTrack(int(self.cfg.pose_tolerance_ms * NS_PER_MS))
+            for stamp, T in self._gt:
+                track.add(stamp, T)
+        without_pose = undecodable = index = 0
+        assert self._intr is not None
+        for i, j in self._pairs:
+            stamp, rgb_name = self._rgb[i]
+            bgr = cv2.imread(str(self.path / rgb_name), cv2.IMREAD_COLOR)
+            raw = cv2.imread(str(self.path / self._depth[j][1]), cv2.IMREAD_UNCHANGED)
+            if bgr is None or raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
+                undecodable += 1
+                log.warning("%s: %s / %s: missing or not an 8-bit colour / 16-bit depth PNG", self.path,
+                            rgb_name, self._depth[j][1])
+                continue
+            depth = decode.depth_to_metres(raw, 1.0 / self.cfg.tum_depth_scale, self.cfg.max_depth_m)
+            rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            depth = decode.match_depth_to_color(depth, rgb.shape[:2])
+            intr = self._intr if (self._intr.width, self._intr.height) == (rgb.shape[1], rgb.shape[0]) \
+                else self._intr.scaled(rgb.shape[1], rgb.shape[0])
+            T = track.at(stamp) if track is not None else None
+            if track is not None and T is None:
+                without_pose += 1
+            yield Frame(index, stamp, rgb, depth, intr, T, str(self.path))
+            index += 1
+        self.report = self._report(without_pose, undecodable)
+        if index == 0 and self._pairs:
+            raise DatasetError(self.path, "no frame could be read (images missing or of the wrong kind)")

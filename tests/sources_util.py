@@ -1,0 +1,47 @@
+"""Helpers shared by the tests/test_sources_*.py files: small known frames and recordings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from slzcli.outputs.recording import RecordingWriter
+from slzcli.types import Frame, Intrinsics
+
+T0_NS = 1_700_000_000_000_000_000
+PERIOD_NS = 33_333_333
+INTR = Intrinsics(60.5, 61.25, 15.5, 11.75, 32, 24)
+SUFFIX = {"mcap": ".mcap", "mcap-ros1": ".mcap", "ros1": ".bag", "ros2-sqlite": "", "ros2-mcap": ""}
+
+
+def known_frame(i: int = 0, h: int = 24, w: int = 32) -> Frame:
+    """A frame with a distinct pattern per index; depth in whole millimetres with holes (NaN)."""
+    rng = np.random.default_rng(i)
+    v, u = np.mgrid[0:h, 0:w]
+    # Smooth (so jpeg stays close) but different in every channel (so a swapped order shows).
+    rgb = np.stack([u * 255 // max(w - 1, 1), v * 255 // max(h - 1, 1), (u + v + 7 * i) * 3 % 256],
+                   axis=-1).astype(np.uint8)
+    depth_mm = rng.integers(300, 9000, (h, w))
+    depth = (depth_mm / 1000.0).astype(np.float32)
+    depth[rng.random((h, w)) < 0.1] = np.nan
+    intr = INTR if (w, h) == (INTR.width, INTR.height) else INTR.scaled(w, h)
+    return Frame(i, T0_NS + i * PERIOD_NS, rgb, depth, intr)
+
+
+def write_frames(path: Path, fmt: str, n: int = 3, **kwargs) -> list[Frame]:
+    frames = [known_frame(i) for i in range(n)]
+    with RecordingWriter(path, fmt, **kwargs) as w:
+        for f in frames:
+            w.write_frame(f)
+    return frames
+
+
+def pose(i: int) -> np.ndarray:
+    """A smooth, non-trivial pose for frame i."""
+    a = 0.1 * i
+    T = np.eye(4)
+    T[:3, :3] = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]) @ \
+        np.array([[1, 0, 0], [0, -1, 0], [0, 0, -1]])  # camera looking down
+    T[:3, 3] = (0.5 * i, -0.25 * i, 10.0 - 0.1 * i)
+    return T
