@@ -1,0 +1,66 @@
+"""Camera paths for synthetic flights: hover with drift, or a slow descent; smooth and seeded.
+
+The camera looks straight down with image "up" towards world +y at yaw 0:
+optical z = world -z, optical x = world +x, optical y = world -y. Small roll/pitch
+wobbles and an optional yaw rate are added on top. Poses are ``T_world_camera``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from slzcli.config import FlightCfg
+
+PathKind = Literal["hover", "descent"]
+
+#: Rotation camera optical frame -> world for a camera looking straight down at yaw 0.
+R_WORLD_CAMERA_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+@dataclass(frozen=True, eq=False)
+class Flight:
+    stamps_ns: np.ndarray       # (N,) int64
+    T_world_camera: np.ndarray  # (N, 4, 4) float64
+
+
+def _rot(axis: int, angle: np.ndarray) -> np.ndarray:
+    """Rotations about a world axis, one per angle: (N, 3, 3)."""
+    c, s = np.cos(angle), np.sin(angle)
+    R = np.zeros((len(angle), 3, 3))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R[:, axis, axis] = 1.0
+    R[:, i, i] = c
+    R[:, j, j] = c
+    R[:, i, j] = -s
+    R[:, j, i] = s
+    return R
+
+
+def make_flight(start_m: tuple[float, float, float], frames: int, rate_hz: float, path: PathKind,
+                cfg: FlightCfg, seed: int, start_stamp_ns: int) -> Flight:
+    """Poses and stamps for ``frames`` frames at ``rate_hz`` from ``start_m`` (world ENU, metres)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(frames) / rate_hz
+    ph = rng.uniform(0.0, 2 * np.pi, 6)
+    w_drift = 2 * np.pi / cfg.drift_period_s
+    w_tilt = 2 * np.pi / cfg.tilt_period_s
+    # Drift starts at the start point (sin(0 + ph) - sin(ph)) so frame 0 is exactly the preset.
+    dx = cfg.drift_m * (np.sin(w_drift * t + ph[0]) - np.sin(ph[0]))
+    dy = cfg.drift_m * (np.sin(0.73 * w_drift * t + ph[1]) - np.sin(ph[1]))
+    dz = cfg.altitude_wobble_m * (np.sin(1.31 * w_drift * t + ph[2]) - np.sin(ph[2]))
+    z = start_m[2] + dz
+    if path == "descent":
+        z = np.maximum(start_m[2] - cfg.descent_m_s * t, cfg.min_altitude_m) + dz
+    pos = np.stack([start_m[0] + dx, start_m[1] + dy, z], axis=1)
+    roll = np.deg2rad(cfg.tilt_deg) * np.sin(w_tilt * t + ph[3])
+    pitch = np.deg2rad(cfg.tilt_deg) * np.sin(0.87 * w_tilt * t + ph[4])
+    yaw = np.deg2rad(cfg.yaw_deg + cfg.yaw_rate_deg_s * t)
+    R = _rot(2, yaw) @ _rot(1, roll) @ _rot(0, pitch) @ R_WORLD_CAMERA_DOWN
+    T = np.tile(np.eye(4), (frames, 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = pos
+    stamps = start_stamp_ns + np.round(t * 1e9).astype(np.int64)
+    return Flight(stamps, T)

@@ -1,0 +1,181 @@
+"""Ground truth for synthetic recordings: the true safe area, computed from scene GEOMETRY.
+
+Safety raster (world XY, ``raster_m`` per cell): vertical rays from above give the top
+surface of every cell: its height, slope and object. A cell is *usable* when its object is
+landable (ground, ramps), its slope is within ``uav.max_slope_deg`` and no neighbour cell
+differs in height by more than ``step_m`` (kerbs, box edges, ramp drops). A cell is *safe*
+when every cell whose centre lies in the axis-aligned square of side footprint + 2 margin
+centred on it is usable (an erosion). Outside the ground patch is unsafe. A pixel is safe
+when the world XY of its rendered surface point falls in a safe cell; pixels that see
+nothing are unsafe. Nothing here uses the terrain maps being evaluated.
+
+Sidecar format (see datasets/GROUND_TRUTH.md): ``<recording>.gt.npz`` + ``<recording>.gt.json``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from slzcli.config import GroundTruthCfg, UavCfg
+from slzcli.errors import DatasetError
+
+GT_FORMAT = "slz-ground-truth"
+GT_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class SafetyRaster:
+    """World-XY raster; cell (row r, col c) covers x in [x0 + c res, x0 + (c+1) res), y likewise with r.
+
+    Row index grows with world y (row 0 is the southern edge), so ``np.flipud`` shows it north-up.
+    """
+
+    origin_xy: tuple[float, float]
+    resolution_m: float
+    safe: np.ndarray          # bool (rows, cols): a UAV centred on the cell can land
+    usable: np.ndarray        # bool: the cell itself is landable, level and off any step
+    height_m: np.ndarray      # float32: top surface height, NaN where nothing
+    slope_deg: np.ndarray     # float32: top surface slope against world z
+    object_id: np.ndarray     # uint16: object of the top surface, 0 = nothing
+
+    def cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(row, col, inside) of world points; rows/cols clipped where outside."""
+        x0, y0 = self.origin_xy
+        with np.errstate(invalid="ignore"):
+            c = np.floor((x - x0) / self.resolution_m)
+            r = np.floor((y - y0) / self.resolution_m)
+            inside = (c >= 0) & (r >= 0) & (c < self.safe.shape[1]) & (r < self.safe.shape[0])
+        r = np.where(inside, r, 0).astype(np.int64)
+        c = np.where(inside, c, 0).astype(np.int64)
+        return r, c, inside
+
+    def safe_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """True where world (x, y) lies in a safe cell; NaN or outside -> False."""
+        r, c, inside = self.cells(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+        return inside & self.safe[r, c]
+
+
+def compute_raster(cast: Any, extent_xy: tuple[float, float, float, float], top_z_m: float,
+                   landable_of_part: np.ndarray, object_of_part: np.ndarray,
+                   uav: UavCfg, cfg: GroundTruthCfg) -> SafetyRaster:
+    """Rasterise the scene from above and erode the usable cells by the UAV footprint + margin.
+
+    ``cast(origins, dirs)`` is ``Renderer.cast``: it returns t, part (-1 = none), hit, normal.
+    """
+    res = cfg.raster_m
+    xmin, xmax, ymin, ymax = extent_xy
+    cols = int(np.ceil((xmax - xmin) / res))
+    rows = int(np.ceil((ymax - ymin) / res))
+    xc = xmin + (np.arange(cols) + 0.5) * res
+    yc = ymin + (np.arange(rows) + 0.5) * res
+    X, Y = np.meshgrid(xc, yc)
+    origins = np.stack([X.ravel(), Y.ravel(), np.full(X.size, top_z_m)], axis=1)
+    dirs = np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape)
+    ans = cast(origins, dirs)
+    hit, part = ans["hit"], ans["part"]
+    height = np.where(hit, top_z_m - ans["t"], np.nan).reshape(rows, cols)
+    nz = np.abs(ans["normal"][:, 2])
+    slope = np.where(hit, np.degrees(np.arccos(np.clip(nz, 0.0, 1.0))), np.nan).reshape(rows, cols)
+    obj = np.zeros(hit.shape, dtype=np.uint16)
+    obj[hit] = object_of_part[part[hit]]
+    landable = np.zeros(hit.shape, dtype=bool)
+    landable[hit] = landable_of_part[part[hit]]
+    landable = landable.reshape(rows, cols)
+
+    # Height jump to any 8-neighbour; holes count as infinitely deep so their rims are unusable.
+    h = np.where(np.isfinite(height), height, -1e6).astype(np.float32)
+    kernel = np.ones((3, 3), np.uint8)
+    hmax = cv2.dilate(h, kernel, borderType=cv2.BORDER_REPLICATE)
+    hmin = cv2.erode(h, kernel, borderType=cv2.BORDER_REPLICATE)
+    step = np.maximum(hmax - h, h - hmin) > cfg.step_m
+    with np.errstate(invalid="ignore"):
+        level = slope <= uav.max_slope_deg + cfg.slope_tolerance_deg
+    usable = landable & level & ~step & np.isfinite(height)
+
+    half = [int(np.floor((L / 2 + cfg.margin_m) / res)) for L in uav.footprint_m]
+    k = np.ones((2 * half[1] + 1, 2 * half[0] + 1), np.uint8)   # rows along y (L2), cols along x (L1)
+    safe = cv2.erode(usable.astype(np.uint8), k, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    return SafetyRaster((float(xmin), float(ymin)), float(res), safe, usable, height.astype(np.float32),
+                        slope.astype(np.float32), obj.reshape(rows, cols))
+
+
+def pixel_safe_mask(raster: SafetyRaster, point_world: np.ndarray, hit: np.ndarray) -> np.ndarray:
+    """Per-pixel truth: the rendered surface point of the pixel lies in a safe raster cell."""
+    return hit & raster.safe_at(point_world[..., 0], point_world[..., 1])
+
+
+# ----------------------------------------------------------------------------- sidecar
+def sidecar_paths(recording: str | Path) -> tuple[Path, Path]:
+    """``<recording>.gt.npz`` and ``<recording>.gt.json`` next to the recording (file or folder)."""
+    base = str(recording).rstrip("/\\")
+    return Path(base + ".gt.npz"), Path(base + ".gt.json")
+
+
+@dataclass(frozen=True, eq=False)
+class GroundTruth:
+    """Everything a synthetic recording's truth holds; frames indexed like the recording's frames."""
+
+    stamps_ns: np.ndarray         # (N,) int64, the frame stamps of the recording
+    T_world_camera: np.ndarray    # (N, 4, 4) true camera poses
+    safe_masks: np.ndarray        # (N, H, W) bool
+    object_ids: np.ndarray        # (N, H, W) uint16, 0 = nothing
+    raster: SafetyRaster
+    objects: tuple[dict[str, Any], ...]   # {"id", "name", "kind", "landable"}
+    header: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+    def index_of(self, stamp_ns: int, tolerance_ns: int = 0) -> int:
+        """Frame index with this stamp (within tolerance); DatasetError when none."""
+        i = int(np.argmin(np.abs(self.stamps_ns - int(stamp_ns))))
+        if abs(int(self.stamps_ns[i]) - int(stamp_ns)) > tolerance_ns:
+            raise DatasetError(self.header.get("recording", "ground truth"),
+                               f"no ground-truth frame at stamp {stamp_ns} ns")
+        return i
+
+    def safe_mask(self, stamp_ns: int, tolerance_ns: int = 0) -> np.ndarray:
+        return self.safe_masks[self.index_of(stamp_ns, tolerance_ns)]
+
+
+def ground_truth_arrays(gt: GroundTruth) -> dict[str, np.ndarray]:
+    """The arrays of the ``.gt.npz`` file (names are part of the documented format)."""
+    r = gt.raster
+    return {"stamps_ns": gt.stamps_ns.astype(np.int64), "T_world_camera": gt.T_world_camera.astype(np.float64),
+            "safe_masks": np.packbits(gt.safe_masks, axis=-1), "object_ids": gt.object_ids.astype(np.uint16),
+            "raster_safe": r.safe, "raster_usable": r.usable, "raster_height_m": r.height_m,
+            "raster_slope_deg": r.slope_deg, "raster_object_id": r.object_id,
+            "raster_origin_xy": np.asarray(r.origin_xy, dtype=np.float64),
+            "raster_resolution_m": np.asarray(r.resolution_m, dtype=np.float64)}
+
+
+def load_ground_truth(recording_path: str | Path) -> GroundTruth:
+    """Read the ground-truth sidecar of a recording written by ``slz synth``."""
+    npz_path, json_path = sidecar_paths(recording_path)
+    if not npz_path.is_file() or not json_path.is_file():
+        raise DatasetError(recording_path, f"no ground truth ({npz_path.name} and {json_path.name} expected "
+                                           "next to it; only `slz synth` recordings have one)")
+    try:
+        header = json.loads(json_path.read_text())
+        with np.load(npz_path) as z:
+            a = {k: z[k] for k in z.files}
+    except (OSError, ValueError, KeyError) as err:
+        raise DatasetError(npz_path, f"unreadable ground truth ({err})") from err
+    if header.get("format") != GT_FORMAT or header.get("version") != GT_VERSION:
+        raise DatasetError(json_path, f"not a {GT_FORMAT} v{GT_VERSION} header")
+    try:
+        width = int(header["image"]["width"])
+        raster = SafetyRaster(tuple(a["raster_origin_xy"].tolist()), float(np.asarray(a["raster_resolution_m"]).reshape(-1)[0]),
+                              a["raster_safe"], a["raster_usable"], a["raster_height_m"], a["raster_slope_deg"],
+                              a["raster_object_id"])
+        masks = np.unpackbits(a["safe_masks"], axis=-1, count=width).astype(bool)
+        return GroundTruth(a["stamps_ns"], a["T_world_camera"], masks, a["object_ids"], raster,
+                           tuple(header["objects"]), header)
+    except KeyError as err:
+        raise DatasetError(npz_path, f"ground truth lacks {err}") from err

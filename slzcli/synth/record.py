@@ -1,0 +1,230 @@
+"""Scene + flight -> RGB-D recording + ground-truth sidecar + preview: what ``slz synth`` runs.
+
+Compute first, write after: frames are rendered one at a time and streamed to the
+``RecordingWriter``; the ground truth is collected and written next to the recording
+(``<out>.gt.npz`` + ``<out>.gt.json``, see datasets/GROUND_TRUTH.md), then a contact sheet.
+Everything is seeded: the same scene, options and seed give the same bytes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import logging
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import cv2
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.errors import ConfigError, OutputError
+from slzcli.outputs.recording import FORMATS, RecordingWriter
+from slzcli.synth.flight import Flight, make_flight
+from slzcli.synth.geometry import SceneMeshes, build_meshes
+from slzcli.synth.groundtruth import (GT_FORMAT, GT_VERSION, GroundTruth, SafetyRaster, compute_raster,
+                                      ground_truth_arrays, pixel_safe_mask, sidecar_paths)
+from slzcli.synth.preview import contact_sheet
+from slzcli.synth.render import Renderer
+from slzcli.synth.scenes import Scene, load_scene
+from slzcli.synth.sensor import apply_color_model, apply_depth_model
+from slzcli.types import Frame, Intrinsics
+
+log = logging.getLogger(__name__)
+
+GT_POSE_TOPIC = "/ground_truth/camera_pose"
+WORLD_FRAME = "world"
+CAMERA_FRAME = "camera_color_optical_frame"
+SUFFIX_OF_FORMAT = {"mcap": ".mcap", "mcap-ros1": ".mcap", "ros1": ".bag"}   # ros2-*: a bag folder
+_ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)   # fixed zip member time, so the sidecar is byte-identical per seed
+_RAY_TOP_CLEARANCE_M = 1.0           # raster rays start this far above the highest vertex
+
+
+@dataclass(frozen=True)
+class SynthOptions:
+    """What to render: scene (``name[:variants]``), flight and sensor seed, output format."""
+
+    scene: str
+    frames: int
+    rate_hz: float
+    path: str
+    seed: int
+    start_m: tuple[float, float, float] | None          # None: the scene's default scenario
+    variants: tuple[str, ...] = ()
+    fmt: str = "mcap"
+    color_encoding: str = "rgb8"
+    depth_encoding: str = "16UC1"
+
+
+@dataclass(frozen=True, eq=False)
+class World:
+    """A loaded scene ready to render: meshes, raycaster and the safety raster."""
+
+    scene: Scene
+    meshes: SceneMeshes
+    renderer: Renderer
+    raster: SafetyRaster
+    intrinsics: Intrinsics
+
+
+@dataclass(frozen=True, eq=False)
+class SynthFrame:
+    frame: Frame               # what the recording holds (noisy depth, 8-bit colour, true pose)
+    safe: np.ndarray           # bool HxW ground-truth safe mask
+    object_id: np.ndarray      # uint16 HxW
+    depth_true_m: np.ndarray   # float32 HxW exact depth (NaN = nothing hit)
+    normal_world: np.ndarray   # float32 HxWx3
+
+
+def scenario_start(config: Config, scenario: int) -> tuple[float, float, float]:
+    """The paper's start position of scenario 1..4 (config synth.scenarios)."""
+    if scenario not in (1, 2, 3, 4):
+        raise ConfigError("--scenario", f"must be 1, 2, 3 or 4, got {scenario}")
+    start = getattr(config.synth.scenarios, f"s{scenario}_m")
+    return float(start[0]), float(start[1]), float(start[2])
+
+
+def intrinsics_of(config: Config) -> Intrinsics:
+    c = config.camera
+    return Intrinsics(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+
+
+def build_world(scene: Scene, config: Config) -> World:
+    """Meshes, raycaster and the ground-truth safety raster of a scene."""
+    meshes = build_meshes(scene, config.synth.embed_m)
+    renderer = Renderer(scene, meshes, config.synth.light)
+    top = max(float(p.vertices[:, 2].max()) for p in meshes.parts) + _RAY_TOP_CLEARANCE_M
+    landable = np.array([p.landable for p in meshes.parts], dtype=bool)
+    objects = np.array([p.object_id for p in meshes.parts], dtype=np.uint16)
+    raster = compute_raster(renderer.cast, meshes.extent_xy, top, landable, objects, config.uav,
+                            config.synth.ground_truth)
+    return World(scene, meshes, renderer, raster, intrinsics_of(config))
+
+
+def seeds(seed: int) -> tuple[int, np.random.Generator]:
+    """Independent streams for the flight wobble and the sensor noise from one user seed."""
+    flight_ss, sensor_ss = np.random.SeedSequence(seed).spawn(2)
+    return int(flight_ss.generate_state(1)[0]), np.random.default_rng(sensor_ss)
+
+
+def render_frames(world: World, flight: Flight, config: Config, sensor_rng: np.random.Generator,
+                  source: str = "") -> Iterator[SynthFrame]:
+    """Render, apply the sensor model and attach the truth, one frame at a time."""
+    for i, (stamp, T) in enumerate(zip(flight.stamps_ns, flight.T_world_camera)):
+        r = world.renderer.render(T, world.intrinsics)
+        depth = apply_depth_model(r.depth_m, config.synth.sensor, sensor_rng)
+        rgb = apply_color_model(r.rgb, config.synth.sensor, sensor_rng)
+        frame = Frame(index=i, stamp_ns=int(stamp), rgb=rgb, depth_m=depth, intrinsics=world.intrinsics,
+                      T_world_camera=T.copy(), source=source)
+        yield SynthFrame(frame, pixel_safe_mask(world.raster, r.point_world, r.hit), r.object_id,
+                         r.depth_m, r.normal_world)
+
+
+def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path | None = None,
+               progress: Callable[[int, int], None] | None = None, force: bool = False) -> dict[str, object]:
+    """Render ``options.frames`` frames to a recording at ``out``; write the truth sidecar and preview."""
+    if options.fmt not in FORMATS:
+        raise ConfigError("--format", f"must be one of {', '.join(FORMATS)}; got {options.fmt!r}")
+    out = Path(out)
+    want = SUFFIX_OF_FORMAT.get(options.fmt, "")
+    if out.suffix.lower() != want and (want or out.suffix.lower() in (".mcap", ".bag")):
+        raise OutputError(out, f"--format {options.fmt} needs "
+                               f"{'a name ending in ' + want if want else 'a folder name without .mcap/.bag'} "
+                               "(readers guess the format from the path)")
+    if out.exists() and not force:
+        raise OutputError(out, "already exists (use --force to replace it)")
+    scene = load_scene(options.scene, options.variants)
+    if options.start_m is None:
+        options = dataclasses.replace(options, start_m=scenario_start(config, scene.scenario))
+    world = build_world(scene, config)
+    flight_seed, sensor_rng = seeds(options.seed)
+    flight = make_flight(options.start_m, options.frames, options.rate_hz, options.path,  # type: ignore[arg-type]
+                         config.synth.flight, flight_seed, config.synth.start_stamp_ns)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    safe, ids, sheet_rows = [], [], []
+    keep = {0, options.frames // 2}
+    with RecordingWriter(out, options.fmt, color_encoding=options.color_encoding,
+                         depth_encoding=options.depth_encoding) as writer:
+        for sf in render_frames(world, flight, config, sensor_rng, source=str(out)):
+            writer.write_frame(sf.frame)
+            writer.write_pose(GT_POSE_TOPIC, sf.frame.stamp_ns, sf.frame.T_world_camera, kind="PoseStamped",
+                              parent=WORLD_FRAME, child=CAMERA_FRAME)
+            safe.append(sf.safe)
+            ids.append(sf.object_id)
+            if sf.frame.index in keep:
+                sheet_rows.append({"rgb": sf.frame.rgb, "depth_m": sf.frame.depth_m, "object_id": sf.object_id,
+                                   "safe": sf.safe, "title": f"{scene.name} frame {sf.frame.index}"})
+            if progress is not None:
+                progress(sf.frame.index + 1, options.frames)
+    gt = GroundTruth(flight.stamps_ns, flight.T_world_camera, np.stack(safe), np.stack(ids), world.raster,
+                     tuple({"id": o.id, "name": o.name, "kind": o.kind, "landable": o.landable}
+                           for o in world.meshes.objects))
+    header = _header(out, options, scene, world, gt, config)
+    npz_path, json_path = sidecar_paths(out)
+    write_sidecar(npz_path, json_path, gt, header)
+    preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
+    _write_png(preview_path, contact_sheet(sheet_rows, world.raster.safe, world.raster.usable))
+    log.info("synth: %s (%d frames of %s), ground truth %s, preview %s", out, options.frames, scene.name,
+             npz_path, preview_path)
+    return {"recording": str(out), "format": options.fmt, "scene": scene.name, "variants": list(scene.variants),
+            "frames": options.frames, "rate_hz": options.rate_hz, "path": options.path, "seed": options.seed,
+            "start_m": list(options.start_m), "ground_truth": str(npz_path), "preview": str(preview_path),
+            "safe_fraction_first_frame": float(gt.safe_masks[0].mean()),
+            "raster_safe_fraction": float(world.raster.safe.mean()), "objects": len(world.meshes.objects)}
+
+
+def _header(out: Path, options: SynthOptions, scene: Scene, world: World, gt: GroundTruth,
+            config: Config) -> dict[str, object]:
+    intr = world.intrinsics
+    r = world.raster
+    return {
+        "format": GT_FORMAT, "version": GT_VERSION, "recording": Path(out).name,
+        "scene": scene.name, "variants": list(scene.variants), "scene_file": Path(scene.source).name,
+        "seed": options.seed, "frames": len(gt), "rate_hz": options.rate_hz, "path": options.path,
+        "start_m": list(options.start_m), "pose_topic": GT_POSE_TOPIC, "world_frame": f"{WORLD_FRAME} (ENU, z up)",
+        "camera_frame": f"{CAMERA_FRAME} (optical: x right, y down, z forward)",
+        "image": {"width": intr.width, "height": intr.height, "fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy},
+        "raster": {"origin_xy": list(r.origin_xy), "resolution_m": r.resolution_m, "shape": list(r.safe.shape),
+                   "row_axis": "world +y", "col_axis": "world +x"},
+        "rules": {"max_slope_deg": config.uav.max_slope_deg, "footprint_m": list(config.uav.footprint_m),
+                  "margin_m": config.synth.ground_truth.margin_m, "step_m": config.synth.ground_truth.step_m,
+                  "slope_tolerance_deg": config.synth.ground_truth.slope_tolerance_deg},
+        "sensor": dict(vars(config.synth.sensor)),
+        "objects": list(gt.objects), "config_hash": config.hash(), "config": config.to_dict(),
+    }
+
+
+def write_sidecar(npz_path: Path, json_path: Path, gt: GroundTruth, header: dict[str, object]) -> None:
+    """Write ``.gt.npz`` (deflated, fixed member times: byte-identical per seed) and ``.gt.json``."""
+    tmp = npz_path.with_name(npz_path.name + ".tmp")
+    try:
+        with zipfile.ZipFile(tmp, "w") as zf:
+            for name, arr in ground_truth_arrays(gt).items():
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.asarray(arr, order="C"), allow_pickle=False)
+                info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_EPOCH)
+                info.compress_type = zipfile.ZIP_DEFLATED
+                zf.writestr(info, buf.getvalue())
+        os.replace(tmp, npz_path)
+        json_tmp = json_path.with_name(json_path.name + ".tmp")
+        json_tmp.write_text(json.dumps(header, indent=1, sort_keys=True) + "\n")
+        os.replace(json_tmp, json_path)
+    except OSError as err:
+        raise OutputError(npz_path, f"cannot write ground truth ({err})") from err
+
+
+def _write_png(path: Path, rgb: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise OutputError(path, "PNG encoding failed")
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_bytes(data.tobytes())
+        os.replace(tmp, path)
+    except OSError as err:
+        raise OutputError(path, f"cannot write preview ({err})") from err
