@@ -1,0 +1,104 @@
+"""Scoring stage: TerrainMaps -> landing score -> ScoreMap (score + landing mask).
+
+``SCORERS`` maps ``scoring.method`` to a scorer class; ``get_scorer(config)`` builds one.
+A scorer maps the four terrain maps to a float32 score in [0, 1] (1 = good for landing);
+pixels without depth (``valid`` False) score 0. ``score_frame`` adds the landing mask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.errors import ConfigError
+from slzcli.scoring import bayes, fuzzy, lut
+from slzcli.scoring.mask import landing_mask
+from slzcli.scoring.rules import RuleBase, did_you_mean, load_rules
+from slzcli.types import Intrinsics, ScoreMap, TerrainMaps
+
+
+def _zero_invalid(score: np.ndarray, valid: np.ndarray | None) -> np.ndarray:
+    if valid is not None:
+        score[~np.asarray(valid, bool)] = 0.0
+    return score
+
+
+@dataclass(frozen=True, eq=False)
+class FuzzyScorer:
+    """Mamdani score (METHOD 2.4), by the compiled table (default) or the exact engine."""
+
+    rules: RuleBase
+    evaluator: str
+    compiled: lut.CompiledFuzzy | None = field(default=None)
+    name: str = "fuzzy"
+
+    @classmethod
+    def from_config(cls, config: Config) -> "FuzzyScorer":
+        cfg = config.scoring.fuzzy
+        rules = load_rules(cfg.rules)
+        unknown = [name for name in rules.input_names if name not in TerrainMaps.NAMES]
+        if unknown:
+            raise ConfigError("inputs", f"unknown input map {unknown[0]!r}; the inputs are "
+                              f"{', '.join(TerrainMaps.NAMES)}{did_you_mean(unknown[0], TerrainMaps.NAMES)}",
+                              rules.source)
+        compiled = lut.compile_rules(rules, cfg.lut_levels) if cfg.evaluator == "compiled" else None
+        return cls(rules, cfg.evaluator, compiled)
+
+    def threshold(self, config: Config) -> float:
+        return config.mask.threshold
+
+    def score_arrays(self, inputs: dict[str, np.ndarray], valid: np.ndarray | None = None) -> np.ndarray:
+        """Score of the named input maps (the rules file's input names), float32 in [0, 1]."""
+        xs = [np.asarray(inputs[name], np.float32) for name in self.rules.input_names]
+        if self.compiled is not None:
+            score = self.compiled(xs)
+        else:
+            shape = xs[0].shape
+            flat = np.stack([x.ravel() for x in xs])
+            score = fuzzy.evaluate_exact(self.rules, flat).astype(np.float32).reshape(shape)
+        return _zero_invalid(score, valid)
+
+    def __call__(self, maps: TerrainMaps) -> np.ndarray:
+        return self.score_arrays(maps.as_dict(), maps.valid)
+
+
+@dataclass(frozen=True, eq=False)
+class BayesScorer:
+    """Naive Bayes fusion of the four maps (BASELINE.md)."""
+
+    prior: float
+    eps: float
+    name: str = "bayes"
+
+    @classmethod
+    def from_config(cls, config: Config) -> "BayesScorer":
+        return cls(config.scoring.bayes.prior, config.scoring.bayes.eps)
+
+    def threshold(self, config: Config) -> float:
+        return config.scoring.bayes.threshold
+
+    def score_arrays(self, inputs: dict[str, np.ndarray], valid: np.ndarray | None = None) -> np.ndarray:
+        score = bayes.fuse([inputs[name] for name in TerrainMaps.NAMES], self.prior, self.eps)
+        return _zero_invalid(score, valid)
+
+    def __call__(self, maps: TerrainMaps) -> np.ndarray:
+        return self.score_arrays(maps.as_dict(), maps.valid)
+
+
+Scorer = FuzzyScorer | BayesScorer
+
+SCORERS: dict[str, type[FuzzyScorer] | type[BayesScorer]] = {"fuzzy": FuzzyScorer, "bayes": BayesScorer}
+
+
+def get_scorer(config: Config, method: str | None = None) -> Scorer:
+    """The scorer for ``scoring.method`` (or ``method``, e.g. for ``slz compare``)."""
+    return SCORERS[method or config.scoring.method].from_config(config)
+
+
+def score_frame(scorer: Scorer, maps: TerrainMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
+                config: Config) -> ScoreMap:
+    """Score the maps and make the landing mask (min filter of the UAV footprint, then threshold)."""
+    return landing_mask(scorer.name, scorer(maps), depth_m, intrinsics.fx, intrinsics.fy,
+                        config.uav.footprint_m, config.mask.margin_factor, scorer.threshold(config))

@@ -1,0 +1,53 @@
+"""The landing mask (METHOD 2.4): a safety-margin minimum filter of the score, then a global threshold.
+
+The window is square, of side ``margin_factor x max(L1, L2)`` metres (the UAV footprint;
+the larger side, since the yaw at touch-down is not known), converted to pixels at the
+frame's median valid depth (``side_m x fx / depth`` wide, ``side_m x fy / depth`` high): one window per frame, as the paper's
+minimum filter is one image operation; on a steep oblique view the near part of the image
+gets a slightly small margin and the far part a large one. The side is rounded up to an
+odd pixel count so the window is centred. Outside the image counts as 0 (unknown is
+unsafe): a site must fit inside the view.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from slzcli.types import ScoreMap
+
+DEPTH_SUBSAMPLE = 4  # px step of the grid the median depth is taken on (a median needs no more)
+
+
+def median_depth_m(depth_m: np.ndarray) -> float | None:
+    """Median of the finite, positive depths on a coarse grid; None when there are none."""
+    d = np.asarray(depth_m)[::DEPTH_SUBSAMPLE, ::DEPTH_SUBSAMPLE]
+    d = d[np.isfinite(d) & (d > 0)]
+    return float(np.median(d)) if d.size else None
+
+
+def window_px(side_m: float, focal_px: float, depth_m: float) -> int:
+    """Odd window side in pixels covering ``side_m`` metres at ``depth_m``."""
+    side = side_m * focal_px / depth_m
+    return max(1, 2 * math.ceil((side - 1) / 2) + 1)
+
+
+def min_filter(score: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
+    """Minimum of the score over a width x height window (cv2.erode; outside the image = 0)."""
+    if width_px <= 1 and height_px <= 1:
+        return score.copy()
+    kernel = np.ones((height_px, width_px), np.uint8)
+    return cv2.erode(score, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def landing_mask(method: str, score: np.ndarray, depth_m: np.ndarray, fx: float, fy: float,
+                 footprint_m: tuple[float, ...], margin_factor: float, threshold: float) -> ScoreMap:
+    """ScoreMap(method, score, mask): mask = min-filtered score > threshold (all False without depth)."""
+    depth = median_depth_m(depth_m)
+    if depth is None:
+        return ScoreMap(method, score, np.zeros(score.shape, bool))
+    side_m = margin_factor * max(footprint_m)
+    filtered = min_filter(score, window_px(side_m, fx, depth), window_px(side_m, fy, depth))
+    return ScoreMap(method, score, filtered > threshold)

@@ -1,0 +1,390 @@
+"""Scoring: the Mamdani engine (vs scikit-fuzzy), the compiled table, the shipped rule base's
+properties, rule parse errors, the Bayes baseline and the landing mask."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import yaml
+
+from slzcli.config import load_config
+from slzcli.errors import ConfigError
+from slzcli.scoring import SCORERS, BayesScorer, FuzzyScorer, bayes, fuzzy, get_scorer, lut, score_frame
+from slzcli.scoring.mask import landing_mask, median_depth_m, window_px
+from slzcli.scoring.rules import And, Is, Not, Or, load_rules, parse_rule_base, resolve_rules_path
+from slzcli.types import Intrinsics, TerrainMaps
+
+
+@pytest.fixture(scope="module")
+def rb():
+    return load_rules("fuzzy_rules.yaml")
+
+
+@pytest.fixture(scope="module")
+def rules_data():
+    return yaml.safe_load(resolve_rules_path("fuzzy_rules.yaml").read_text())
+
+
+def _breakpoint_points(n: int) -> np.ndarray:
+    """Every combination of the membership breakpoints and crossings (0, .25, .5, .75, 1) and
+    points just either side of them: where min/max kinks and the table's cell edges are."""
+    vals = [0.0, 0.25, 0.5, 0.75, 1.0, 0.5 - 1e-4, 0.5 + 1e-4, 0.25 + 1e-3, 0.75 - 1e-3]
+    return np.array(list(itertools.product(vals, repeat=n))).T
+
+
+# ----------------------------------------------------------------------------- exact vs scikit-fuzzy
+def _skfuzzy_system(rb):
+    from skfuzzy import control as ctrl
+
+    ants = []
+    for v in rb.inputs:
+        a = ctrl.Antecedent(np.linspace(*v.universe, 101), v.name)  # breakpoints 0, .5, 1 on the grid
+        for name, fn in zip(v.term_names, v.terms):
+            a[name] = fn(a.universe)
+        ants.append(a)
+    # 601 samples: every output breakpoint (k/6) is a sample, so the piecewise-linear
+    # aggregate scikit-fuzzy integrates is the exact one wherever the clipped terms do not
+    # cross each other - which the shipped consequents (non-overlapping terms) guarantee.
+    out = ctrl.Consequent(np.linspace(*rb.output.universe, 601), rb.output.name, defuzzify_method="centroid")
+    used = {r.term for r in rb.rules}  # skfuzzy fails on array inputs with unused consequent terms
+    for k, (name, fn) in enumerate(zip(rb.output.term_names, rb.output.terms)):
+        if k in used:
+            out[name] = fn(out.universe)
+
+    def conv(node):
+        if isinstance(node, Is):
+            vi, ti = rb.leaves[node.index]
+            return ants[vi][rb.inputs[vi].term_names[ti]]
+        if isinstance(node, Not):
+            return ~conv(node.arg)
+        args = [conv(x) for x in node.args]
+        acc = args[0]
+        for x in args[1:]:
+            acc = (acc & x) if isinstance(node, And) else (acc | x)
+        return acc
+
+    rules = [ctrl.Rule(conv(r.premise), out[rb.output.term_names[r.term]]) for r in rb.rules]
+    return ctrl.ControlSystemSimulation(ctrl.ControlSystem(rules))
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_exact_equals_scikit_fuzzy(rb):
+    """Our exact evaluator is the exact piecewise-linear centroid; scikit-fuzzy integrates the
+    same piecewise-linear aggregate (sampled at its universe + the cut points), so on the
+    shipped rule base the two agree to rounding: asserted within 1e-6 on 2000 random inputs
+    plus the breakpoint grid (a discrete 101-point centroid would differ by up to ~0.006)."""
+    rng = np.random.default_rng(7)
+    x = np.concatenate([rng.random((4, 2000)), _breakpoint_points(4)[:, ::7]], axis=1)
+    sim = _skfuzzy_system(rb)
+    for v, row in zip(rb.inputs, x):
+        sim.input[v.name] = row
+    sim.compute()
+    ours = fuzzy.evaluate_exact(rb, x)
+    assert np.max(np.abs(np.asarray(sim.output[rb.output.name]) - ours)) < 1e-6
+
+
+def test_exact_centroid_matches_fine_numeric_integration(rb):
+    """The centroid is exact also where clipped terms cross (an overlapping output partition)."""
+    data = yaml.safe_load(resolve_rules_path("fuzzy_rules.yaml").read_text())
+    data["rules"] = ["if flatness is medium then score is low", "if flatness is high then score is medium_low",
+                     "if steepness is high then score is very_high", "if steepness is low then score is high"]
+    rb2 = parse_rule_base(data)
+    rng = np.random.default_rng(1)
+    x = rng.random((4, 60))
+    act = fuzzy.activations(rb2, x)
+    y = np.linspace(0, 1, 200001)
+    agg = np.zeros((x.shape[1], y.size))
+    for a, fn in zip(act, rb2.output.terms):
+        np.maximum(agg, np.minimum(a[:, None], fn(y)[None, :]), out=agg)
+    numeric = np.trapezoid(agg * y, y, axis=1) / np.trapezoid(agg, y, axis=1)
+    assert np.max(np.abs(fuzzy.evaluate_exact(rb2, x) - numeric)) < 1e-8
+
+
+# ----------------------------------------------------------------------------- compiled table
+def test_compiled_matches_exact_within_stated_bound(rb):
+    """Max |compiled - exact| <= 0.01 on 100k random inputs plus the kink grid (measured 0.0054
+    at the default 13 levels; see lut.py for why area/moment tables and mirrored simplices)."""
+    table = lut.compile_rules(rb, load_config().scoring.fuzzy.lut_levels)
+    rng = np.random.default_rng(3)
+    x = np.concatenate([rng.random((4, 100_000)), _breakpoint_points(4)], axis=1).astype(np.float32)
+    exact = fuzzy.evaluate_exact(rb, x.astype(np.float64))
+    err = np.max(np.abs(table(list(x)) - exact))
+    assert err <= 0.01
+    assert table.max_error <= 0.01
+
+
+def test_compiled_on_an_image_and_cached(rb):
+    table = lut.compile_rules(rb, 13)
+    assert lut.compile_rules(rb, 13) is table  # in-memory cache by (rules digest, levels)
+    rng = np.random.default_rng(4)
+    imgs = [rng.random((48, 64)).astype(np.float32) for _ in range(4)]
+    out = table(imgs)
+    assert out.shape == (48, 64) and out.dtype == np.float32
+    exact = fuzzy.evaluate_exact(rb, np.stack([i.ravel() for i in imgs])).reshape(48, 64)
+    assert np.max(np.abs(out - exact)) <= 0.01
+
+
+def test_mirrored_simplices_reproduce_min_kinks_exactly():
+    """A table of min(1 - 2x, 2y)-type values (a kink on a cell anti-diagonal) interpolates exactly."""
+    data = {"inputs": {n: {"universe": [0.0, 1.0], "terms": {"low": {"triangle": [0.0, 0.0, 0.5]},
+                                                             "medium": {"triangle": [0.0, 0.5, 1.0]},
+                                                             "high": {"triangle": [0.5, 1.0, 1.0]}}}
+                       for n in ("a", "b")},
+            "output": {"s": {"universe": [0.0, 1.0], "terms": {"lo": {"triangle": [0.0, 0.0, 0.5]},
+                                                              "hi": {"triangle": [0.5, 1.0, 1.0]}}}},
+            "rules": ["if a is low and b is medium then s is hi", "if a is not low or b is not medium then s is lo"]}
+    rb2 = parse_rule_base(data)
+    table = lut.build(rb2, 9)
+    rng = np.random.default_rng(5)
+    x = rng.random((2, 20000)).astype(np.float32)
+    area, moment = fuzzy.evaluate_area_moment(rb2, x.astype(np.float64))
+    # area and moment are piecewise quadratic in the activations; the error left is from that
+    # curvature and the input quantisation, far below the 0.05+ a kink across a cell gives
+    assert np.max(np.abs(table(list(x)) - moment / area)) < 0.01
+
+
+# ----------------------------------------------------------------------------- rule base properties
+def test_rule_base_is_complete(rb):
+    rng = np.random.default_rng(11)
+    x = np.concatenate([rng.random((4, 100_000)), _breakpoint_points(4)], axis=1)
+    strongest = fuzzy.activations(rb, x).max(axis=0)
+    assert strongest.min() > 0  # measured: >= 0.5 everywhere
+
+
+def test_rule_base_is_monotone_in_every_input(rb):
+    rng = np.random.default_rng(12)
+    n = 50_000
+    x = rng.random((4, n))
+    axis = rng.integers(0, 4, n)
+    cols = np.arange(n)
+    y = x.copy()
+    y[axis, cols] += rng.random(n) * (1 - x[axis, cols])
+    small = x.copy()
+    small[axis, cols] = np.minimum(1.0, small[axis, cols] + rng.random(n) * 0.01)
+    sx = fuzzy.evaluate_exact(rb, x)
+    assert np.all(fuzzy.evaluate_exact(rb, y) >= sx - 1e-9)
+    assert np.all(fuzzy.evaluate_exact(rb, small) >= sx - 1e-9)
+
+
+def test_any_low_input_vetoes(rb):
+    rng = np.random.default_rng(13)
+    for i in range(4):
+        x = rng.random((4, 2000))
+        x[i] = 0.0  # a bad cue: very_low alone (its centroid is 1/18)
+        assert np.allclose(fuzzy.evaluate_exact(rb, x), 1 / 18)
+        x[i] = rng.random(2000) * 0.1  # clearly bad: the good rules are capped at 0.2
+        assert fuzzy.evaluate_exact(rb, x).max() < 0.34  # measured 0.323; mask.threshold is 0.5
+    assert fuzzy.evaluate_exact(rb, np.ones((4, 1)))[0] > 0.9
+    good_primary = np.array([[0.5], [1.0], [0.5], [1.0]])  # dv, fl, inc, st: the paper's rule
+    assert fuzzy.evaluate_exact(rb, good_primary)[0] > 0.6
+
+
+# ----------------------------------------------------------------------------- parsing
+def _with_rules(rules_data, rules):
+    data = dict(rules_data)
+    data["rules"] = rules
+    return data
+
+
+def test_parser_precedence_and_parentheses(rules_data):
+    rb2 = parse_rule_base(_with_rules(rules_data, [
+        "if flatness is low or steepness is high and not depth_variance is medium then score is low",
+        "if (flatness is low or steepness is high) and depth_variance is not medium then score is high"]))
+    r1, r2 = rb2.rules
+    assert isinstance(r1.premise, Or) and isinstance(r1.premise.args[1], And)
+    assert isinstance(r2.premise, And) and isinstance(r2.premise.args[0], Or)
+    assert isinstance(r2.premise.args[1], Not)
+    x = np.array([[0.5], [0.0], [0.5], [1.0]])  # flatness low = 1, depth_variance medium = 1
+    act = fuzzy.activations(rb2, x)
+    assert act[rb2.output.term_names.index("low"), 0] == 1.0   # low or (... and ...) = max(1, 0)
+    assert act[rb2.output.term_names.index("high"), 0] == 0.0  # (...) and not medium = min(1, 0)
+
+
+@pytest.mark.parametrize("rule, words", [
+    ("if flatnes is low then score is low", ["rule 2", "'flatnes'", "did you mean 'flatness'"]),
+    ("if flatness is hihg then score is low", ["rule 2", "'hihg'", "did you mean 'high'"]),
+    ("if flatness is high then score is very_hihg", ["rule 2", "'very_hihg'", "did you mean 'very_high'"]),
+    ("if flatness is high then scor is low", ["rule 2", "'scor'", "did you mean 'score'"]),
+    ("if flatness is high and then score is low", ["rule 2", "'then'"]),
+    ("if (flatness is high then score is low", ["rule 2", "expected ')'"]),
+    ("if flatness is high then score is low extra", ["rule 2", "'extra'"]),
+    ("if flatness is high", ["rule 2", "ends early"]),
+    ("when flatness is high then score is low", ["rule 2", "expected 'if'"]),
+    ("if flatness is high; then score is low", ["rule 2", "';'"]),
+])
+def test_rule_errors_name_file_rule_and_word(rules_data, rule, words):
+    with pytest.raises(ConfigError) as err:
+        parse_rule_base(_with_rules(rules_data, [rules_data["rules"][0], rule]), source="my_rules.yaml")
+    msg = str(err.value)
+    assert "my_rules.yaml" in msg
+    for w in words:
+        assert w in msg
+
+
+def test_bad_rules_file_errors(tmp_path, rules_data):
+    with pytest.raises(ConfigError, match="not found"):
+        load_rules(str(tmp_path / "missing.yaml"))
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("inputs: [\n")
+    with pytest.raises(ConfigError, match="bad.yaml.*not valid YAML"):
+        load_rules(str(bad))
+    data = dict(rules_data)
+    data["inputs"] = dict(data["inputs"])
+    data["inputs"]["flatness"] = {"universe": [0.0, 1.0], "terms": {"low": {"triangel": [0, 0, 0.5]}}}
+    with pytest.raises(ConfigError, match="did you mean 'triangle'"):
+        parse_rule_base(data)
+    data["inputs"]["flatness"] = {"universe": [0.0, 1.0], "terms": {"low": {"triangle": [0.5, 0.0, 1.0]}}}
+    with pytest.raises(ConfigError, match="inputs.flatness.terms.low"):
+        parse_rule_base(data)
+
+
+def test_rules_with_unknown_input_map_rejected_by_scorer(tmp_path, rules_data):
+    data = dict(rules_data)
+    data["inputs"] = {("flatnes" if k == "flatness" else k): v for k, v in rules_data["inputs"].items()}
+    data["rules"] = ["if flatnes is low then score is very_low", "if flatnes is not low then score is very_high"]
+    path = tmp_path / "r.yaml"
+    path.write_text(yaml.safe_dump(data))
+    config = load_config(overrides=[f"scoring.fuzzy.rules={path}"])
+    with pytest.raises(ConfigError, match="r.yaml.*'flatnes'.*did you mean 'flatness'"):
+        get_scorer(config)
+
+
+# ----------------------------------------------------------------------------- Bayes
+def test_bayes_known_values_and_product_form():
+    m = [np.array([0.9]), np.array([0.8]), np.array([0.7]), np.array([0.6])]
+    prod, inv = 0.9 * 0.8 * 0.7 * 0.6, 0.1 * 0.2 * 0.3 * 0.4
+    assert bayes.fuse(m, 0.5, 0.01)[0] == pytest.approx(prod / (prod + inv), abs=1e-6)  # 0.99213
+    rng = np.random.default_rng(2)
+    maps = [rng.uniform(0.05, 0.95, 1000) for _ in range(4)]
+    p = np.prod(maps, axis=0)
+    q = np.prod([1 - x for x in maps], axis=0)
+    assert np.max(np.abs(bayes.fuse(maps, 0.5, 0.01) - p / (p + q))) < 1e-5
+
+
+def test_bayes_symmetric_and_prior():
+    rng = np.random.default_rng(3)
+    maps = [rng.random(500).astype(np.float32) for _ in range(4)]
+    ref = bayes.fuse(maps, 0.3, 0.01)
+    for perm in itertools.permutations(range(4)):
+        assert np.allclose(bayes.fuse([maps[i] for i in perm], 0.3, 0.01), ref, atol=1e-6)
+    # one cue alone is the posterior itself, whatever the prior; cues equal to the prior leave it
+    assert bayes.fuse([np.array([0.8])], 0.3, 0.01)[0] == pytest.approx(0.8, abs=1e-6)
+    assert bayes.fuse([np.full(3, 0.3)] * 4, 0.3, 0.01) == pytest.approx(0.3, abs=1e-6)
+    # with a prior of 0.2, four neutral-at-0.5 cues each carry odds 4x the prior's
+    assert bayes.fuse([np.array([0.5])] * 4, 0.2, 0.01)[0] == pytest.approx(1 / (1 + 4.0 ** -3), abs=1e-6)
+
+
+def test_bayes_clipping_at_0_and_1():
+    eps = 0.01
+    one, zero = np.array([1.0]), np.array([0.0])
+    assert np.isfinite(bayes.fuse([one] * 4, 0.5, eps)).all()
+    assert bayes.fuse([one] * 4, 0.5, eps)[0] == pytest.approx((1 - eps) ** 4 / ((1 - eps) ** 4 + eps ** 4), abs=1e-6)
+    assert bayes.fuse([zero, one, one, one], 0.5, eps)[0] == pytest.approx((1 - eps) ** 2 / ((1 - eps) ** 2 + eps ** 2), abs=1e-6)
+    assert bayes.fuse([zero, one], 0.5, eps)[0] == pytest.approx(0.5, abs=1e-6)
+    assert bayes.fuse([one, one], 0.5, 1e-9)[0] == pytest.approx(1.0)  # float64 path, no inf/nan
+
+
+# ----------------------------------------------------------------------------- scorers
+def _maps(shape=(40, 50), seed=0, valid=None):
+    rng = np.random.default_rng(seed)
+    m = {k: rng.random(shape).astype(np.float32) for k in TerrainMaps.NAMES}
+    v = np.ones(shape, bool) if valid is None else valid
+    return TerrainMaps(**m, valid=v, slope_deg=np.zeros(shape, np.float32))
+
+
+@pytest.mark.parametrize("method, evaluator", [("fuzzy", "compiled"), ("fuzzy", "exact"), ("bayes", "compiled")])
+def test_scorers_registry_range_and_invalid(method, evaluator):
+    assert set(SCORERS) == {"fuzzy", "bayes"}
+    config = load_config(overrides=[f"scoring.method={method}", f"scoring.fuzzy.evaluator={evaluator}"])
+    scorer = get_scorer(config)
+    assert isinstance(scorer, FuzzyScorer if method == "fuzzy" else BayesScorer)
+    valid = np.ones((40, 50), bool)
+    valid[:5] = False
+    score = scorer(_maps(valid=valid))
+    assert score.dtype == np.float32 and score.shape == (40, 50)
+    assert score.min() >= 0 and score.max() <= 1
+    assert np.all(score[:5] == 0) and score[5:].min() > 0
+
+
+def test_score_frame_uses_method_threshold():
+    config = load_config(overrides=["mask.threshold=0.99", "scoring.bayes.threshold=0.0", "mask.margin_factor=0"])
+    maps = _maps()
+    depth = np.full((40, 50), 5.0, np.float32)
+    K = Intrinsics(46.0, 46.0, 25.0, 20.0, 50, 40)
+    fz = score_frame(get_scorer(config, "fuzzy"), maps, depth, K, config)
+    bz = score_frame(get_scorer(config, "bayes"), maps, depth, K, config)
+    assert fz.method == "fuzzy" and not fz.mask.any()
+    assert bz.method == "bayes" and bz.mask.all()
+
+
+# ----------------------------------------------------------------------------- mask
+def _blob_score(size: int, shape=(240, 320)) -> np.ndarray:
+    score = np.zeros(shape, np.float32)
+    r0, c0 = (shape[0] - size) // 2, (shape[1] - size) // 2
+    score[r0:r0 + size, c0:c0 + size] = 0.9
+    return score
+
+
+def test_window_size_from_footprint_and_depth():
+    # 0.656 m at 5 m with f = 462.137 px is 60.6 px -> 61 (odd, rounded up)
+    assert window_px(0.656, 462.137, 5.0) == 61
+    assert window_px(0.0, 462.137, 5.0) == 1
+    assert window_px(0.656, 462.137, 1.0) % 2 == 1
+
+
+def test_small_blob_gives_empty_mask_large_one_survives_minus_margin():
+    depth = np.full((240, 320), 5.0, np.float32)
+    args = dict(fx=462.137, fy=462.137, footprint_m=(0.656, 0.656), margin_factor=1.0, threshold=0.5)
+    small = landing_mask("fuzzy", _blob_score(40), depth, **args)  # 40 px < 61 px footprint
+    assert not small.mask.any()
+    big = landing_mask("fuzzy", _blob_score(150), depth, **args)
+    assert big.mask.sum() == (150 - 60) ** 2  # eroded by (61 - 1) / 2 px on every side
+    rows, cols = np.nonzero(big.mask)
+    assert rows.min() == (240 - 150) // 2 + 30 and cols.min() == (320 - 150) // 2 + 30
+    assert big.score is not None and big.score.max() == pytest.approx(0.9)
+
+
+def test_mask_border_counts_as_unsafe_and_no_depth_is_empty():
+    depth = np.full((100, 100), 5.0, np.float32)
+    args = dict(fx=462.137, fy=462.137, footprint_m=(0.656, 0.656), margin_factor=1.0, threshold=0.5)
+    full = landing_mask("bayes", np.full((100, 100), 0.9, np.float32), depth, **args)
+    assert full.mask.sum() == (100 - 60) ** 2
+    none = landing_mask("bayes", np.full((100, 100), 0.9, np.float32), np.full((100, 100), np.nan), **args)
+    assert not none.mask.any()
+
+
+def test_median_depth_ignores_holes():
+    d = np.full((40, 40), np.nan, np.float32)
+    d[:20] = 4.0
+    d[20:24] = 0.0
+    assert median_depth_m(d) == pytest.approx(4.0)
+    assert median_depth_m(np.full((8, 8), np.nan)) is None
+
+
+# ----------------------------------------------------------------------------- CLI (scoring keys)
+@pytest.mark.parametrize("override, key", [("scoring.fuzzy.lut_levels=500", "scoring.fuzzy.lut_levels"),
+                                           ("scoring.fuzzy.evaluator=fast", "scoring.fuzzy.evaluator"),
+                                           ("scoring.bayes.eps=0", "scoring.bayes.eps")])
+def test_cli_rejects_bad_scoring_keys_in_one_line(runner, override, key):
+    from slzcli.cli import main
+
+    res = runner.invoke(main, ["config", "dump", "--set", override])
+    assert res.exit_code == 1
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and key in lines[0] and "Traceback" not in res.stderr
+
+
+def test_too_many_levels_is_a_config_error(rb):
+    with pytest.raises(ConfigError, match="scoring.fuzzy.lut_levels"):
+        lut.build(rb, 20)
+
+
+def test_cli_dump_shows_scoring_keys(runner):
+    from slzcli.cli import main
+
+    res = runner.invoke(main, ["config", "dump", "--json"])
+    assert res.exit_code == 0
+    fuzzy_cfg = __import__("json").loads(res.stdout)["scoring"]["fuzzy"]
+    assert fuzzy_cfg["lut_levels"] == 13 and fuzzy_cfg["evaluator"] == "compiled"
