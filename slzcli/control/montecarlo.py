@@ -1,0 +1,62 @@
+"""Monte Carlo over start positions, pose noise and gusts: one batched simulation, one summary."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.control.simulate import SimResult, Target, sample_starts, simulate
+
+PERCENTILES = (5, 50, 95)
+SUMMARY_FIELDS = ("stabilisation_time_s", "settling_time_s", "switch_time_s", "final_feature_error_px",
+                  "touchdown_error_m", "landing_time_s", "max_tilt_deg")
+
+
+def batch_config(config: Config) -> Config:
+    """The config with control.noise, control.wind.gust_m_s and the switch threshold from control.montecarlo."""
+    c = config.control
+    mc = c.montecarlo
+    noise = replace(c.noise, position_sigma_m=mc.position_sigma_m, attitude_sigma_deg=mc.attitude_sigma_deg,
+                    velocity_sigma_m_s=mc.velocity_sigma_m_s, position_drift_m_sqrt_s=mc.position_drift_m_sqrt_s,
+                    yaw_drift_deg_sqrt_s=mc.yaw_drift_deg_sqrt_s)
+    control = replace(c, noise=noise, wind=replace(c.wind, gust_m_s=mc.gust_m_s),
+                      sim=replace(c.sim, switch_error_px=mc.switch_error_px))
+    return replace(config, control=control)
+
+
+def run(target: Target, base_start_world: np.ndarray, runs: int, seed: int, config: Config) -> SimResult:
+    """``runs`` landings from starts scattered around ``base_start_world`` under the batch noise and gusts."""
+    starts = sample_starts(base_start_world, runs, config, seed)
+    return simulate(target, starts, batch_config(config), log=False, seed=seed)
+
+
+def summarise(result: SimResult) -> dict[str, Any]:
+    """Success rate, reasons, and percentiles (over finished values) of the per-run metrics."""
+    n = len(result.reason)
+    out: dict[str, Any] = {"runs": n, "success_rate": float(result.success.mean()) if n else math.nan,
+                           "successes": int(result.success.sum()),
+                           "reasons": dict(Counter(str(r) for r in result.reason))}
+    for name in SUMMARY_FIELDS:
+        vals = getattr(result, name)
+        vals = vals[np.isfinite(vals)]
+        out[name] = {"count": int(vals.size), "mean": float(vals.mean()) if vals.size else None,
+                     **{f"p{p}": (float(np.percentile(vals, p)) if vals.size else None) for p in PERCENTILES}}
+    return out
+
+
+def table(summary: dict[str, Any]) -> str:
+    """The aggregate as a small fixed-width text table."""
+    lines = [f"runs {summary['runs']}  success {summary['successes']} ({100 * summary['success_rate']:.1f} %)  "
+             f"reasons {summary['reasons']}",
+             f"{'metric':<24}{'n':>6}{'mean':>10}" + "".join(f"{'p' + str(p):>10}" for p in PERCENTILES)]
+    for name in SUMMARY_FIELDS:
+        s = summary[name]
+        cells = [s["mean"], *(s[f"p{p}"] for p in PERCENTILES)]
+        lines.append(f"{name:<24}{s['count']:>6}" + "".join(f"{'-' if v is None else format(v, '.3f'):>10}"
+                                                             for v in cells))
+    return "\n".join(lines)

@@ -1,0 +1,121 @@
+"""Files of `slz land simulate`: the landing.json it reads, and RUN/ibvs/ it writes (atomically).
+
+Reading: a run folder holding ``landing.json`` (DESIGN.md contract) or that file itself. A
+recording is not accepted here: the site comes from ``slz detect``.
+Writing: ``trajectory.csv``, ``features.csv``, ``metrics.json`` for one run;
+``montecarlo.json`` (+ ``montecarlo_runs.csv``) for a batch. Figures are in ``ibvs_plots.py``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slzcli.control.simulate import SimResult, Target
+from slzcli.errors import DatasetError, NoSiteFound
+from slzcli.outputs.files import write_json, write_text
+
+
+def landing_path(path: Path) -> Path:
+    """RUN folder or landing.json -> the landing.json path; anything else is a clear error."""
+    path = Path(path)
+    if path.is_dir():
+        candidate = path / "landing.json"
+        if candidate.is_file():
+            return candidate
+        raise DatasetError(path, "no landing.json in this folder; run `slz detect` on the recording first, "
+                                 "then `slz land simulate RUN`")
+    if path.is_file() and path.suffix == ".json":
+        return path
+    if path.exists():
+        raise DatasetError(path, "not a run folder or landing.json (a recording needs `slz detect` first, "
+                                 "then `slz land simulate RUN`)")
+    raise DatasetError(path, "not found")
+
+
+def read_target(path: Path, footprint_m: tuple[float, ...]) -> tuple[Target, dict[str, Any]]:
+    """The landing square of a landing.json, and the parsed document; no site -> NoSiteFound."""
+    file = landing_path(path)
+    try:
+        doc = json.loads(file.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise DatasetError(file, f"not readable JSON ({err})") from err
+    if not isinstance(doc, dict) or "status" not in doc:
+        raise DatasetError(file, "missing key 'status' (expected the landing.json of `slz detect`)")
+    if doc["status"] == "no_safe_site":
+        raise NoSiteFound(f"{file}: status no_safe_site ({doc.get('reason', 'no reason given')}); "
+                          "there is no site to land on")
+    if doc["status"] != "site":
+        raise DatasetError(file, f"status: expected 'site' or 'no_safe_site', got {doc['status']!r}")
+    site = doc.get("site")
+    if not isinstance(site, dict):
+        raise DatasetError(file, "site: missing or not an object")
+    try:
+        center = np.asarray(site["center_world"], float).reshape(3)
+    except (KeyError, TypeError, ValueError) as err:
+        raise DatasetError(file, "site.center_world: expected [x, y, z] metres") from err
+    corners = site.get("corners_world")
+    if corners is None:   # Eq. 10 from the centre and the footprint
+        signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
+        corners_arr = np.repeat(center[None], 4, axis=0)
+        corners_arr[:, :2] += signs * np.asarray(footprint_m[:2], float)
+    else:
+        try:
+            corners_arr = np.asarray(corners, float).reshape(4, 3)
+        except (TypeError, ValueError) as err:
+            raise DatasetError(file, "site.corners_world: expected four [x, y, z] points") from err
+    if not (np.isfinite(center).all() and np.isfinite(corners_arr).all()):
+        raise DatasetError(file, "site: centre or corners are not finite numbers")
+    return Target(center, corners_arr), doc
+
+
+def _csv(header: list[str], columns: list[np.ndarray]) -> str:
+    data = np.column_stack([np.asarray(c, float).reshape(len(c), -1) for c in columns])
+    buf = io.StringIO()
+    np.savetxt(buf, data, delimiter=",", header=",".join(header), comments="", fmt="%.6g")
+    return buf.getvalue()
+
+
+def write_run(out_dir: Path, result: SimResult, metrics: dict[str, Any], cx: float, cy: float,
+              i: int = 0) -> list[Path]:
+    """trajectory.csv, features.csv and metrics.json of run i of a logged simulation."""
+    log = result.log
+    if not log:
+        raise ValueError("write_run needs a simulation run with log=True")
+    L = {k: v[:, i] for k, v in log.items()}
+    traj = _csv(["t_s", "x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg", "vx_m_s", "vy_m_s", "vz_m_s",
+                 "p_rad_s", "q_rad_s", "r_rad_s", "thrust_n", "tau_x_n_m", "tau_y_n_m", "tau_z_n_m", "phase"],
+                [L["t"], L["p_world"], np.degrees(L["euler_ned"]), L["v_world"], L["w_body"], L["thrust"],
+                 L["torque"], L["phase"]])
+    corner_cols = [f"{a}{k}_px" for k in range(4) for a in ("u", "v")]
+    virt_cols = [f"virtual_{a}{k}_px" for k in range(4) for a in ("u", "v")]
+    feats = _csv(["t_s", "q_x", "q_y", "q_z", "e_qx", "e_qy", "e_qz", "e_px_true", "yaw_error_deg", "lyapunov",
+                  *corner_cols, *virt_cols],
+                 [L["t"], L["q"], L["e_q"], L["e_px_true"], np.degrees(L["yaw_err_true"]), L["lyapunov"],
+                  L["corner_px"].reshape(len(L["t"]), -1),
+                  (L["virtual_uv"] + np.array([cx, cy])).reshape(len(L["t"]), -1)])
+    paths = [out_dir / "trajectory.csv", out_dir / "features.csv", out_dir / "metrics.json"]
+    write_text(paths[0], traj)
+    write_text(paths[1], feats)
+    write_json(paths[2], metrics)
+    return paths
+
+
+def write_montecarlo(out_dir: Path, result: SimResult, summary: dict[str, Any]) -> list[Path]:
+    """montecarlo.json (the aggregate) and montecarlo_runs.csv (one row per run)."""
+    cols = ["stabilisation_time_s", "settling_time_s", "switch_time_s", "final_feature_error_px", "touchdown_error_m",
+            "landing_time_s", "max_tilt_deg"]
+    header = ["run", "success", "x0_m", "y0_m", "z0_m", "yaw0_deg", *cols, "reason"]
+    lines = [",".join(header)]
+    for i in range(len(result.reason)):
+        vals = [str(i), str(int(result.success[i])), *(f"{v:.4f}" for v in result.starts_world[i]),
+                *(f"{getattr(result, c)[i]:.6g}" for c in cols), str(result.reason[i])]
+        lines.append(",".join(vals))
+    paths = [out_dir / "montecarlo.json", out_dir / "montecarlo_runs.csv"]
+    write_json(paths[0], summary)
+    write_text(paths[1], "\n".join(lines) + "\n")
+    return paths
