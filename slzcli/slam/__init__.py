@@ -1,0 +1,57 @@
+"""Frames -> poses and keyframe map points (METHOD 2.2). ``get_backend(config)`` picks one.
+
+``auto``: recorded poses when the frames carry them (or a points topic is configured), else
+ORB-SLAM3 when the optional pyorbslam3 wheel is installed, else the built-in odometry.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from slzcli.errors import ConfigError
+from slzcli.slam.base import Keyframe, MapPoints, SlamBackend, TrackingState, TrackResult
+
+
+def _recorded(config: Any, **kw: Any) -> SlamBackend:
+    from slzcli.slam.recorded import RecordedBackend
+    return RecordedBackend(config, kw.get("clouds", ()))
+
+
+def _orbslam3(config: Any, **kw: Any) -> SlamBackend:
+    from slzcli.slam.orbslam3 import OrbSlam3Backend
+    return OrbSlam3Backend(config, kw.get("vocabulary"))
+
+
+def _odometry(config: Any, **kw: Any) -> SlamBackend:
+    from slzcli.slam.odometry import OdometryBackend
+    return OdometryBackend(config)
+
+
+BACKENDS: dict[str, Callable[..., SlamBackend]] = {
+    "recorded": _recorded,
+    "orbslam3": _orbslam3,
+    "odometry": _odometry,
+}
+
+
+def choose_backend(config: Any, has_recorded_poses: bool) -> str:
+    """The backend name ``slam.backend`` resolves to (``auto`` decided by what is available)."""
+    name = config.slam.backend
+    if name != "auto":
+        return name
+    if has_recorded_poses or config.slam.points_topic:
+        return "recorded"
+    from slzcli.slam.orbslam3 import available
+    return "orbslam3" if available() else "odometry"
+
+
+def get_backend(config: Any, has_recorded_poses: bool = False, **kw: Any) -> SlamBackend:
+    """A backend instance (a context manager). ``kw``: clouds= for recorded, vocabulary= for orbslam3."""
+    name = choose_backend(config, has_recorded_poses)
+    if name not in BACKENDS:
+        raise ConfigError("slam.backend", f"unknown backend {name!r}")
+    return BACKENDS[name](config, **kw)
+
+
+__all__ = ["BACKENDS", "Keyframe", "MapPoints", "SlamBackend", "TrackResult", "TrackingState",
+           "choose_backend", "get_backend"]

@@ -1,0 +1,124 @@
+"""What every SLAM backend gives the rest of slz: per-frame poses, keyframes and the map points they see.
+
+A backend is fed frames in order (``track``) and answers with a ``TrackResult``. On a keyframe
+it also answers ``keyframe()`` with the map points that keyframe sees, so the site selection
+(METHOD 2.5) can project them through the landing mask. Backends hold native or large state,
+so they are context managers (``close`` frees it). A tracking state is a claim, not a proof:
+evaluate poses against ground truth (``slzcli.evaluate.slam``) before trusting a backend.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from slzcli.types import Frame
+
+
+class TrackingState(str, enum.Enum):
+    """Coarse tracking state shared by all backends (ORB-SLAM3's finer states map onto these)."""
+
+    INITIALISING = "initialising"
+    OK = "ok"
+    LOST = "lost"
+
+
+@dataclass(frozen=True, eq=False)
+class MapPoints:
+    """Map points seen in one keyframe: world XYZ (N,3) float64, their pixels (N,2) in that keyframe.
+
+    ``ids`` are stable per backend run (int64, -1 where a backend has no identity for a point);
+    ``T_world_camera`` is the keyframe's pose when the points were reported.
+    """
+
+    ids: np.ndarray
+    xyz_world: np.ndarray
+    pixels: np.ndarray
+    keyframe_index: int
+    stamp_ns: int
+    T_world_camera: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.xyz_world.shape[0])
+
+    @staticmethod
+    def empty(keyframe_index: int, stamp_ns: int, T_world_camera: np.ndarray) -> "MapPoints":
+        return MapPoints(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2)), keyframe_index,
+                         stamp_ns, T_world_camera)
+
+
+@dataclass(frozen=True, eq=False)
+class TrackResult:
+    """The answer for one frame. ``T_world_camera`` is None whenever the backend has no pose.
+
+    ``segment`` counts the maps a backend has started: after tracking is lost and a new map is
+    begun, poses of a new segment are in a world frame that need not match the earlier one.
+    """
+
+    frame_index: int
+    stamp_ns: int
+    state: TrackingState
+    T_world_camera: np.ndarray | None
+    is_keyframe: bool = False
+    tracked_points: int = 0
+    segment: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class Keyframe:
+    """A keyframe as written to keyframes.npz: its pose and the map points it sees."""
+
+    frame_index: int
+    stamp_ns: int
+    T_world_camera: np.ndarray
+    points: MapPoints
+
+
+@runtime_checkable
+class SlamBackend(Protocol):
+    """Frames in (in time order), poses and keyframe map points out."""
+
+    name: str
+
+    def track(self, frame: Frame) -> TrackResult:
+        """Consume one frame; the pose of that frame (or None) and whether it became a keyframe."""
+        ...
+
+    def keyframe(self) -> MapPoints | None:
+        """Map points seen by the latest frame if it was a keyframe, else None."""
+        ...
+
+    def close(self) -> None:
+        """Free native resources (threads, worker processes); idempotent."""
+        ...
+
+    def __enter__(self) -> "SlamBackend": ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+class BackendBase:
+    """Context-manager plumbing shared by the backends."""
+
+    name = "base"
+
+    def close(self) -> None:  # pragma: no cover - overridden where there is something to free
+        return None
+
+    def __enter__(self):  # noqa: ANN204 - returns the concrete backend
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def invert_pose(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid 4x4 transform without a general matrix inverse."""
+    R, t = T[:3, :3], T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ t
+    return out

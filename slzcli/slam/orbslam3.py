@@ -1,0 +1,267 @@
+"""The real ORB-SLAM3 (RGB-D) through the optional ``pyorbslam3`` wheel (GPL-3.0: ``slz[orbslam3]``).
+
+The native library runs in a worker process (a fresh interpreter) fed over a socket: a crash there (a bad
+vocabulary, an assertion in the native code) becomes an ``SlzError`` naming the cause instead
+of killing the batch. The vocabulary is validated before the native loader sees it.
+pyorbslam3 reports neither keyframes nor map point identities, so keyframes are chosen by
+``slam.keyframe`` (motion / tracked ratio) and map point ids are -1; a map point's pixel is its
+projection through the tracked pose.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slzcli.errors import SlzError
+from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
+from slzcli.slam.keyframes import is_new_keyframe, project
+from slzcli.slam.vocabulary import DEFAULT_VOCABULARY, read_vocabulary
+from slzcli.types import Frame, Intrinsics
+
+log = logging.getLogger(__name__)
+_PACKAGE_ROOT = Path(__file__).resolve().parents[2]
+# Process housekeeping, not tuning: how long to wait for a worker that was told to stop or died.
+_EXIT_GRACE_S = 5.0
+# A new ORB-SLAM3 map starts at exactly the identity pose; this tolerance only absorbs float noise.
+_IDENTITY_ATOL = 1e-9
+
+# ORB-SLAM3 Tracking::eTrackingState values -> our coarse state.
+_STATES = {-1: TrackingState.INITIALISING, 0: TrackingState.INITIALISING, 1: TrackingState.INITIALISING,
+           2: TrackingState.OK, 3: TrackingState.LOST, 4: TrackingState.LOST, 5: TrackingState.OK}
+
+
+class SlamWorkerError(SlzError):
+    """The ORB-SLAM3 worker failed or died."""
+
+
+def available() -> bool:
+    """True when the optional pyorbslam3 wheel is importable (checked without loading the native code)."""
+    return importlib.util.find_spec("pyorbslam3") is not None
+
+
+def settings_yaml(K: Intrinsics, orb: Any, close_depth_m: float, baseline_m: float, fps: float) -> str:
+    """An ORB-SLAM3 v1.0 settings file for an undistorted RGB-D camera with metric float depth.
+
+    Every ``Viewer.*`` key must be present even without a viewer, or the native code exits; their
+    values are ORB-SLAM3's example values and have no effect without a viewer. No distortion:
+    slz assumes rectified images (types.Intrinsics).
+    ``Stereo.ThDepth`` is in baselines: close points (full RGB-D constraints) reach close_depth_m.
+    """
+    return "\n".join([
+        "%YAML:1.0", 'File.version: "1.0"', 'Camera.type: "PinHole"',
+        f"Camera1.fx: {K.fx:.6f}", f"Camera1.fy: {K.fy:.6f}", f"Camera1.cx: {K.cx:.6f}", f"Camera1.cy: {K.cy:.6f}",
+        "Camera1.k1: 0.0", "Camera1.k2: 0.0", "Camera1.p1: 0.0", "Camera1.p2: 0.0",
+        f"Camera.width: {K.width}", f"Camera.height: {K.height}", f"Camera.fps: {max(1, round(fps))}",
+        "Camera.RGB: 1",
+        f"Stereo.ThDepth: {close_depth_m / baseline_m:.6f}", f"Stereo.b: {baseline_m:.6f}",
+        "RGBD.DepthMapFactor: 1.0",
+        f"ORBextractor.nFeatures: {orb.n_features}", f"ORBextractor.scaleFactor: {orb.scale_factor:.6f}",
+        f"ORBextractor.nLevels: {orb.n_levels}", f"ORBextractor.iniThFAST: {orb.fast_threshold}",
+        f"ORBextractor.minThFAST: {orb.fast_min_threshold}",
+        "Viewer.KeyFrameSize: 0.05", "Viewer.KeyFrameLineWidth: 1.0", "Viewer.GraphLineWidth: 0.9",
+        "Viewer.PointSize: 2.0", "Viewer.CameraSize: 0.08", "Viewer.CameraLineWidth: 3.0",
+        "Viewer.ViewpointX: 0.0", "Viewer.ViewpointY: -0.7", "Viewer.ViewpointZ: -1.8",
+        "Viewer.ViewpointF: 500.0", "Viewer.imageViewScale: 1.0", "",
+    ])
+
+
+def _worker(conn: Any, vocab_path: str, settings_text: str) -> None:
+    """Runs in the worker process: owns the native ORB-SLAM3 system, answers track requests."""
+    import os
+    import tempfile
+
+    import pyorbslam3 as pos
+
+    with tempfile.TemporaryDirectory(prefix="slz-orbslam3-") as tmp:
+        settings = os.path.join(tmp, "settings.yaml")
+        with open(settings, "w") as f:
+            f.write(settings_text)
+        try:
+            system = pos.Slam(vocab_path, settings, pos.Sensor.RGBD)
+        except Exception as err:  # noqa: BLE001 - reported to the parent as text
+            conn.send(("error", f"{type(err).__name__}: {err}"))
+            return
+        conn.send(("ready", None))
+        try:
+            while True:
+                msg = conn.recv()
+                if msg[0] == "close":
+                    break
+                _, rgb, depth, t = msg
+                r = system.track_rgbd(rgb, depth, t)
+                pts = np.asarray(system.tracked_map_points(), np.float64).reshape(-1, 3)
+                conn.send(("ok", int(r.state), None if r.pose_wc is None else np.asarray(r.pose_wc, np.float64),
+                           int(r.num_tracked_points), pts))
+        finally:
+            system.shutdown()
+            conn.send(("closed", None))
+
+
+def _worker_main() -> None:
+    """Entry of ``python -m slzcli.slam.orbslam3 FD``: the socket to the parent is file descriptor FD.
+
+    A fresh interpreter (not multiprocessing's spawn, which re-runs the parent's __main__ script).
+    """
+    import sys
+    from multiprocessing.connection import Connection
+
+    conn = Connection(int(sys.argv[1]))
+    kind, vocab_path, settings_text = conn.recv()
+    _worker(conn, vocab_path, settings_text)
+
+
+class OrbSlam3Backend(BackendBase):
+    """ORB-SLAM3 in RGB-D mode (monocular can report OK on a wrong trajectory over planar ground)."""
+
+    name = "orbslam3"
+
+    def __init__(self, config: Any, vocabulary: str | Path | None = None) -> None:
+        if not available():
+            raise SlzError("slam.backend: orbslam3 needs the optional pyorbslam3 package "
+                           "(pip install 'slz[orbslam3]'; GPL-3.0)")
+        cfg = config.slam
+        path = Path(vocabulary or cfg.vocabulary or DEFAULT_VOCABULARY)
+        read_vocabulary(path)  # validate before the native loader trusts it
+        self.vocab_path = str(path)
+        self.cfg = cfg
+        self._proc: subprocess.Popen | None = None
+        self._conn: Connection | None = None
+        self._log: Any = None
+        self._intrinsics: Intrinsics | None = None
+        self._last_kf_pose: np.ndarray | None = None
+        self._last_kf_tracked = 0
+        self._keyframe: MapPoints | None = None
+        self._n_keyframes = 0
+        self._segment = 0
+        self._was_ok = False
+        self._ever_ok = False
+
+    # -- worker plumbing
+    def _start(self, frame: Frame) -> None:
+        self._intrinsics = frame.intrinsics
+        if any(frame.intrinsics.distortion):
+            log.warning("%s: camera distortion %s ignored; ORB-SLAM3 is run as an undistorted pinhole",
+                        frame.source or "recording", frame.intrinsics.distortion_model or "coefficients")
+        fps = 1.0 / self.cfg.orbslam3.nominal_period_s
+        text = settings_yaml(frame.intrinsics, self.cfg.orb, self.cfg.orbslam3.close_depth_m,
+                             self.cfg.orbslam3.baseline_m, fps)
+        ours, theirs = socket.socketpair()
+        # ORB-SLAM3 prints progress to stdout; keep it off ours (--json) and keep stderr for the cause.
+        self._log = tempfile.TemporaryFile(mode="w+b")
+        env = dict(os.environ)  # the worker imports this package even when it is not installed
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_PACKAGE_ROOT), env.get("PYTHONPATH", "")) if p)
+        self._proc = subprocess.Popen([sys.executable, "-m", "slzcli.slam.orbslam3", str(theirs.fileno())],
+                                      pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
+                                      stdout=subprocess.DEVNULL, stderr=self._log, env=env)
+        theirs.close()
+        self._conn = Connection(ours.detach())
+        self._conn.send(("init", self.vocab_path, text))
+        kind, detail = self._recv("loading the vocabulary", self.cfg.orbslam3.load_timeout_s)[:2]
+        if kind == "error":
+            self._stop()
+            raise SlamWorkerError(f"{self.vocab_path}: ORB-SLAM3 failed to start: {detail}")
+
+    def _recv(self, doing: str, timeout_s: float) -> tuple:
+        try:
+            if self._conn.poll(timeout_s):
+                return self._conn.recv()
+        except (EOFError, OSError):
+            pass
+        try:
+            code = self._proc.wait(timeout=_EXIT_GRACE_S)
+        except subprocess.TimeoutExpired:
+            code = None
+        last = self._last_log_line()
+        self._stop()
+        said = f"; it said: {last}" if last else ""
+        if code is None:
+            raise SlamWorkerError(f"ORB-SLAM3 worker did not answer within {timeout_s:g} s while {doing} "
+                                  f"(vocabulary {self.vocab_path}){said}")
+        cause = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+        raise SlamWorkerError(f"ORB-SLAM3 worker died ({cause}) while {doing} (vocabulary {self.vocab_path}){said}")
+
+    def _last_log_line(self) -> str:
+        if self._log is None:
+            return ""
+        self._log.seek(0)
+        lines = [ln.strip() for ln in self._log.read().decode(errors="replace").splitlines() if ln.strip()]
+        return lines[-1][:200] if lines else ""
+
+    def _stop(self) -> None:
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait(timeout=_EXIT_GRACE_S)
+        self._proc = None
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    def close(self) -> None:
+        if self._proc is not None and self._proc.poll() is None:
+            try:
+                self._conn.send(("close",))
+                if self._conn.poll(self.cfg.orbslam3.load_timeout_s):
+                    self._conn.recv()
+                self._proc.wait(timeout=_EXIT_GRACE_S)
+            except (EOFError, OSError, subprocess.TimeoutExpired):
+                pass
+        self._stop()
+
+    # -- tracking
+    def track(self, frame: Frame) -> TrackResult:
+        if self._proc is None:
+            self._start(frame)
+        elif frame.intrinsics != self._intrinsics:
+            raise SlzError(f"{frame.source or 'recording'}: frame {frame.index} has other intrinsics than the first "
+                           "frame; ORB-SLAM3 is configured once per run")
+        depth = np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32)  # ORB-SLAM3: <= 0 is no depth
+        try:
+            self._conn.send(("track", np.ascontiguousarray(frame.rgb), depth, frame.stamp_ns * 1e-9))
+        except (BrokenPipeError, OSError):
+            pass  # _recv reports how the worker died
+        _, state_code, pose, n_tracked, pts = self._recv(f"tracking frame {frame.index}",
+                                                         self.cfg.orbslam3.frame_timeout_s)
+        state = _STATES.get(state_code, TrackingState.LOST)
+        if state is not TrackingState.OK:
+            pose = None  # RECENTLY_LOST carries a motion-model guess; not a measurement
+        self._keyframe = None
+        is_kf = False
+        if pose is not None and self._ever_ok and not self._was_ok and np.allclose(pose, np.eye(4), atol=_IDENTITY_ATOL):
+            # ORB-SLAM3 started a new map (Atlas) at the identity: a new world frame.
+            self._segment += 1
+            self._last_kf_pose = None
+        self._was_ok = pose is not None
+        self._ever_ok |= self._was_ok
+        if pose is not None:
+            kf = self.cfg.keyframe
+            is_kf = is_new_keyframe(self._last_kf_pose, pose, n_tracked, self._last_kf_tracked,
+                                    kf.min_translation_m, kf.min_rotation_deg, kf.min_tracked_ratio)
+            if is_kf:
+                uv, ok = project(pts, pose, frame.K, frame.intrinsics.width, frame.intrinsics.height)
+                self._keyframe = MapPoints(np.full(int(ok.sum()), -1, np.int64), pts[ok], uv[ok],
+                                           self._n_keyframes, frame.stamp_ns, pose)
+                self._n_keyframes += 1
+                self._last_kf_pose, self._last_kf_tracked = pose, n_tracked
+        return TrackResult(frame.index, frame.stamp_ns, state, pose, is_kf, n_tracked, self._segment)
+
+    def keyframe(self) -> MapPoints | None:
+        return self._keyframe
+
+
+if __name__ == "__main__":
+    _worker_main()

@@ -1,0 +1,256 @@
+"""SLAM backends on an analytic rendered flight (tests/slam_flight.py): accuracy, loss and recovery,
+the vocabulary (train, validate, load in ORB-SLAM3), the recorded backend and `slz vocab build`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slam_flight import render_flight
+from slzcli.cli import main
+from slzcli.config import load_config
+from slzcli.errors import DatasetError, SlzError
+from slzcli.evaluate.slam import ate
+from slzcli.slam import BACKENDS, TrackingState, choose_backend, get_backend
+from slzcli.slam.orbslam3 import available as orbslam3_available
+from slzcli.slam.vocabulary import (DEFAULT_VOCABULARY, parse_vocabulary, read_vocabulary, train_vocabulary,
+                                    vocabulary_text)
+
+needs_orbslam3 = pytest.mark.skipif(not orbslam3_available(), reason="optional pyorbslam3 (slz[orbslam3]) not installed")
+ATE_LIMIT_M = 0.05
+
+
+@pytest.fixture(scope="module")
+def line_flight():
+    """100 frames at 480x360 over textured ground and boxes (5-8 cm per frame)."""
+    return render_flight(100, "line", width=480, height=360, supersample=1)
+
+
+@pytest.fixture(scope="module")
+def out_back_flight():
+    """Out over a uniform tarp (tracking must fail) and back over ground seen before."""
+    return render_flight(100, "out_back", width=320, height=240, supersample=1)
+
+
+def _run(backend_name: str, frames, **overrides):
+    config = load_config(overrides=[f"slam.backend={backend_name}", *[f"{k}={v}" for k, v in overrides.items()]])
+    results, keyframes = [], []
+    with get_backend(config) as b:
+        for f in frames:
+            results.append(b.track(f))
+            kf = b.keyframe()
+            if kf is not None:
+                keyframes.append(kf)
+    return results, keyframes
+
+
+def _check_keyframes(keyframes, frames) -> None:
+    """Every keyframe's map points project to their pixels through the keyframe pose (within 3 px)."""
+    assert keyframes
+    K = frames[0].K
+    for kf in keyframes[:: max(1, len(keyframes) // 5)]:
+        assert len(kf) > 50
+        T_cw = np.linalg.inv(kf.T_world_camera)
+        pc = kf.xyz_world @ T_cw[:3, :3].T + T_cw[:3, 3]
+        uv = pc[:, :2] / pc[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
+        assert np.median(np.linalg.norm(uv - kf.pixels, axis=1)) < 3.0
+
+
+# ----------------------------------------------------------------------------- accuracy
+@pytest.mark.parametrize("name", ["odometry", pytest.param("orbslam3", marks=needs_orbslam3)])
+def test_backend_tracks_rendered_flight_within_5cm(name, line_flight) -> None:
+    frames, truth = line_flight
+    results, keyframes = _run(name, frames)
+    poses = [r.T_world_camera for r in results]
+    assert all(r.state is TrackingState.OK for r in results[1:])
+    res = ate(poses, truth)
+    assert res.n == 100
+    assert res.rmse_m < ATE_LIMIT_M, f"{name}: ATE {res.rmse_m:.3f} m"
+    _check_keyframes(keyframes, frames)
+    assert 3 <= len(keyframes) < 60
+
+
+def test_odometry_reports_loss_and_recovers_in_the_same_world_frame(out_back_flight) -> None:
+    frames, truth = out_back_flight
+    results, _ = _run("odometry", frames)
+    states = [r.state for r in results]
+    lost = [i for i, s in enumerate(states) if s is TrackingState.LOST]
+    assert lost, "the textureless stretch must be reported as lost"
+    assert all(results[i].T_world_camera is None for i in lost)
+    after = [r for r in results[lost[-1] + 1:]]
+    assert len(after) > 20 and all(r.state is TrackingState.OK for r in after)
+    assert {r.segment for r in results} == {0}  # recovered by relocalisation, not a new map
+    assert ate([r.T_world_camera for r in results], truth).rmse_m < 2 * ATE_LIMIT_M
+
+
+def test_odometry_triangulates_points_beyond_the_depth_range(line_flight) -> None:
+    """The flight climbs from 3.5 to 4 m: with depth cut at 3.75 m the ground leaves the sensor's range
+    half way, and tracking must go on with ground points triangulated between keyframes."""
+    frames, truth = line_flight
+    max_depth = 3.75
+    results, keyframes = _run("odometry", frames, **{"slam.odometry.max_depth_m": max_depth})
+    assert all(r.state is TrackingState.OK for r in results)
+    res = ate([r.T_world_camera for r in results], truth)
+    assert res.rmse_m < ATE_LIMIT_M
+    beyond = []
+    for kf in keyframes:
+        T_cw = np.linalg.inv(kf.T_world_camera)
+        depth = (kf.xyz_world @ T_cw[:3, :3].T + T_cw[:3, 3])[:, 2]
+        beyond.append(kf.xyz_world[depth > max_depth])
+    far = np.concatenate(beyond)
+    assert len(far) > 1000
+    ground_z = (far @ res.alignment.R.T + res.alignment.t)[:, 2]  # in the true frame the ground is z = 0
+    assert np.median(np.abs(ground_z)) < ATE_LIMIT_M
+
+
+@needs_orbslam3
+def test_orbslam3_reports_loss_on_textureless_stretch(out_back_flight) -> None:
+    frames, _ = out_back_flight
+    results, _ = _run("orbslam3", frames)
+    assert any(r.state is not TrackingState.OK and r.T_world_camera is None for r in results[40:60])
+    assert results[-1].state is TrackingState.OK
+    # ORB-SLAM3 starts a new map when lost; its poses are then in a new world frame, flagged by segment
+    segs = [r.segment for r in results if r.T_world_camera is not None]
+    assert segs == sorted(segs)
+
+
+# ----------------------------------------------------------------------------- vocabulary
+def test_trained_vocabulary_round_trips_and_has_positive_leaf_weights() -> None:
+    rng = np.random.default_rng(0)
+    docs = [rng.integers(0, 256, (200, 32), dtype=np.uint8) for _ in range(5)]
+    v = train_vocabulary(docs, k=4, levels=2, iterations=5)
+    assert v.n_words > 4 and np.all(v.weights[v.is_leaf] > 0)
+    assert np.all(v.parents[1:] < np.arange(1, v.n_nodes))
+    text = vocabulary_text(v)
+    assert not text.endswith("\n")
+    w = parse_vocabulary(text, "mem")
+    np.testing.assert_array_equal(w.parents, v.parents)
+    np.testing.assert_array_equal(w.descriptors, v.descriptors)
+    assert np.array_equal(w.transform(docs[0]), v.transform(docs[0]))
+
+
+def test_default_vocabulary_validates() -> None:
+    v = read_vocabulary(DEFAULT_VOCABULARY)
+    assert v.n_words >= 500 and DEFAULT_VOCABULARY.stat().st_size < 2_000_000
+
+
+GOOD = "2 1 0 0\n0 1 " + " ".join(["1"] * 32) + " 0.5\n0 1 " + " ".join(["2"] * 32) + " 0.7"
+
+
+@pytest.mark.parametrize("text, words", [
+    ("", "empty"),
+    ("10 6 0\n", "header"),
+    ("30 6 0 0\n" + GOOD.split("\n", 1)[1], "out of range"),
+    ("2 1 0 0\n", "no nodes"),
+    (GOOD.replace(" 0.7", ""), "fields"),
+    (GOOD.replace("0 1 2 2", "5 1 2 2"), "does not precede"),
+    (GOOD.replace(" 0.7", " 0"), "leaf weights"),
+    (GOOD.replace(" 0.7", " nan"), "non-finite"),
+    (GOOD.replace("0 1 2 2", "0 1 300 2"), "0..255"),
+    (GOOD.replace("0 1 1 1", "0 0 1 1"), "no children"),
+    (GOOD.replace("0 1 2 2", "0 1 x 2"), "non-numeric"),
+])
+def test_malformed_vocabulary_is_a_clear_error(text, words) -> None:
+    parse_vocabulary(GOOD, "good.txt")
+    with pytest.raises(DatasetError, match=words) as err:
+        parse_vocabulary(text, "bad.txt")
+    assert "bad.txt" in str(err.value)
+
+
+@needs_orbslam3
+def test_malformed_vocabulary_never_reaches_the_native_loader(tmp_path, line_flight) -> None:
+    bad = tmp_path / "bad.txt"
+    bad.write_text(GOOD.replace(" 0.7", " -1"))
+    config = load_config(overrides=["slam.backend=orbslam3", f"slam.vocabulary={bad}"])
+    with pytest.raises(SlzError, match="bad.txt"):
+        get_backend(config)
+
+
+@needs_orbslam3
+def test_a_dead_worker_is_an_slz_error(line_flight) -> None:
+    frames, _ = line_flight
+    config = load_config(overrides=["slam.backend=orbslam3"])
+    with get_backend(config) as b:
+        b.track(frames[0])
+        b._proc.kill()  # stands in for a native crash
+        with pytest.raises(SlzError, match="died .*SIGKILL"):
+            b.track(frames[1])
+
+
+# ----------------------------------------------------------------------------- registry
+def test_auto_prefers_recorded_then_orbslam3_then_odometry() -> None:
+    assert set(BACKENDS) == {"recorded", "orbslam3", "odometry"}
+    config = load_config()
+    assert choose_backend(config, has_recorded_poses=True) == "recorded"
+    assert choose_backend(config, has_recorded_poses=False) == ("orbslam3" if orbslam3_available() else "odometry")
+    assert choose_backend(load_config(overrides=["slam.backend=odometry"]), True) == "odometry"
+
+
+# ----------------------------------------------------------------------------- recorded + CLI
+def _write_recording(path, frames, truth, points_topic=None, clouds=()):
+    from slzcli.outputs.recording import RecordingWriter
+
+    with RecordingWriter(path, "mcap", depth_encoding="32FC1") as w:
+        for f, T in zip(frames, truth):
+            w.write_frame(f)
+            w.write_pose("/orb_slam3/camera_pose", f.stamp_ns, T)
+        for stamp, xyz in clouds:
+            data = np.concatenate([xyz.astype("<f4"), np.arange(len(xyz), dtype="<i4")[:, None].view("<f4")], 1)
+            fields = [w.message("sensor_msgs/msg/PointField", name=n, offset=4 * i, datatype=7 if n != "id" else 5,
+                                count=1) for i, n in enumerate(("x", "y", "z", "id"))]
+            msg = w.message("sensor_msgs/msg/PointCloud2", header=w.header(stamp, "world"), height=1, width=len(xyz),
+                            fields=fields, is_bigendian=False, point_step=16, row_step=16 * len(xyz),
+                            data=np.frombuffer(data.tobytes(), np.uint8).copy(), is_dense=True)
+            w.write_raw(points_topic, "sensor_msgs/msg/PointCloud2", msg, stamp)
+
+
+def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_flight) -> None:
+    from slzcli.slam.recorded import RecordedBackend, read_point_clouds
+    from slzcli.sources import open_recording
+
+    frames, truth = out_back_flight
+    frames, truth = frames[:8], truth[:8]
+    xyz = np.array([[0.0, 0.0, 0.0], [0.5, 0.2, 0.3], [50.0, 0.0, 0.0]])  # the last is outside the view
+    path = tmp_path / "rec.mcap"
+    _write_recording(path, frames, truth, "/orb_slam3/map_points", [(frames[2].stamp_ns, xyz)])
+    config = load_config(overrides=["sources.topics.pose=/orb_slam3/camera_pose",
+                                     "slam.points_topic=/orb_slam3/map_points"])
+    clouds = read_point_clouds(path, "/orb_slam3/map_points", config)
+    assert len(clouds) == 1 and clouds[0][2].tolist() == [0, 1, 2]
+    np.testing.assert_allclose(clouds[0][1], xyz, atol=1e-6)
+    with open_recording(path, config) as rec, RecordedBackend(config, clouds) as b:
+        out = [(b.track(f), b.keyframe()) for f in rec.frames()]
+    assert len(out) == 8
+    for (r, _), T in zip(out, truth):
+        assert r.state is TrackingState.OK
+        np.testing.assert_allclose(r.T_world_camera, T, atol=1e-9)
+    kfs = [k for _, k in out if k is not None]
+    assert len(kfs) == 1 and kfs[0].ids.tolist() == [0, 1]
+    with pytest.raises(DatasetError, match="not in the recording"):
+        read_point_clouds(path, "/nope", config)
+
+
+def test_vocab_build_cli_output_validates_loads_and_tracks(tmp_path, runner, out_back_flight, line_flight) -> None:
+    frames, truth = out_back_flight
+    path = tmp_path / "train.mcap"
+    _write_recording(path, frames[:10], truth[:10])
+    out = tmp_path / "voc.txt"
+    res = runner.invoke(main, ["vocab", "build", str(path), "-o", str(out), "--json",
+                               "--set", "slam.vocab.levels=2"])
+    assert res.exit_code == 0, res.output
+    v = read_vocabulary(out)
+    assert v.levels == 2 and v.n_words > 10
+    if orbslam3_available():
+        lf, lt = line_flight
+        results, _ = _run("orbslam3", lf[:30], **{"slam.vocabulary": str(out)})
+        assert all(r.state is TrackingState.OK for r in results[1:])
+        assert ate([r.T_world_camera for r in results], lt[:30]).rmse_m < ATE_LIMIT_M
+
+
+def test_vocab_build_cli_bad_input_is_one_line(tmp_path, runner) -> None:
+    res = runner.invoke(main, ["vocab", "build", str(tmp_path / "missing.mcap"), "-o", str(tmp_path / "v.txt")])
+    assert res.exit_code == 1
+    assert res.output.count("\n") == 1 and "missing.mcap" in res.output and "Traceback" not in res.output
+    res = runner.invoke(main, ["vocab", "build", str(tmp_path / "missing.mcap"), "-o", str(tmp_path / "v.txt"),
+                               "--set", "slam.vocab.k=50"])
+    assert res.exit_code == 1 and "slam.vocab.k" in res.output

@@ -1,0 +1,145 @@
+"""ATE/RPE with Umeyama alignment, and the trajectory / keyframe writers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from slzcli.evaluate.slam import ate, rpe, umeyama
+from slzcli.outputs.trajectory import keyframe_arrays, parse_tum, tum_text, write_keyframes, write_tum
+from slzcli.slam.base import MapPoints
+
+
+def _trajectory(n: int = 40, seed: int = 0) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("xyz", [0.1 * np.sin(i / 5), 0.05 * i / n, 0.3 * i / n]).as_matrix()
+        T[:3, 3] = [0.1 * i, np.sin(i / 7), 2 + 0.01 * i] + rng.normal(0, 1e-3, 3)
+        out.append(T)
+    return out
+
+
+def _moved(poses: list[np.ndarray], scale: float = 1.0) -> list[np.ndarray]:
+    G = np.eye(4)
+    G[:3, :3] = Rotation.from_euler("zyx", [1.0, -0.4, 0.3]).as_matrix()
+    G[:3, 3] = [5.0, -2.0, 7.0]
+    out = []
+    for T in poses:
+        S = T.copy()
+        S[:3, 3] *= scale
+        out.append(G @ S)
+    return out
+
+
+def test_ate_is_zero_for_a_rotated_and_translated_copy() -> None:
+    truth = _trajectory()
+    res = ate(_moved(truth), truth)
+    assert res.rmse_m < 1e-9 and res.max_m < 1e-9 and res.n == len(truth)
+
+
+def test_sim3_alignment_recovers_scale_and_se3_does_not() -> None:
+    truth = _trajectory()
+    est = _moved(truth, scale=0.5)
+    assert ate(est, truth, with_scale=True).rmse_m < 1e-9
+    assert abs(ate(est, truth, with_scale=True).alignment.scale - 2.0) < 1e-9
+    assert ate(est, truth).rmse_m > 0.1
+
+
+def test_ate_measures_a_known_offset_and_skips_missing_poses() -> None:
+    truth = _trajectory()
+    est = [T.copy() for T in truth]
+    for T in est[::2]:
+        T[:3, 3] += [0.0, 0.0, 0.02]   # alternate frames 2 cm up: best fit is +1 cm, error 1 cm each
+    est[5] = None
+    res = ate(est, truth)
+    assert res.n == len(truth) - 1
+    assert res.rmse_m == pytest.approx(0.01, abs=1e-3)
+
+
+def test_rpe_zero_after_rigid_motion_and_measures_drift() -> None:
+    truth = _trajectory()
+    assert rpe(_moved(truth), truth).trans_rmse_m < 1e-9
+    drift = [T.copy() for T in truth]
+    for i, T in enumerate(drift):
+        T[:3, 3] += [0.001 * i, 0, 0]  # 1 mm per frame along world x
+    r = rpe(drift, truth, delta=1)
+    assert r.trans_rmse_m == pytest.approx(0.001, rel=1e-6)
+    assert r.rot_rmse_deg < 1e-6
+
+
+def test_umeyama_rejects_too_few_points() -> None:
+    with pytest.raises(ValueError):
+        umeyama(np.zeros((2, 3)), np.zeros((2, 3)))
+    with pytest.raises(ValueError):
+        ate([np.eye(4)] * 2, [np.eye(4)] * 2)
+
+
+def test_tum_round_trip(tmp_path) -> None:
+    poses = _trajectory(25)
+    stamps = [1_700_000_000_123_456_789 + i * 33_333_333 for i in range(25)]
+    poses_with_gap = list(poses)
+    poses_with_gap[3] = None
+    write_tum(tmp_path / "trajectory.tum", stamps, poses_with_gap)
+    text = (tmp_path / "trajectory.tum").read_text()
+    assert text.splitlines()[1].split()[0] == "1700000000.123456789"
+    s, T = parse_tum(text)
+    assert len(s) == 24 and s[0] == stamps[0] and s[3] == stamps[4]
+    np.testing.assert_allclose(T, np.stack(poses[:3] + poses[4:]), atol=1e-8)
+    assert tum_text([], []).startswith("#")
+
+
+def test_keyframes_npz(tmp_path) -> None:
+    kfs = [MapPoints(np.arange(n, dtype=np.int64), np.full((n, 3), float(i)), np.zeros((n, 2)), i, 10 * i, np.eye(4))
+           for i, n in enumerate((3, 0, 5))]
+    write_keyframes(tmp_path / "keyframes.npz", kfs)
+    z = np.load(tmp_path / "keyframes.npz")
+    assert z["kf_T_world_camera"].shape == (3, 4, 4)
+    assert z["point_kf"].tolist() == [0, 0, 0, 2, 2, 2, 2, 2]
+    assert z["point_xyz_world"].shape == (8, 3) and z["point_pixels"].shape == (8, 2)
+    assert keyframe_arrays([])["point_xyz_world"].shape == (0, 3)
+
+
+# ----------------------------------------------------------------------------- PointCloud2 decoding
+def _cloud(xyz: np.ndarray, *, big: bool = False, f64: bool = False, pad: int = 0, drop: str = "", height: int = 1):
+    from types import SimpleNamespace as NS
+
+    kind = (">" if big else "<") + ("f8" if f64 else "f4")
+    size = 8 if f64 else 4
+    step = 3 * size + 4 + pad  # x y z, an unrelated 4-byte field, padding
+    n = len(xyz)
+    width = n // height
+    row_pad = 3
+    buf = bytearray((step * width + row_pad) * height)
+    for i, p in enumerate(xyz):
+        r, c = divmod(i, width)
+        off = r * (step * width + row_pad) + c * step
+        buf[off:off + 3 * size] = np.asarray(p, kind).tobytes()
+    fields = [NS(name=nm, offset=i * size, datatype=8 if f64 else 7, count=1) for i, nm in enumerate("xyz") if nm != drop]
+    fields.append(NS(name="intensity", offset=3 * size, datatype=7, count=1))
+    return NS(fields=fields, is_bigendian=big, point_step=step, width=width, height=height,
+              row_step=step * width + row_pad, data=np.frombuffer(bytes(buf), np.uint8))
+
+
+@pytest.mark.parametrize("kw", [{}, {"big": True}, {"f64": True}, {"pad": 5, "height": 2}])
+def test_decode_pointcloud2_layouts(kw) -> None:
+    from slzcli.slam.recorded import decode_pointcloud2
+
+    xyz = np.array([[1.0, 2.0, 3.0], [-4.5, 0.25, 8.0], [np.nan, 0.0, 0.0], [7.0, 8.0, 9.0]])
+    got, ids = decode_pointcloud2(_cloud(xyz, **kw))
+    np.testing.assert_allclose(got, xyz[[0, 1, 3]])  # the NaN point is dropped
+    assert ids.tolist() == [-1, -1, -1]
+
+
+def test_decode_pointcloud2_errors() -> None:
+    from slzcli.errors import DecodeError
+    from slzcli.slam.recorded import decode_pointcloud2
+
+    with pytest.raises(DecodeError, match="no z field"):
+        decode_pointcloud2(_cloud(np.zeros((2, 3)), drop="z"))
+    short = _cloud(np.zeros((4, 3)))
+    short.data = short.data[:10]
+    with pytest.raises(DecodeError, match="too few"):
+        decode_pointcloud2(short)
