@@ -68,6 +68,7 @@ class SourcesCfg:
     use_ground_truth_pose: bool
     sync_tolerance_ms: float = rng(0, lo_open=True)
     pose_tolerance_ms: float = rng(0, lo_open=True)
+    reorder_window_ms: float = rng(0, lo_open=True)
     depth_unit_16u_m: float = rng(0, lo_open=True)
     tum_depth_scale: float = rng(0, lo_open=True)
     max_depth_m: float = rng(0)
@@ -77,6 +78,7 @@ class SourcesCfg:
 class DepthVarianceCfg:
     kernel_px: int = rng(3, 99, odd=True)
     s0_m: float = rng(0, lo_open=True)
+    min_valid_fraction: float = rng(0, 1, lo_open=True)
     normalise: Normalise = "absolute"
 
 
@@ -104,6 +106,7 @@ class InclinationCfg:
 class SteepnessCfg:
     normal_px: int = rng(3, 31, odd=True)
     slope_limit_deg: float = rng(0, 90, lo_open=True)
+    min_valid_fraction: float = rng(0, 1, lo_open=True)
     normalise: Normalise = "absolute"
 
 
@@ -119,8 +122,7 @@ class TerrainCfg:
 class FuzzyCfg:
     rules: str
     evaluator: Literal["compiled", "exact"]
-    lut_levels: int = rng(2, 257)
-    centroid_samples: int = rng(11, 10001)
+    lut_levels: int = rng(3, 128)
 
 
 @dataclass(frozen=True)
@@ -150,6 +152,11 @@ class UavCfg:
     size_m: tuple[float, ...] = rng(0, lo_open=True, n=3)
     footprint_m: tuple[float, ...] = rng(0, lo_open=True, n=2)
     max_slope_deg: float = rng(0, 90, lo_open=True)
+    thrust_min_n: float = rng(0)
+    thrust_max_n: float = rng(0, lo_open=True)
+    torque_max_n_m: tuple[float, ...] = rng(0, lo_open=True, n=3)
+    camera_offset_m: tuple[float, ...] = rng(n=3)
+    camera_yaw_deg: float = rng(-180, 180)
 
 
 @dataclass(frozen=True)
@@ -161,8 +168,60 @@ class LandingCfg:
     min_extent_factor: float = rng(0)
     bayes_min_extent_factor: float = rng(0)
     seed: int = rng(0)
+    detect_on: Literal["keyframes", "every_nth"]
+    depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
     max_tilt_deg: float = rng(0, 90)
+
+
+@dataclass(frozen=True)
+class SimCfg:
+    dynamics_dt_s: float = rng(0, 0.1, lo_open=True)
+    control_dt_s: float = rng(0, 1, lo_open=True)
+    attitude: Literal["dynamic", "ideal"]
+    visibility: Literal["virtual", "real"]
+    switch_error_px: float = rng(0, lo_open=True)
+    stable_error_px: float = rng(0, lo_open=True)
+    settling_fraction: float = rng(0, 1, lo_open=True)
+    switch_hold_s: float = rng(0)
+    error_filter_s: float = rng(0)
+    descent_speed_m_s: float = rng(0, lo_open=True)
+    timeout_s: float = rng(0, lo_open=True)
+    abort_tilt_deg: float = rng(0, 180, lo_open=True)
+    success_radius_m: float = rng(0, lo_open=True)
+    start_m: tuple[float, ...] = rng(n=3)
+
+
+@dataclass(frozen=True)
+class NoiseCfg:
+    seed: int = rng(0)
+    position_sigma_m: float = rng(0)
+    attitude_sigma_deg: float = rng(0)
+    velocity_sigma_m_s: float = rng(0)
+    position_drift_m_sqrt_s: float = rng(0)
+    yaw_drift_deg_sqrt_s: float = rng(0)
+
+
+@dataclass(frozen=True)
+class WindCfg:
+    mean_m_s: tuple[float, ...] = rng(n=3)
+    gust_m_s: float = rng(0)
+    gust_tau_s: float = rng(0, lo_open=True)
+    drag_kg_s: float = rng(0)
+
+
+@dataclass(frozen=True)
+class MonteCarloCfg:
+    start_radius_m: float = rng(0)
+    start_dz_m: float = rng(0)
+    start_yaw_deg: float = rng(0, 180)
+    position_sigma_m: float = rng(0)
+    attitude_sigma_deg: float = rng(0)
+    velocity_sigma_m_s: float = rng(0)
+    position_drift_m_sqrt_s: float = rng(0)
+    yaw_drift_deg_sqrt_s: float = rng(0)
+    gust_m_s: float = rng(0)
+    switch_error_px: float = rng(0, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -175,6 +234,148 @@ class ControlCfg:
     mu: tuple[float, ...] = rng(0, n=2)
     desired_depth_m: float = rng(0, lo_open=True)
     gravity_m_s2: float = rng(0, lo_open=True)
+    k_psi_d: float = rng(0)
+    yaw_feature_deg: float = rng(-180, 180)
+    max_tilt_cmd_deg: float = rng(0, 89, lo_open=True)
+    integral_zone_px: float = rng(0)
+    yaw_symmetry_deg: float = rng(0, 360)
+    sim: SimCfg
+    noise: NoiseCfg
+    wind: WindCfg
+    montecarlo: MonteCarloCfg
+
+
+@dataclass(frozen=True)
+class ScenariosCfg:
+    s1_m: tuple[float, ...] = rng(n=3)
+    s2_m: tuple[float, ...] = rng(n=3)
+    s3_m: tuple[float, ...] = rng(n=3)
+    s4_m: tuple[float, ...] = rng(n=3)
+
+
+@dataclass(frozen=True)
+class FlightCfg:
+    drift_m: float = rng(0)
+    drift_period_s: float = rng(0, lo_open=True)
+    altitude_wobble_m: float = rng(0)
+    tilt_deg: float = rng(0, 30)
+    tilt_period_s: float = rng(0, lo_open=True)
+    yaw_deg: float = rng(-360, 360)
+    yaw_rate_deg_s: float = rng(-90, 90)
+    descent_m_s: float = rng(0)
+    min_altitude_m: float = rng(0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class LightCfg:
+    sun_dir: tuple[float, ...] = rng(n=3)
+    ambient: float = rng(0, 1)
+    shadows: bool
+    shadow_bias_m: float = rng(0)
+    sky_rgb: tuple[float, ...] = rng(0, 1, n=3)
+
+
+@dataclass(frozen=True)
+class SensorCfg:
+    depth_sigma_a: float = rng(0)
+    edge_jump_m: float = rng(0, lo_open=True)
+    edge_hole_prob: float = rng(0, 1)
+    min_range_m: float = rng(0)
+    max_range_m: float = rng(0, lo_open=True)
+    color_noise: float = rng(0, 64)
+
+
+@dataclass(frozen=True)
+class GroundTruthCfg:
+    raster_m: float = rng(0.005, 1.0)
+    margin_m: float = rng(0)
+    step_m: float = rng(0, lo_open=True)
+    slope_tolerance_deg: float = rng(0, 1)
+
+
+@dataclass(frozen=True)
+class SynthCfg:
+    frames: int = rng(1)
+    rate_hz: float = rng(1, 200)
+    path: Literal["hover", "descent"]
+    seed: int = rng(0)
+    start_stamp_ns: int = rng(0)
+    embed_m: float = rng(0)
+    scenarios: ScenariosCfg
+    flight: FlightCfg
+    light: LightCfg
+    sensor: SensorCfg
+    ground_truth: GroundTruthCfg
+
+
+# --- slam (slam helper) ---
+@dataclass(frozen=True)
+class OrbCfg:
+    n_features: int = rng(50, 20000)
+    n_levels: int = rng(1, 16)
+    scale_factor: float = rng(1, 2, lo_open=True)
+    fast_threshold: int = rng(1, 255)
+    fast_min_threshold: int = rng(1, 255)
+
+
+@dataclass(frozen=True)
+class SlamKeyframeCfg:
+    min_translation_m: float = rng(0, lo_open=True)
+    min_rotation_deg: float = rng(0, 180, lo_open=True)
+    min_tracked_ratio: float = rng(0, 1)
+
+
+@dataclass(frozen=True)
+class OrbSlam3Cfg:
+    close_depth_m: float = rng(0, lo_open=True)
+    baseline_m: float = rng(0, lo_open=True)
+    nominal_period_s: float = rng(0, lo_open=True)
+    load_timeout_s: float = rng(0, lo_open=True)
+    frame_timeout_s: float = rng(0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class OdometryCfg:
+    ratio_test: float = rng(0, 1, lo_open=True)
+    search_radius_px: float = rng(0, lo_open=True)
+    pnp_reprojection_px: float = rng(0, lo_open=True)
+    pnp_iterations: int = rng(10, 100000)
+    pnp_confidence: float = rng(0, 1, lo_open=True)
+    min_inliers: int = rng(6)
+    min_depth_m: float = rng(0)
+    max_depth_m: float = rng(0, lo_open=True)
+    local_keyframes: int = rng(1, 1000)
+    min_parallax_deg: float = rng(0)
+    max_triangulation_error_px: float = rng(0, lo_open=True)
+    reinit_after_frames: int = rng(1)
+
+
+@dataclass(frozen=True)
+class VocabCfg:
+    k: int = rng(2, 20)
+    levels: int = rng(1, 10)
+    iterations: int = rng(1, 100)
+    max_frames: int = rng(1)
+    seed: int = rng(0)
+
+
+@dataclass(frozen=True)
+class SlamCfg:
+    backend: Literal["auto", "orbslam3", "odometry", "recorded"]
+    vocabulary: str
+    points_topic: str
+    orb: OrbCfg
+    keyframe: SlamKeyframeCfg
+    orbslam3: OrbSlam3Cfg
+    odometry: OdometryCfg
+    vocab: VocabCfg
+# --- end slam ---
+
+
+@dataclass(frozen=True)
+class OutputCfg:
+    frame_images: bool
+    reverse_colormap: bool
 
 
 @dataclass(frozen=True)
@@ -187,6 +388,9 @@ class Config:
     uav: UavCfg
     landing: LandingCfg
     control: ControlCfg
+    synth: SynthCfg
+    slam: SlamCfg
+    output: OutputCfg
 
     def to_dict(self) -> dict[str, Any]:
         return _to_plain(self)

@@ -104,8 +104,8 @@ class TerrainMaps:
     """The four terrain maps of METHOD.md 2.3, float32 HxW in [0, 1], 1 = good for landing.
 
     ``valid`` marks pixels with depth (invalid pixels are 0 in every map); ``slope_deg`` is
-    the physical surface slope against gravity (NaN where unknown), kept for reporting and
-    for the acceptance test.
+    the physical surface slope against gravity (NaN where unknown) and ``edge_distance_m`` the
+    metric clearance to the nearest depth edge, kept for reporting and the acceptance test.
     """
 
     depth_variance: np.ndarray
@@ -114,6 +114,7 @@ class TerrainMaps:
     steepness: np.ndarray
     valid: np.ndarray
     slope_deg: np.ndarray
+    edge_distance_m: np.ndarray | None = None  # metres to the nearest depth edge or hole (acceptance test)
 
     NAMES = ("depth_variance", "flatness", "inclination", "steepness")
 

@@ -19,6 +19,9 @@ import numpy as np
 
 from slzcli.errors import OutputError
 
+_UMASK = os.umask(0)
+os.umask(_UMASK)  # read once: mkstemp makes 0600 files, outputs get the user's usual mode
+
 
 def _json_default(obj: Any) -> Any:
     if isinstance(obj, np.generic):
@@ -38,11 +41,13 @@ def atomic_path(path: Path) -> Iterator[Path]:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise OutputError(path.parent, f"cannot create folder ({err.strerror})") from err
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    # The real suffix is kept last so that writers that pick a format by extension still work.
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.tmp-", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     tmp = Path(tmp_name)
     try:
         yield tmp
+        os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
