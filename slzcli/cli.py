@@ -93,4 +93,271 @@ def config_dump(config: Config) -> tuple[dict[str, Any], str]:
     return config.to_dict(), dump(config).rstrip("\n")
 
 
+@main.command("info")
+@click.argument("bag", type=click.Path(path_type=Path))
+@common_options
+def info_cmd(config: Config, bag: Path) -> tuple[dict[str, Any], str]:
+    """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames."""
+    from slzcli.sources import open_recording
+    from slzcli.sources.info_text import info_text
+
+    with open_recording(bag, config) as rec:
+        info = rec.info()
+    return info.to_dict(), info_text(info)
+
+
+@main.group("vocab")
+def vocab_group() -> None:
+    """ORB vocabularies for ORB-SLAM3."""
+
+
+@vocab_group.command("build")
+@click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Vocabulary file to write (DBoW2 text format).")
+@common_options
+def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path) -> tuple[dict[str, Any], str]:
+    """Train a DBoW2 ORB vocabulary from recordings (slam.vocab.* sets k, levels, frames)."""
+    from slzcli.slam.vocabulary import build_from_recordings
+
+    r = build_from_recordings(list(recordings), output, config)
+    summary = {"path": r.path, "recordings": r.recordings, "frames": r.frames, "descriptors": r.descriptors,
+               "nodes": r.nodes, "words": r.words, "size_bytes": r.size_bytes, "seconds": round(r.seconds, 3)}
+    text = (f"{r.path}: {r.words} words ({r.nodes} nodes, k={config.slam.vocab.k}, L={config.slam.vocab.levels}) "
+            f"from {r.descriptors} descriptors in {r.frames} frames of {r.recordings} recording(s); "
+            f"{r.size_bytes / 1024:.0f} KiB in {r.seconds:.1f} s")
+    return summary, text
+
+
+def _start_floats(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[float, ...] | None:
+    if value is None:
+        return None
+    if ctx.params.get("scenario") is not None:
+        raise click.BadParameter("give --scenario or --start, not both")
+    try:
+        return tuple(float(v) for v in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated numbers, got {value!r}") from None
+
+
+@main.group("land")
+def land_group() -> None:
+    """Landing on a chosen site."""
+
+
+@land_group.command("simulate")
+@click.argument("run", type=click.Path(path_type=Path))
+@click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (default: RUN/ibvs).")
+@click.option("--scenario", type=click.IntRange(1, 4), help="Paper start (world frame): 1 (0,0,10), "
+              "2 (-3,12,9), 3 (0,0,7), 4 (0,0,10) m.")
+@click.option("--start", callback=_start_floats, metavar="X,Y,Z[,YAW]",
+              help="Start as an offset from the site centre (m, world x/y/up; yaw deg). Default: control.sim.start_m.")
+@click.option("--runs", type=click.IntRange(1), default=1, show_default=True,
+              help="Monte Carlo runs over start scatter, pose noise and gusts.")
+@click.option("--seed", type=int, default=None, help="Seed of the noise (and of the start scatter); "
+              "default control.noise.seed.")
+@common_options
+def land_simulate(config: Config, run: Path, output: Path | None, scenario: int | None,
+                  start: tuple[float, ...] | None, runs: int, seed: int | None) -> tuple[dict[str, Any], str]:
+    """Simulate the image-moment IBVS descent onto the site of RUN/landing.json (METHOD 2.6-2.9)."""
+    from slzcli.control import montecarlo
+    from slzcli.control.simulate import resolve_start, simulate
+    from slzcli.errors import ConfigError
+    from slzcli.outputs import ibvs as ibvs_out
+    from slzcli.outputs import ibvs_plots
+
+    if scenario is not None and start is not None:  # when --start came first on the command line
+        raise ConfigError("--start", "give --scenario or --start, not both")
+    target, _ = ibvs_out.read_target(run, config.uav.footprint_m)
+    out = output or ibvs_out.landing_path(run).parent / "ibvs"
+    start_world = resolve_start(target, config, scenario, start)
+    cam = config.camera
+    if runs == 1:
+        result = simulate(target, start_world[None], config, log=True, seed=seed)
+        metrics = result.metrics(0)
+        files = ibvs_out.write_run(out, result, metrics, cam.cx, cam.cy)
+        files += [ibvs_plots.image_plane(out / "image_plane.png", result, cam.width, cam.height, cam.cx, cam.cy),
+                  ibvs_plots.feature_error(out / "feature_error.png", result),
+                  ibvs_plots.trajectory_3d(out / "trajectory_3d.png", result, target)]
+        summary = {**metrics, "output": str(out), "files": [p.name for p in files]}
+        s = metrics
+        text = (f"{'landed' if s['success'] else 'FAILED'} ({s['reason']}) after {s['landing_time_s']} s; "
+                f"stabilisation {s['stabilisation_time_s']} s, final feature error {s['final_feature_error_px']} px, "
+                f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg -> {out}")
+        return summary, text
+    mc_seed = config.control.noise.seed if seed is None else seed
+    result = montecarlo.run(target, start_world, runs, mc_seed, config)
+    summary = {**montecarlo.summarise(result), "seed": mc_seed, "start_world": start_world.tolist()}
+    files = ibvs_out.write_montecarlo(out, result, summary)
+    files.append(ibvs_plots.montecarlo_histograms(out / "montecarlo_hist.png", result))
+    return {**summary, "output": str(out), "files": [p.name for p in files]}, f"{montecarlo.table(summary)}\n-> {out}"
+
+
+@main.command("synth")
+@click.argument("scene", required=False)
+@click.option("-o", "--output", "output", type=click.Path(path_type=Path),
+              help="Recording to write (default: SCENE[_VARIANTS]_s{seed}.mcap/.bag or a bag folder, here).")
+@click.option("--list", "list_scenes", is_flag=True, help="List the scenes and their variants, then exit.")
+@click.option("--frames", type=click.IntRange(1), help="Number of frames (default synth.frames).")
+@click.option("--scenario", type=click.IntRange(1, 4), help="Paper start position (world ENU): 1 (0,0,10), "
+              "2 (-3,12,9), 3 (0,0,7), 4 (0,0,10) m. Default: the scene's own (playground 3, office 4, else 1).")
+@click.option("--start", callback=_start_floats, metavar="X,Y,Z", help="Start position (m, world ENU) instead of --scenario.")
+@click.option("--seed", type=click.IntRange(0), help="Seed of the flight wobble and sensor noise (default synth.seed).")
+@click.option("--format", "fmt", default="mcap", show_default=True,
+              type=click.Choice(["mcap", "ros1", "ros2-sqlite", "ros2-mcap", "mcap-ros1"]),
+              help="mcap = ROS 2 MCAP file; ros1 = .bag; ros2-* = rosbag2 folder.")
+@click.option("--depth-encoding", default="16UC1", show_default=True,
+              type=click.Choice(["16UC1", "32FC1", "mono16", "compressedDepth", "compressedDepth-32FC1"]))
+@click.option("--color-encoding", default="rgb8", show_default=True,
+              type=click.Choice(["rgb8", "bgr8", "jpeg", "png"]), help="Raw Image or CompressedImage (jpeg, png).")
+@click.option("--rate", "rate_hz", type=click.FloatRange(1, 200), help="Frame rate in Hz (default synth.rate_hz).")
+@click.option("--path", "path_kind", type=click.Choice(["hover", "descent"]), help="Camera path (default synth.path).")
+@click.option("--variant", "variants", multiple=True, help="Scene variant (repeatable), e.g. sand, low_light; "
+              "or SCENE:sand+low_light.")
+@click.option("--contact-sheet", "sheet", type=click.Path(dir_okay=False, path_type=Path),
+              help="Where to write the preview PNG (default OUT.preview.png).")
+@click.option("--force", is_flag=True, help="Replace an existing recording.")
+@common_options
+def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scenes: bool, frames: int | None,
+              scenario: int | None, start: tuple[float, ...] | None, seed: int | None, fmt: str,
+              depth_encoding: str, color_encoding: str, rate_hz: float | None, path_kind: str | None,
+              variants: tuple[str, ...], sheet: Path | None, force: bool) -> tuple[dict[str, Any], str]:
+    """Render a ground-truthed RGB-D recording of SCENE (datasets/scenes), with a .gt.npz sidecar."""
+    from slzcli.synth import record
+    from slzcli.synth.scenes import list_scenes as scene_list, split_spec
+
+    if list_scenes:
+        rows = scene_list()
+        text = "\n".join(f"{name:<12} {desc}\n{'':<12} variants: {', '.join(var)}" for name, desc, var in rows)
+        return {"scenes": [{"name": n, "description": d, "variants": list(v)} for n, d, v in rows]}, text
+    if scene is None:
+        raise click.UsageError("give a SCENE (see slz synth --list)")
+    if start is not None and len(start) != 3:
+        raise click.UsageError("--start needs X,Y,Z")
+    start_m = tuple(start) if start is not None else (
+        record.scenario_start(config, scenario) if scenario is not None else None)
+    s = config.synth
+    options = record.SynthOptions(scene=scene, frames=frames or s.frames, rate_hz=rate_hz or s.rate_hz,
+                                  path=path_kind or s.path, seed=s.seed if seed is None else seed,
+                                  start_m=start_m, variants=variants, fmt=fmt,  # type: ignore[arg-type]
+                                  color_encoding=color_encoding, depth_encoding=depth_encoding)
+    if output is None:
+        name, spec_variants = split_spec(scene)
+        stem = "_".join([Path(name).stem, *spec_variants, *variants, f"s{options.seed}"])
+        output = Path(stem + record.SUFFIX_OF_FORMAT.get(fmt, ""))
+    with _progress(f"synth {scene}") as tick:
+        summary = record.synthesize(output, options, config, preview=sheet, progress=tick, force=force)
+    text = (f"{summary['recording']}: {summary['frames']} frames of {summary['scene']}"
+            f"{'+' + '+'.join(summary['variants']) if summary['variants'] else ''} ({fmt}, {color_encoding}/"
+            f"{depth_encoding}) from {tuple(summary['start_m'])} m, seed {summary['seed']}; ground truth "
+            f"{summary['ground_truth']} ({100 * summary['safe_fraction_first_frame']:.1f} % of frame 0 safe); "
+            f"preview {summary['preview']}")
+    return summary, text
+
+
+class _progress:
+    """A rich progress bar on a terminal (stderr), nothing otherwise; yields tick(done, total)."""
+
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self.bar: Any = None
+
+    def __enter__(self) -> Callable[[int, int], None]:
+        if sys.stderr.isatty():
+            from rich.console import Console
+            from rich.progress import Progress
+            self.bar = Progress(console=Console(stderr=True), transient=True)
+            self.bar.start()
+            self.task = self.bar.add_task(self.label, total=None)
+
+        def tick(done: int, total: int) -> None:
+            if self.bar is not None:
+                self.bar.update(self.task, completed=done, total=total)
+        return tick
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+@main.command("detect")
+@click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path),
+              help="Run folder (default runs/<recording name>); with several recordings, one sub-folder each.")
+@click.option("--method", type=click.Choice(["fuzzy", "bayes"]), default=None,
+              help="Fusion method (default: scoring.method).")
+@click.option("--force", is_flag=True, help="Redo runs whose outputs exist for the same config.")
+@common_options
+def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None, method: str | None,
+               force: bool) -> tuple[dict[str, Any], str]:
+    """Maps, fuzzy score, mask, SLAM map points and the landing site of each recording."""
+    from slzcli.pipeline import detect_recording
+
+    results, lines = [], []
+    for path in recordings:
+        out = _run_dir(path, output, len(recordings))
+        with _progress(f"detect {path.name}") as progress:
+            summary = detect_recording(path, config, out, force=force, progress=progress, method=method)
+        results.append({"run": str(out), **summary})
+        lines.append(_detect_text(out, summary))
+    return (results[0] if len(results) == 1 else {"runs": results}), "\n".join(lines)
+
+
+def _run_dir(path: Path, output: Path | None, count: int) -> Path:
+    name = path.name.rstrip("/") or "run"
+    for suffix in (".mcap", ".bag", ".db3"):
+        name = name.removesuffix(suffix)
+    if output is None:
+        return Path("runs") / name
+    return output if count == 1 else output / name
+
+
+def _detect_text(out: Path, s: dict[str, Any]) -> str:
+    t = s["timings_ms"]
+    head = f"{s['source']}: {s['frames']} frames, {s['detections']} detections ({s['method']}, SLAM {s['slam_backend']})"
+    if s.get("skipped"):
+        head += " [skipped: done before for this config; --force redoes it]"
+    if s["status"] == "site":
+        x, y, z = s["site_world"]
+        result = f"landing site at ({x:.2f}, {y:.2f}, {z:.2f}) m in the run's world frame"
+    else:
+        result = f"no safe site: {s['reason']}"
+    lines = [head, "  " + result,
+             f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, mask {t['mask']:.1f} ms, "
+             f"slam {t['slam']:.1f} ms, select {t['select']:.1f} ms (medians)"]
+    gt = s.get("ground_truth")
+    if gt and gt.get("mask"):
+        m = gt["mask"]
+        fmt = lambda v: "n/a" if v is None else f"{v:.3f}"  # noqa: E731
+        lines.append(f"  vs ground truth: mask precision {fmt(m['precision'])}, recall {fmt(m['recall'])}, "
+                     f"IoU {fmt(m['iou'])}" + (f"; site safe: {gt['site']['safe']}, clearance "
+                                               f"{gt['site']['clearance_m']:.2f} m" if gt.get("site") else ""))
+    lines.append(f"  results: {out}/ (landing.json, run.json, sites.csv, points.ply, frames/)")
+    return "\n".join(lines)
+
+
+class _progress:
+    """A rich progress bar on a terminal, nothing otherwise (logs still say what happens)."""
+
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self.bar: Any = None
+
+    def __enter__(self) -> Callable[[int, int | None], None] | None:
+        if not sys.stderr.isatty():
+            return None
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                            TimeRemainingColumn(), transient=True)
+        self.bar.start()
+        task = self.bar.add_task(self.label, total=None)
+        return lambda done, total: self.bar.update(task, completed=done, total=total)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
 # --- commands end (new commands go above this line) ---

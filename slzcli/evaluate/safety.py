@@ -9,7 +9,7 @@ of ratios.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -79,3 +79,44 @@ def precision_recall_curve(score: np.ndarray, truth: np.ndarray, thresholds: np.
         recall = tp / max(pos.size, 1)
     inv = np.argsort(np.argsort(thresholds))
     return precision[inv], recall[inv]
+
+
+@dataclass(frozen=True)
+class SiteTruth:
+    """A chosen site checked against the ground-truth world raster."""
+
+    safe: bool                       # the site's cell is one where the UAV footprint plus margin is clear
+    clearance_m: float               # distance from the site to the nearest hazard (non-usable) cell
+    to_best_centre_m: float          # distance to the centre of the largest truly safe area
+    true_xy: tuple[float, float]     # the site in the ground-truth world
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"safe": self.safe, "clearance_m": self.clearance_m, "to_best_centre_m": self.to_best_centre_m,
+                "true_xy": list(self.true_xy)}
+
+
+def site_truth(raster: Any, xy: tuple[float, float]) -> SiteTruth:
+    """Check a world-XY site against a SafetyRaster (``slzcli.synth.groundtruth``).
+
+    The "centre" of the largest safe area is its point farthest from the area's boundary
+    (the distance-transform maximum), a centre that is inside the area whatever its shape.
+    """
+    import cv2
+
+    x, y = float(xy[0]), float(xy[1])
+    safe = bool(raster.safe_at(np.array([x]), np.array([y]))[0])
+    res = raster.resolution_m
+    hazard_dist = cv2.distanceTransform(raster.usable.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * res
+    r, c, inside = raster.cells(np.array([x]), np.array([y]))
+    clearance = float(hazard_dist[r[0], c[0]]) if inside[0] else 0.0
+    n, labels = cv2.connectedComponents(raster.safe.astype(np.uint8), connectivity=8)
+    best = float("nan")
+    if n > 1:
+        sizes = np.bincount(labels.ravel())[1:]
+        largest = labels == 1 + int(np.argmax(sizes))
+        inner = cv2.distanceTransform(largest.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        br, bc = np.unravel_index(int(np.argmax(inner)), inner.shape)
+        cx = raster.origin_xy[0] + (bc + 0.5) * res
+        cy = raster.origin_xy[1] + (br + 0.5) * res
+        best = float(np.hypot(x - cx, y - cy))
+    return SiteTruth(safe, clearance, best, (x, y))

@@ -47,3 +47,30 @@ def write_png(path: Path, image: np.ndarray) -> None:
         raise OutputError(path, "PNG encoding failed")
     with atomic_path(path) as tmp:
         tmp.write_bytes(buf.tobytes())
+
+
+def site_overlay_bgr(rgb: np.ndarray, mask: np.ndarray, projected: np.ndarray | None = None,
+                     kept: np.ndarray | None = None, chosen: np.ndarray | None = None,
+                     corners_px: np.ndarray | None = None) -> np.ndarray:
+    """The paper's Figure 6 in one picture: mask tint, every SLAM point (white), the ones under
+    the mask (blue), the chosen cluster (green) and the Eq. 10 square (red)."""
+    img = overlay_bgr(rgb, mask)
+    h, w = mask.shape
+    if projected is not None and len(projected):
+        ok = np.all(np.isfinite(projected), axis=1) & (projected[:, 0] >= 0) & (projected[:, 0] < w) \
+            & (projected[:, 1] >= 0) & (projected[:, 1] < h)
+        layers = [(ok, (255, 255, 255), 1)]
+        if kept is not None:
+            layers.append((ok & kept, (255, 120, 30), 2))
+        if chosen is not None:
+            layers.append((ok & chosen, (40, 220, 40), 3))
+        for sel, colour, radius in layers:
+            dots = np.zeros((h, w), np.uint8)
+            pts = np.round(projected[sel]).astype(np.int64)
+            dots[np.clip(pts[:, 1], 0, h - 1), np.clip(pts[:, 0], 0, w - 1)] = 1
+            disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+            img[cv2.dilate(dots, disc).astype(bool)] = colour
+    if corners_px is not None and np.all(np.isfinite(corners_px)):
+        quad = np.round(corners_px[[0, 1, 3, 2]]).astype(np.int32)  # ++, +-, --, -+ around the square
+        cv2.polylines(img, [quad], True, (0, 0, 255), 2, lineType=cv2.LINE_AA)
+    return img

@@ -1,0 +1,190 @@
+"""The run folder of ``slz detect`` (DESIGN.md "Run folder") and the ``landing.json`` contract.
+
+Files: run.json, landing.json, sites.csv, points.ply, trajectory.tum, keyframes.npz,
+frames/NNNNNN/{depth_variance,flatness,inclination,steepness,score,mask,overlay}.png + maps.npz.
+Everything here writes into the temporary run folder the pipeline hands it; the folder is
+renamed into place only when all of it is written.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.evaluate.safety import site_truth, total
+from slzcli.outputs import files, images
+from slzcli.outputs.points import write_points_ply
+from slzcli.outputs.trajectory import write_keyframes, write_tum
+
+SITE_COLUMNS = ("frame", "stamp_ns", "cluster", "points", "x", "y", "z", "normal_variance", "extent_x_m",
+                "extent_y_m", "qualifies", "reason", "chosen")
+
+
+def input_fingerprint(path: Path) -> dict[str, Any]:
+    """Identity of an input for skipping reruns: resolved path, size and mtime (of a folder's files)."""
+    p = Path(path).resolve()
+    entries = sorted(p.rglob("*")) if p.is_dir() else [p]
+    stats = [(e.stat().st_size, e.stat().st_mtime_ns) for e in entries if e.is_file()]
+    return {"path": str(p), "bytes": sum(s for s, _ in stats), "mtime_ns": max((m for _, m in stats), default=0)}
+
+
+def previous_summary(out_dir: Path, config_hash: str, fingerprint: dict[str, Any]) -> dict[str, Any] | None:
+    """The summary of a finished run in ``out_dir`` for the same config and input, else None."""
+    try:
+        run = json.loads((Path(out_dir) / "run.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if run.get("config_hash") == config_hash and run.get("input") == fingerprint:
+        return run.get("summary")
+    return None
+
+
+def write_detection(run_dir: Path, det: Any, config: Config) -> None:
+    """One detection frame: the maps as heat maps, score, mask, overlay (Figure 6 style), maps.npz."""
+    if not config.output.frame_images:
+        return
+    folder = run_dir / "frames" / f"{det.frame.index:06d}"
+    reverse = config.output.reverse_colormap
+    valid = det.maps.valid
+    for name, values in det.maps.as_dict().items():
+        images.write_png(folder / f"{name}.png", images.heatmap_bgr(values, reverse=reverse, valid=valid))
+    images.write_png(folder / "score.png", images.heatmap_bgr(det.score.score, reverse=reverse, valid=valid))
+    images.write_png(folder / "mask.png", images.mask_png(det.score.mask))
+    sel = det.selection
+    chosen = corners_px = None
+    if sel is not None and sel.site is not None:
+        centre = np.asarray(sel.site.center_world)
+        nearest = min(sel.candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre)))
+        chosen = sel.labels == nearest.cluster
+        from slzcli.landing.select import project
+
+        corners_px, _ = project(np.asarray(sel.site.corners_world), det.T_world_camera, det.frame.K,
+                                det.score.mask.shape)
+    overlay = images.site_overlay_bgr(det.frame.rgb, det.score.mask,
+                                      None if sel is None else sel.projected, None if sel is None else sel.kept,
+                                      chosen, corners_px)
+    images.write_png(folder / "overlay.png", overlay)
+    files.write_npz(folder / "maps.npz", score=det.score.score, mask=det.score.mask, valid=valid,
+                    slope_deg=det.maps.slope_deg, edge_distance_m=det.edge_m, **det.maps.as_dict())
+
+
+def landing_record(source: Path, method: str, committed: dict[str, Any] | None, world_frame: str,
+                   timings: dict[str, float], reason: str, truth: Any | None) -> dict[str, Any]:
+    """landing.json: the contract in DESIGN.md, plus the acceptance test and ground-truth check."""
+    rec: dict[str, Any] = {"status": "site" if committed else "no_safe_site", "method": method,
+                           "source": str(source)}
+    if committed is None:
+        rec["reason"] = reason
+    else:
+        s, frame = committed["site"], committed["frame"]
+        rec["frame"] = {"index": frame.index, "stamp_ns": frame.stamp_ns}
+        rec["site"] = {
+            "pixel": list(s.pixel), "center_camera": list(s.center_camera), "center_world": list(s.center_world),
+            "corners_world": [list(c) for c in s.corners_world], "normal_world": list(s.normal_world),
+            "cluster": {"points": s.cluster_points, "normal_variance": s.normal_variance,
+                        "extent_m": list(s.extent_m)},
+            "score": s.score,
+            "acceptance": {"passed": s.accepted, "reason": s.acceptance_reason, "tilt_deg": s.tilt_deg,
+                           "edge_clearance_m": s.edge_clearance_m},
+            "support": {"detections_agreeing": committed["support"], "detections_with_site": committed["detections"]},
+        }
+        if truth is not None:
+            rec["site"]["ground_truth"] = _site_truth(truth, frame.stamp_ns, s.center_camera).as_dict()
+    rec["world_frame"] = world_frame
+    rec["timings_ms"] = timings
+    return rec
+
+
+def _site_truth(truth: Any, stamp_ns: int, center_camera: tuple[float, float, float]) -> Any:
+    """The site in the ground-truth world: through the TRUE pose of its frame (not SLAM's)."""
+    T = truth.T_world_camera[truth.index_of(stamp_ns, tolerance_ns=1_000_000)]
+    p = T[:3, :3] @ np.asarray(center_camera) + T[:3, 3]
+    return site_truth(truth.raster, (float(p[0]), float(p[1])))
+
+
+def sites_csv(rows: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=SITE_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    return buf.getvalue()
+
+
+def write_run(run_dir: Path, source: Path, config: Config, method: str, info: Any, report: Any, det: Any,
+              committed: dict[str, Any] | None, truth: Any | None, wall_s: float,
+              fingerprint: dict[str, Any]) -> dict[str, Any]:
+    """Everything but the per-frame folders; returns the summary that run.json holds."""
+    from slzcli.pipeline import versions
+
+    st = det.state
+    timing = st.timer.summary()
+    med = {k: round(v["median_ms"], 3) for k, v in timing.items()}
+    per_frame = ("maps", "score", "mask", "slam", "select")
+    timings = {"maps": med.get("maps", 0.0), method: med.get("score", 0.0), "mask": med.get("mask", 0.0),
+               "slam": med.get("slam", 0.0), "select": med.get("select", 0.0),
+               "total": round(sum(med.get(k, 0.0) for k in per_frame), 3)}
+    world = ("the recording's world frame (recorded poses)" if det.slam_name == "recorded" else
+             f"{det.slam_name} map, gravity-aligned: z up from camera.mount at the first tracked frame, "
+             "x along that camera's x, origin at that camera")
+    reason = _no_site_reason(st, det)
+    landing = landing_record(source, method, committed, world, timings, reason, truth)
+    files.write_json(run_dir / "landing.json", landing)
+    files.write_text(run_dir / "sites.csv", sites_csv(st.site_rows))
+    write_tum(run_dir / "trajectory.tum", st.stamps_ns, st.poses)
+    write_keyframes(run_dir / "keyframes.npz", st.keyframes)
+    write_points_ply(run_dir / "points.ply", _points_by_role(st, committed))
+
+    summary: dict[str, Any] = {
+        "source": str(source), "method": method, "frames": st.frames, "detections": st.detections,
+        "status": landing["status"], "site_world": landing.get("site", {}).get("center_world"),
+        "reason": landing.get("reason"), "slam_backend": det.slam_name, "tracking": st.tracking,
+        "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
+        "pairing": {"paired": report.paired, "unpaired_color": report.unpaired_color,
+                    "unpaired_depth": report.unpaired_depth, "undecodable": report.undecodable,
+                    "notes": list(report.notes)},
+    }
+    if truth is not None:
+        summary["ground_truth"] = _truth_summary(st, landing)
+    files.write_json(run_dir / "run.json", {
+        "summary": summary, "config_hash": config.hash(), "input": fingerprint, "versions": versions(),
+        "config": config.to_dict(), "recording": info.to_dict(), "timings": timing})
+    return summary
+
+
+def _no_site_reason(st: Any, det: Any) -> str:
+    if st.detections == 0:
+        return "no frame was due for detection (no keyframe was tracked)"
+    if not st.keyframes:
+        return f"the {det.slam_name} backend gave no keyframe with map points"
+    if not st.site_rows:
+        return "no SLAM map point of any keyframe fell on the landing mask"
+    return "no cluster of mask-filtered map points met the footprint in any detection frame"
+
+
+def _truth_summary(st: Any, landing: dict[str, Any]) -> dict[str, Any]:
+    from slzcli.evaluate.slam import ate
+
+    out: dict[str, Any] = {"mask": total(st.truth).as_dict() if st.truth else None}
+    pairs = [(e, t) for e, t in zip(st.poses, st.truth_poses) if e is not None and t is not None]
+    if len(pairs) >= 3:
+        res = ate([e for e, _ in pairs], [t for _, t in pairs])
+        out["slam_ate_rmse_m"] = res.rmse_m
+    if "site" in landing:
+        out["site"] = landing["site"].get("ground_truth")
+    return out
+
+
+def _points_by_role(st: Any, committed: dict[str, Any] | None) -> dict[str, np.ndarray]:
+    roles: dict[str, np.ndarray] = {"map": np.vstack([k.xyz_world for k in st.keyframes]) if st.keyframes
+                                    else np.zeros((0, 3))}
+    if committed is not None:
+        roles["kept"] = committed["kept_xyz"]
+        roles["chosen"] = committed["chosen_xyz"]
+        roles["corner"] = np.asarray(committed["site"].corners_world)
+    return roles

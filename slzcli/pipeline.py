@@ -1,0 +1,324 @@
+"""``slz detect`` as a readable list of steps: frames -> maps -> score -> mask -> SLAM points -> site.
+
+Compute first, write after: every frame's stages are timed on their own (maps, score, mask,
+slam, select), writing is timed separately and kept out of the per-frame figure. The run
+folder is built under a temporary name and renamed at the end, so a failed run leaves
+nothing a rerun would trust; a rerun with the same inputs and config is skipped.
+
+World frame. Recorded poses are taken as given (REP 103, z up). A SLAM backend's world is
+its first camera frame; it is turned into a gravity-aligned frame (z up from the camera
+mount, x along the first camera's x, origin at the first camera) so that the slope test
+and the Eq. 10 square mean what they say.
+
+The committed site. Every detection frame may give a site; the one written to
+``landing.json`` is the site confirmed by the most detections (other sites within one
+footprint side of it), among those that pass the acceptance test when any do; ties go
+to the lower normal variance, then to the later frame. One lucky keyframe cannot
+outvote a site seen again and again.
+"""
+
+from __future__ import annotations
+
+import logging
+import platform
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from slzcli import __version__
+from slzcli.config import Config
+from slzcli.errors import DatasetError
+from slzcli.evaluate.safety import MaskCounts, mask_counts
+from slzcli.evaluate.timing import StageTimer
+from slzcli.landing.select import Selection, SelectParams, select_site
+from slzcli.outputs import files
+from slzcli.scoring import Scorer, get_scorer
+from slzcli.slam import MapPoints, TrackingState, get_backend
+from slzcli.slam.base import invert_pose
+from slzcli.sources import open_recording
+from slzcli.terrain.geometry import back_project
+from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
+from slzcli.types import Frame, ScoreMap, TerrainMaps
+
+log = logging.getLogger(__name__)
+Progress = Callable[[int, int | None], None]
+
+
+# ----------------------------------------------------------------------------- per-frame result
+@dataclass(frozen=True, eq=False)
+class Detection:
+    """Everything computed for one detection frame (nothing written yet)."""
+
+    frame: Frame
+    T_world_camera: np.ndarray | None
+    maps: TerrainMaps
+    score: ScoreMap
+    points: MapPoints | None
+    selection: Selection | None
+    edge_m: np.ndarray
+    timings_ms: dict[str, float]
+    truth: MaskCounts | None = None
+
+
+@dataclass
+class RunState:
+    """What accumulates over a recording: poses, detections' summaries, timings."""
+
+    timer: StageTimer = field(default_factory=StageTimer)
+    stamps_ns: list[int] = field(default_factory=list)
+    poses: list[np.ndarray | None] = field(default_factory=list)
+    tracking: dict[str, int] = field(default_factory=dict)
+    keyframes: list[MapPoints] = field(default_factory=list)
+    site_rows: list[dict[str, Any]] = field(default_factory=list)
+    sites: list[dict[str, Any]] = field(default_factory=list)
+    truth: list[MaskCounts] = field(default_factory=list)
+    truth_poses: list[np.ndarray | None] = field(default_factory=list)
+    frames: int = 0
+    detections: int = 0
+
+
+def select_params(config: Config, method: str) -> SelectParams:
+    lc, uav = config.landing, config.uav
+    bayes = method == "bayes"
+    return SelectParams(
+        kmeans_k=lc.kmeans_k, normal_radius_m=lc.normal_radius_m, min_cluster_points=lc.min_cluster_points,
+        footprint_m=(uav.footprint_m[0], uav.footprint_m[1]),
+        min_extent_factor=lc.bayes_min_extent_factor if bayes else lc.min_extent_factor,
+        rule="largest" if bayes else "min_normal_variance", seed=lc.seed,
+        edge_clearance_m=lc.edge_clearance_factor * max(uav.size_m[:2]), max_tilt_deg=lc.max_tilt_deg)
+
+
+def gravity_alignment(first_camera_up: np.ndarray) -> np.ndarray:
+    """4x4 ``T_world_slam`` for a SLAM world that is the first camera frame: z up, x along camera x."""
+    z = first_camera_up / np.linalg.norm(first_camera_up)
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    if np.linalg.norm(x) < 1e-6:  # camera x points along gravity: use camera z instead
+        x = np.array([0.0, 0.0, 1.0]) - z[2] * z
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, np.cross(z, x), z])
+    return T
+
+
+def depth_points(frame: Frame, T_world_camera: np.ndarray, stride_px: int) -> MapPoints:
+    """Map points from the depth image on a pixel grid, for poses recorded without a map cloud."""
+    xyz_cam = back_project(frame.depth_m[::stride_px, ::stride_px],
+                           frame.intrinsics.scaled(*frame.depth_m[::stride_px, ::stride_px].shape[::-1]))
+    v, u = np.mgrid[0:frame.depth_m.shape[0]:stride_px, 0:frame.depth_m.shape[1]:stride_px]
+    ok = np.all(np.isfinite(xyz_cam), axis=2)
+    pc = xyz_cam[ok]
+    xyz = pc @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
+    pixels = np.stack([u[ok], v[ok]], axis=1).astype(np.float64)
+    return MapPoints(np.arange(len(xyz), dtype=np.int64), xyz, pixels, frame.index, frame.stamp_ns, T_world_camera)
+
+
+# ----------------------------------------------------------------------------- the detector
+class Detector:
+    """Runs the stages over the frames of one recording; holds SLAM and the run's accumulators."""
+
+    def __init__(self, config: Config, method: str, slam: Any, slam_name: str, truth: Any | None) -> None:
+        self.config = config
+        self.method = method
+        self.scorer: Scorer = get_scorer(config, method)
+        self.params = select_params(config, method)
+        self.slam = slam
+        self.slam_name = slam_name
+        self.truth = truth
+        self.state = RunState()
+        self.T_align: np.ndarray | None = np.eye(4) if slam_name == "recorded" else None
+        self.last_points: MapPoints | None = None
+
+    def _world(self, T_slam_camera: np.ndarray | None) -> np.ndarray | None:
+        if T_slam_camera is None:
+            return None
+        if self.T_align is None:
+            self.T_align = gravity_alignment(gravity_up_in_camera(None, self.config.camera.mount)) @ invert_pose(T_slam_camera)
+        return self.T_align @ T_slam_camera
+
+    def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
+        """SLAM on one frame: the gravity-aligned pose and whether it is a keyframe with map points."""
+        with self.state.timer.stage("slam"):
+            result = self.slam.track(frame)
+            points = self.slam.keyframe() if result.is_keyframe else None
+        T = self._world(result.T_world_camera)
+        st = self.state
+        st.frames += 1
+        st.stamps_ns.append(frame.stamp_ns)
+        st.poses.append(T)
+        st.tracking[result.state.value] = st.tracking.get(result.state.value, 0) + 1
+        if points is not None and T is not None:
+            if len(points) == 0 and self.slam_name == "recorded":
+                points = depth_points(frame, T, self.config.landing.depth_points_stride_px)
+            else:
+                points = MapPoints(points.ids, _apply(self.T_align, points.xyz_world), points.pixels,
+                                   points.keyframe_index, points.stamp_ns, T)
+            self.last_points = points
+            st.keyframes.append(points)
+        return T, points is not None and result.state == TrackingState.OK
+
+    def detect(self, frame: Frame, T_world_camera: np.ndarray | None) -> Detection:
+        """Maps, score, mask and (with a pose and map points) the site of one frame."""
+        timer = self.state.timer
+        posed = frame if T_world_camera is None else _with_pose(frame, T_world_camera)
+        t: dict[str, float] = {}
+        t0 = time.perf_counter()
+        maps = frame_maps(posed, self.config)
+        t["maps"] = _lap(t0)
+        t0 = time.perf_counter()
+        raw = self.scorer(maps)
+        t["score"] = _lap(t0)
+        t0 = time.perf_counter()
+        score = score_frame_from(raw, self.scorer, maps, frame, self.config)
+        t["mask"] = _lap(t0)
+        edge = maps.edge_distance_m
+        selection = None
+        t0 = time.perf_counter()
+        if T_world_camera is not None and self.last_points is not None:
+            selection = select_site(self.last_points.xyz_world, T_world_camera, frame.K, score.mask, score.score,
+                                    self.params, edge_distance_m=edge)
+        t["select"] = _lap(t0)
+        for name, ms in t.items():
+            timer.add(name, ms)
+        truth = None
+        if self.truth is not None:
+            gt_mask = self.truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000)
+            truth = mask_counts(score.mask, gt_mask)
+            self.state.truth.append(truth)
+        self.state.detections += 1
+        return Detection(frame, T_world_camera, maps, score, self.last_points, selection, edge, t, truth)
+
+    def record(self, det: Detection) -> None:
+        """Add a detection's site and candidates to the run's tables."""
+        sel = det.selection
+        if sel is None:
+            return
+        for c in sel.candidates:
+            self.state.site_rows.append({
+                "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
+                "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
+                "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
+                "qualifies": c.qualifies, "reason": c.reason,
+                "chosen": sel.site is not None and c.cluster == _chosen_cluster(sel)})
+        if sel.site is not None:
+            pts = det.points.xyz_world
+            self.state.sites.append({"frame": det.frame, "site": sel.site, "kept_xyz": pts[sel.kept],
+                                     "chosen_xyz": pts[sel.labels == _chosen_cluster(sel)]})
+
+
+def score_frame_from(raw: np.ndarray, scorer: Scorer, maps: TerrainMaps, frame: Frame, config: Config) -> ScoreMap:
+    """The mask of an already computed score (so the score and the mask are timed apart)."""
+    from slzcli.scoring.mask import landing_mask
+
+    return landing_mask(scorer.name, raw, frame.depth_m, frame.intrinsics.fx, frame.intrinsics.fy,
+                        config.uav.footprint_m, config.mask.margin_factor, scorer.threshold(config))
+
+
+def _chosen_cluster(sel: Selection) -> int:
+    centre = np.asarray(sel.site.center_world)
+    return min(sel.candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre))).cluster
+
+
+def _apply(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    return xyz @ T[:3, :3].T + T[:3, 3]
+
+
+def _with_pose(frame: Frame, T: np.ndarray) -> Frame:
+    from dataclasses import replace
+
+    return replace(frame, T_world_camera=T)
+
+
+def _lap(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1e3
+
+
+def commit_site(sites: list[dict[str, Any]], side_m: float) -> dict[str, Any] | None:
+    """The site confirmed by the most detections (see the module docstring)."""
+    if not sites:
+        return None
+    pool = [s for s in sites if s["site"].accepted] or sites
+    centres = np.array([s["site"].center_world for s in pool])
+    support = (np.linalg.norm(centres[:, None, :2] - centres[None, :, :2], axis=2) <= side_m).sum(axis=1)
+    order = sorted(range(len(pool)), key=lambda i: (-support[i], pool[i]["site"].normal_variance,
+                                                      -pool[i]["frame"].index))
+    best = dict(pool[order[0]])
+    best["support"] = int(support[order[0]])
+    best["detections"] = len(sites)
+    return best
+
+
+# ----------------------------------------------------------------------------- one recording
+def detect_recording(path: Path, config: Config, out_dir: Path, *, force: bool = False,
+                     progress: Progress | None = None, method: str | None = None) -> dict[str, Any]:
+    """Run detection over one recording into ``out_dir``; returns the run summary (run.json's summary)."""
+    from slzcli.outputs import run_folder
+
+    method = method or config.scoring.method
+    fingerprint = run_folder.input_fingerprint(path)
+    previous = run_folder.previous_summary(out_dir, config.hash(), fingerprint)
+    if previous is not None and not force:
+        log.info("%s: already done for this config (%s); use --force to redo", out_dir, config.hash())
+        return {**previous, "skipped": True}
+    truth = _ground_truth(path)
+    t_start = time.perf_counter()
+    with files.atomic_dir(out_dir, replace=True) as tmp:
+        with open_recording(path, config) as rec:
+            info = rec.info()
+            has_poses = any(c.role == "pose" and c.topic for c in info.choices)
+            clouds = _recorded_clouds(path, config)
+            with get_backend(config, has_poses, clouds=clouds) as slam:
+                det = Detector(config, method, slam, slam.name, truth)
+                every = config.landing.every_nth_frame
+                for frame in rec.frames():
+                    T, is_keyframe = det.track(frame)
+                    due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0
+                    if due:
+                        d = det.detect(frame, T)
+                        det.record(d)
+                        with det.state.timer.stage("write"):
+                            run_folder.write_detection(tmp, d, config)
+                    if truth is not None:
+                        det.state.truth_poses.append(_truth_pose(truth, frame.stamp_ns))
+                    if progress is not None:
+                        progress(det.state.frames, info.expected_frames)
+            report = rec.report
+        if det.state.frames == 0:
+            raise DatasetError(path, "no RGB-D frame could be read")
+        committed = commit_site(det.state.sites, 2 * config.uav.footprint_m[0])
+        summary = run_folder.write_run(tmp, path, config, method, info, report, det, committed, truth,
+                                       time.perf_counter() - t_start, fingerprint)
+    return summary
+
+
+def _ground_truth(path: Path) -> Any | None:
+    from slzcli.synth.groundtruth import load_ground_truth, sidecar_paths
+
+    if not all(p.is_file() for p in sidecar_paths(path)):
+        return None
+    return load_ground_truth(path)
+
+
+def _truth_pose(truth: Any, stamp_ns: int) -> np.ndarray | None:
+    try:
+        return truth.T_world_camera[truth.index_of(stamp_ns, tolerance_ns=1_000_000)]
+    except DatasetError:
+        return None
+
+
+def _recorded_clouds(path: Path, config: Config) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    if not config.slam.points_topic:
+        return []
+    from slzcli.slam.recorded import read_point_clouds
+
+    return read_point_clouds(path, config.slam.points_topic, config)
+
+
+def versions() -> dict[str, str]:
+    import cv2
+    import open3d
+
+    return {"slz": __version__, "python": platform.python_version(), "numpy": np.__version__,
+            "opencv": cv2.__version__, "open3d": open3d.__version__}
