@@ -361,3 +361,7 @@ class _progress:
 
 
 # --- commands end (new commands go above this line) ---
+
+
+if __name__ == "__main__":
+    main()

@@ -78,6 +78,7 @@ class SourcesCfg:
 class DepthVarianceCfg:
     kernel_px: int = rng(3, 99, odd=True)
     s0_m: float = rng(0, lo_open=True)
+    noise_a_per_m: float = rng(0)
     min_valid_fraction: float = rng(0, 1, lo_open=True)
     normalise: Normalise = "absolute"
 
@@ -105,6 +106,8 @@ class InclinationCfg:
 @dataclass(frozen=True)
 class SteepnessCfg:
     normal_px: int = rng(3, 31, odd=True)
+    normal_size_m: float = rng(0)
+    normal_max_px: int = rng(3, 255, odd=True)
     slope_limit_deg: float = rng(0, 90, lo_open=True)
     min_valid_fraction: float = rng(0, 1, lo_open=True)
     normalise: Normalise = "absolute"
@@ -143,6 +146,7 @@ class ScoringCfg:
 class MaskCfg:
     threshold: float = rng(0, 1)
     margin_factor: float = rng(0)
+    smooth_m: float = rng(0)
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,7 @@ from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.outputs import files
-from slzcli.scoring import Scorer, get_scorer
+from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, TrackingState, get_backend
 from slzcli.slam.base import invert_pose
 from slzcli.sources import open_recording
@@ -171,7 +171,7 @@ class Detector:
         raw = self.scorer(maps)
         t["score"] = _lap(t0)
         t0 = time.perf_counter()
-        score = score_frame_from(raw, self.scorer, maps, frame, self.config)
+        score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config)
         t["mask"] = _lap(t0)
         edge = maps.edge_distance_m
         selection = None
@@ -206,14 +206,6 @@ class Detector:
             pts = det.points.xyz_world
             self.state.sites.append({"frame": det.frame, "site": sel.site, "kept_xyz": pts[sel.kept],
                                      "chosen_xyz": pts[sel.labels == _chosen_cluster(sel)]})
-
-
-def score_frame_from(raw: np.ndarray, scorer: Scorer, maps: TerrainMaps, frame: Frame, config: Config) -> ScoreMap:
-    """The mask of an already computed score (so the score and the mask are timed apart)."""
-    from slzcli.scoring.mask import landing_mask
-
-    return landing_mask(scorer.name, raw, frame.depth_m, frame.intrinsics.fx, frame.intrinsics.fy,
-                        config.uav.footprint_m, config.mask.margin_factor, scorer.threshold(config))
 
 
 def _chosen_cluster(sel: Selection) -> int:

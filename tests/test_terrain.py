@@ -215,7 +215,7 @@ def test_steepness_modes() -> None:
 def test_box_on_plane_edges_are_bad() -> None:
     """A 3 m box (x 1..4 m, y -1..1 m) on ground 10 m below a nadir camera; its -x side is visible."""
     depth = box_scene(box=(1.0, 4.0, -1.0, 1.0), height_m=3.0, offset=(0.0, 0.0))
-    maps = tm.compute_maps(depth, K, DOWN, TERRAIN)
+    maps = tm.compute_maps(depth, K, DOWN, terrain(depth_variance={"noise_a_per_m": 0.0}))  # noise-free scene
     step = np.abs(cv2.Laplacian(depth, cv2.CV_32F)) > 0.5        # the occluding outline (3 m steps)
     near = cv2.dilate(step.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     assert step.sum() > 300
@@ -269,7 +269,7 @@ def test_canny_on_derivatives_equals_canny_on_the_8bit_image() -> None:
 def test_depth_variance_keeps_millimetres_at_altitude() -> None:
     rng = np.random.default_rng(4)
     depth = (30.0 + rng.normal(0, 0.003, (60, 80))).astype(np.float32)
-    cfg = TERRAIN.depth_variance
+    cfg = dataclasses.replace(TERRAIN.depth_variance, noise_a_per_m=0.0)  # Alg. 1 as written, no noise model
     got = tm.depth_variance_map(depth, cfg)
     d = depth.astype(np.float64)
     win = np.lib.stride_tricks.sliding_window_view(d, (3, 3))
@@ -474,3 +474,28 @@ def test_maps_are_float32_in_unit_range_and_zero_without_depth(seed: int, hole_f
         assert (m[~maps.valid] == 0).all(), name
     assert np.isnan(maps.slope_deg[~maps.valid]).all()
     assert np.nanmax(maps.slope_deg, initial=0.0) <= 90.0
+
+
+def test_depth_variance_removes_the_sensor_noise_it_is_told_about() -> None:
+    """Level ground at 10 m with RealSense-like noise sigma = a z^2: noise alone is not "variation"."""
+    rng = np.random.default_rng(5)
+    a = 0.0005
+    depth = (10.0 + rng.normal(0, a * 100.0, (120, 160))).astype(np.float32)
+    with_model = tm.depth_variance_map(depth, dataclasses.replace(TERRAIN.depth_variance, noise_a_per_m=a))
+    without = tm.depth_variance_map(depth, dataclasses.replace(TERRAIN.depth_variance, noise_a_per_m=0.0))
+    assert np.median(without[1:-1, 1:-1]) < 0.5          # 5 cm of noise reads as 5 cm of roughness
+    assert np.median(with_model[1:-1, 1:-1]) > 0.9       # the model takes it out
+    step = depth.copy()
+    step[:, 80:] -= 1.0                                  # a 1 m step still scores as bad
+    edge = tm.depth_variance_map(step, dataclasses.replace(TERRAIN.depth_variance, noise_a_per_m=a))
+    assert edge[1:-1, 79:81].max() < 0.01
+
+
+def test_normal_window_is_metric_so_slope_noise_does_not_grow_with_altitude() -> None:
+    rng = np.random.default_rng(6)
+    for z in (3.0, 10.0):
+        depth = (z + rng.normal(0, 0.0005 * z * z, (K.height, K.width))).astype(np.float32)
+        maps = tm.compute_maps(depth, K, DOWN, TERRAIN)
+        assert np.nanpercentile(maps.slope_deg[20:-20, 20:-20], 90) < 5.0, z
+    assert tm.normal_window_px(np.full((48, 64), 10.0, np.float32), K, TERRAIN.steepness) > TERRAIN.steepness.normal_px
+

@@ -100,5 +100,11 @@ def get_scorer(config: Config, method: str | None = None) -> Scorer:
 def score_frame(scorer: Scorer, maps: TerrainMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
                 config: Config) -> ScoreMap:
     """Score the maps and make the landing mask (min filter of the UAV footprint, then threshold)."""
-    return landing_mask(scorer.name, scorer(maps), depth_m, intrinsics.fx, intrinsics.fy,
-                        config.uav.footprint_m, config.mask.margin_factor, scorer.threshold(config))
+    return mask_score(scorer, scorer(maps), depth_m, intrinsics, config)
+
+
+def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics,
+               config: Config) -> ScoreMap:
+    """The landing mask of a score already computed (so the pipeline can time the two apart)."""
+    return landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
+                        config.mask.margin_factor, scorer.threshold(config), config.mask.smooth_m)

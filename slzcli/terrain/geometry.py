@@ -93,6 +93,23 @@ def back_project(depth_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     return points
 
 
+# ----------------------------------------------------------------------------- metric windows
+DEPTH_SUBSAMPLE = 4  # px step of the grid a frame's median depth is taken on (a median needs no more)
+
+
+def median_depth_m(depth_m: np.ndarray) -> float | None:
+    """Median of the finite, positive depths on a coarse grid; None when there are none."""
+    d = np.asarray(depth_m)[::DEPTH_SUBSAMPLE, ::DEPTH_SUBSAMPLE]
+    d = d[np.isfinite(d) & (d > 0)]
+    return float(np.median(d)) if d.size else None
+
+
+def window_px(side_m: float, focal_px: float, depth_m: float) -> int:
+    """Odd window side in pixels covering ``side_m`` metres at ``depth_m``."""
+    side = side_m * focal_px / depth_m
+    return max(1, 2 * math.ceil((side - 1) / 2) + 1)
+
+
 # ----------------------------------------------------------------------------- normals
 @dataclass(frozen=True, eq=False)
 class NormalField:

@@ -23,7 +23,8 @@ import numpy as np
 from slzcli.config import (Config, DepthVarianceCfg, FlatnessCfg, InclinationCfg, Mount,
                            SteepnessCfg, TerrainCfg)
 from slzcli.errors import DatasetError
-from slzcli.terrain.geometry import NormalField, fit_intrinsics, normal_field, patch_pca, valid_depth
+from slzcli.terrain.geometry import (NormalField, fit_intrinsics, median_depth_m, normal_field, patch_pca,
+                                     valid_depth, window_px)
 from slzcli.types import Frame, Intrinsics, TerrainMaps
 
 # cv2.distanceTransform mask sizes by the config value (3 or 5 px).
@@ -77,6 +78,10 @@ def _prepare(depth_m: np.ndarray, what: str = "depth image") -> _Depth:
 def depth_variance_map(depth_m: np.ndarray, cfg: DepthVarianceCfg) -> np.ndarray:
     """Alg. 1: local depth standard deviation s over a kernel_px window -> exp(-s / s0_m).
 
+    The sensor's own noise (sigma = noise_a_per_m z^2, RealSense-like) is subtracted from the
+    local variance first: at 10 m a 3x3 window of a level floor otherwise shows ~5 cm of
+    "variation" that is only noise, and the map stops telling ground from clutter.
+
     Valid-only sums (holes do not bleed); sums and sums of squares accumulate in float64 so
     E[D^2] - E[D]^2 keeps millimetres at tens of metres.
     """
@@ -90,11 +95,19 @@ def _depth_variance(d: _Depth, cfg: DepthVarianceCfg) -> np.ndarray:
     s1 = cv2.boxFilter(d.filled, cv2.CV_64F, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
     s2 = cv2.sqrBoxFilter(d.filled, cv2.CV_64F, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
     s2 *= n                                             # n^2 var = n sum(D^2) - sum(D)^2, in float64
+    mean = np.zeros(n.shape, np.float32)
+    np.divide(s1, n, out=mean, where=ok, casting="unsafe")
     s1 *= s1
     s2 -= s1
     var = np.abs(s2).astype(np.float32)                 # the cancellation is done: float32 from here
     n *= n
     np.divide(var, n, out=var, where=ok)
+    if cfg.noise_a_per_m > 0:                           # remove the sensor's own variance, (a z^2)^2
+        mean *= mean
+        mean *= np.float32(cfg.noise_a_per_m)
+        mean *= mean
+        var -= mean
+        np.maximum(var, 0.0, out=var)
     s = np.sqrt(var, out=var)
     s *= np.float32(-1.0 / cfg.s0_m)
     return _finish(np.exp(s, out=s), ok, cfg.normalise)
@@ -208,6 +221,21 @@ def steepness_map(psi_rad: np.ndarray, cfg: SteepnessCfg) -> np.ndarray:
     return _finish(x, ok, cfg.normalise)
 
 
+def normal_window_px(depth_m: np.ndarray, intr: Intrinsics, cfg: SteepnessCfg) -> int:
+    """The plane-fit window: ``normal_size_m`` on the ground at the frame's median depth, at least ``normal_px``.
+
+    A fixed pixel window turns sensor noise into slope noise that grows with range (a 5 px
+    window at 10 m spans 11 cm, where RealSense-like noise is ~5 cm: tens of degrees of
+    false slope). A metric window keeps the slope estimate's noise roughly constant with
+    altitude; one window per frame, like the mask's minimum filter.
+    """
+    depth = median_depth_m(depth_m)
+    if depth is None:
+        return cfg.normal_px
+    return min(max(cfg.normal_px, window_px(cfg.normal_size_m, 0.5 * (intr.fx + intr.fy), depth)),
+               cfg.normal_max_px)
+
+
 # ----------------------------------------------------------------------------- gravity
 def gravity_up_in_camera(T_world_camera: np.ndarray | None, mount: Mount) -> np.ndarray:
     """World "up" expressed in the camera (optical) frame, a unit 3-vector.
@@ -261,7 +289,7 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
     up = up / np.linalg.norm(up)
     intr = fit_intrinsics(intrinsics, d.depth.shape)
 
-    normals = normal_field(d.depth, intr, cfg.steepness.normal_px, cfg.steepness.min_valid_fraction,
+    normals = normal_field(d.depth, intr, normal_window_px(d.depth, intr, cfg.steepness), cfg.steepness.min_valid_fraction,
                            valid=d.valid)
     psi = slope_rad(normals, up)
     slope_deg = np.multiply(psi, np.float32(180.0 / math.pi))

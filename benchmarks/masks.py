@@ -1,0 +1,93 @@
+"""Mask quality against ground truth: precision, recall and IoU of fuzzy and Bayes on synth scenes.
+
+    python benchmarks/masks.py [RECORDING.mcap ...] [--set key=value ...] [--frames N]
+
+Without recordings it renders one short hover flight per scene with `slz synth` into a temp
+folder. Per recording and method it prints micro-averaged precision / recall / IoU of the
+landing mask against the ground-truth safe mask, and the safe fraction of each; writes
+benchmarks/results/masks.json. Poses are not used (gravity from the mount, as on a first
+frame before SLAM), so this isolates maps + fusion + mask.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from slzcli.config import load_config
+from slzcli.evaluate.safety import mask_counts, total
+from slzcli.scoring import get_scorer, score_frame
+from slzcli.sources import open_recording
+from slzcli.synth.groundtruth import load_ground_truth
+from slzcli.terrain.maps import frame_maps
+
+SCENES = ("clear_field", "parking_lot", "playground", "office", "slopes", "no_site")
+HERE = Path(__file__).resolve().parent
+
+
+def render(folder: Path, frames: int) -> list[Path]:
+    out = []
+    for scene in SCENES:
+        path = folder / f"{scene}.mcap"
+        subprocess.run([sys.executable, "-m", "slzcli.cli", "synth", scene, "-o", str(path), "--frames", str(frames)],
+                       check=True, stdout=subprocess.DEVNULL)
+        out.append(path)
+    return out
+
+
+def evaluate(path: Path, overrides: list[str], methods: tuple[str, ...]) -> dict[str, dict]:
+    config = load_config(None, overrides)
+    truth = load_ground_truth(path)
+    scorers = {m: get_scorer(config, m) for m in methods}
+    counts: dict[str, list] = {m: [] for m in methods}
+    safe_fraction: dict[str, list[float]] = {m: [] for m in methods}
+    truth_fraction = []
+    with open_recording(path, config) as rec:
+        for frame in rec.frames():
+            maps = frame_maps(frame, config)
+            gt = truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000)
+            truth_fraction.append(float(gt.mean()))
+            for m, scorer in scorers.items():
+                sm = score_frame(scorer, maps, frame.depth_m, frame.intrinsics, config)
+                counts[m].append(mask_counts(sm.mask, gt))
+                safe_fraction[m].append(float(sm.mask.mean()))
+    out = {}
+    for m in methods:
+        out[m] = {**total(counts[m]).as_dict(), "mask_safe_fraction": float(np.mean(safe_fraction[m])),
+                  "true_safe_fraction": float(np.mean(truth_fraction)), "frames": len(counts[m])}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("recordings", nargs="*", type=Path)
+    ap.add_argument("--set", dest="overrides", action="append", default=[])
+    ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--methods", default="fuzzy,bayes")
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "masks.json")
+    args = ap.parse_args()
+    methods = tuple(args.methods.split(","))
+    with tempfile.TemporaryDirectory() as tmp:
+        recordings = args.recordings or render(Path(tmp), args.frames)
+        results = {}
+        print(f"{'recording':<18} {'method':<6} {'precision':>9} {'recall':>7} {'IoU':>6} {'mask %':>7} {'true %':>7}")
+        for path in recordings:
+            res = evaluate(path, args.overrides, methods)
+            results[path.stem] = res
+            for m, r in res.items():
+                f = lambda v: "  n/a" if v is None else f"{v:.3f}"  # noqa: E731
+                print(f"{path.stem:<18} {m:<6} {f(r['precision']):>9} {f(r['recall']):>7} {f(r['iou']):>6} "
+                      f"{100 * r['mask_safe_fraction']:>6.1f} {100 * r['true_safe_fraction']:>6.1f}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"overrides": args.overrides, "results": results}, indent=2) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
