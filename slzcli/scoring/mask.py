@@ -16,22 +16,8 @@ import math
 import cv2
 import numpy as np
 
+from slzcli.terrain.geometry import median_depth_m, window_px  # noqa: F401 (re-exported for tests)
 from slzcli.types import ScoreMap
-
-DEPTH_SUBSAMPLE = 4  # px step of the grid the median depth is taken on (a median needs no more)
-
-
-def median_depth_m(depth_m: np.ndarray) -> float | None:
-    """Median of the finite, positive depths on a coarse grid; None when there are none."""
-    d = np.asarray(depth_m)[::DEPTH_SUBSAMPLE, ::DEPTH_SUBSAMPLE]
-    d = d[np.isfinite(d) & (d > 0)]
-    return float(np.median(d)) if d.size else None
-
-
-def window_px(side_m: float, focal_px: float, depth_m: float) -> int:
-    """Odd window side in pixels covering ``side_m`` metres at ``depth_m``."""
-    side = side_m * focal_px / depth_m
-    return max(1, 2 * math.ceil((side - 1) / 2) + 1)
 
 
 def min_filter(score: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
