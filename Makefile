@@ -23,7 +23,7 @@ sysdeps:
 $(STAMP): pyproject.toml | sysdeps
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/python -m pip install -q -e '.[test,orbslam3]'
 	touch $(STAMP)
 
 venv: $(STAMP)
@@ -31,11 +31,25 @@ venv: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest
 
+# Render a ground-truthed flight, read it, detect the landing site, simulate the IBVS descent.
 demo: $(STAMP)
-	$(BIN)/python scripts/demo.py $(DEMO)
+	@mkdir -p $(DEMO)
+	$(BIN)/slz synth parking_lot -o $(DEMO)/parking_lot.mcap --frames 40 --force
+	$(BIN)/slz info $(DEMO)/parking_lot.mcap
+	$(BIN)/slz detect $(DEMO)/parking_lot.mcap -o $(DEMO)/run --force
+	$(BIN)/slz land simulate $(DEMO)/run --start 2,-1.5,8
+	@for s in clear_field playground office slopes no_site; do \
+	  $(BIN)/slz synth $$s -o $(DEMO)/scenes/$$s.mcap --frames 2 --force >/dev/null || exit 1; done
+	@echo
+	@echo "Results are in $(DEMO)/:"
+	@echo "  run/landing.json            the chosen site (or why there is none)"
+	@echo "  run/run.json                timings, tracking, accuracy against ground truth"
+	@echo "  run/frames/*/overlay.png    mask, SLAM points and the landing square, per keyframe"
+	@echo "  run/ibvs/                   the simulated descent: metrics.json, trajectory.csv, plots"
+	@echo "  *.preview.png, scenes/*.preview.png   contact sheets: colour, depth, object ids, true safe area"
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/read.py
+	for b in read synth terrain scoring masks slam ibvs; do $(BIN)/python benchmarks/$$b.py || exit 1; done
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache
