@@ -87,7 +87,7 @@ class SiteTruth:
 
     safe: bool                       # the site's cell is one where the UAV footprint plus margin is clear
     clearance_m: float               # distance from the site to the nearest hazard (non-usable) cell
-    to_best_centre_m: float          # distance to the centre of the largest truly safe area
+    to_best_centre_m: float          # distance to the centre of the largest truly safe area in view
     true_xy: tuple[float, float]     # the site in the ground-truth world
 
     def as_dict(self) -> dict[str, Any]:
@@ -95,11 +95,13 @@ class SiteTruth:
                 "true_xy": list(self.true_xy)}
 
 
-def site_truth(raster: Any, xy: tuple[float, float]) -> SiteTruth:
+def site_truth(raster: Any, xy: tuple[float, float], visible: np.ndarray | None = None) -> SiteTruth:
     """Check a world-XY site against a SafetyRaster (``slzcli.synth.groundtruth``).
 
     The "centre" of the largest safe area is its point farthest from the area's boundary
     (the distance-transform maximum), a centre that is inside the area whatever its shape.
+    ``visible`` (bool, raster shape) limits that area to what the camera saw: a larger safe
+    area out of view is no fair target for a detector.
     """
     import cv2
 
@@ -109,7 +111,8 @@ def site_truth(raster: Any, xy: tuple[float, float]) -> SiteTruth:
     hazard_dist = cv2.distanceTransform(raster.usable.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * res
     r, c, inside = raster.cells(np.array([x]), np.array([y]))
     clearance = float(hazard_dist[r[0], c[0]]) if inside[0] else 0.0
-    n, labels = cv2.connectedComponents(raster.safe.astype(np.uint8), connectivity=8)
+    candidates = raster.safe if visible is None else raster.safe & visible
+    n, labels = cv2.connectedComponents(candidates.astype(np.uint8), connectivity=8)
     best = float("nan")
     if n > 1:
         sizes = np.bincount(labels.ravel())[1:]
@@ -120,3 +123,21 @@ def site_truth(raster: Any, xy: tuple[float, float]) -> SiteTruth:
         cy = raster.origin_xy[1] + (br + 0.5) * res
         best = float(np.hypot(x - cx, y - cy))
     return SiteTruth(safe, clearance, best, (x, y))
+
+
+def visible_cells(raster: Any, T_world_camera: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Raster cells whose surface point projects into the image of a camera at ``T_world_camera``."""
+    rows, cols = raster.safe.shape
+    res = raster.resolution_m
+    x = raster.origin_xy[0] + (np.arange(cols) + 0.5) * res
+    y = raster.origin_xy[1] + (np.arange(rows) + 0.5) * res
+    xx, yy = np.meshgrid(x, y)
+    zz = np.nan_to_num(raster.height_m, nan=0.0)
+    T_cw = np.linalg.inv(T_world_camera)
+    p = np.stack([xx, yy, zz], axis=-1) @ T_cw[:3, :3].T + T_cw[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * p[..., 0] / p[..., 2] + K[0, 2]
+        v = K[1, 1] * p[..., 1] / p[..., 2] + K[1, 2]
+    h, w = shape
+    return (p[..., 2] > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from slzcli.config import Config
-from slzcli.evaluate.safety import site_truth, total
+from slzcli.evaluate.safety import site_truth, total, visible_cells
 from slzcli.outputs import files, images
 from slzcli.outputs.points import write_points_ply
 from slzcli.outputs.trajectory import write_keyframes, write_tum
@@ -95,17 +95,18 @@ def landing_record(source: Path, method: str, committed: dict[str, Any] | None, 
             "support": {"detections_agreeing": committed["support"], "detections_with_site": committed["detections"]},
         }
         if truth is not None:
-            rec["site"]["ground_truth"] = _site_truth(truth, frame.stamp_ns, s.center_camera).as_dict()
+            rec["site"]["ground_truth"] = _site_truth(truth, frame, s.center_camera).as_dict()
     rec["world_frame"] = world_frame
     rec["timings_ms"] = timings
     return rec
 
 
-def _site_truth(truth: Any, stamp_ns: int, center_camera: tuple[float, float, float]) -> Any:
+def _site_truth(truth: Any, frame: Any, center_camera: tuple[float, float, float]) -> Any:
     """The site in the ground-truth world: through the TRUE pose of its frame (not SLAM's)."""
-    T = truth.T_world_camera[truth.index_of(stamp_ns, tolerance_ns=1_000_000)]
+    T = truth.T_world_camera[truth.index_of(frame.stamp_ns, tolerance_ns=1_000_000)]
     p = T[:3, :3] @ np.asarray(center_camera) + T[:3, 3]
-    return site_truth(truth.raster, (float(p[0]), float(p[1])))
+    visible = visible_cells(truth.raster, T, frame.K, frame.shape)
+    return site_truth(truth.raster, (float(p[0]), float(p[1])), visible)
 
 
 def sites_csv(rows: list[dict[str, Any]]) -> str:
