@@ -1,5 +1,6 @@
-"""Scoring stage timing and accuracy on one core: fuzzy exact, fuzzy compiled, Bayes, mask,
-the compiled table's error, and scikit-fuzzy for reference.
+"""Scoring stage timing and accuracy on one core: fuzzy exact, the compiled evaluators (closed
+form, the default for the shipped rules, and the simplex table, the general fallback), Bayes,
+mask, the compiled evaluators' errors, and scikit-fuzzy for reference.
 
 Run: .venv/bin/python benchmarks/scoring.py [--repeats N]
 Prints a table and writes benchmarks/results/scoring.json. Times are medians of wall time
@@ -26,7 +27,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from slzcli.config import load_config  # noqa: E402
-from slzcli.scoring import bayes, fuzzy, get_scorer, lut, score_frame  # noqa: E402
+from slzcli.scoring import bayes, closed_form, fuzzy, get_scorer, lut, score_frame  # noqa: E402
 from slzcli.scoring.rules import And, Is, Not, load_rules  # noqa: E402
 from slzcli.types import Intrinsics, TerrainMaps  # noqa: E402
 
@@ -121,6 +122,10 @@ def main() -> None:
     t0 = time.perf_counter()
     table = lut.build(rb, levels)
     build_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    program = closed_form.build(rb)
+    program_build_s = time.perf_counter() - t0
+    assert program is not None, "the shipped rules should compile to the closed form"
 
     maps, depth = realistic_maps()
     K = Intrinsics(462.137, 462.137, 320.0, 240.0, W, H)
@@ -134,32 +139,40 @@ def main() -> None:
     a, b = np.random.default_rng(0).random((2, H, W), dtype=np.float32)
     rows["reference: one float32 add (a + b)"] = timed(lambda: np.add(a, b), args.repeats)
     rows["fuzzy exact"] = timed(lambda: fuzzy.evaluate_exact(rb, flat), max(1, args.repeats // 10))
-    rows["fuzzy compiled (table only)"] = timed(lambda: table(inputs), args.repeats)
+    rows["fuzzy compiled: closed form (default)"] = timed(lambda: program(inputs), args.repeats)
+    rows["fuzzy compiled: simplex table (fallback)"] = timed(lambda: table(inputs), args.repeats)
     rows["fuzzy compiled (scorer, valid mask)"] = timed(lambda: fuzzy_c(maps), args.repeats)
     rows["bayes (scorer)"] = timed(lambda: bayes_s(maps), args.repeats)
     rows["bayes fuse only"] = timed(lambda: bayes.fuse(list(maps.as_dict().values()), 0.5, 0.01), args.repeats)
-    rows["mask (median depth + erode + threshold)"] = timed(lambda: _mask_only(score, depth, K, config), args.repeats)
+    rows["mask (median depth + blur + erode + threshold)"] = timed(lambda: _mask_only(score, depth, K, config),
+                                                                    args.repeats)
     rows["score_frame (compiled fuzzy + mask)"] = timed(lambda: score_frame(fuzzy_c, maps, depth, K, config),
                                                          args.repeats)
 
     exact_frame = fuzzy.evaluate_exact(rb, flat).reshape(H, W)
     frame_err = float(np.max(np.abs(table(inputs) - exact_frame)[maps.valid]))
+    frame_err_cf = float(np.max(np.abs(program(inputs) - exact_frame)[maps.valid]))
     rng = np.random.default_rng(3)
     vals = [0.0, 0.25, 0.5, 0.75, 1.0, 0.5 - 1e-4, 0.5 + 1e-4, 0.25 + 1e-3, 0.75 - 1e-3]
     kinks = np.array(list(itertools.product(vals, repeat=len(rb.inputs)))).T
     pts = np.concatenate([rng.random((len(rb.inputs), 100_000)), kinks], axis=1).astype(np.float32)
-    rand_err = float(np.max(np.abs(table(list(pts)) - fuzzy.evaluate_exact(rb, pts.astype(np.float64)))))
+    exact_pts = fuzzy.evaluate_exact(rb, pts.astype(np.float64))
+    rand_err = float(np.max(np.abs(table(list(pts)) - exact_pts)))
+    rand_err_cf = float(np.max(np.abs(program(list(pts)) - exact_pts)))
 
     sk_ms_px = skfuzzy_ms_per_pixel(rb, args.sk_pixels)
     sk_frame_ms = sk_ms_px * H * W
-    compiled_ms = rows["fuzzy compiled (table only)"][0]
+    compiled_ms = rows["fuzzy compiled: closed form (default)"][0]
 
     print(f"scoring benchmark, {W}x{H}, one thread; load average at start {load0:.2f} "
           f"({os.cpu_count()} cores shared with other jobs)")
-    print(f"{'stage':42s} {'wall ms':>10s} {'cpu ms':>10s}")
+    print(f"{'stage':48s} {'wall ms':>10s} {'cpu ms':>10s}")
     for name, (wall, cpu) in rows.items():
-        print(f"{name:42s} {wall:10.2f} {cpu:10.2f}")
-    print(f"compiled table: {levels} levels, build {build_s:.2f} s; max |compiled - exact|: "
+        print(f"{name:48s} {wall:10.2f} {cpu:10.2f}")
+    print(f"closed form: {len(program.program)} array ops, {program.n_registers} buffers of "
+          f"{closed_form.CHUNK_PX} px, build {program_build_s * 1e3:.1f} ms; max |closed form - exact|: "
+          f"{rand_err_cf:.2e} (100k random + {kinks.shape[1]} kink points), {frame_err_cf:.2e} (this frame)")
+    print(f"simplex table: {levels} levels, build {build_s:.2f} s; max |table - exact|: "
           f"{rand_err:.4f} (100k random + {kinks.shape[1]} kink points), {frame_err:.4f} (this frame)")
     print(f"scikit-fuzzy: {sk_ms_px:.3f} ms/pixel on {args.sk_pixels} px -> {sk_frame_ms / 1e3:.1f} s/frame; "
           f"compiled / scikit-fuzzy = {compiled_ms / sk_frame_ms:.2e} (x{sk_frame_ms / compiled_ms:.0f} faster)")
@@ -171,8 +184,12 @@ def main() -> None:
         "frame": [W, H], "threads": 1, "load_average_start": load0, "cpu_count": os.cpu_count(),
         "python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
         "median_ms": {k: {"wall": v[0], "cpu": v[1]} for k, v in rows.items()},
-        "compiled": {"levels": levels, "build_s": build_s, "max_error_random_and_kinks": rand_err,
-                     "max_error_frame": frame_err, "points": int(pts.shape[1])},
+        "closed_form": {"ops": len(program.program), "buffers": program.n_registers,
+                        "chunk_px": closed_form.CHUNK_PX, "build_s": program_build_s,
+                        "max_error_random_and_kinks": rand_err_cf, "max_error_frame": frame_err_cf,
+                        "points": int(pts.shape[1])},
+        "table": {"levels": levels, "build_s": build_s, "max_error_random_and_kinks": rand_err,
+                  "max_error_frame": frame_err, "points": int(pts.shape[1])},
         "skfuzzy": {"ms_per_pixel": sk_ms_px, "pixels": args.sk_pixels, "frame_ms_extrapolated": sk_frame_ms,
                     "compiled_over_skfuzzy": compiled_ms / sk_frame_ms},
     }, indent=2))
@@ -182,7 +199,7 @@ def main() -> None:
 def _mask_only(score: np.ndarray, depth: np.ndarray, K: Intrinsics, config) -> None:
     from slzcli.scoring.mask import landing_mask
     landing_mask("fuzzy", score, depth, K.fx, K.fy, config.uav.footprint_m, config.mask.margin_factor,
-                 config.mask.threshold)
+                 config.mask.threshold, config.mask.smooth_m)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError
-from slzcli.scoring import bayes, fuzzy, lut
+from slzcli.scoring import bayes, closed_form, fuzzy, lut
 from slzcli.scoring.mask import landing_mask
 from slzcli.scoring.rules import RuleBase, did_you_mean, load_rules
 from slzcli.types import Intrinsics, ScoreMap, TerrainMaps
@@ -25,13 +25,23 @@ def _zero_invalid(score: np.ndarray, valid: np.ndarray | None) -> np.ndarray:
     return score
 
 
+CompiledEvaluator = closed_form.ClosedFormFuzzy | lut.CompiledFuzzy
+
+
+def compile_fuzzy(rules: RuleBase, levels: int) -> CompiledEvaluator:
+    """``evaluator: compiled``: the closed form (exact, fast) when the output terms the rules use
+    meet only edge to edge (``closed_form.output_plan``), else the simplex table of ``levels``
+    nodes per input (1-4 inputs, max error ~0.005-0.01)."""
+    return closed_form.compile_rules(rules) or lut.compile_rules(rules, levels)
+
+
 @dataclass(frozen=True, eq=False)
 class FuzzyScorer:
-    """Mamdani score (METHOD 2.4), by the compiled table (default) or the exact engine."""
+    """Mamdani score (METHOD 2.4), by the compiled evaluator (default) or the exact engine."""
 
     rules: RuleBase
     evaluator: str
-    compiled: lut.CompiledFuzzy | None = field(default=None)
+    compiled: CompiledEvaluator | None = field(default=None)
     name: str = "fuzzy"
 
     @classmethod
@@ -43,7 +53,7 @@ class FuzzyScorer:
             raise ConfigError("inputs", f"unknown input map {unknown[0]!r}; the inputs are "
                               f"{', '.join(TerrainMaps.NAMES)}{did_you_mean(unknown[0], TerrainMaps.NAMES)}",
                               rules.source)
-        compiled = lut.compile_rules(rules, cfg.lut_levels) if cfg.evaluator == "compiled" else None
+        compiled = compile_fuzzy(rules, cfg.lut_levels) if cfg.evaluator == "compiled" else None
         return cls(rules, cfg.evaluator, compiled)
 
     def threshold(self, config: Config) -> float:

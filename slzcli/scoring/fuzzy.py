@@ -10,7 +10,8 @@ discretisation error (unlike a sum over a 101-point universe, which is off by up
 scikit-fuzzy computes the same piecewise-linear integral but samples only its universe
 plus the ``mu_k(y) = a_k`` points, so it converges to this value as its universe is refined.
 
-The per-frame path uses the compiled table in ``lut.py``; this module is the reference.
+The per-frame path uses the compiled evaluator (``closed_form.py``, else the table in
+``lut.py``; ``scoring.compile_fuzzy`` chooses); this module is the reference.
 """
 
 from __future__ import annotations

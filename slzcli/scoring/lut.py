@@ -1,4 +1,11 @@
-"""The compiled fuzzy score: a table over the inputs, read by simplex interpolation.
+"""The general fallback of the compiled fuzzy score: a table over the inputs, read by simplex interpolation.
+
+``scoring.compile_fuzzy`` uses this table only when the closed form (``closed_form.py``:
+exact, 3 ms per 640x480 frame for the shipped rules) does not apply, i.e. when the used
+output terms overlap in some other way than a falling edge meeting a rising edge (a term
+spanning two others, three terms over one point) or reach outside the output universe.
+The table works for any rule base of 1 to 4 inputs, approximately: 0.0054 max error on the
+shipped rules, 14 ms per frame (9.4 ms measured earlier on a quieter machine).
 
 Why this design (max |table - exact| on 100k random inputs, 17 levels per input, float
 interpolation; the shipped rule base first, the first, table-style rule base in brackets):
@@ -233,7 +240,8 @@ def interpolate(t: CompiledFuzzy, inputs: list[np.ndarray]) -> np.ndarray:
         cv2.accumulateProduct(gathered, wf, area)
         np.take(flat_moment, index, out=gathered)
         cv2.accumulateProduct(gathered, wf, moment)
-    score = cv2.divide(moment, area)  # 0 where the area is 0 (no rule fires): the universe minimum
+    score = cv2.divide(moment, area)
+    np.fmax(score, 0.0, out=score)  # 0/0 where no rule fires is NaN on OpenCV 5 (0 on 4): the universe minimum
     if t.out_lo != 0.0:
         score += np.float32(t.out_lo)
     return score
