@@ -256,6 +256,68 @@ def test_load_ground_truth_without_sidecar(tmp_path):
         load_ground_truth(tmp_path / "missing.mcap")
 
 
+def _varied_truth(tmp_path: Path) -> Path:
+    """A short descent over the parking lot: masks and object ids differ from frame to frame."""
+    out = tmp_path / "lazy.mcap"
+    opts = record.SynthOptions(scene="parking_lot", frames=4, rate_hz=2.0, path="descent", seed=1,
+                               start_m=(0.0, 0.0, 9.0))
+    record.synthesize(out, opts, load_config(overrides=TINY))
+    return out
+
+
+def test_ground_truth_loads_per_frame_arrays_lazily(tmp_path):
+    import zipfile
+
+    from slzcli.synth.groundtruth import GT_VERSION, PackedMasks, ZipMemberFrames
+
+    out = _varied_truth(tmp_path)
+    npz = Path(str(out) + ".gt.npz")
+    with zipfile.ZipFile(npz) as zf:
+        kinds = {i.filename: i.compress_type for i in zf.infolist()}
+    assert kinds["safe_masks.npy"] == zipfile.ZIP_STORED and kinds["object_ids.npy"] == zipfile.ZIP_DEFLATED
+    assert not list(tmp_path.glob(".gt-spool-*"))            # the spool folder is gone
+    gt = load_ground_truth(out)
+    assert gt.header["version"] == GT_VERSION == 2
+    # nothing per-frame is in memory: masks are a memory map of the packed bits, ids are read per frame
+    assert isinstance(gt.safe_masks, PackedMasks) and isinstance(gt.safe_masks.packed, np.memmap)
+    assert isinstance(gt.object_ids, ZipMemberFrames)
+    assert gt.safe_masks.shape == gt.object_ids.shape == (4, 120, 160)
+    # the same values as numpy's own reading of the npz (the file stays a plain npz)
+    with np.load(npz) as z:
+        masks = np.unpackbits(z["safe_masks"], axis=-1, count=160).astype(bool)
+        ids = z["object_ids"]
+    assert len({m.tobytes() for m in masks}) == 4 and len({i.tobytes() for i in ids}) == 4   # frames differ
+    for i in (0, 3, 1, 2, -1):   # any order, backwards too
+        assert np.array_equal(gt.safe_masks[i], masks[i]) and np.array_equal(gt.object_ids[i], ids[i])
+    assert np.array_equal(gt.safe_mask(int(gt.stamps_ns[2])), masks[2])
+    assert gt.safe_mask(int(gt.stamps_ns[2])).dtype == bool
+    assert np.array_equal(np.asarray(gt.safe_masks), masks) and np.array_equal(np.asarray(gt.object_ids), ids)
+    with pytest.raises(IndexError):
+        gt.object_ids[4]
+
+
+def test_version_1_sidecar_still_loads(tmp_path):
+    import zipfile
+
+    out = _varied_truth(tmp_path)
+    npz, js = Path(str(out) + ".gt.npz"), Path(str(out) + ".gt.json")
+    with zipfile.ZipFile(npz) as zf:
+        members = {i.filename: zf.read(i) for i in zf.infolist()}
+    with zipfile.ZipFile(npz, "w", zipfile.ZIP_DEFLATED) as zf:   # v1: every member deflated
+        for name, data in members.items():
+            zf.writestr(name, data)
+    header = json.loads(js.read_text())
+    js.write_text(json.dumps({**header, "version": 1}))
+    gt = load_ground_truth(out)
+    with np.load(npz) as z:
+        masks = np.unpackbits(z["safe_masks"], axis=-1, count=160).astype(bool)
+        ids = z["object_ids"]
+    assert np.array_equal(gt.safe_mask(int(gt.stamps_ns[3])), masks[3]) and np.array_equal(gt.object_ids[1], ids[1])
+    js.write_text(json.dumps({**header, "version": 99}))
+    with pytest.raises(SlzError, match="header"):
+        load_ground_truth(out)
+
+
 # ----------------------------------------------------------------------------- CLI
 def test_cli_list():
     res = CliRunner().invoke(main, ["synth", "--list"])

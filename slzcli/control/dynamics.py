@@ -191,16 +191,17 @@ class Wind:
         w = config.control.wind
         return cls(enu_to_ned(np.array(w.mean_m_s, float)), w.gust_m_s, w.gust_tau_s, w.drag_kg_s)
 
-    def initial_gust(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        g = np.zeros((n, 3))
-        g[:, :2] = rng.normal(0.0, self.gust_sigma, (n, 2))
+    def initial_gust(self, z: np.ndarray) -> np.ndarray:
+        """A stationary gust from (N, 2) standard normals ``z`` (horizontal axes)."""
+        g = np.zeros((z.shape[0], 3))
+        g[:, :2] = self.gust_sigma * z
         return g
 
-    def next_gust(self, gust: np.ndarray, dt: float, rng: np.random.Generator) -> np.ndarray:
-        """Exact OU update over dt: keeps the stationary std at ``gust_sigma``."""
+    def next_gust(self, gust: np.ndarray, dt: float, z: np.ndarray) -> np.ndarray:
+        """Exact OU update over dt driven by (N, 2) standard normals: keeps the stationary std at ``gust_sigma``."""
         a = np.exp(-dt / self.gust_tau_s)
         out = gust * a
-        out[:, :2] += rng.normal(0.0, self.gust_sigma * np.sqrt(1 - a * a), (gust.shape[0], 2))
+        out[:, :2] += self.gust_sigma * np.sqrt(1 - a * a) * z
         return out
 
     def force(self, v_ned: np.ndarray, gust: np.ndarray) -> np.ndarray:

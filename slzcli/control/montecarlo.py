@@ -29,10 +29,15 @@ def batch_config(config: Config) -> Config:
     return replace(config, control=control)
 
 
-def run(target: Target, base_start_world: np.ndarray, runs: int, seed: int, config: Config) -> SimResult:
-    """``runs`` landings from starts scattered around ``base_start_world`` under the batch noise and gusts."""
-    starts = sample_starts(base_start_world, runs, config, seed)
-    return simulate(target, starts, batch_config(config), log=False, seed=seed)
+def run(target: Target, base_start_world: np.ndarray, runs: int, seed: int, config: Config, *,
+        first_run: int = 0) -> SimResult:
+    """Runs ``first_run`` .. ``first_run + runs - 1`` of the batch ``seed`` around ``base_start_world``.
+
+    Starts are scattered and flown under the batch noise and gusts. Run i depends only on
+    (seed, i), so a batch run in chunks (``first_run`` = 0, 250, 500, ...) equals it run at once.
+    """
+    starts = sample_starts(base_start_world, runs, config, seed, first_run)
+    return simulate(target, starts, batch_config(config), log=False, seed=seed, first_run=first_run)
 
 
 def summarise(result: SimResult) -> dict[str, Any]:

@@ -2,8 +2,9 @@
 
 The controller never sees the true pose. Each control step it gets a SLAM-like estimate
 (truth + white noise + random-walk drift on position and yaw, white noise on roll, pitch
-and velocity; seeded) and projects the four landing-square corners through it into the
-virtual camera (as the paper projects its synthetic map points with the ORB-SLAM3 pose).
+and velocity; seeded per run, see ``noise.py``) and projects the four landing-square
+corners through it into the virtual camera (as the paper projects its synthetic map points
+with the ORB-SLAM3 pose).
 Roll, pitch and body rates for the attitude loop come from the IMU (truth): a flight
 controller has them. The real camera (true pose) decides whether the corners are still in
 the image.
@@ -25,10 +26,11 @@ from typing import Any
 
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import Config, SimCfg
 from slzcli.control import dynamics as dyn
 from slzcli.control import features as ft
 from slzcli.control import ibvs
+from slzcli.control.noise import START_STREAM, FlightNoise, run_generator
 from slzcli.errors import ConfigError
 
 REASONS = ("running", "touchdown", "site_not_in_view", "corners_lost", "tilt_limit", "ground_contact",
@@ -92,44 +94,105 @@ def start_from_offsets(target: Target, offsets: np.ndarray) -> np.ndarray:
     return out
 
 
+NOISE_COLUMNS = {"drift": slice(0, 3), "yaw_drift": slice(3, 4), "position": slice(4, 7), "attitude": slice(7, 10),
+                 "velocity": slice(10, 13), "gust": slice(13, 15)}
+"""Columns of one control step's standard normals (``noise.FlightNoise`` rows) and what each drives."""
+NOISE_WIDTH = 15
+_HOVER_Q = np.array([0.0, 0.0, 1.0])  # q_d at the hover (paper: q_d = (0, 0, 1))
+METRIC_KEYS = ("stab", "settle", "final_px", "final_yaw", "td_err", "td_speed", "t_end")
+
+
+@dataclass(frozen=True, eq=False)
+class _Setup:
+    """What stays fixed during a batch: models, gains, the target's corners and scales, noise sizes."""
+
+    config: Config
+    params: dyn.Params
+    cam: ft.CameraModel
+    gains: ibvs.Gains
+    wind: dyn.Wind
+    center_world: np.ndarray
+    corners: np.ndarray          # (4, 3) NED
+    a_d: float                   # desired feature area at the hover
+    px_scale: np.ndarray         # feature error -> pixel-equivalent
+    ground_z_ned: float          # body origin height (NED z) at ground contact
+    dt: float
+    n_sub: int
+    steps: int
+    alpha: float                 # low-pass gain of the switching error per step
+    pos_rw: float                # m per step, position drift
+    yaw_rw: float                # rad per step, yaw drift
+    att_sigma: float             # rad
+
+    @property
+    def sim(self) -> SimCfg:
+        return self.config.control.sim
+
+
+@dataclass(frozen=True, eq=False)
+class _Truth:
+    """The vehicle as it is: IMU attitude and rates, the real camera's view, the true virtual features."""
+
+    p: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+    r_ib: np.ndarray
+    roll: np.ndarray
+    pitch: np.ndarray
+    yaw: np.ndarray
+    rates: np.ndarray
+    tilt: np.ndarray
+    pix: np.ndarray
+    visible: np.ndarray
+    uv_true: np.ndarray
+    q_true: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class _Estimate:
+    """What the controller sees through the SLAM-like pose: features, yaw feature, velocity in V."""
+
+    uv: np.ndarray
+    q: np.ndarray
+    q_psi: np.ndarray
+    v_v: np.ndarray
+    drift: np.ndarray            # random-walk states after this step
+    yaw_drift: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class _Command:
+    """The control law's output for one step, with the intermediate terms the log keeps."""
+
+    thrust: np.ndarray
+    torque: np.ndarray
+    roll_d: np.ndarray
+    pitch_d: np.ndarray
+    e: np.ndarray
+    e_f: np.ndarray
+    e_i: np.ndarray              # integral after this step
+    lyap: np.ndarray
+    att_d: np.ndarray
+    qpsi_d: np.ndarray           # desired yaw feature (aligned to the square at step 0)
+
+
 def simulate(target: Target, starts_world: np.ndarray, config: Config, *, log: bool = False,
-             seed: int | None = None) -> SimResult:
+             seed: int | None = None, first_run: int = 0) -> SimResult:
     """Fly N landings from (N, 4) world starts (x, y, z m, yaw deg; ENU) onto ``target``.
 
-    ``seed`` overrides ``control.noise.seed`` (noise, drift, gusts). Run i's noise depends on N.
+    ``seed`` overrides ``control.noise.seed`` (noise, drift, gusts). Row i is run ``first_run + i``:
+    its noise depends only on (seed, first_run + i), not on N, so batches can be split or resized.
     """
-    c, sim, nz = config.control, config.control.sim, config.control.noise
-    ratio = sim.control_dt_s / sim.dynamics_dt_s
-    n_sub = int(round(ratio))
-    if n_sub < 1 or abs(ratio - n_sub) > 1e-6:
-        raise ConfigError("control.sim.control_dt_s", "must be a whole multiple of control.sim.dynamics_dt_s")
-    params = dyn.Params.from_config(config)
-    cam = ft.CameraModel.from_config(config)
-    gains = ibvs.Gains.from_config(config)
-    wind = dyn.Wind.from_config(config)
-    rng = np.random.default_rng(nz.seed if seed is None else seed)
-    dt = sim.control_dt_s
-    z_star = c.desired_depth_m
-    f = cam.f
-
+    s = _setup(target, config)
     starts = np.atleast_2d(np.asarray(starts_world, float))
     n = starts.shape[0]
-    corners = dyn.enu_to_ned(target.corners_world)
-    a_d = ft.desired_area(corners, f, z_star)
-    r_star = math.sqrt(a_d / corners.shape[0])           # RMS corner radius at the hover, px
-    px_scale = np.array([f, f, r_star])                  # feature error -> pixel-equivalent
-    ground_z_ned = -float(target.center_world[2]) - config.uav.size_m[2] / 2  # body origin at contact
-    qpsi_d = np.full(n, math.radians(c.yaw_feature_deg))
-    sym = math.radians(c.yaw_symmetry_deg)
-    att_sigma = math.radians(nz.attitude_sigma_deg)
-    yaw_rw = math.radians(nz.yaw_drift_deg_sqrt_s) * math.sqrt(dt)
-    pos_rw = nz.position_drift_m_sqrt_s * math.sqrt(dt)
+    noise = FlightNoise(config.control.noise.seed if seed is None else seed, n, NOISE_WIDTH, first_run)
 
     x = dyn.State.at_rest(dyn.enu_to_ned(starts[:, :3]), dyn.yaw_enu_to_ned(np.deg2rad(starts[:, 3]))).vector()
     e_i = np.zeros((n, 3))
     drift = np.zeros((n, 3))
     yaw_drift = np.zeros(n)
-    gust = wind.initial_gust(n, rng)
+    gust = s.wind.initial_gust(noise.next()[:, NOISE_COLUMNS["gust"]])
     phase = np.zeros(n, int)
     code = np.zeros(n, int)
     t_switch = np.full(n, np.nan)
@@ -138,158 +201,244 @@ def simulate(target: Target, starts_world: np.ndarray, config: Config, *, log: b
     e_px_start = np.zeros(n)
     filt_vec = np.zeros((n, 3))
     held = np.zeros(n)
-    out = {k: np.full(n, np.nan) for k in ("stab", "settle", "final_px", "final_yaw", "td_err", "td_speed", "t_end")}
+    out = {k: np.full(n, np.nan) for k in METRIC_KEYS}
     max_tilt = np.zeros(n)
+    qpsi_d = np.full(n, math.radians(config.control.yaw_feature_deg))
     prev_att_d: np.ndarray | None = None
     torque = np.zeros((n, 3))
     rows: list[dict[str, np.ndarray]] = []
-    steps = int(math.ceil(sim.timeout_s / dt))
     t = 0.0
 
-    for k in range(steps + 1):
-        t = k * dt
+    for k in range(s.steps + 1):
+        t = k * s.dt
         running = code == 0
         if not running.any():
             break
-        p, v, w = x[:, 0:3], x[:, 3:6], x[:, 10:13]
-        r_ib = dyn.quat_to_rot(x[:, 6:10])
-        roll, pitch, yaw = dyn.euler_from_rot(r_ib)
-        rates = dyn.euler_rates(roll, pitch, w)
-        tilt = dyn.tilt(r_ib)
-        max_tilt = np.where(running, np.maximum(max_tilt, tilt), max_tilt)
+        z = noise.next()
+        tr = _truth(x, s)
+        max_tilt = np.where(running, np.maximum(max_tilt, tr.tilt), max_tilt)
+        est = _estimate(tr, drift, yaw_drift, z, s)
+        drift, yaw_drift = est.drift, est.yaw_drift
+        q_d, q_d_rate = _desired_features(phase, t, t_switch, s)
+        cmd = _command(tr, est, q_d, q_d_rate, e_i, prev_att_d, torque, qpsi_d, running, k == 0, s)
+        e_i, prev_att_d, torque, qpsi_d = cmd.e_i, cmd.att_d, cmd.torque, cmd.qpsi_d
 
-        # Truth: real camera (visibility, pixels) and true virtual features (metrics only).
-        t_ic = p + r_ib @ cam.t_BC
-        r_ic = r_ib @ cam.R_BC
-        pix, depth = ft.camera_pixels(corners, r_ic, t_ic, cam)
-        pv_true = ft.virtual_points(corners, t_ic, yaw + cam.yaw_on_body)
-        uv_true = ft.virtual_pixels(pv_true, f)
-        if sim.visibility == "real":
-            visible = ft.in_image(pix, depth, cam)
-        else:
-            visible = ft.in_image(uv_true + np.array([cam.cx, cam.cy]), pv_true[..., 2], cam)
-        q_true = ft.features(uv_true, a_d, f)
-
-        # The SLAM-like estimate the controller sees.
-        drift += rng.normal(0.0, pos_rw, (n, 3))
-        yaw_drift += rng.normal(0.0, yaw_rw, n)
-        p_est = p + drift + rng.normal(0.0, nz.position_sigma_m, (n, 3))
-        att_noise = rng.normal(0.0, att_sigma, (n, 3))
-        yaw_est = yaw + yaw_drift + att_noise[:, 2]
-        r_est = dyn.quat_to_rot(dyn.quat_from_euler(roll + att_noise[:, 0], pitch + att_noise[:, 1], yaw_est))
-        t_ic_est = p_est + r_est @ cam.t_BC
-        yaw_v = yaw_est + cam.yaw_on_body
-        uv = ft.virtual_pixels(ft.virtual_points(corners, t_ic_est, yaw_v), f)
-        q = ft.features(uv, a_d, f)
-        q_psi = ft.yaw_feature(uv)
-        # camera velocity = body velocity + w x offset (zero with the default mount)
-        v_cam = v + np.einsum("nij,nj->ni", r_ib, np.cross(w, cam.t_BC))
-        v_est = v_cam + rng.normal(0.0, nz.velocity_sigma_m_s, (n, 3))
-        v_v = np.einsum("nji,nj->ni", dyn.rot_z(yaw_v), v_est)
-
-        # Desired features: the hover, then the touch-down ramp of the desired depth.
-        q_d = np.zeros((n, 3))
-        q_d_rate = np.zeros((n, 3))
-        descending = phase == 1
-        q_d[:, 2] = np.where(descending, 1.0 - sim.descent_speed_m_s * (t - t_switch) / z_star, 1.0)
-        q_d_rate[:, 2] = np.where(descending, -sim.descent_speed_m_s / z_star, 0.0)
-        e = q - q_d
-        # psi' of V is taken as the gyro z rate (equal to the Euler yaw rate when level): the exact
-        # Euler rate (sin(phi) q + cos(phi) r) / cos(theta) couples pitch-rate transients into S and
-        # made the cascade oscillate at the control rate.
-        psi_rate = w[:, 2]
-        # psi'' from the model (last yaw torque), not a finite difference: differencing the Euler
-        # yaw rate feeds roll/pitch-rate transients back into S' and made the loop chatter.
-        psi_acc = (torque[:, 2] - (w[:, 0] * w[:, 1] * (params.inertia[1] - params.inertia[0]))) / params.inertia[2]
-        e_dot = ibvs.error_rate(q, q_d_rate, v_v, psi_rate, z_star)
-        force_v, e_f = ibvs.control_force(e, e_dot, e_i, psi_rate, psi_acc, params.mass_kg, gains)
-        lyap = ibvs.lyapunov(e_f, e_i, gains.K_i)
-        thrust, roll_d, pitch_d, sat = ibvs.thrust_attitude(force_v, cam.yaw_on_body, params.mass_kg,
-                                                            params.gravity, params.thrust_min_n,
-                                                            params.thrust_max_n, gains.max_tilt_rad)
-        # Anti-windup: integrate only unsaturated and near the hover (integral separation). The
-        # transient's e_f = K_e e(0) would otherwise leave a slow K_i mode (~K_i/K_p = 0.02 /s) that
-        # holds the error near 1 px for tens of seconds.
-        e_px_est = np.linalg.norm((q - q_d) * px_scale, axis=1)
-        integrate = running & ~sat & (e_px_est < c.integral_zone_px)
-        e_i = e_i + np.where(integrate[:, None], e_f * dt, 0.0)
-        att_d = np.stack([roll_d, pitch_d], axis=1)
-        att_d_rate = (att_d - prev_att_d) / dt if prev_att_d is not None else np.zeros((n, 2))
-        prev_att_d = att_d
-        if k == 0 and sym > 0:   # a square looks the same every `sym`: turn to the nearest alignment
-            qpsi_d = qpsi_d + sym * np.round(ft.wrap_angle(q_psi - qpsi_d) / sym)
-        yaw_err = ft.wrap_angle(q_psi - qpsi_d)
-        torque = ibvs.attitude_torque(roll_d - roll, att_d_rate[:, 0] - rates[:, 0], pitch_d - pitch,
-                                      att_d_rate[:, 1] - rates[:, 1], yaw_err, psi_rate, gains, params.torque_max)
-
-        # Errors in pixels: the estimate (switching) and the truth (metrics).
-        e_px_true = np.linalg.norm((q_true - np.array([0.0, 0.0, 1.0])) * px_scale, axis=1)
-        yaw_err_true = ft.wrap_angle(ft.yaw_feature(uv_true) - qpsi_d)
-        alpha = min(1.0, dt / sim.error_filter_s) if sim.error_filter_s > 0 else 1.0
-        e_vec = (q - np.array([0.0, 0.0, 1.0])) * px_scale   # low-pass the vector: noise averages out
-        filt_vec = e_vec if k == 0 else filt_vec + alpha * (e_vec - filt_vec)
-        filt_px = np.linalg.norm(filt_vec, axis=1)
-
+        # Errors in pixels: the estimate (switching, low-passed) and the truth (metrics).
+        e_px_true = np.linalg.norm((tr.q_true - _HOVER_Q) * s.px_scale, axis=1)
+        yaw_err_true = ft.wrap_angle(ft.yaw_feature(tr.uv_true) - qpsi_d)
+        filt_vec = _filter_error(filt_vec, est.q, k == 0, s)
         if log:
-            row = _log_row(t, x, roll, pitch, yaw, thrust, torque, q, e, e_f, e_i, lyap, q_true, e_px_true,
-                           yaw_err_true, pix, uv, phase)
-            rows.append(row)
+            rows.append(_log_row(t, x, tr.roll, tr.pitch, tr.yaw, cmd.thrust, torque, est.q, cmd.e, cmd.e_f, e_i,
+                                 cmd.lyap, tr.q_true, e_px_true, yaw_err_true, tr.pix, est.uv, phase))
 
-        # Stop conditions (in priority order), then the phase switch.
         ibvs_phase = running & (phase == 0)
-        last_above = np.where(ibvs_phase & (e_px_true >= sim.stable_error_px), t + dt, last_above)
         if k == 0:
             e_px_start = e_px_true.copy()
-        last_above_settle = np.where(ibvs_phase & (e_px_true >= sim.settling_fraction * e_px_start), t + dt,
-                                     last_above_settle)
-        stop = np.zeros(n, int)
-        stop = np.where(running & (k == 0) & ~visible, _CODE["site_not_in_view"], stop)
-        stop = np.where(running & (stop == 0) & ibvs_phase & ~visible, _CODE["corners_lost"], stop)
-        stop = np.where(running & (stop == 0) & (tilt > math.radians(sim.abort_tilt_deg)), _CODE["tilt_limit"], stop)
-        on_ground = p[:, 2] >= ground_z_ned
-        stop = np.where(running & (stop == 0) & on_ground, np.where(descending, _CODE["touchdown"],
-                                                                    _CODE["ground_contact"]), stop)
-        stop = np.where(running & (stop == 0) & (k == steps), _CODE["timeout"], stop)
+        last_above, last_above_settle = _last_above(last_above, last_above_settle, ibvs_phase, e_px_true,
+                                                    e_px_start, t, s)
+        stop = _stop_codes(k, running, ibvs_phase, phase == 1, tr, s)
         ending = stop > 0
         code = np.where(ending, stop, code)
-        out["t_end"] = np.where(ending, t, out["t_end"])
-        landed = stop == _CODE["touchdown"]
-        p_enu = dyn.ned_to_enu(p)
-        out["td_err"] = np.where(landed, np.hypot(*(p_enu[:, :2] - target.center_world[:2]).T), out["td_err"])
-        out["td_speed"] = np.where(landed, np.linalg.norm(v, axis=1), out["td_speed"])
+        out = _record_end(out, stop, t, tr, s)
 
-        below = ibvs_phase & ~ending & (filt_px < sim.switch_error_px)
-        held = np.where(below, held + dt, 0.0)
-        switch = below & (held >= sim.switch_hold_s)
+        switch, held = _switch_due(ibvs_phase, ending, np.linalg.norm(filt_vec, axis=1), held, s)
         if switch.any():
             phase = np.where(switch, 1, phase)
             t_switch = np.where(switch, t, t_switch)
-            out["final_px"] = np.where(switch, e_px_true, out["final_px"])
-            out["final_yaw"] = np.where(switch, np.degrees(np.abs(yaw_err_true)), out["final_yaw"])
-            ok = e_px_true < sim.stable_error_px
-            out["stab"] = np.where(switch & ok, last_above, out["stab"])
-            out["settle"] = np.where(switch, last_above_settle, out["settle"])
+            out = _record_switch(out, switch, e_px_true, yaw_err_true, last_above, last_above_settle, s)
         if not (code == 0).any():
             break
 
-        # Integrate the rigid body over one control period (inputs held), finished runs frozen.
-        x_new = x.copy()
-        if sim.attitude == "ideal":   # roll/pitch follow the command at once; yaw stays dynamic
-            x_new[:, 6:10] = dyn.quat_from_euler(roll_d, pitch_d, yaw)
-            x_new[:, 10:12] = 0.0
-            torque = torque.copy()
-            torque[:, :2] = 0.0
-        for _ in range(n_sub):
-            force_d = wind.force(x_new[:, 3:6], gust)
-            x_new = dyn.rk4_step(x_new, sim.dynamics_dt_s, thrust, torque, force_d, params)
-        gust = wind.next_gust(gust, dt, rng)
+        x_new, torque = _integrate(x, cmd, torque, tr.yaw, gust, s)
+        gust = s.wind.next_gust(gust, s.dt, z[:, NOISE_COLUMNS["gust"]])
         x = np.where((code == 0)[:, None], x_new, x)
 
     reason = np.array([REASONS[i] for i in code])
-    within = out["td_err"] <= sim.success_radius_m
+    within = out["td_err"] <= s.sim.success_radius_m
     return SimResult(reason, (reason == "touchdown") & within, out["stab"], out["settle"], t_switch, out["final_px"],
                      out["final_yaw"], out["td_err"], out["td_speed"], np.degrees(max_tilt), out["t_end"],
                      starts, t, _stack(rows) if log else None)
+
+
+def _setup(target: Target, config: Config) -> _Setup:
+    """Models and constants of a batch; checks that the control period is whole dynamics steps."""
+    c, sim, nz = config.control, config.control.sim, config.control.noise
+    ratio = sim.control_dt_s / sim.dynamics_dt_s
+    n_sub = int(round(ratio))
+    if n_sub < 1 or abs(ratio - n_sub) > 1e-6:
+        raise ConfigError("control.sim.control_dt_s", "must be a whole multiple of control.sim.dynamics_dt_s")
+    cam = ft.CameraModel.from_config(config)
+    corners = dyn.enu_to_ned(target.corners_world)
+    a_d = ft.desired_area(corners, cam.f, c.desired_depth_m)
+    r_star = math.sqrt(a_d / corners.shape[0])           # RMS corner radius at the hover, px
+    dt = sim.control_dt_s
+    return _Setup(
+        config=config, params=dyn.Params.from_config(config), cam=cam, gains=ibvs.Gains.from_config(config),
+        wind=dyn.Wind.from_config(config), center_world=np.asarray(target.center_world, float), corners=corners,
+        a_d=a_d, px_scale=np.array([cam.f, cam.f, r_star]),
+        ground_z_ned=-float(target.center_world[2]) - config.uav.size_m[2] / 2,
+        dt=dt, n_sub=n_sub, steps=int(math.ceil(sim.timeout_s / dt)),
+        alpha=min(1.0, dt / sim.error_filter_s) if sim.error_filter_s > 0 else 1.0,
+        pos_rw=nz.position_drift_m_sqrt_s * math.sqrt(dt), yaw_rw=math.radians(nz.yaw_drift_deg_sqrt_s) * math.sqrt(dt),
+        att_sigma=math.radians(nz.attitude_sigma_deg))
+
+
+def _truth(x: np.ndarray, s: _Setup) -> _Truth:
+    """True attitude and rates (the IMU), the real camera's corner pixels and visibility, true features."""
+    cam = s.cam
+    p, v, w = x[:, 0:3], x[:, 3:6], x[:, 10:13]
+    r_ib = dyn.quat_to_rot(x[:, 6:10])
+    roll, pitch, yaw = dyn.euler_from_rot(r_ib)
+    t_ic = p + r_ib @ cam.t_BC
+    pix, depth = ft.camera_pixels(s.corners, r_ib @ cam.R_BC, t_ic, cam)
+    pv_true = ft.virtual_points(s.corners, t_ic, yaw + cam.yaw_on_body)
+    uv_true = ft.virtual_pixels(pv_true, cam.f)
+    if s.sim.visibility == "real":
+        visible = ft.in_image(pix, depth, cam)
+    else:
+        visible = ft.in_image(uv_true + np.array([cam.cx, cam.cy]), pv_true[..., 2], cam)
+    return _Truth(p, v, w, r_ib, roll, pitch, yaw, dyn.euler_rates(roll, pitch, w), dyn.tilt(r_ib), pix, visible,
+                  uv_true, ft.features(uv_true, s.a_d, cam.f))
+
+
+def _estimate(tr: _Truth, drift: np.ndarray, yaw_drift: np.ndarray, z: np.ndarray, s: _Setup) -> _Estimate:
+    """The SLAM-like estimate: truth + drift + white noise (``z``: this step's standard normals)."""
+    cam, nz, col = s.cam, s.config.control.noise, NOISE_COLUMNS
+    drift = drift + s.pos_rw * z[:, col["drift"]]
+    yaw_drift = yaw_drift + s.yaw_rw * z[:, col["yaw_drift"]][:, 0]
+    p_est = tr.p + drift + nz.position_sigma_m * z[:, col["position"]]
+    att_noise = s.att_sigma * z[:, col["attitude"]]
+    yaw_est = tr.yaw + yaw_drift + att_noise[:, 2]
+    r_est = dyn.quat_to_rot(dyn.quat_from_euler(tr.roll + att_noise[:, 0], tr.pitch + att_noise[:, 1], yaw_est))
+    t_ic_est = p_est + r_est @ cam.t_BC
+    yaw_v = yaw_est + cam.yaw_on_body
+    uv = ft.virtual_pixels(ft.virtual_points(s.corners, t_ic_est, yaw_v), cam.f)
+    # camera velocity = body velocity + w x offset (zero with the default mount)
+    v_cam = tr.v + np.einsum("nij,nj->ni", tr.r_ib, np.cross(tr.w, cam.t_BC))
+    v_est = v_cam + nz.velocity_sigma_m_s * z[:, col["velocity"]]
+    v_v = np.einsum("nji,nj->ni", dyn.rot_z(yaw_v), v_est)
+    return _Estimate(uv, ft.features(uv, s.a_d, cam.f), ft.yaw_feature(uv), v_v, drift, yaw_drift)
+
+
+def _desired_features(phase: np.ndarray, t: float, t_switch: np.ndarray, s: _Setup) -> tuple[np.ndarray, np.ndarray]:
+    """q_d and its rate: the hover (phase 0), then the touch-down ramp of the desired depth (phase 1)."""
+    n, z_star, speed = phase.shape[0], s.config.control.desired_depth_m, s.sim.descent_speed_m_s
+    q_d = np.zeros((n, 3))
+    q_d_rate = np.zeros((n, 3))
+    descending = phase == 1
+    q_d[:, 2] = np.where(descending, 1.0 - speed * (t - t_switch) / z_star, 1.0)
+    q_d_rate[:, 2] = np.where(descending, -speed / z_star, 0.0)
+    return q_d, q_d_rate
+
+
+def _command(tr: _Truth, est: _Estimate, q_d: np.ndarray, q_d_rate: np.ndarray, e_i: np.ndarray,
+             prev_att_d: np.ndarray | None, torque_prev: np.ndarray, qpsi_d: np.ndarray, running: np.ndarray,
+             first: bool, s: _Setup) -> _Command:
+    """The IBVS law (force, thrust and attitude) and the attitude loop (torque) for one control step."""
+    c, params, gains, dt = s.config.control, s.params, s.gains, s.dt
+    z_star = c.desired_depth_m
+    e = est.q - q_d
+    # psi' of V is taken as the gyro z rate (equal to the Euler yaw rate when level): the exact
+    # Euler rate (sin(phi) q + cos(phi) r) / cos(theta) couples pitch-rate transients into S and
+    # made the cascade oscillate at the control rate.
+    psi_rate = tr.w[:, 2]
+    # psi'' from the model (last yaw torque), not a finite difference: differencing the Euler
+    # yaw rate feeds roll/pitch-rate transients back into S' and made the loop chatter.
+    psi_acc = (torque_prev[:, 2] - (tr.w[:, 0] * tr.w[:, 1] * (params.inertia[1] - params.inertia[0]))) \
+        / params.inertia[2]
+    e_dot = ibvs.error_rate(est.q, q_d_rate, est.v_v, psi_rate, z_star)
+    force_v, e_f = ibvs.control_force(e, e_dot, e_i, psi_rate, psi_acc, params.mass_kg, gains)
+    lyap = ibvs.lyapunov(e_f, e_i, gains.K_i)
+    thrust, roll_d, pitch_d, sat = ibvs.thrust_attitude(force_v, s.cam.yaw_on_body, params.mass_kg, params.gravity,
+                                                        params.thrust_min_n, params.thrust_max_n, gains.max_tilt_rad)
+    # Anti-windup: integrate only unsaturated and near the hover (integral separation). The
+    # transient's e_f = K_e e(0) would otherwise leave a slow K_i mode (~K_i/K_p = 0.02 /s) that
+    # holds the error near 1 px for tens of seconds.
+    e_px_est = np.linalg.norm((est.q - q_d) * s.px_scale, axis=1)
+    integrate = running & ~sat & (e_px_est < c.integral_zone_px)
+    e_i = e_i + np.where(integrate[:, None], e_f * dt, 0.0)
+    att_d = np.stack([roll_d, pitch_d], axis=1)
+    att_d_rate = (att_d - prev_att_d) / dt if prev_att_d is not None else np.zeros_like(att_d)
+    sym = math.radians(c.yaw_symmetry_deg)
+    if first and sym > 0:   # a square looks the same every `sym`: turn to the nearest alignment
+        qpsi_d = qpsi_d + sym * np.round(ft.wrap_angle(est.q_psi - qpsi_d) / sym)
+    yaw_err = ft.wrap_angle(est.q_psi - qpsi_d)
+    torque = ibvs.attitude_torque(roll_d - tr.roll, att_d_rate[:, 0] - tr.rates[:, 0], pitch_d - tr.pitch,
+                                  att_d_rate[:, 1] - tr.rates[:, 1], yaw_err, psi_rate, gains, params.torque_max)
+    return _Command(thrust, torque, roll_d, pitch_d, e, e_f, e_i, lyap, att_d, qpsi_d)
+
+
+def _filter_error(filt_vec: np.ndarray, q: np.ndarray, first: bool, s: _Setup) -> np.ndarray:
+    """Low-pass the estimated feature error vector (px-equivalent) for the switch: noise averages out."""
+    e_vec = (q - _HOVER_Q) * s.px_scale
+    return e_vec if first else filt_vec + s.alpha * (e_vec - filt_vec)
+
+
+def _last_above(last_above: np.ndarray, last_above_settle: np.ndarray, ibvs_phase: np.ndarray, e_px_true: np.ndarray,
+                e_px_start: np.ndarray, t: float, s: _Setup) -> tuple[np.ndarray, np.ndarray]:
+    """End times of the last IBVS step above the stable error and above the settling fraction of the start."""
+    t_next = t + s.dt
+    last_above = np.where(ibvs_phase & (e_px_true >= s.sim.stable_error_px), t_next, last_above)
+    last_above_settle = np.where(ibvs_phase & (e_px_true >= s.sim.settling_fraction * e_px_start), t_next,
+                                 last_above_settle)
+    return last_above, last_above_settle
+
+
+def _stop_codes(k: int, running: np.ndarray, ibvs_phase: np.ndarray, descending: np.ndarray, tr: _Truth,
+                s: _Setup) -> np.ndarray:
+    """Why each run stops at this step (a ``_CODE``), 0 if it goes on; the first condition that holds wins."""
+    n = running.shape[0]
+    stop = np.zeros(n, int)
+    stop = np.where(running & (k == 0) & ~tr.visible, _CODE["site_not_in_view"], stop)
+    stop = np.where(running & (stop == 0) & ibvs_phase & ~tr.visible, _CODE["corners_lost"], stop)
+    stop = np.where(running & (stop == 0) & (tr.tilt > math.radians(s.sim.abort_tilt_deg)), _CODE["tilt_limit"], stop)
+    on_ground = tr.p[:, 2] >= s.ground_z_ned
+    stop = np.where(running & (stop == 0) & on_ground, np.where(descending, _CODE["touchdown"],
+                                                                _CODE["ground_contact"]), stop)
+    return np.where(running & (stop == 0) & (k == s.steps), _CODE["timeout"], stop)
+
+
+def _record_end(out: dict[str, np.ndarray], stop: np.ndarray, t: float, tr: _Truth,
+                s: _Setup) -> dict[str, np.ndarray]:
+    """End time of the runs stopping now; touch-down distance from the site centre and speed of those landing."""
+    landed = stop == _CODE["touchdown"]
+    p_enu = dyn.ned_to_enu(tr.p)
+    return {**out, "t_end": np.where(stop > 0, t, out["t_end"]),
+            "td_err": np.where(landed, np.hypot(*(p_enu[:, :2] - s.center_world[:2]).T), out["td_err"]),
+            "td_speed": np.where(landed, np.linalg.norm(tr.v, axis=1), out["td_speed"])}
+
+
+def _switch_due(ibvs_phase: np.ndarray, ending: np.ndarray, filt_px: np.ndarray, held: np.ndarray,
+                s: _Setup) -> tuple[np.ndarray, np.ndarray]:
+    """Runs whose filtered error has stayed below the switch threshold for ``switch_hold_s``; the hold timers."""
+    below = ibvs_phase & ~ending & (filt_px < s.sim.switch_error_px)
+    held = np.where(below, held + s.dt, 0.0)
+    return below & (held >= s.sim.switch_hold_s), held
+
+
+def _record_switch(out: dict[str, np.ndarray], switch: np.ndarray, e_px_true: np.ndarray, yaw_err_true: np.ndarray,
+                   last_above: np.ndarray, last_above_settle: np.ndarray, s: _Setup) -> dict[str, np.ndarray]:
+    """The IBVS-phase metrics of the runs switching to touch-down now."""
+    ok = e_px_true < s.sim.stable_error_px
+    return {**out, "final_px": np.where(switch, e_px_true, out["final_px"]),
+            "final_yaw": np.where(switch, np.degrees(np.abs(yaw_err_true)), out["final_yaw"]),
+            "stab": np.where(switch & ok, last_above, out["stab"]),
+            "settle": np.where(switch, last_above_settle, out["settle"])}
+
+
+def _integrate(x: np.ndarray, cmd: _Command, torque: np.ndarray, yaw: np.ndarray, gust: np.ndarray,
+               s: _Setup) -> tuple[np.ndarray, np.ndarray]:
+    """The rigid body over one control period with the inputs held; returns the state and the torque applied."""
+    x_new = x.copy()
+    if s.sim.attitude == "ideal":   # roll/pitch follow the command at once; yaw stays dynamic
+        x_new[:, 6:10] = dyn.quat_from_euler(cmd.roll_d, cmd.pitch_d, yaw)
+        x_new[:, 10:12] = 0.0
+        torque = torque.copy()
+        torque[:, :2] = 0.0
+    for _ in range(s.n_sub):
+        force_d = s.wind.force(x_new[:, 3:6], gust)
+        x_new = dyn.rk4_step(x_new, s.sim.dynamics_dt_s, cmd.thrust, torque, force_d, s.params)
+    return x_new, torque
 
 
 def _log_row(t: float, x: np.ndarray, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray, thrust: np.ndarray,
@@ -309,17 +458,21 @@ def _stack(rows: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return {k: np.stack([r[k] for r in rows]) for k in rows[0]}
 
 
-def sample_starts(base_world: np.ndarray, runs: int, config: Config, seed: int) -> np.ndarray:
-    """Monte Carlo starts: uniform disc around base (x, y), uniform +-dz, +-yaw (config montecarlo)."""
+def sample_starts(base_world: np.ndarray, runs: int, config: Config, seed: int, first_run: int = 0) -> np.ndarray:
+    """Monte Carlo starts: uniform disc around base (x, y), uniform +-dz, +-yaw (config montecarlo).
+
+    Run i's start comes from its own stream (seed, first_run + i): it does not depend on ``runs``.
+    """
     mc = config.control.montecarlo
-    rng = np.random.default_rng(seed)
-    radius = mc.start_radius_m * np.sqrt(rng.uniform(0, 1, runs))
-    ang = rng.uniform(0, 2 * np.pi, runs)
+    draws = np.array([run_generator(seed, first_run + i, START_STREAM).uniform(0.0, 1.0, 4) for i in range(runs)])
+    draws = draws.reshape(runs, 4)
+    radius = mc.start_radius_m * np.sqrt(draws[:, 0])
+    ang = 2 * np.pi * draws[:, 1]
     out = np.repeat(np.asarray(base_world, float)[None, :4], runs, axis=0)
     out[:, 0] += radius * np.cos(ang)
     out[:, 1] += radius * np.sin(ang)
-    out[:, 2] += rng.uniform(-mc.start_dz_m, mc.start_dz_m, runs)
-    out[:, 3] += rng.uniform(-mc.start_yaw_deg, mc.start_yaw_deg, runs)
+    out[:, 2] += mc.start_dz_m * (2 * draws[:, 2] - 1)
+    out[:, 3] += mc.start_yaw_deg * (2 * draws[:, 3] - 1)
     return out
 
 

@@ -6,7 +6,10 @@ bgra8, mono8, jpeg, png (CompressedImage on ``<color>/compressed``). Depth encod
 16UC1, mono16 (millimetres, 0 = no data), 32FC1 (metres, NaN = no data), compressedDepth
 (image_transport, 16UC1 PNG) and compressedDepth-32FC1 (inverse-depth PNG) on
 ``<depth>/compressedDepth``. Writes go to a temporary name beside the target and are
-renamed into place on a clean close; on an exception the temporary is removed.
+renamed into place on a clean close; on an exception the temporary is removed. A rosbag2
+folder is written under its final name inside a temporary parent folder, because rosbag2
+names its storage files and ``metadata.yaml`` entries after the bag folder: the bytes then
+do not depend on the temporary name (same frames -> same files).
 """
 
 from __future__ import annotations
@@ -81,7 +84,9 @@ class RecordingWriter:
         self.typestore = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
         if POSE_TYPES["tf"] not in self.typestore.fielddefs:  # the Noetic store lacks tf2_msgs
             self.typestore.register(get_types_from_msg(TF_MESSAGE_DEF, POSE_TYPES["tf"]))
-        self._tmp = self.path.parent / f".{self.path.name}.{os.getpid()}.tmp"
+        # Staging: the file itself (mcap, ros1) or a parent holding the bag folder (rosbag2).
+        self._staging = self.path.parent / f".{self.path.name}.{os.getpid()}.tmp"
+        self._tmp = self._staging / self.path.name if fmt.startswith("ros2") else self._staging
         self._backend: _Backend | None = None
         self.frames_written = 0
 
@@ -108,11 +113,16 @@ class RecordingWriter:
     def open(self) -> None:
         if not self.path.parent.is_dir():
             raise OutputError(self.path, "parent folder does not exist")
-        _remove(self._tmp)
+        _remove(self._staging)
         try:
+            if self._tmp != self._staging:
+                self._staging.mkdir()
             self._backend = _BACKENDS[self.fmt](self._tmp, self)
-        except OSError as err:
-            raise OutputError(self.path, f"cannot create ({err})") from err
+        except BaseException as err:
+            _remove(self._staging)
+            if isinstance(err, OSError):
+                raise OutputError(self.path, f"cannot create ({err})") from err
+            raise
 
     def close(self) -> None:
         """Finish the file and move it into place (replacing an older recording of that name)."""
@@ -121,8 +131,6 @@ class RecordingWriter:
         backend, self._backend = self._backend, None
         try:
             backend.close()
-            if self.fmt.startswith("ros2"):
-                _rename_bag_files(self._tmp, self.path.name)
             if self.path.is_dir() and self._tmp.is_dir():
                 old = self.path.parent / f".{self.path.name}.{os.getpid()}.old"
                 os.replace(self.path, old)
@@ -130,8 +138,9 @@ class RecordingWriter:
                 shutil.rmtree(old, ignore_errors=True)
             else:
                 os.replace(self._tmp, self.path)
+            _remove(self._staging)
         except OSError as err:
-            _remove(self._tmp)
+            _remove(self._staging)
             raise OutputError(self.path, f"cannot finish writing ({err})") from err
 
     def abort(self) -> None:
@@ -142,7 +151,7 @@ class RecordingWriter:
                 backend.close()
             except Exception:  # noqa: BLE001 - the temporary is removed anyway
                 pass
-        _remove(self._tmp)
+        _remove(self._staging)
 
     # ------------------------------------------------------------------ writing
     def write_frame(self, frame: Frame) -> None:
@@ -364,18 +373,6 @@ _BACKENDS: dict[str, type[_Backend]] = {
     "mcap": _McapBackend, "mcap-ros1": _McapBackend,
     "ros1": _RosbagBackend, "ros2-sqlite": _RosbagBackend, "ros2-mcap": _RosbagBackend,
 }
-
-
-def _rename_bag_files(folder: Path, name: str) -> None:
-    """rosbag2 names its storage file after the folder: rename it from the temporary name to ``name``."""
-    meta = folder / "metadata.yaml"
-    text = meta.read_text()
-    for f in folder.iterdir():
-        if f.name.startswith(folder.name) and f.name != "metadata.yaml":
-            new = name + f.name[len(folder.name):]
-            f.rename(folder / new)
-            text = text.replace(f.name, new)
-    meta.write_text(text)
 
 
 def _remove(path: Path) -> None:

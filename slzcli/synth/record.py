@@ -1,8 +1,9 @@
 """Scene + flight -> RGB-D recording + ground-truth sidecar + preview: what ``slz synth`` runs.
 
-Compute first, write after: frames are rendered one at a time and streamed to the
-``RecordingWriter``; the ground truth is collected and written next to the recording
-(``<out>.gt.npz`` + ``<out>.gt.json``, see datasets/GROUND_TRUTH.md), then a contact sheet.
+Frames are rendered one at a time and streamed to the ``RecordingWriter``; their per-frame
+truth (masks, object ids) is streamed to ``.npy`` spool files in a temporary folder beside the
+output, so memory holds one frame, not N. The spools then go into the sidecar next to the
+recording (``<out>.gt.npz`` + ``<out>.gt.json``, see datasets/GROUND_TRUTH.md), then a contact sheet.
 Everything is seeded: the same scene, options and seed give the same bytes.
 """
 
@@ -13,10 +14,13 @@ import io
 import json
 import logging
 import os
+import shutil
+import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from types import TracebackType
+from typing import BinaryIO, Callable, Iterator
 
 import cv2
 import numpy as np
@@ -26,8 +30,8 @@ from slzcli.errors import ConfigError, OutputError
 from slzcli.outputs.recording import FORMATS, RecordingWriter
 from slzcli.synth.flight import Flight, make_flight
 from slzcli.synth.geometry import SceneMeshes, build_meshes
-from slzcli.synth.groundtruth import (GT_FORMAT, GT_VERSION, GroundTruth, SafetyRaster, compute_raster,
-                                      ground_truth_arrays, pixel_safe_mask, sidecar_paths)
+from slzcli.synth.groundtruth import (GT_FORMAT, GT_VERSION, STORED_MEMBERS, SafetyRaster, compute_raster,
+                                      pixel_safe_mask, raster_arrays, sidecar_paths)
 from slzcli.synth.preview import contact_sheet
 from slzcli.synth.render import Renderer
 from slzcli.synth.scenes import Scene, load_scene
@@ -42,6 +46,7 @@ CAMERA_FRAME = "camera_color_optical_frame"
 SUFFIX_OF_FORMAT = {"mcap": ".mcap", "mcap-ros1": ".mcap", "ros1": ".bag"}   # ros2-*: a bag folder
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)   # fixed zip member time, so the sidecar is byte-identical per seed
 _RAY_TOP_CLEARANCE_M = 1.0           # raster rays start this far above the highest vertex
+_COPY_BUFFER_BYTES = 1 << 20         # spool -> zip copy chunk
 
 
 @dataclass(frozen=True)
@@ -145,27 +150,34 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
     flight = make_flight(options.start_m, options.frames, options.rate_hz, options.path,  # type: ignore[arg-type]
                          config.synth.flight, flight_seed, config.synth.start_stamp_ns)
     out.parent.mkdir(parents=True, exist_ok=True)
-    safe, ids, sheet_rows = [], [], []
+    sheet_rows: list[dict[str, object]] = []
     keep = {0, options.frames // 2}
-    with RecordingWriter(out, options.fmt, color_encoding=options.color_encoding,
-                         depth_encoding=options.depth_encoding) as writer:
-        for sf in render_frames(world, flight, config, sensor_rng, source=str(out)):
-            writer.write_frame(sf.frame)
-            writer.write_pose(GT_POSE_TOPIC, sf.frame.stamp_ns, sf.frame.T_world_camera, kind="PoseStamped",
-                              parent=WORLD_FRAME, child=CAMERA_FRAME)
-            safe.append(sf.safe)
-            ids.append(sf.object_id)
-            if sf.frame.index in keep:
-                sheet_rows.append({"rgb": sf.frame.rgb, "depth_m": sf.frame.depth_m, "object_id": sf.object_id,
-                                   "safe": sf.safe, "title": f"{scene.name} frame {sf.frame.index}"})
-            if progress is not None:
-                progress(sf.frame.index + 1, options.frames)
-    gt = GroundTruth(flight.stamps_ns, flight.T_world_camera, np.stack(safe), np.stack(ids), world.raster,
-                     tuple({"id": o.id, "name": o.name, "kind": o.kind, "landable": o.landable}
-                           for o in world.meshes.objects))
-    header = _header(out, options, scene, world, gt, config)
-    npz_path, json_path = sidecar_paths(out)
-    write_sidecar(npz_path, json_path, gt, header)
+    safe_first = float("nan")
+    intr = world.intrinsics
+    with TruthSpool(out.parent, options.frames, intr.height, intr.width) as spool:
+        with RecordingWriter(out, options.fmt, color_encoding=options.color_encoding,
+                             depth_encoding=options.depth_encoding) as writer:
+            for sf in render_frames(world, flight, config, sensor_rng, source=str(out)):
+                writer.write_frame(sf.frame)
+                writer.write_pose(GT_POSE_TOPIC, sf.frame.stamp_ns, sf.frame.T_world_camera, kind="PoseStamped",
+                                  parent=WORLD_FRAME, child=CAMERA_FRAME)
+                spool.add(sf.safe, sf.object_id)
+                if sf.frame.index == 0:
+                    safe_first = float(sf.safe.mean())
+                if sf.frame.index in keep:
+                    sheet_rows.append({"rgb": sf.frame.rgb, "depth_m": sf.frame.depth_m, "object_id": sf.object_id,
+                                       "safe": sf.safe, "title": f"{scene.name} frame {sf.frame.index}"})
+                if progress is not None:
+                    progress(sf.frame.index + 1, options.frames)
+        objects = tuple({"id": o.id, "name": o.name, "kind": o.kind, "landable": o.landable}
+                        for o in world.meshes.objects)
+        header = _header(out, options, scene, world, len(flight.stamps_ns), objects, config)
+        npz_path, json_path = sidecar_paths(out)
+        members: dict[str, np.ndarray | Path] = {
+            "stamps_ns": np.asarray(flight.stamps_ns, np.int64),
+            "T_world_camera": np.asarray(flight.T_world_camera, np.float64),
+            **spool.members(), **raster_arrays(world.raster)}
+        write_sidecar(npz_path, json_path, members, header)
     preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
     _write_png(preview_path, contact_sheet(sheet_rows, world.raster.safe, world.raster.usable))
     log.info("synth: %s (%d frames of %s), ground truth %s, preview %s", out, options.frames, scene.name,
@@ -173,18 +185,74 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
     return {"recording": str(out), "format": options.fmt, "scene": scene.name, "variants": list(scene.variants),
             "frames": options.frames, "rate_hz": options.rate_hz, "path": options.path, "seed": options.seed,
             "start_m": list(options.start_m), "ground_truth": str(npz_path), "preview": str(preview_path),
-            "safe_fraction_first_frame": float(gt.safe_masks[0].mean()),
+            "safe_fraction_first_frame": safe_first,
             "raster_safe_fraction": float(world.raster.safe.mean()), "objects": len(world.meshes.objects)}
 
 
-def _header(out: Path, options: SynthOptions, scene: Scene, world: World, gt: GroundTruth,
-            config: Config) -> dict[str, object]:
+class TruthSpool:
+    """Per-frame truth streamed to two ``.npy`` files (bit-packed masks, object ids) in a temporary folder.
+
+    The array shapes are known up front (N frames of H x W), so each frame is appended as it is
+    rendered and nothing accumulates in memory. The folder is removed on exit.
+    """
+
+    def __init__(self, parent: Path, frames: int, height: int, width: int) -> None:
+        self._parent, self._n, self._h, self._w = Path(parent), frames, height, width
+        self._dir: Path | None = None
+        self._files: dict[str, BinaryIO] = {}
+        self.written = 0
+
+    def __enter__(self) -> "TruthSpool":
+        try:
+            self._dir = Path(tempfile.mkdtemp(prefix=".gt-spool-", dir=self._parent))
+            shapes = {"safe_masks": ((self._n, self._h, (self._w + 7) // 8), np.uint8),
+                      "object_ids": ((self._n, self._h, self._w), np.uint16)}
+            for name, (shape, dtype) in shapes.items():
+                fh = open(self._dir / f"{name}.npy", "wb")
+                self._files[name] = fh
+                np.lib.format.write_array_header_1_0(
+                    fh, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)), "fortran_order": False,
+                         "shape": shape})
+        except OSError as err:
+            self._cleanup()
+            raise OutputError(self._parent, f"cannot spool ground truth ({err})") from err
+        return self
+
+    def add(self, safe: np.ndarray, object_id: np.ndarray) -> None:
+        """Append one frame's (H, W) safe mask and object ids."""
+        if self.written >= self._n or safe.shape != (self._h, self._w) or object_id.shape != (self._h, self._w):
+            raise ValueError(f"truth frame {self.written}: expected {self._n} frames of {self._h}x{self._w}")
+        self._files["safe_masks"].write(np.packbits(safe.astype(bool), axis=-1).tobytes())
+        self._files["object_ids"].write(np.ascontiguousarray(object_id, dtype=np.uint16).tobytes())
+        self.written += 1
+
+    def members(self) -> dict[str, Path]:
+        """The finished spool files by member name (all N frames must have been added)."""
+        if self.written != self._n or self._dir is None:
+            raise ValueError(f"ground truth has {self.written} of {self._n} frames")
+        for fh in self._files.values():
+            fh.close()
+        return {name: self._dir / f"{name}.npy" for name in self._files}
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self._cleanup()
+
+    def _cleanup(self) -> None:
+        for fh in self._files.values():
+            fh.close()
+        if self._dir is not None:
+            shutil.rmtree(self._dir, ignore_errors=True)
+
+
+def _header(out: Path, options: SynthOptions, scene: Scene, world: World, frames: int,
+            objects: tuple[dict[str, object], ...], config: Config) -> dict[str, object]:
     intr = world.intrinsics
     r = world.raster
     return {
         "format": GT_FORMAT, "version": GT_VERSION, "recording": Path(out).name,
         "scene": scene.name, "variants": list(scene.variants), "scene_file": Path(scene.source).name,
-        "seed": options.seed, "frames": len(gt), "rate_hz": options.rate_hz, "path": options.path,
+        "seed": options.seed, "frames": frames, "rate_hz": options.rate_hz, "path": options.path,
         "start_m": list(options.start_m), "pose_topic": GT_POSE_TOPIC, "world_frame": f"{WORLD_FRAME} (ENU, z up)",
         "camera_frame": f"{CAMERA_FRAME} (optical: x right, y down, z forward)",
         "image": {"width": intr.width, "height": intr.height, "fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy},
@@ -194,26 +262,39 @@ def _header(out: Path, options: SynthOptions, scene: Scene, world: World, gt: Gr
                   "margin_m": config.synth.ground_truth.margin_m, "step_m": config.synth.ground_truth.step_m,
                   "slope_tolerance_deg": config.synth.ground_truth.slope_tolerance_deg},
         "sensor": dict(vars(config.synth.sensor)),
-        "objects": list(gt.objects), "config_hash": config.hash(), "config": config.to_dict(),
+        "objects": list(objects), "config_hash": config.hash(), "config": config.to_dict(),
     }
 
 
-def write_sidecar(npz_path: Path, json_path: Path, gt: GroundTruth, header: dict[str, object]) -> None:
-    """Write ``.gt.npz`` (deflated, fixed member times: byte-identical per seed) and ``.gt.json``."""
+def write_sidecar(npz_path: Path, json_path: Path, members: dict[str, np.ndarray | Path],
+                  header: dict[str, object]) -> None:
+    """Write ``.gt.npz`` (fixed member times: byte-identical per seed) and ``.gt.json``.
+
+    ``members``: name -> array, or -> path of a complete ``.npy`` file (copied in chunks). Members
+    in ``STORED_MEMBERS`` are stored uncompressed so that the loader can memory-map them; the
+    rest are deflated.
+    """
     tmp = npz_path.with_name(npz_path.name + ".tmp")
     try:
         with zipfile.ZipFile(tmp, "w") as zf:
-            for name, arr in ground_truth_arrays(gt).items():
-                buf = io.BytesIO()
-                np.lib.format.write_array(buf, np.asarray(arr, order="C"), allow_pickle=False)
+            for name, member in members.items():
                 info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_EPOCH)
-                info.compress_type = zipfile.ZIP_DEFLATED
-                zf.writestr(info, buf.getvalue())
+                info.compress_type = zipfile.ZIP_STORED if name in STORED_MEMBERS else zipfile.ZIP_DEFLATED
+                if isinstance(member, Path):
+                    size = member.stat().st_size
+                    info.file_size = size
+                    with open(member, "rb") as src, zf.open(info, "w", force_zip64=size > zipfile.ZIP64_LIMIT) as dst:
+                        shutil.copyfileobj(src, dst, _COPY_BUFFER_BYTES)
+                else:
+                    buf = io.BytesIO()
+                    np.lib.format.write_array(buf, np.asarray(member, order="C"), allow_pickle=False)
+                    zf.writestr(info, buf.getvalue())
         os.replace(tmp, npz_path)
         json_tmp = json_path.with_name(json_path.name + ".tmp")
         json_tmp.write_text(json.dumps(header, indent=1, sort_keys=True) + "\n")
         os.replace(json_tmp, json_path)
     except OSError as err:
+        tmp.unlink(missing_ok=True)
         raise OutputError(npz_path, f"cannot write ground truth ({err})") from err
 
 
