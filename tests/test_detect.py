@@ -102,3 +102,12 @@ def test_bad_recording_is_one_line_exit_1_and_leaves_nothing(runner, tmp_path, c
 def test_missing_path_is_exit_1(runner, tmp_path) -> None:
     res = runner.invoke(main, ["detect", str(tmp_path / "nope.bag"), "-o", str(tmp_path / "run")])
     assert res.exit_code == 1 and "nope.bag" in res.stderr and "no such file" in res.stderr
+
+
+def test_recorded_poses_without_a_map_cloud_use_depth_points(runner, recordings, tmp_path) -> None:
+    """Ground-truth poses as the SLAM input: the run's world is the true world, keyframes by motion."""
+    summary = detect(runner, recordings["parking_lot"], tmp_path / "run", "--set", "sources.use_ground_truth_pose=true")
+    assert summary["slam_backend"] == "recorded" and summary["detections"] >= 1
+    site = json.loads((tmp_path / "run" / "landing.json").read_text())["site"]
+    assert site["center_world"][:2] == pytest.approx(site["ground_truth"]["true_xy"], abs=1e-6)
+    assert site["ground_truth"]["safe"] is True

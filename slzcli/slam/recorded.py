@@ -18,7 +18,7 @@ import numpy as np
 
 from slzcli.errors import DatasetError, DecodeError
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
-from slzcli.slam.keyframes import project
+from slzcli.slam.keyframes import is_new_keyframe, project
 from slzcli.types import Frame
 
 # sensor_msgs/PointField datatypes -> numpy kinds
@@ -104,7 +104,11 @@ def read_point_clouds(path: str | Path, topic: str, config: Any) -> list[tuple[i
 
 
 class RecordedBackend(BackendBase):
-    """Replays recorded poses exactly; keyframes are the frames a recorded map cloud belongs to."""
+    """Replays recorded poses exactly; keyframes are the frames a recorded map cloud belongs to.
+
+    Without any recorded cloud, keyframes follow the shared motion rule (slam.keyframe) and
+    carry no points: the pipeline then samples map points from the keyframe's depth.
+    """
 
     name = "recorded"
 
@@ -115,6 +119,8 @@ class RecordedBackend(BackendBase):
         self.used: set[int] = set()
         self._keyframe: MapPoints | None = None
         self._n_kf = 0
+        self._kf_cfg = config.slam.keyframe
+        self._last_kf_pose: np.ndarray | None = None
 
     def _cloud_for(self, stamp: int) -> int | None:
         i = bisect.bisect_left(self.stamps, stamp)
@@ -135,6 +141,11 @@ class RecordedBackend(BackendBase):
             _, xyz, ids = self.clouds[j]
             uv, ok = project(xyz, pose, frame.K, frame.intrinsics.width, frame.intrinsics.height)
             self._keyframe = MapPoints(ids[ok], xyz[ok], uv[ok], self._n_kf, frame.stamp_ns, pose)
+            self._n_kf += 1
+        elif not self.clouds and is_new_keyframe(self._last_kf_pose, pose, 1, 1, self._kf_cfg.min_translation_m,
+                                                 self._kf_cfg.min_rotation_deg, 0.0):
+            self._keyframe = MapPoints.empty(self._n_kf, frame.stamp_ns, pose)
+            self._last_kf_pose = pose
             self._n_kf += 1
         n = 0 if self._keyframe is None else len(self._keyframe)
         return TrackResult(frame.index, frame.stamp_ns, TrackingState.OK, pose, self._keyframe is not None, n)
