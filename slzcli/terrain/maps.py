@@ -221,6 +221,31 @@ def steepness_map(psi_rad: np.ndarray, cfg: SteepnessCfg) -> np.ndarray:
     return _finish(x, ok, cfg.normalise)
 
 
+def _slope(d: _Depth, intr: Intrinsics, up: np.ndarray, cfg: SteepnessCfg) -> np.ndarray:
+    """Slope psi (radians) of every pixel from the plane fit over the metric window.
+
+    A window ``step`` times ``normal_px`` wide runs as a ``normal_px``-ish window on the depth
+    averaged over step x step blocks (valid pixels only), and the slope is upsampled: the same
+    ground size and the same noise averaging for ~step^2 less work. Pixels without depth stay NaN.
+    """
+    win = normal_window_px(d.depth, intr, cfg)
+    step = max(1, win // cfg.normal_px)
+    if step == 1:
+        return slope_rad(normal_field(d.depth, intr, win, cfg.min_valid_fraction, valid=d.valid), up)
+    h, w = d.depth.shape
+    size = (max(1, w // step), max(1, h // step))
+    num = cv2.resize(d.filled, size, interpolation=cv2.INTER_AREA)
+    den = cv2.resize(d.valid.view(np.uint8).astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    small_valid = den >= 0.5                               # at least half of the block has depth
+    small = np.divide(num, den, out=np.full_like(num, np.nan), where=small_valid)
+    small_win = max(3, 2 * ((win // step) // 2) + 1)
+    normals = normal_field(small, fit_intrinsics(intr, small.shape), small_win, cfg.min_valid_fraction,
+                           valid=small_valid)
+    psi = cv2.resize(slope_rad(normals, up), (w, h), interpolation=cv2.INTER_LINEAR)
+    psi[~d.valid] = np.nan
+    return psi
+
+
 def normal_window_px(depth_m: np.ndarray, intr: Intrinsics, cfg: SteepnessCfg) -> int:
     """The plane-fit window: ``normal_size_m`` on the ground at the frame's median depth, at least ``normal_px``.
 
@@ -289,9 +314,7 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
     up = up / np.linalg.norm(up)
     intr = fit_intrinsics(intrinsics, d.depth.shape)
 
-    normals = normal_field(d.depth, intr, normal_window_px(d.depth, intr, cfg.steepness), cfg.steepness.min_valid_fraction,
-                           valid=d.valid)
-    psi = slope_rad(normals, up)
+    psi = _slope(d, intr, up, cfg.steepness)
     slope_deg = np.multiply(psi, np.float32(180.0 / math.pi))
     pca = patch_pca(d.depth, intr, cfg.inclination.radius_m, cfg.inclination.work_px,
                     cfg.inclination.min_points, up, valid=d.valid, filled=d.filled)
