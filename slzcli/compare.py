@@ -1,0 +1,458 @@
+"""``slz compare``: the fuzzy score against the Bayes baseline on the same frames (issue 8, BASELINE.md).
+
+Only the fusion may differ. SLAM tracks every frame ONCE and the four terrain maps are
+computed ONCE per detection frame; each method then scores, masks and selects on those
+very arrays and the very same map points (``pipeline.Detector.fuse``). Every detection
+records what it was given (frame index, stamp, a digest of the map points and of the
+maps) and ``check_same_inputs`` refuses a comparison whose methods saw different inputs.
+
+Reported per recording and method: time per stage and per frame (median, p90), the
+committed site (``pipeline.commit_site``, as ``slz detect``), the distance between the
+methods' sites (the paper's 1.249 m), the IoU of the methods' masks, and with ground
+truth (``slz synth``): mask precision / recall / IoU, whether the site is truly safe, its
+clearance, and a precision-recall sweep of every score map (and every single terrain map)
+with the area under it.
+
+Decisions:
+- Pixel statistics are micro-averaged: counts are summed over all detection frames and
+  all pixels (pixels without depth are predicted unsafe), as ``slz detect`` does.
+- The sweep predicts ``score > tau`` for ``compare.pr_levels`` thresholds evenly spread on
+  [0, 1] on the fused score *before* the safety-margin filter (the score map itself); at
+  tau = 1 nothing is predicted and precision counts as 1. The area is the step-wise area
+  (average precision, ``CurveCounts.auc``), so a saturated score is not flattered.
+- Site distances are horizontal and vertical together (3-D, metres) in the run's world
+  frame: both methods share it, so no alignment is needed.
+- Times are per detection frame: ``slam`` is the tracking time of that frame, ``maps`` the
+  shared map time (counted for each method, as each would pay it alone), ``frame`` the sum
+  of slam, maps, score, mask and select. Frames that are only tracked are not in ``frame``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.errors import ConfigError, DatasetError
+from slzcli.evaluate.safety import MaskCounts, mask_counts, total
+from slzcli.outputs import files
+from slzcli.pipeline import Detection, Detector, _ground_truth, _recorded_clouds, commit_site, posed_maps
+from slzcli.scoring import SCORERS
+from slzcli.slam import get_backend
+from slzcli.sources import open_recording
+from slzcli.types import TerrainMaps
+
+log = logging.getLogger(__name__)
+Progress = Callable[[int, int | None], None]
+STAGES = ("slam", "maps", "score", "mask", "select")
+
+
+# ----------------------------------------------------------------------------- sweep counts
+@dataclass
+class CurveCounts:
+    """True and false positives of ``value > tau`` for fixed thresholds, summed over frames."""
+
+    thresholds: np.ndarray
+    tp: np.ndarray
+    fp: np.ndarray
+    positives: int = 0
+
+    @classmethod
+    def empty(cls, levels: int) -> "CurveCounts":
+        return cls(np.linspace(0.0, 1.0, levels), np.zeros(levels, np.int64), np.zeros(levels, np.int64))
+
+    def add(self, values: np.ndarray, truth: np.ndarray) -> None:
+        """Add one frame: O(n log levels), no sort of the pixels."""
+        v = np.nan_to_num(values.astype(np.float64, copy=False), nan=-1.0).ravel()
+        t = truth.astype(bool, copy=False).ravel()
+        above = np.searchsorted(self.thresholds, v, side="left")  # how many thresholds lie below each value
+        levels = self.thresholds.size
+        for sel, acc in ((t, self.tp), (~t, self.fp)):
+            hist = np.bincount(above[sel], minlength=levels + 1)
+            acc += np.cumsum(hist[::-1])[::-1][1:]  # count(value > thresholds[j]) = sum of hist[j + 1:]
+        self.positives += int(t.sum())
+
+    def curve(self) -> tuple[np.ndarray, np.ndarray]:
+        """(precision, recall) per threshold; precision is 1 where nothing is predicted."""
+        pred = self.tp + self.fp
+        precision = np.where(pred > 0, self.tp / np.maximum(pred, 1), 1.0)
+        recall = self.tp / max(self.positives, 1)
+        return precision, recall
+
+    def auc(self) -> float | None:
+        """Area under the step-interpolated curve (average precision): sum of recall steps x precision.
+
+        Steps, not trapezoids: a score that saturates (the Bayes probability is exactly 1.0 in
+        float32 for most good pixels) gives one big recall jump, which a straight line to the
+        ``(0, 1)`` end point would reward with precision it never reaches.
+        """
+        if self.positives == 0:
+            return None
+        precision, recall = self.curve()
+        order = np.lexsort((-precision, recall))   # recall ascending; at equal recall the best precision first
+        r, p = recall[order], precision[order]
+        steps = np.diff(np.concatenate([[0.0], r]))
+        return float(np.sum(steps * p))
+
+
+# ----------------------------------------------------------------------------- per-method state
+@dataclass
+class MethodRun:
+    """One method's detector (its own accumulators) and what only the comparison needs."""
+
+    name: str
+    det: Detector
+    inputs: list[tuple[int, int, str, str]] = field(default_factory=list)
+    frame_ms: list[float] = field(default_factory=list)
+    pr: CurveCounts | None = None
+    mask_fractions: list[float] = field(default_factory=list)
+    views: dict[int, dict[str, Any]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class FigureFrame:
+    """The arrays of one detection frame for the Figure 6 panel."""
+
+    index: int
+    rgb: np.ndarray
+    per_method: dict[str, dict[str, Any]]
+
+
+def digest(*arrays: np.ndarray | None) -> str:
+    """A short content digest of arrays (identity of the inputs each method saw)."""
+    h = hashlib.blake2b(digest_size=8)
+    for a in arrays:
+        h.update(b"none" if a is None else np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def maps_digest(maps: TerrainMaps) -> str:
+    return digest(*(getattr(maps, n) for n in TerrainMaps.NAMES), maps.valid)
+
+
+def check_same_inputs(inputs: dict[str, list[tuple[int, int, str, str]]]) -> None:
+    """Every method saw the same frames, map points and terrain maps, in the same order; else RuntimeError."""
+    names = list(inputs)
+    for other in names[1:]:
+        if inputs[other] != inputs[names[0]]:
+            raise RuntimeError(f"compare: methods {names[0]!r} and {other!r} were given different frames, "
+                               "SLAM points or maps; the comparison would not isolate the fusion")
+
+
+def resolve_methods(methods: tuple[str, ...] | list[str], key: str = "--methods") -> tuple[str, ...]:
+    """Validated, de-duplicated method names (at least two; ConfigError naming ``key`` and the bad one)."""
+    out: list[str] = []
+    for m in methods:
+        m = m.strip()
+        if m not in SCORERS:
+            raise ConfigError(key, f"unknown method {m!r}; known: {', '.join(SCORERS)}")
+        if m not in out:
+            out.append(m)
+    if len(out) < 2:
+        raise ConfigError(key, f"give at least two different methods to compare, got {', '.join(out)}")
+    return tuple(out)
+
+
+# ----------------------------------------------------------------------------- one recording
+def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
+                      progress: Progress | None = None) -> dict[str, Any]:
+    """Run every method over one recording, sharing SLAM and maps; returns the numbers and the figure arrays."""
+    path = Path(path)
+    truth = _ground_truth(path)
+    levels = config.compare.pr_levels
+    runs: dict[str, MethodRun] = {}
+    map_curves = {n: CurveCounts.empty(levels) for n in TerrainMaps.NAMES}
+    map_means: dict[str, list[float]] = {f"{n}_{c}": [] for n in TerrainMaps.NAMES for c in ("safe", "unsafe")}
+    agreement: dict[str, list[MaskCounts]] = {}
+    t_start = time.perf_counter()
+    with open_recording(path, config) as rec:
+        info = rec.info()
+        has_poses = any(c.role == "pose" and c.topic for c in info.choices)
+        with get_backend(config, has_poses, clouds=_recorded_clouds(path, config)) as slam:
+            tracker = Detector(config, methods[0], slam, slam.name, truth)
+            for m in methods:
+                runs[m] = MethodRun(m, Detector(config, m, None, slam.name, truth),
+                                    pr=CurveCounts.empty(levels) if truth is not None else None)
+            every = config.landing.every_nth_frame
+            for frame in rec.frames():
+                T, is_keyframe = tracker.track(frame)
+                slam_ms = tracker.state.timer.samples_ms["slam"][-1]
+                due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0
+                if due:
+                    maps, maps_ms = posed_maps(frame, T, config)
+                    gt_mask = truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000) if truth is not None else None
+                    dets = {m: _fuse(run, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
+                            for m, run in runs.items()}
+                    _agree(dets, agreement)
+                    _forget_views(runs, methods[0], frame.index)
+                    if gt_mask is not None:
+                        _map_truth(maps, gt_mask, map_curves, map_means)
+                if progress is not None:
+                    progress(tracker.state.frames, info.expected_frames)
+    if tracker.state.frames == 0:
+        raise DatasetError(path, "no RGB-D frame could be read")
+    check_same_inputs({m: r.inputs for m, r in runs.items()})
+    return _summarise(path, config, methods, runs, tracker, truth, map_curves, map_means, agreement,
+                      time.perf_counter() - t_start)
+
+
+def _fuse(run: MethodRun, tracker: Detector, frame: Any, T: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
+          slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
+    det = run.det
+    det.last_points = tracker.last_points
+    d = det.fuse(frame, T, maps, maps_ms)
+    det.record(d)
+    det.state.timer.add("slam", slam_ms)
+    pts = d.points
+    run.inputs.append((frame.index, frame.stamp_ns, digest(None if pts is None else pts.ids,
+                                                           None if pts is None else pts.xyz_world),
+                       maps_digest(maps)))
+    run.frame_ms.append(slam_ms + sum(d.timings_ms[k] for k in ("maps", "score", "mask", "select")))
+    if run.pr is not None and gt_mask is not None:
+        run.pr.add(d.score.score, gt_mask)
+    run.mask_fractions.append(float(d.score.mask.mean()))
+    run.views[frame.index] = _view(d)
+    return d
+
+
+def _forget_views(runs: dict[str, MethodRun], first: str, current: int) -> None:
+    """Keep Figure 6 arrays only for frames that may hold the committed site, and the latest frame.
+
+    The committed site (known at the end) is one of the first method's sites, so the other
+    frames' arrays can go: memory grows with the frames that gave a site, not with the recording.
+    """
+    with_site = {s["frame"].index for s in runs[first].det.state.sites}
+    for run in runs.values():
+        for k in [k for k in run.views if k != current and k not in with_site]:
+            del run.views[k]
+
+
+def _view(d: Detection) -> dict[str, Any]:
+    """What the Figure 6 panel draws for one method and frame (kept small: float16 score)."""
+    sel = d.selection
+    corners = None
+    if sel is not None and sel.site is not None and d.T_world_camera is not None:
+        from slzcli.landing.select import project
+
+        corners, _ = project(np.asarray(sel.site.corners_world), d.T_world_camera, d.frame.K, d.score.mask.shape)
+    return {"rgb": d.frame.rgb, "score": d.score.score.astype(np.float16), "mask": d.score.mask,
+            "projected": None if sel is None else sel.projected, "kept": None if sel is None else sel.kept,
+            "labels": None if sel is None else sel.labels, "corners_px": corners}
+
+
+def _agree(dets: dict[str, Detection], agreement: dict[str, list[MaskCounts]]) -> None:
+    names = list(dets)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            agreement.setdefault(f"{a}|{b}", []).append(mask_counts(dets[a].score.mask, dets[b].score.mask))
+
+
+def _map_truth(maps: TerrainMaps, gt_mask: np.ndarray, curves: dict[str, CurveCounts],
+               means: dict[str, list[float]]) -> None:
+    valid = maps.valid
+    for n in TerrainMaps.NAMES:
+        values = getattr(maps, n)
+        curves[n].add(values, gt_mask)
+        for cls, sel in (("safe", gt_mask & valid), ("unsafe", ~gt_mask & valid)):
+            if sel.any():
+                means[f"{n}_{cls}"].append(float(values[sel].mean()))
+
+
+def _stats(values: list[float]) -> dict[str, float | None]:
+    if not values:
+        return {"median_ms": None, "p90_ms": None}
+    a = np.asarray(values)
+    return {"median_ms": round(float(np.median(a)), 3), "p90_ms": round(float(np.percentile(a, 90)), 3)}
+
+
+def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[str, MethodRun], tracker: Detector,
+               truth: Any | None, map_curves: dict[str, CurveCounts], map_means: dict[str, list[float]],
+               agreement: dict[str, list[MaskCounts]], wall_s: float) -> dict[str, Any]:
+    from slzcli.outputs.run_folder import landing_record
+
+    side = 2 * config.uav.footprint_m[0]
+    per: dict[str, Any] = {}
+    committed_of: dict[str, dict[str, Any] | None] = {}
+    for m, run in runs.items():
+        st = run.det.state
+        committed = commit_site(st.sites, side)
+        committed_of[m] = committed
+        timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
+        timing["frame"] = _stats(run.frame_ms)
+        rec = landing_record(path, m, committed, "", {}, _reason(st), truth)
+        entry: dict[str, Any] = {
+            "method": m, "detections": st.detections, "sites_found": len(st.sites), "status": rec["status"],
+            "reason": rec.get("reason"), "timings_ms": timing,
+            "site": None if committed is None else {
+                "frame": rec["frame"]["index"], "stamp_ns": rec["frame"]["stamp_ns"],
+                "center_world": rec["site"]["center_world"], "center_camera": rec["site"]["center_camera"],
+                "score": rec["site"]["score"], "cluster_points": rec["site"]["cluster"]["points"],
+                "acceptance": rec["site"]["acceptance"], "support": rec["site"]["support"]},
+            "mask_fraction": _mask_fraction(run),
+            "inputs": [{"frame": i, "stamp_ns": t, "points": p, "maps": q} for i, t, p, q in run.inputs],
+        }
+        if truth is not None:
+            counts = total(st.truth)
+            entry["ground_truth"] = {
+                "mask": counts.as_dict(),
+                "site": None if committed is None else rec["site"].get("ground_truth"),
+                "pr_auc": run.pr.auc() if run.pr is not None else None,
+                "false_safe_rate": counts.fp / (counts.fp + counts.tn) if counts.fp + counts.tn else None,
+            }
+        per[m] = entry
+    pairs = []
+    for i, a in enumerate(methods):
+        for b in methods[i + 1:]:
+            pairs.append(_pair(a, b, runs, committed_of, agreement.get(f"{a}|{b}", [])))
+    out: dict[str, Any] = {
+        "source": str(path), "name": recording_name(path), "frames": tracker.state.frames,
+        "detections": runs[methods[0]].det.state.detections,
+        "slam_backend": tracker.slam_name, "tracking": tracker.state.tracking, "keyframes": len(tracker.state.keyframes),
+        "inputs_identical": True,
+        "methods": per, "pairs": pairs, "wall_s": round(wall_s, 3), "ground_truth": truth is not None,
+    }
+    if truth is not None:
+        header = truth.header
+        out["scene"] = {"name": header.get("scene"), "variants": list(header.get("variants", [])),
+                        "seed": header.get("seed")}
+        out["maps"] = {n: {"pr_auc": map_curves[n].auc(),
+                           "mean_safe": _mean(map_means[f"{n}_safe"]),
+                           "mean_unsafe": _mean(map_means[f"{n}_unsafe"])} for n in TerrainMaps.NAMES}
+    out["_arrays"] = _arrays(runs, committed_of, map_curves, truth is not None)
+    return out
+
+
+def _mean(v: list[float]) -> float | None:
+    return float(np.mean(v)) if v else None
+
+
+def _mask_fraction(run: MethodRun) -> float | None:
+    return float(np.mean(run.mask_fractions)) if run.mask_fractions else None
+
+
+def _reason(st: Any) -> str:
+    if st.detections == 0:
+        return "no frame was due for detection (no keyframe was tracked)"
+    if not st.site_rows:
+        return "no SLAM map point of any detection frame fell on the landing mask"
+    return "no cluster of mask-filtered map points met the footprint in any detection frame"
+
+
+def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[str, Any] | None],
+          counts: list[MaskCounts]) -> dict[str, Any]:
+    ca, cb = committed[a], committed[b]
+    dist = None
+    if ca is not None and cb is not None:
+        dist = float(np.linalg.norm(np.asarray(ca["site"].center_world) - np.asarray(cb["site"].center_world)))
+    per_frame = []
+    sites_a = {s["frame"].index: s["site"] for s in runs[a].det.state.sites}
+    sites_b = {s["frame"].index: s["site"] for s in runs[b].det.state.sites}
+    for k in sorted(set(sites_a) & set(sites_b)):
+        per_frame.append(float(np.linalg.norm(np.asarray(sites_a[k].center_world) - np.asarray(sites_b[k].center_world))))
+    agree = total(counts)
+    return {"methods": [a, b], "site_distance_m": dist,
+            "per_frame_site_distance_m": {"mean": float(np.mean(per_frame)) if per_frame else None,
+                                          "frames": len(per_frame)},
+            "mask_iou": agree.iou, "mask_agreement": (agree.tp + agree.tn) / max(agree.tp + agree.fp + agree.fn + agree.tn, 1)}
+
+
+def _arrays(runs: dict[str, MethodRun], committed: dict[str, dict[str, Any] | None],
+            map_curves: dict[str, CurveCounts], has_truth: bool) -> dict[str, Any]:
+    """Arrays for the figures (not JSON): the Figure 6 frame, PR curves, timing samples."""
+    first = next(iter(runs))
+    frames = list(runs[first].views)
+    fig_frame = None
+    if frames:
+        c = committed[first]
+        index = c["frame"].index if c is not None else frames[-1]
+        fig_frame = FigureFrame(index, runs[first].views[index]["rgb"],
+                                {m: r.views[index] for m, r in runs.items()})
+    curves = {}
+    if has_truth:
+        curves = {m: r.pr.curve() for m, r in runs.items() if r.pr is not None}
+        curves.update({f"map:{n}": c.curve() for n, c in map_curves.items()})
+    timings = {m: {**{k: list(r.det.state.timer.samples_ms.get(k, [])) for k in STAGES}, "frame": list(r.frame_ms)}
+               for m, r in runs.items()}
+    return {"figure_frame": fig_frame, "curves": curves, "timings": timings}
+
+
+def recording_name(path: Path) -> str:
+    name = Path(path).name.rstrip("/") or "recording"
+    for suffix in (".mcap", ".bag", ".db3"):
+        name = name.removesuffix(suffix)
+    return name
+
+
+# ----------------------------------------------------------------------------- variants
+def render_variants(path: Path, config: Config, out_dir: Path, variants: tuple[str, ...],
+                    progress: Progress | None = None) -> list[Path]:
+    """Re-render a synth recording's scene once per variant (same flight, seed and frames) into ``out_dir``."""
+    import json
+
+    from slzcli.synth import record
+    from slzcli.synth.groundtruth import sidecar_paths
+
+    header_path = sidecar_paths(path)[1]
+    if not header_path.is_file():
+        raise DatasetError(path, f"--variants needs a `slz synth` recording ({header_path.name} not found)")
+    try:
+        header = json.loads(header_path.read_text())
+        base = tuple(header.get("variants", []))
+        options = dict(scene=str(header["scene"]), frames=int(header["frames"]), rate_hz=float(header["rate_hz"]),
+                       path=str(header["path"]), seed=int(header["seed"]),
+                       start_m=tuple(float(v) for v in header["start_m"]))
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise DatasetError(header_path, f"unreadable synth header ({err})") from err
+    out = []
+    for v in variants:
+        target = Path(out_dir) / f"{options['scene']}_{v}.mcap"
+        opts = record.SynthOptions(**options, variants=tuple(x for x in base if x != v) + (v,))  # type: ignore[arg-type]
+        record.synthesize(target, opts, config, progress=None, force=True)
+        out.append(target)
+        if progress is not None:
+            progress(len(out), len(variants))
+    return out
+
+
+# ----------------------------------------------------------------------------- the command
+def _unique_names(results: list[dict[str, Any]]) -> None:
+    """Recordings with the same file name in different folders get _2, _3, ... (their figure folders)."""
+    seen: dict[str, int] = {}
+    for r in results:
+        n = seen[r["name"]] = seen.get(r["name"], 0) + 1
+        if n > 1:
+            r["name"] = f"{r['name']}_{n}"
+
+
+def compare(paths: list[Path], config: Config, out_dir: Path, methods: tuple[str, ...] | None = None, *,
+            variants: bool = False, force: bool = False, progress: Progress | None = None) -> dict[str, Any]:
+    """Compare the methods over each recording (and, with ``variants``, its scene's variants) into ``out_dir``."""
+    from slzcli.outputs import report
+
+    methods = resolve_methods(methods) if methods else resolve_methods(config.compare.methods, "compare.methods")
+    from slzcli.synth.groundtruth import sidecar_paths
+
+    for p in paths:
+        if not Path(p).exists():
+            raise DatasetError(p, "no such file or folder")
+        if variants and not sidecar_paths(p)[1].is_file():  # fail before the long work, not after it
+            raise DatasetError(p, f"--variants needs a `slz synth` recording ({sidecar_paths(p)[1].name} not found)")
+    with files.atomic_dir(out_dir, replace=force) as tmp:
+        results = [compare_recording(Path(p), config, methods, progress) for p in paths]
+        _unique_names(results)
+        variant_results: list[dict[str, Any]] = []
+        if variants:
+            for p, base in zip(paths, results):
+                folder = tmp / "variants" / base["name"]
+                for rec_path in render_variants(Path(p), config, folder, config.compare.variants):
+                    r = compare_recording(rec_path, config, methods, progress)
+                    r["variant_of"] = base["name"]
+                    variant_results.append(r)
+        summary = report.write_comparison(tmp, config, methods, results, variant_results)
+    return {**summary, "output": str(out_dir)}
