@@ -1,0 +1,537 @@
+"""Many recordings: one task per recording, on a local process pool (default) or a Dask cluster.
+
+The per-recording work is ``pipeline.detect_recording``: frames streamed from the file, the
+run folder built under a temporary name and renamed at the end, skipped when it was done
+before for the same config hash and input. This module plans the run folders, hands the
+tasks to an engine, counts progress and collects one row per recording:
+
+- ``inline``: in this process (one worker, or one recording);
+- ``local``: ``concurrent.futures.ProcessPoolExecutor`` with the spawn start method (fresh
+  interpreters, as on a Dask worker; no fork of a process that holds threads);
+- ``dask``: ``distributed.Client(address).submit`` per recording. The workers must see the
+  same paths (a shared filesystem) and have slz installed; frame counts reach the progress
+  bar as worker events.
+
+Safety. Each task holds its run folder's lock and first removes the ``.RUN.*.partial``
+folders a killed process left (``outputs/run_lock.py``). Ctrl-C or SIGTERM stop the batch:
+the local workers' running recordings are interrupted and remove their temporary folders,
+queued ones are cancelled, the summary records what was done, then ``KeyboardInterrupt`` goes
+on to the caller. Pool workers watch their parent: if it is killed outright they stop too.
+A task already running on a Dask worker cannot be interrupted; it finishes its (atomic) run.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import glob
+import logging
+import multiprocessing as mp
+import os
+import queue
+import signal
+import socket
+import threading
+import time
+import uuid
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+from slzcli.config import Config
+from slzcli.errors import ConfigError, DatasetError, SlzError
+
+log = logging.getLogger(__name__)
+
+# Process housekeeping, not tuning: how often the parent refreshes progress and workers check
+# that their parent lives; how long interrupted workers get to remove their temporary folders.
+POLL_S = 0.25
+STOP_GRACE_S = 10.0
+CONNECT_TIMEOUT_S = 10.0
+RUN_SUFFIXES = (".mcap", ".bag", ".db3")
+GLOB_CHARS = frozenset("*?[")
+
+
+# ----------------------------------------------------------------------------- planning
+@dataclass(frozen=True)
+class Task:
+    """One recording and the run folder it goes to (both absolute: workers may have another cwd)."""
+
+    recording: Path
+    run_dir: Path
+
+
+def is_pattern(arg: str | Path) -> bool:
+    return any(c in GLOB_CHARS for c in str(arg))
+
+
+def expand(args: Sequence[str | Path]) -> list[Path]:
+    """Paths and glob patterns -> recordings, in the order given (a pattern's matches sorted), no repeats."""
+    found: list[Path] = []
+    for arg in args:
+        if is_pattern(arg):
+            matches = sorted(glob.glob(os.path.expanduser(str(arg)), recursive=True))
+            if not matches:
+                raise DatasetError(arg, "no recording matches this pattern")
+            found.extend(Path(m) for m in matches)
+        else:
+            found.append(Path(arg))
+    seen: set[Path] = set()
+    unique = []
+    for p in found:
+        key = p.absolute()
+        if key not in seen:
+            seen.add(key)
+            unique.append(p)
+    return unique
+
+
+def run_name(recording: Path) -> str:
+    name = Path(recording).name or "run"
+    for suffix in RUN_SUFFIXES:
+        name = name.removesuffix(suffix)
+    return name
+
+
+def plan(recordings: Sequence[Path], output: Path | None, *, batch: bool) -> list[Task]:
+    """Run folders: ``output`` itself for one recording named alone, else ``output/<name>`` each.
+
+    ``output`` defaults to ``runs``. Two recordings with the same name get their parent folder's
+    name in front; recordings that still collide are a usage error.
+    """
+    if not batch:
+        if len(recordings) != 1:
+            raise ConfigError("recordings", "one recording expected outside a batch")
+        rec = recordings[0]
+        return [Task(rec.absolute(), (output or Path("runs") / run_name(rec)).absolute())]
+    base = (output or Path("runs")).absolute()
+    names = [run_name(p) for p in recordings]
+    clash = {n for n in names if names.count(n) > 1}
+    names = [f"{p.absolute().parent.name}_{n}" if n in clash else n for p, n in zip(recordings, names)]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError("recordings", f"several recordings would share the run folder {base / twice[0]}; "
+                                        "run them into different -o folders")
+    return [Task(p.absolute(), base / n) for p, n in zip(recordings, names)]
+
+
+def default_workers() -> int:
+    """The cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+# ----------------------------------------------------------------------------- one task
+class FrameTick:
+    """``detect_recording``'s progress(done, total) -> frame increments for a sink (picklable state only)."""
+
+    def __init__(self, sink: Callable[[int], None]) -> None:
+        self.sink = sink
+        self.done = 0
+
+    def __call__(self, done: int, total: int | None) -> None:
+        if done > self.done:
+            self.sink(done - self.done)
+            self.done = done
+
+
+def run_task(task: Task, config: Config, force: bool, method: str | None,
+             progress: Callable[[int, int | None], None] | None = None) -> dict[str, Any]:
+    """One recording -> its row: ``detect_recording`` under the run folder's lock; errors become rows."""
+    from slzcli.outputs import run_lock
+    from slzcli.pipeline import detect_recording
+
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"recording": str(task.recording), "run": str(task.run_dir), "worker": _worker_id()}
+    try:
+        with run_lock.claim(task.run_dir):
+            summary = detect_recording(task.recording, config, task.run_dir, force=force, progress=progress,
+                                       method=method)
+    except SlzError as err:
+        return {**row, "status": "failed", "skipped": False, "error": " ".join(str(err).split()),
+                "wall_s": round(time.perf_counter() - t0, 3), "peak_rss_mb": _peak_rss_mb()}
+    except Exception as err:  # a bug: reported in the row, the batch goes on
+        log.debug("internal error on %s", task.recording, exc_info=True)
+        return {**row, "status": "failed", "skipped": False, "wall_s": round(time.perf_counter() - t0, 3),
+                "error": f"internal error ({type(err).__name__}: {err})", "peak_rss_mb": _peak_rss_mb()}
+    wall = time.perf_counter() - t0
+    skipped = bool(summary.get("skipped"))
+    frames = int(summary.get("frames", 0))
+    return {**row, "status": summary["status"], "skipped": skipped, "frames": frames,
+            "detections": summary.get("detections"), "site_world": summary.get("site_world"),
+            "wall_s": round(wall, 3), "frames_per_s": None if skipped or wall <= 0 else round(frames / wall, 3),
+            "run_wall_s": summary.get("wall_s"), "per_frame_ms": summary.get("timings_ms", {}).get("total"),
+            "peak_rss_mb": _peak_rss_mb(), "peak_child_rss_mb": _peak_rss_mb("children"), "error": None,
+            "summary": summary}
+
+
+def _worker_id() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def _peak_rss_mb(who: str = "self") -> float | None:
+    """Peak resident memory, MiB, of this process (the worker) or of its largest finished child
+    (``children``: the ORB-SLAM3 worker); None where ``resource`` is missing."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    kib = resource.getrusage(resource.RUSAGE_SELF if who == "self" else resource.RUSAGE_CHILDREN).ru_maxrss
+    return round(kib / 1024.0, 1)  # Linux reports KiB
+
+
+# ----------------------------------------------------------------------------- the batch
+@dataclass(frozen=True)
+class BatchProgress:
+    """What the progress display needs: recordings done, frames processed, and the row just finished."""
+
+    done: int
+    total: int
+    frames: int
+    elapsed_s: float
+    row: dict[str, Any] | None = None
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.frames / self.elapsed_s if self.elapsed_s > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    rows: list[dict[str, Any]]
+    engine: str
+    workers: int
+    wall_s: float
+    interrupted: bool = False
+    summary_files: tuple[Path, ...] = field(default_factory=tuple)
+
+    def totals(self) -> dict[str, Any]:
+        """Batch-level numbers for summary.json and the CLI."""
+        ran = [r for r in self.rows if r["status"] in ("site", "no_safe_site") and not r.get("skipped")]
+        frames = sum(int(r.get("frames") or 0) for r in ran)
+        count = {s: sum(r["status"] == s for r in self.rows)
+                 for s in ("site", "no_safe_site", "failed", "interrupted")}
+        return {"engine": self.engine, "workers": self.workers, "recordings": len(self.rows), **count,
+                "skipped": sum(bool(r.get("skipped")) for r in self.rows), "processed": len(ran),
+                "frames": frames, "wall_s": round(self.wall_s, 3),
+                "frames_per_s": round(frames / self.wall_s, 3) if self.wall_s > 0 else None,
+                "recordings_per_min": round(60.0 * len(ran) / self.wall_s, 3) if self.wall_s > 0 else None,
+                "batch_interrupted": self.interrupted}
+
+
+def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, scheduler: str | None = None,
+              force: bool = False, method: str | None = None, summary_dir: Path | None = None,
+              on_progress: Callable[[BatchProgress], None] | None = None) -> BatchResult:
+    """Run every task; rows come back in task order. With ``summary_dir``, writes summary.json/csv there.
+
+    Interrupted (Ctrl-C, SIGTERM): stops the workers, writes the summary, re-raises KeyboardInterrupt.
+    """
+    if scheduler:
+        engine: _Engine = _DaskEngine(scheduler)
+    elif workers <= 1 or len(tasks) <= 1:
+        engine = _InlineEngine()
+    else:
+        engine = _LocalEngine(min(workers, len(tasks)))
+    t0 = time.perf_counter()
+    rows: list[dict[str, Any] | None] = [None] * len(tasks)
+    emit = on_progress or (lambda p: None)
+    interrupted = False
+    with _sigterm_interrupts():
+        try:
+            engine.start()
+            emit(BatchProgress(0, len(tasks), 0, 0.0))
+            _collect(engine, tasks, config, force, method, rows, t0, emit)
+        except KeyboardInterrupt:
+            interrupted = True
+            log.warning("interrupted: stopping the workers")
+            engine.stop()  # again, harmless: the interrupt may have come before _collect's own stop
+        finally:
+            engine.close()
+    filled = [r if r is not None else {"recording": str(t.recording), "run": str(t.run_dir),
+                                       "status": "interrupted", "skipped": False, "error": "the batch was stopped"}
+              for r, t in zip(rows, tasks)]
+    result = BatchResult(filled, engine.name, engine.workers, time.perf_counter() - t0, interrupted)
+    if summary_dir is not None:
+        from slzcli.outputs.batch_summary import write_summary
+
+        written = write_summary(summary_dir, {**result.totals(), "scheduler": scheduler,
+                                              "config_hash": config.hash(), "force": force}, filled)
+        result = replace(result, summary_files=written)
+    if interrupted:
+        raise KeyboardInterrupt
+    return result
+
+
+def _collect(engine: "_Engine", tasks: Sequence[Task], config: Config, force: bool, method: str | None,
+             rows: list[dict[str, Any] | None], t0: float, emit: Callable[[BatchProgress], None]) -> None:
+    """Submit everything, then record rows as tasks finish (in this thread) and refresh the frame count."""
+    def progress(row: dict[str, Any] | None = None) -> BatchProgress:
+        return BatchProgress(sum(r is not None for r in rows), len(tasks), engine.frames(),
+                             time.perf_counter() - t0, row)
+
+    def finish(i: int, outcome: Any) -> None:
+        rows[i] = _row_of(tasks[i], outcome)
+        emit(progress(rows[i]))
+
+    done_q: "queue.Queue[tuple[int, Any]]" = queue.Queue()
+    if engine.threaded:  # done callbacks run in the engine's threads: hand them over to this one
+        engine.submit_all(tasks, config, force, method, lambda i, outcome: done_q.put((i, outcome)), lambda: None)
+    else:
+        engine.submit_all(tasks, config, force, method, finish, lambda: emit(progress()))
+    shown = -1
+    try:
+        while any(r is None for r in rows):
+            try:
+                finish(*done_q.get(timeout=POLL_S))
+            except queue.Empty:
+                if engine.frames() != shown:
+                    shown = engine.frames()
+                    emit(progress())
+    except KeyboardInterrupt:
+        engine.stop()
+        while not done_q.empty():  # recordings that finished meanwhile are done: keep their rows
+            i, outcome = done_q.get_nowait()
+            row = _row_of(tasks[i], outcome)
+            if row["status"] in ("site", "no_safe_site"):
+                rows[i] = row
+        raise
+
+
+def _row_of(task: Task, outcome: Any) -> dict[str, Any]:
+    """A finished future (or an inline row) -> the row; a failure of the engine itself becomes a failed row."""
+    if isinstance(outcome, dict):
+        return outcome
+    base = {"recording": str(task.recording), "run": str(task.run_dir), "skipped": False}
+    try:
+        return outcome.result()
+    except KeyboardInterrupt:
+        return {**base, "status": "interrupted", "error": "the worker was interrupted"}
+    except cf.CancelledError:
+        return {**base, "status": "interrupted", "error": "cancelled"}
+    except Exception as err:  # e.g. a worker process died (BrokenProcessPool), a lost Dask worker
+        return {**base, "status": "failed", "error": f"{type(err).__name__}: {err}"}
+
+
+@contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM behaves like Ctrl-C while the batch runs (main thread only: signals live there)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+# ----------------------------------------------------------------------------- engines
+Done = Callable[[int, Any], None]
+
+
+class _Engine:
+    name = "?"
+    workers = 1
+    threaded = True  # tasks finish in other threads or processes (else: inside submit_all)
+
+    def start(self) -> None:
+        return None
+
+    def submit_all(self, tasks: Sequence[Task], config: Config, force: bool, method: str | None, done: Done,
+                   tick: Callable[[], None]) -> None:
+        raise NotImplementedError
+
+    def frames(self) -> int:
+        return 0
+
+    def stop(self) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+
+class _InlineEngine(_Engine):
+    """In this process, one recording after the other: progress on every frame."""
+
+    name = "inline"
+    threaded = False
+
+    def __init__(self) -> None:
+        self._frames = 0
+
+    def submit_all(self, tasks: Sequence[Task], config: Config, force: bool, method: str | None, done: Done,
+                   tick: Callable[[], None]) -> None:
+        def count(n: int) -> None:
+            self._frames += n
+            tick()
+
+        for i, task in enumerate(tasks):
+            done(i, run_task(task, config, force, method, FrameTick(count)))
+
+    def frames(self) -> int:
+        return self._frames
+
+
+_FRAMES: Any = None  # in a pool worker: the shared frame counter (set by _init_worker)
+_RUNNING = False     # in a pool worker: a task is running
+_STOPPING = False    # in a pool worker: told to stop once; later signals must not break the clean-up
+
+
+def _init_worker(counter: Any, parent_pid: int) -> None:
+    """Pool worker start: the frame counter, what Ctrl-C and SIGTERM do, and the parent watch."""
+    global _FRAMES
+    _FRAMES = counter
+    # SIGTERM too: when one worker leaves, the executor calls the pool broken and terminates the rest.
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _on_stop_signal)
+    threading.Thread(target=_watch_parent, args=(parent_pid,), name="slz-parent-watch", daemon=True).start()
+
+
+def _on_stop_signal(signum: int, frame: Any) -> None:
+    """Stop: a running task is interrupted (it removes its temporary folder, then the worker
+    leaves); an idle worker leaves at once, so that it takes no further task. Once only."""
+    global _STOPPING
+    if _STOPPING:
+        return
+    _STOPPING = True
+    if _RUNNING:
+        raise KeyboardInterrupt
+    os._exit(128 + signum)
+
+
+def _watch_parent(parent_pid: int) -> None:
+    """If the parent dies (SIGKILL, crash), interrupt the running task (it cleans up), then leave."""
+    while os.getppid() == parent_pid:
+        time.sleep(POLL_S)
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(STOP_GRACE_S)
+    os._exit(1)
+
+
+def _count_frames(n: int) -> None:
+    with _FRAMES.get_lock():
+        _FRAMES.value += n
+
+
+def _pool_task(task: Task, config: Config, force: bool, method: str | None) -> dict[str, Any]:
+    global _RUNNING
+    _RUNNING = True
+    try:
+        return run_task(task, config, force, method, FrameTick(_count_frames))
+    except KeyboardInterrupt:
+        os._exit(128 + signal.SIGINT)  # cleaned up on the way here; leaving takes no further task
+    finally:
+        _RUNNING = False
+
+
+class _LocalEngine(_Engine):
+    """A process pool on this machine; the parent polls a shared frame counter."""
+
+    name = "local"
+
+    def __init__(self, workers: int) -> None:
+        self.workers = workers
+        ctx = mp.get_context("spawn")
+        self._counter = ctx.Value("q", 0)
+        self._pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+                                            initargs=(self._counter, os.getpid()))
+
+    def submit_all(self, tasks: Sequence[Task], config: Config, force: bool, method: str | None, done: Done,
+                   tick: Callable[[], None]) -> None:
+        for i, task in enumerate(tasks):
+            fut = self._pool.submit(_pool_task, task, config, force, method)
+            fut.add_done_callback(lambda f, i=i: done(i, f))
+
+    def frames(self) -> int:
+        return int(self._counter.value)
+
+    def stop(self) -> None:
+        """Interrupt running tasks (SIGINT: they remove their temporary folders), cancel the rest."""
+        # No public way before Python 3.14 (terminate_workers) to reach the worker processes.
+        procs = list((getattr(self._pool, "_processes", None) or {}).values())
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            if p.is_alive():
+                try:
+                    os.kill(p.pid, signal.SIGINT)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + STOP_GRACE_S
+        for p in procs:
+            p.join(max(0.0, deadline - time.monotonic()))
+            if p.is_alive():
+                p.kill()
+                p.join()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _dask_task(task: Task, config: Config, force: bool, method: str | None, topic: str) -> dict[str, Any]:
+    from distributed import get_worker
+
+    worker = get_worker()
+    return run_task(task, config, force, method, FrameTick(lambda n: worker.log_event(topic, n)))
+
+
+class _DaskEngine(_Engine):
+    """Tasks on an existing Dask distributed cluster; frame counts come back as worker events."""
+
+    name = "dask"
+
+    def __init__(self, address: str) -> None:
+        self.address = address
+        self.client: Any = None
+        self.futures: list[Any] = []
+        self.topic = f"slz-frames-{uuid.uuid4().hex[:12]}"
+        self._frames = 0
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        try:
+            from distributed import Client
+        except ImportError as err:
+            raise ConfigError("--scheduler", "needs dask.distributed: pip install 'slz[dask]'") from err
+        try:
+            self.client = Client(self.address, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError) as err:
+            raise ConfigError("--scheduler", f"cannot connect to the Dask scheduler at {self.address} ({err})") from err
+        info = self.client.scheduler_info()
+        self.workers = sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values())
+        self.client.subscribe_topic(self.topic, self._on_frames)
+
+    def _on_frames(self, event: Any) -> None:
+        _, n = event
+        with self._lock:
+            self._frames += int(n)
+
+    def submit_all(self, tasks: Sequence[Task], config: Config, force: bool, method: str | None, done: Done,
+                   tick: Callable[[], None]) -> None:
+        token = uuid.uuid4().hex[:8]
+        for i, task in enumerate(tasks):
+            fut = self.client.submit(_dask_task, task, config, force, method, self.topic, pure=False,
+                                     key=f"slz-detect-{task.run_dir.name}-{token}-{i}")
+            fut.add_done_callback(lambda f, i=i: done(i, f))
+            self.futures.append(fut)
+
+    def frames(self) -> int:
+        with self._lock:
+            return self._frames
+
+    def stop(self) -> None:
+        if self.client is not None and self.futures:
+            self.client.cancel(self.futures)
+
+    def close(self) -> None:
+        if self.client is not None:
+            try:
+                self.client.unsubscribe_topic(self.topic)
+            finally:
+                self.client.close()
