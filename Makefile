@@ -23,7 +23,7 @@ sysdeps:
 $(STAMP): pyproject.toml | sysdeps
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test,orbslam3]'
+	$(BIN)/python -m pip install -q -e '.[test,orbslam3,dask]'
 	touch $(STAMP)
 
 venv: $(STAMP)

@@ -377,9 +377,19 @@ class SlamCfg:
 
 
 @dataclass(frozen=True)
+class CompareCfg:
+    methods: tuple[str, ...]
+    pr_levels: int = rng(2, 10001)
+    variants: tuple[str, ...]
+# --- end compare ---
+
+
+@dataclass(frozen=True)
 class OutputCfg:
     frame_images: bool
     reverse_colormap: bool
+    results_mcap: bool
+    mask_cloud_stride_px: int = rng(1, 256)
 
 
 @dataclass(frozen=True)
@@ -394,6 +404,7 @@ class Config:
     control: ControlCfg
     synth: SynthCfg
     slam: SlamCfg
+    compare: CompareCfg
     output: OutputCfg
 
     def to_dict(self) -> dict[str, Any]:

@@ -34,7 +34,7 @@ from slzcli.errors import DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
 from slzcli.landing.select import Selection, SelectParams, select_site
-from slzcli.outputs import files
+from slzcli.outputs import files, results_mcap
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, TrackingState, get_backend
 from slzcli.slam.base import invert_pose
@@ -161,12 +161,14 @@ class Detector:
 
     def detect(self, frame: Frame, T_world_camera: np.ndarray | None) -> Detection:
         """Maps, score, mask and (with a pose and map points) the site of one frame."""
+        maps, maps_ms = posed_maps(frame, T_world_camera, self.config)
+        return self.fuse(frame, T_world_camera, maps, maps_ms)
+
+    def fuse(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps,
+             maps_ms: float) -> Detection:
+        """This detector's method on maps already computed: score, mask, site (``slz compare`` shares the maps)."""
         timer = self.state.timer
-        posed = frame if T_world_camera is None else _with_pose(frame, T_world_camera)
-        t: dict[str, float] = {}
-        t0 = time.perf_counter()
-        maps = frame_maps(posed, self.config)
-        t["maps"] = _lap(t0)
+        t: dict[str, float] = {"maps": maps_ms}
         t0 = time.perf_counter()
         raw = self.scorer(maps)
         t["score"] = _lap(t0)
@@ -206,6 +208,14 @@ class Detector:
             pts = det.points.xyz_world
             self.state.sites.append({"frame": det.frame, "site": sel.site, "kept_xyz": pts[sel.kept],
                                      "chosen_xyz": pts[sel.labels == _chosen_cluster(sel)]})
+
+
+def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config) -> tuple[TerrainMaps, float]:
+    """The four terrain maps of a frame (with its SLAM pose, when there is one) and their time in ms."""
+    posed = frame if T_world_camera is None else _with_pose(frame, T_world_camera)
+    t0 = time.perf_counter()
+    maps = frame_maps(posed, config)
+    return maps, _lap(t0)
 
 
 def _chosen_cluster(sel: Selection) -> int:
@@ -256,7 +266,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, *, force: bool =
         return {**previous, "skipped": True}
     truth = _ground_truth(path)
     t_start = time.perf_counter()
-    with files.atomic_dir(out_dir, replace=True) as tmp:
+    with files.atomic_dir(out_dir, replace=True) as tmp, results_mcap.open_results(tmp, config) as results:
         with open_recording(path, config) as rec:
             info = rec.info()
             has_poses = any(c.role == "pose" and c.topic for c in info.choices)
@@ -272,6 +282,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, *, force: bool =
                         det.record(d)
                         with det.state.timer.stage("write"):
                             run_folder.write_detection(tmp, d, config)
+                            results.write_detection(d)
                     if truth is not None:
                         det.state.truth_poses.append(_truth_pose(truth, frame.stamp_ns))
                     if progress is not None:
@@ -280,6 +291,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, *, force: bool =
         if det.state.frames == 0:
             raise DatasetError(path, "no RGB-D frame could be read")
         committed = commit_site(det.state.sites, 2 * config.uav.footprint_m[0])
+        results.write_run(det.state.stamps_ns, det.state.poses, committed)
         summary = run_folder.write_run(tmp, path, config, method, info, report, det, committed, truth,
                                        time.perf_counter() - t_start, fingerprint)
     return summary

@@ -56,6 +56,13 @@ def write_detection(run_dir: Path, det: Any, config: Config) -> None:
         images.write_png(folder / f"{name}.png", images.heatmap_bgr(values, reverse=reverse, valid=valid))
     images.write_png(folder / "score.png", images.heatmap_bgr(det.score.score, reverse=reverse, valid=valid))
     images.write_png(folder / "mask.png", images.mask_png(det.score.mask))
+    images.write_png(folder / "overlay.png", detection_overlay_bgr(det))
+    files.write_npz(folder / "maps.npz", score=det.score.score, mask=det.score.mask, valid=valid,
+                    slope_deg=det.maps.slope_deg, edge_distance_m=det.edge_m, **det.maps.as_dict())
+
+
+def detection_overlay_bgr(det: Any) -> np.ndarray:
+    """The Figure 6 overlay of one detection: mask tint, SLAM points, chosen cluster, Eq. 10 square."""
     sel = det.selection
     chosen = corners_px = None
     if sel is not None and sel.site is not None:
@@ -66,12 +73,8 @@ def write_detection(run_dir: Path, det: Any, config: Config) -> None:
 
         corners_px, _ = project(np.asarray(sel.site.corners_world), det.T_world_camera, det.frame.K,
                                 det.score.mask.shape)
-    overlay = images.site_overlay_bgr(det.frame.rgb, det.score.mask,
-                                      None if sel is None else sel.projected, None if sel is None else sel.kept,
-                                      chosen, corners_px)
-    images.write_png(folder / "overlay.png", overlay)
-    files.write_npz(folder / "maps.npz", score=det.score.score, mask=det.score.mask, valid=valid,
-                    slope_deg=det.maps.slope_deg, edge_distance_m=det.edge_m, **det.maps.as_dict())
+    return images.site_overlay_bgr(det.frame.rgb, det.score.mask, None if sel is None else sel.projected,
+                                   None if sel is None else sel.kept, chosen, corners_px)
 
 
 def landing_record(source: Path, method: str, committed: dict[str, Any] | None, world_frame: str,
