@@ -292,8 +292,9 @@ class _progress:
     def __enter__(self) -> Callable[[int, int], None]:
         if sys.stderr.isatty():
             from rich.console import Console
-            from rich.progress import Progress
-            self.bar = Progress(console=Console(stderr=True), transient=True)
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+            self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                TimeRemainingColumn(), console=Console(stderr=True), transient=True)
             self.bar.start()
             self.task = self.bar.add_task(self.label, total=None)
 
@@ -432,29 +433,6 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
                                                f"{gt['site']['clearance_m']:.2f} m" if gt.get("site") else ""))
     lines.append(f"  results: {out}/ (landing.json, run.json, sites.csv, points.ply, results.mcap, frames/)")
     return "\n".join(lines)
-
-
-class _progress:
-    """A rich progress bar on a terminal, nothing otherwise (logs still say what happens)."""
-
-    def __init__(self, label: str) -> None:
-        self.label = label
-        self.bar: Any = None
-
-    def __enter__(self) -> Callable[[int, int | None], None] | None:
-        if not sys.stderr.isatty():
-            return None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-        self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                            TimeRemainingColumn(), transient=True)
-        self.bar.start()
-        task = self.bar.add_task(self.label, total=None)
-        return lambda done, total: self.bar.update(task, completed=done, total=total)
-
-    def __exit__(self, *exc: object) -> None:
-        if self.bar is not None:
-            self.bar.stop()
 
 
 @main.command("compare")

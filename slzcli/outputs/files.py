@@ -90,6 +90,7 @@ def atomic_dir(path: Path, *, replace: bool = False) -> Iterator[Path]:
         raise OutputError(path, f"cannot create output folder ({err.strerror})") from err
     try:
         yield tmp
+        os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes 0700; a finished run gets the user's usual mode
         if path.exists():
             old = path.with_name(f".{path.name}.old")
             shutil.rmtree(old, ignore_errors=True)
