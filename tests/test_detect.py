@@ -47,7 +47,11 @@ def test_committed_site_is_truly_safe(runner, recordings, tmp_path, scene) -> No
     truth = site["ground_truth"]
     assert truth["safe"] is True, truth
     assert truth["clearance_m"] > 0.5 * 0.656  # the footprint (half the Eq. 10 square) is clear of hazards
-    assert summary["ground_truth"]["mask"]["precision"] >= 0.9
+    # Issue 4 asks for >= 0.95 on a synth recording; measured 0.95-1.00 on four scenes, 0.90 on the
+    # playground (sloped grass, sandbox, benches at 7 m): see benchmarks/results/masks.json.
+    assert summary["ground_truth"]["mask"]["precision"] >= (0.9 if scene == "playground" else 0.95)
+    slam = summary["ground_truth"]
+    assert slam["slam_ate_rmse_m"] < 0.05 and slam["slam_rpe"]["pairs"] >= FRAMES - 2
 
 
 def test_no_site_scene_gives_no_safe_site_as_a_result_not_an_error(runner, recordings, tmp_path) -> None:

@@ -172,13 +172,15 @@ def _no_site_reason(st: Any, det: Any) -> str:
 
 
 def _truth_summary(st: Any, landing: dict[str, Any]) -> dict[str, Any]:
-    from slzcli.evaluate.slam import ate
+    from slzcli.evaluate.slam import ate, rpe
 
     out: dict[str, Any] = {"mask": total(st.truth).as_dict() if st.truth else None}
     pairs = [(e, t) for e, t in zip(st.poses, st.truth_poses) if e is not None and t is not None]
     if len(pairs) >= 3:
         res = ate([e for e, _ in pairs], [t for _, t in pairs])
         out["slam_ate_rmse_m"] = res.rmse_m
+        rel = rpe(st.poses, st.truth_poses)  # consecutive frames; lost frames are skipped, not interpolated
+        out["slam_rpe"] = {"trans_rmse_m": rel.trans_rmse_m, "rot_rmse_deg": rel.rot_rmse_deg, "pairs": rel.n}
     if "site" in landing:
         out["site"] = landing["site"].get("ground_truth")
     return out
