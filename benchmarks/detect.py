@@ -13,26 +13,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
+from flights import render  # benchmarks/flights.py (the script's folder is on sys.path)
 from slzcli.config import load_config
 from slzcli.pipeline import detect_recording
 
-SCENES = ("clear_field", "parking_lot", "playground", "office", "slopes", "no_site")
 HERE = Path(__file__).resolve().parent
-
-
-def render(folder: Path, frames: int) -> list[Path]:
-    out = []
-    for scene in SCENES:
-        path = folder / f"{scene}.mcap"
-        subprocess.run([sys.executable, "-m", "slzcli.cli", "synth", scene, "-o", str(path), "--frames", str(frames)],
-                       check=True, stdout=subprocess.DEVNULL)
-        out.append(path)
-    return out
 
 
 def main() -> None:

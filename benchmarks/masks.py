@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from flights import render  # benchmarks/flights.py (the script's folder is on sys.path)
 from slzcli.config import load_config
 from slzcli.evaluate.safety import mask_counts, total
 from slzcli.scoring import get_scorer, score_frame
@@ -27,18 +26,7 @@ from slzcli.sources import open_recording
 from slzcli.synth.groundtruth import load_ground_truth
 from slzcli.terrain.maps import frame_maps
 
-SCENES = ("clear_field", "parking_lot", "playground", "office", "slopes", "no_site")
 HERE = Path(__file__).resolve().parent
-
-
-def render(folder: Path, frames: int) -> list[Path]:
-    out = []
-    for scene in SCENES:
-        path = folder / f"{scene}.mcap"
-        subprocess.run([sys.executable, "-m", "slzcli.cli", "synth", scene, "-o", str(path), "--frames", str(frames)],
-                       check=True, stdout=subprocess.DEVNULL)
-        out.append(path)
-    return out
 
 
 def evaluate(path: Path, overrides: list[str], methods: tuple[str, ...]) -> dict[str, dict]:

@@ -19,6 +19,7 @@ import argparse  # noqa: E402
 import itertools  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -28,8 +29,11 @@ import numpy as np  # noqa: E402
 
 from slzcli.config import load_config  # noqa: E402
 from slzcli.scoring import bayes, closed_form, fuzzy, get_scorer, lut, score_frame  # noqa: E402
-from slzcli.scoring.rules import And, Is, Not, load_rules  # noqa: E402
+from slzcli.scoring.rules import load_rules  # noqa: E402
 from slzcli.types import Intrinsics, TerrainMaps  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from skfuzzy_oracle import skfuzzy_simulation  # noqa: E402
 
 H, W = 480, 640
 RESULTS = Path(__file__).resolve().parent / "results" / "scoring.json"
@@ -70,34 +74,7 @@ def timed(fn, repeats: int) -> tuple[float, float]:
 
 
 def skfuzzy_ms_per_pixel(rb, n: int) -> float:
-    from skfuzzy import control as ctrl
-
-    ants = []
-    for v in rb.inputs:
-        a = ctrl.Antecedent(np.linspace(*v.universe, 101), v.name)
-        for name, fn in zip(v.term_names, v.terms):
-            a[name] = fn(a.universe)
-        ants.append(a)
-    out = ctrl.Consequent(np.linspace(*rb.output.universe, 601), rb.output.name, defuzzify_method="centroid")
-    used = {r.term for r in rb.rules}
-    for k, (name, fn) in enumerate(zip(rb.output.term_names, rb.output.terms)):
-        if k in used:
-            out[name] = fn(out.universe)
-
-    def conv(node):
-        if isinstance(node, Is):
-            vi, ti = rb.leaves[node.index]
-            return ants[vi][rb.inputs[vi].term_names[ti]]
-        if isinstance(node, Not):
-            return ~conv(node.arg)
-        args = [conv(x) for x in node.args]
-        acc = args[0]
-        for x in args[1:]:
-            acc = (acc & x) if isinstance(node, And) else (acc | x)
-        return acc
-
-    sim = ctrl.ControlSystemSimulation(ctrl.ControlSystem(
-        [ctrl.Rule(conv(r.premise), out[rb.output.term_names[r.term]]) for r in rb.rules]))
+    sim = skfuzzy_simulation(rb)
     x = np.random.default_rng(1).random((len(rb.inputs), n))
     t0 = time.perf_counter()
     for v, row in zip(rb.inputs, x):

@@ -16,6 +16,7 @@ from slzcli.scoring import (SCORERS, BayesScorer, FuzzyScorer, bayes, closed_for
 from slzcli.scoring.mask import landing_mask, median_depth_m, window_px
 from slzcli.scoring.rules import And, Is, Not, Or, load_rules, parse_rule_base, resolve_rules_path
 from slzcli.types import Intrinsics, TerrainMaps
+from skfuzzy_oracle import skfuzzy_simulation
 
 
 @pytest.fixture(scope="module")
@@ -36,38 +37,6 @@ def _breakpoint_points(n: int) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- exact vs scikit-fuzzy
-def _skfuzzy_system(rb):
-    from skfuzzy import control as ctrl
-
-    ants = []
-    for v in rb.inputs:
-        a = ctrl.Antecedent(np.linspace(*v.universe, 101), v.name)  # breakpoints 0, .5, 1 on the grid
-        for name, fn in zip(v.term_names, v.terms):
-            a[name] = fn(a.universe)
-        ants.append(a)
-    # 601 samples: every output breakpoint (k/6) is a sample, so the piecewise-linear
-    # aggregate scikit-fuzzy integrates is the exact one wherever the clipped terms do not
-    # cross each other - which the shipped consequents (non-overlapping terms) guarantee.
-    out = ctrl.Consequent(np.linspace(*rb.output.universe, 601), rb.output.name, defuzzify_method="centroid")
-    used = {r.term for r in rb.rules}  # skfuzzy fails on array inputs with unused consequent terms
-    for k, (name, fn) in enumerate(zip(rb.output.term_names, rb.output.terms)):
-        if k in used:
-            out[name] = fn(out.universe)
-
-    def conv(node):
-        if isinstance(node, Is):
-            vi, ti = rb.leaves[node.index]
-            return ants[vi][rb.inputs[vi].term_names[ti]]
-        if isinstance(node, Not):
-            return ~conv(node.arg)
-        args = [conv(x) for x in node.args]
-        acc = args[0]
-        for x in args[1:]:
-            acc = (acc & x) if isinstance(node, And) else (acc | x)
-        return acc
-
-    rules = [ctrl.Rule(conv(r.premise), out[rb.output.term_names[r.term]]) for r in rb.rules]
-    return ctrl.ControlSystemSimulation(ctrl.ControlSystem(rules))
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
@@ -78,7 +47,7 @@ def test_exact_equals_scikit_fuzzy(rb):
     plus the breakpoint grid (a discrete 101-point centroid would differ by up to ~0.006)."""
     rng = np.random.default_rng(7)
     x = np.concatenate([rng.random((4, 2000)), _breakpoint_points(4)[:, ::7]], axis=1)
-    sim = _skfuzzy_system(rb)
+    sim = skfuzzy_simulation(rb)
     for v, row in zip(rb.inputs, x):
         sim.input[v.name] = row
     sim.compute()
