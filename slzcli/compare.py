@@ -42,7 +42,8 @@ from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
 from slzcli.outputs import files
-from slzcli.pipeline import Detection, Detector, _ground_truth, _recorded_clouds, commit_site, posed_maps
+from slzcli.pipeline import (Detection, Detector, _ground_truth, _recorded_clouds, check_frame_size, commit_site,
+                             posed_maps)
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
 from slzcli.sources import open_recording
@@ -181,6 +182,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
                                     pr=CurveCounts.empty(levels) if truth is not None else None)
             every = config.landing.every_nth_frame
             for frame in rec.frames():
+                check_frame_size(path, frame, config.sources.min_image_px)
                 T, is_keyframe = tracker.track(frame)
                 slam_ms = tracker.state.timer.samples_ms["slam"][-1]
                 due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0

@@ -72,6 +72,7 @@ class SourcesCfg:
     depth_unit_16u_m: float = rng(0, lo_open=True)
     tum_depth_scale: float = rng(0, lo_open=True)
     max_depth_m: float = rng(0)
+    min_image_px: tuple[int, ...] = rng(1, n=2)
 
 
 @dataclass(frozen=True)
@@ -450,7 +451,7 @@ def parse_override(item: str) -> tuple[str, Any]:
     key, _, text = item.partition("=")
     key = key.strip()
     if not re.fullmatch(r"[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*", key):
-        raise ConfigError(key, "not a dotted key path")
+        raise ConfigError(key or item, "not a dotted key path")  # name what was typed, even an empty key
     try:
         value = yaml.safe_load(text) if text.strip() else ""
     except yaml.YAMLError as err:
@@ -538,6 +539,8 @@ def _scalar(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> An
         value = float(value)
         if value != value:
             raise ConfigError(path, "NaN is not allowed", source)
+        if value in (float("inf"), float("-inf")):  # no parameter means "unbounded"; 0 disables where allowed
+            raise ConfigError(path, f"must be finite, got {value}", source)
     elif tp is str:
         if not isinstance(value, str):
             raise ConfigError(path, f"expected a string, got {_kind(value)} {value!r}", source)

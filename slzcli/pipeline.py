@@ -275,6 +275,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, *, force: bool =
                 det = Detector(config, method, slam, slam.name, truth)
                 every = config.landing.every_nth_frame
                 for frame in rec.frames():
+                    check_frame_size(path, frame, config.sources.min_image_px)
                     T, is_keyframe = det.track(frame)
                     due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0
                     if due:
@@ -295,6 +296,14 @@ def detect_recording(path: Path, config: Config, out_dir: Path, *, force: bool =
         summary = run_folder.write_run(tmp, path, config, method, info, report, det, committed, truth,
                                        time.perf_counter() - t_start, fingerprint)
     return summary
+
+
+def check_frame_size(path: Path, frame: Frame, min_px: tuple[int, ...]) -> None:
+    """Refuse frames too small for feature tracking and the maps' windows (the native trackers throw)."""
+    h, w = frame.rgb.shape[:2]
+    if w < min_px[0] or h < min_px[1]:
+        raise DatasetError(path, f"frame {frame.index} is {w}x{h} px, smaller than sources.min_image_px "
+                                 f"{min_px[0]}x{min_px[1]}")
 
 
 def _ground_truth(path: Path) -> Any | None:

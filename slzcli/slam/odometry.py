@@ -18,6 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from slzcli.errors import SlzError
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult, invert_pose
 from slzcli.slam.features import detect, make_orb, ratio_matches
 from slzcli.slam.keyframes import is_new_keyframe, project
@@ -148,7 +149,12 @@ class OdometryBackend(BackendBase):
     # ------------------------------------------------------------------ protocol
     def track(self, frame: Frame) -> TrackResult:
         self._keyframe = None
-        px, desc = detect(self.orb, frame.rgb)
+        try:
+            px, desc = detect(self.orb, frame.rgb)
+        except cv2.error as err:  # e.g. an image smaller than the ORB pyramid's border
+            h, w = frame.rgb.shape[:2]
+            raise SlzError(f"{frame.source or 'recording'}: ORB features cannot be found in frame {frame.index} "
+                           f"({w}x{h} px): {' '.join(str(err).split())}") from err
         if not self.kfs:
             return self._initialise(frame, px, desc, np.eye(4))
         # the motion prior is only trusted right after a tracked frame

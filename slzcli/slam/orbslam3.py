@@ -100,7 +100,11 @@ def _worker(conn: Any, vocab_path: str, settings_text: str) -> None:
                 if msg[0] == "close":
                     break
                 _, rgb, depth, t = msg
-                r = system.track_rgbd(rgb, depth, t)
+                try:
+                    r = system.track_rgbd(rgb, depth, t)
+                except Exception as err:  # noqa: BLE001 - e.g. an image too small for the ORB pyramid
+                    conn.send(("error", f"{type(err).__name__}: {err}"))
+                    continue
                 pts = np.asarray(system.tracked_map_points(), np.float64).reshape(-1, 3)
                 conn.send(("ok", int(r.state), None if r.pose_wc is None else np.asarray(r.pose_wc, np.float64),
                            int(r.num_tracked_points), pts))
@@ -168,10 +172,12 @@ class OrbSlam3Backend(BackendBase):
         theirs.close()
         self._conn = Connection(ours.detach())
         self._conn.send(("init", self.vocab_path, text))
-        kind, detail = self._recv("loading the vocabulary", self.cfg.orbslam3.load_timeout_s)[:2]
+        kind, detail = self._recv(f"starting on {frame.source or 'the recording'} (loading the vocabulary)",
+                                  self.cfg.orbslam3.load_timeout_s)[:2]
         if kind == "error":
             self._stop()
-            raise SlamWorkerError(f"{self.vocab_path}: ORB-SLAM3 failed to start: {detail}")
+            raise SlamWorkerError(f"{self.vocab_path}: ORB-SLAM3 failed to start on {frame.source or 'the recording'}: "
+                                  f"{detail}")
 
     def _recv(self, doing: str, timeout_s: float) -> tuple:
         try:
@@ -234,8 +240,12 @@ class OrbSlam3Backend(BackendBase):
             self._conn.send(("track", np.ascontiguousarray(frame.rgb), depth, frame.stamp_ns * 1e-9))
         except (BrokenPipeError, OSError):
             pass  # _recv reports how the worker died
-        _, state_code, pose, n_tracked, pts = self._recv(f"tracking frame {frame.index}",
-                                                         self.cfg.orbslam3.frame_timeout_s)
+        reply = self._recv(f"tracking frame {frame.index}", self.cfg.orbslam3.frame_timeout_s)
+        if reply[0] == "error":  # the native tracker threw: the worker is alive, the frame is not usable
+            h, w = frame.rgb.shape[:2]
+            raise SlamWorkerError(f"{frame.source or 'recording'}: ORB-SLAM3 cannot track frame {frame.index} "
+                                  f"({w}x{h} px): {reply[1]}; try --set slam.backend=odometry")
+        _, state_code, pose, n_tracked, pts = reply
         state = _STATES.get(state_code, TrackingState.LOST)
         if state is not TrackingState.OK:
             pose = None  # RECENTLY_LOST carries a motion-model guess; not a measurement

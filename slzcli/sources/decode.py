@@ -163,7 +163,7 @@ def match_depth_to_color(depth_m: np.ndarray, color_shape: tuple[int, int]) -> n
 def decode_camera_info(msg: Any) -> Intrinsics:
     """``CameraInfo`` -> Intrinsics (K row-major; distortion model and D recorded)."""
     k = np.asarray(_f(msg, "k", "K"), dtype=np.float64).reshape(-1)
-    if k.size != 9 or k[0] <= 0 or k[4] <= 0:
+    if k.size != 9 or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0:
         raise DecodeError(f"CameraInfo has no usable K ({k.tolist()})")
     d = tuple(float(v) for v in np.asarray(_f(msg, "d", "D"), dtype=np.float64).reshape(-1))
     return Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]), int(msg.width), int(msg.height),

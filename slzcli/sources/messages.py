@@ -119,6 +119,7 @@ class MessageRecording(Recording):
         pairer = StreamPairer(int(self.cfg.sync_tolerance_ms * NS_PER_MS), int(self.cfg.reorder_window_ms * NS_PER_MS))
         intrinsics: Intrinsics | None = None
         undecodable = 0
+        info_failed = False
         first = last = None
         for msg in self._wrap(self.log.messages(())):
             c = counts.setdefault(msg.topic, [0, 0, 0])
@@ -137,8 +138,10 @@ class MessageRecording(Recording):
             elif msg.topic == ch.camera_info.topic and intrinsics is None:
                 try:
                     intrinsics = decode.decode_camera_info(self.log.deserialize(msg.topic, msg.data))
-                except DecodeError as err:  # reported, not fatal for info
-                    log.warning("%s: CameraInfo on %s not decodable: %s", self.path, msg.topic, err)
+                except DecodeError as err:  # reported once (a later CameraInfo may still be good), not fatal
+                    if not info_failed:
+                        log.warning("%s: CameraInfo on %s not decodable: %s", self.path, msg.topic, err)
+                    info_failed = True
         pairer.flush()
         streams = tuple(StreamInfo(t, self._topics.get(t, "?"), c[0], c[1] if c[0] else None, c[2] if c[0] else None)
                         for t, c in sorted(counts.items()))
@@ -156,6 +159,8 @@ class MessageRecording(Recording):
     def _report(self, pairer: StreamPairer, without_pose: int, undecodable: int, notes: tuple[str, ...]) -> PairingReport:
         extra = (f"{pairer.late} message(s) arrived later than sources.reorder_window_ms and were not paired",) \
             if pairer.late else ()
+        if pairer.duplicates:
+            extra += (f"{pairer.duplicates} duplicated colour/depth message(s) (same topic and stamp) were dropped",)
         return PairingReport(pairer.paired, pairer.unpaired["color"], pairer.unpaired["depth"], without_pose,
                              undecodable, tuple(notes) + extra + tuple(self.log.warnings))
 

@@ -92,6 +92,7 @@ class StreamPairer:
         self.paired = 0
         self.unpaired = {"color": 0, "depth": 0}
         self.late = 0
+        self.duplicates = 0
 
     def push(self, stream: Stream, stamp_ns: int, payload: Any = None) -> list[Pair]:
         """Add one message; returns the pairs that can no longer change, in stamp order."""
@@ -99,6 +100,12 @@ class StreamPairer:
             self.late += 1
             self.unpaired[stream] += 1
             return []
+        i = bisect.bisect_left(self._buf, int(stamp_ns), key=lambda it: it.stamp_ns)
+        while i < len(self._buf) and self._buf[i].stamp_ns == stamp_ns:
+            if self._buf[i].stream == stream:  # the same message recorded twice: one frame, not two
+                self.duplicates += 1
+                return []
+            i += 1
         bisect.insort(self._buf, _Item(int(stamp_ns), next(self._seq), stream, payload))
         self._newest = stamp_ns if self._newest is None else max(self._newest, stamp_ns)
         return self._drain(final=False)

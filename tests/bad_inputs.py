@@ -1,0 +1,278 @@
+"""A corpus of bad inputs, generated into a folder (nothing binary is committed).
+
+One generator per case: ``CASES[name](folder) -> path``. Each writes a small recording (or
+config file) with the project's own ``RecordingWriter`` (``write_raw`` and its message
+helpers for the odd cases) and returns the path to hand to ``slz info`` / ``slz detect``.
+``tests/test_bad_inputs.py`` says what slz must do with each.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from slzcli.outputs.recording import RecordingWriter
+from slzcli.types import Frame, Intrinsics
+
+T0_NS = 1_700_000_000_000_000_000
+PERIOD_NS = 100_000_000  # 10 Hz
+W, H = 160, 120  # ORB-SLAM3 throws on images much smaller than this (128x96 fails)
+ALTITUDE_M = 6.0
+
+
+def textured_frame(i: int = 0, w: int = W, h: int = H, depth: np.ndarray | None = None,
+                   rgb: np.ndarray | None = None) -> Frame:
+    """A camera looking straight down at flat, textured ground ``ALTITUDE_M`` below."""
+    intr = Intrinsics(0.8 * w, 0.8 * w, (w - 1) / 2, (h - 1) / 2, w, h)
+    if rgb is None:
+        rgb = np.random.default_rng(7).integers(0, 256, (h, w, 3), dtype=np.uint8)
+        rgb = np.roll(rgb, 2 * i, axis=1)  # the camera drifts a little: trackable
+    if depth is None:
+        depth = np.full((h, w), ALTITUDE_M, dtype=np.float32)
+    return Frame(i, T0_NS + i * PERIOD_NS, rgb, depth, intr)
+
+
+def _write(path: Path, frames: list[Frame], fmt: str = "mcap", **kw) -> Path:
+    with RecordingWriter(path, fmt, **kw) as w:
+        for f in frames:
+            w.write_frame(f)
+    return path
+
+
+def good(folder: Path, n: int = 4) -> Path:
+    """A well-formed recording (the reference the cut/corrupted cases start from)."""
+    return _write(folder / "good.mcap", [textured_frame(i) for i in range(n)])
+
+
+# ----------------------------------------------------------------------------- files that are not recordings
+def empty(folder: Path) -> Path:
+    p = folder / "empty.mcap"
+    p.write_bytes(b"")
+    return p
+
+
+def garbage(folder: Path) -> Path:
+    p = folder / "garbage.bag"
+    p.write_bytes(np.random.default_rng(1).bytes(8192))
+    return p
+
+
+def wrong_magic(folder: Path) -> Path:
+    data = bytearray(good(folder).read_bytes())
+    data[:8] = b"\x89PNG\r\n\x1a\n"  # a PNG signature where MCAP's magic should be
+    p = folder / "wrong_magic.mcap"
+    p.write_bytes(bytes(data))
+    return p
+
+
+def _cut(folder: Path, fraction: float, name: str, fmt: str = "mcap", suffix: str = ".mcap") -> Path:
+    src = _write(folder / f"full_{name}{suffix}", [textured_frame(i) for i in range(6)], fmt,
+                 **({"chunk_bytes": 20_000} if fmt == "mcap" else {}))
+    data = src.read_bytes()
+    p = folder / f"{name}{suffix}"
+    p.write_bytes(data[: int(len(data) * fraction)])
+    return p
+
+
+def cut_header(folder: Path) -> Path:
+    return _cut(folder, 0.001, "cut_header")
+
+
+def cut_middle(folder: Path) -> Path:
+    return _cut(folder, 0.5, "cut_middle")
+
+
+def cut_before_footer(folder: Path) -> Path:
+    return _cut(folder, 0.97, "cut_before_footer")
+
+
+def cut_ros1(folder: Path) -> Path:
+    return _cut(folder, 0.6, "cut_ros1", "ros1", ".bag")
+
+
+# ----------------------------------------------------------------------------- recordings with odd content
+def unsupported_depth_encoding(folder: Path) -> Path:
+    p = folder / "depth_8uc3.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(3):
+            f = textured_frame(i)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            _, msg = w.depth_message(f.depth_m, f.stamp_ns)
+            msg.encoding = "64FC1"
+            w.write_raw(w.depth_topic, "sensor_msgs/msg/Image", msg, f.stamp_ns)
+    return p
+
+
+def mismatched_sizes(folder: Path) -> Path:
+    """Colour 96x72, depth 48x36 (and a CameraInfo of the colour size): depth is resized to colour."""
+    p = folder / "mismatched.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(3):
+            f = textured_frame(i)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.depth_topic, *w.depth_message(f.depth_m[::2, ::2], f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, f.stamp_ns),
+                        f.stamp_ns)
+    return p
+
+
+def camera_info_zeros(folder: Path) -> Path:
+    p = folder / "info_zeros.mcap"
+    zero = Intrinsics(0.0, 0.0, 0.0, 0.0, W, H)
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(3):
+            f = textured_frame(i)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.depth_topic, *w.depth_message(f.depth_m, f.stamp_ns), f.stamp_ns)
+            for topic in (w.layout.color_info, w.layout.depth_info):
+                w.write_raw(topic, "sensor_msgs/msg/CameraInfo", w._camera_info(zero, f.stamp_ns), f.stamp_ns)
+    return p
+
+
+def depth_all_nan(folder: Path) -> Path:
+    nan = np.full((H, W), np.nan, dtype=np.float32)
+    return _write(folder / "depth_nan.mcap", [textured_frame(i, depth=nan) for i in range(3)], depth_encoding="32FC1")
+
+
+def depth_constant(folder: Path) -> Path:
+    """Every pixel the same depth: a flat floor square to the camera (flat, so it may be safe)."""
+    return _write(folder / "depth_constant.mcap", [textured_frame(i) for i in range(4)])
+
+
+def stamps_backwards(folder: Path) -> Path:
+    frames = [textured_frame(i) for i in range(4)][::-1]
+    p = folder / "backwards.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for k, f in enumerate(frames):  # header stamps go backwards; log time forwards
+            log_ns = T0_NS + k * PERIOD_NS
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), log_ns)
+            w.write_raw(w.depth_topic, *w.depth_message(f.depth_m, f.stamp_ns), log_ns)
+            w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, f.stamp_ns),
+                        log_ns)
+    return p
+
+
+def duplicated_messages(folder: Path) -> Path:
+    frames = [textured_frame(i) for i in range(3)]
+    p = folder / "duplicated.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for f in frames:
+            w.write_frame(f)
+            w.write_frame(f)
+    return p
+
+
+def one_pixel(folder: Path) -> Path:
+    return _write(folder / "one_pixel.mcap", [textured_frame(i, w=1, h=1) for i in range(2)])
+
+
+def very_large(folder: Path) -> Path:
+    w, h = 4000, 3000
+    rgb = np.zeros((h, w, 3), dtype=np.uint8)
+    rgb[::8] = 255  # stripes: cheap to make, something to see
+    return _write(folder / "large.mcap", [textured_frame(0, w=w, h=h, rgb=rgb)])
+
+
+def no_texture(folder: Path) -> Path:
+    """A uniform grey image: the odometry finds no features, so there is no pose and no map point."""
+    grey = np.full((H, W, 3), 128, dtype=np.uint8)
+    return _write(folder / "no_texture.mcap", [textured_frame(i, rgb=grey) for i in range(4)])
+
+
+# ----------------------------------------------------------------------------- config files
+def config_wrong_type(folder: Path) -> Path:
+    p = folder / "wrong_type.yaml"
+    p.write_text("mask:\n  threshold: high\n")
+    return p
+
+
+def config_unknown_key(folder: Path) -> Path:
+    p = folder / "unknown_key.yaml"
+    p.write_text("mask:\n  treshold: 0.6\n")
+    return p
+
+
+def config_not_a_mapping(folder: Path) -> Path:
+    p = folder / "list.yaml"
+    p.write_text("- 1\n- 2\n")
+    return p
+
+
+def config_bad_yaml(folder: Path) -> Path:
+    p = folder / "bad.yaml"
+    p.write_text("mask: {threshold: [0.5\n")
+    return p
+
+
+RECORDINGS: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
+    empty, garbage, wrong_magic, cut_header, cut_middle, cut_before_footer, cut_ros1,
+    unsupported_depth_encoding, mismatched_sizes, camera_info_zeros, depth_all_nan, depth_constant,
+    stamps_backwards, duplicated_messages, one_pixel, very_large, no_texture)}
+CONFIGS: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
+    config_wrong_type, config_unknown_key, config_not_a_mapping, config_bad_yaml)}
+
+
+# ----------------------------------------------------------------------------- damaged messages
+def corrupt_compressed_colour(folder: Path) -> Path:
+    """CompressedImage (jpeg) whose bytes are garbage in every frame."""
+    p = folder / "corrupt_jpeg.mcap"
+    with RecordingWriter(p, "mcap", color_encoding="jpeg") as w:
+        for i in range(3):
+            f = textured_frame(i)
+            _, msg = w.color_message(f.rgb, f.stamp_ns)
+            msg.data = np.frombuffer(np.random.default_rng(i).bytes(500), dtype=np.uint8)
+            w.write_raw(w.color_topic, "sensor_msgs/msg/CompressedImage", msg, f.stamp_ns)
+            w.write_raw(w.depth_topic, *w.depth_message(f.depth_m, f.stamp_ns), f.stamp_ns)
+    return p
+
+
+def short_image_data(folder: Path) -> Path:
+    """Depth Image whose data is shorter than step x height in one of four frames (a torn write)."""
+    p = folder / "short_data.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(4):
+            f = textured_frame(i)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            _, msg = w.depth_message(f.depth_m, f.stamp_ns)
+            if i == 1:
+                msg.data = msg.data[: msg.data.size // 2]
+            w.write_raw(w.depth_topic, "sensor_msgs/msg/Image", msg, f.stamp_ns)
+            w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, f.stamp_ns),
+                        f.stamp_ns)
+    return p
+
+
+def camera_info_nan(folder: Path) -> Path:
+    p = folder / "info_nan.mcap"
+    bad = Intrinsics(float("nan"), float("nan"), float("nan"), float("nan"), W, H)
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(3):
+            f = textured_frame(i)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.depth_topic, *w.depth_message(f.depth_m, f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.layout.depth_info, "sensor_msgs/msg/CameraInfo", w._camera_info(bad, f.stamp_ns), f.stamp_ns)
+    return p
+
+
+RECORDINGS.update({f.__name__: f for f in (corrupt_compressed_colour, short_image_data, camera_info_nan)})
+
+
+# ----------------------------------------------------------------------------- rosbag2 folders
+def ros2_cut_db(folder: Path) -> Path:
+    """A rosbag2 (sqlite) folder whose .db3 was cut short (copied while recording)."""
+    bag = _write(folder / "cut_ros2", [textured_frame(i) for i in range(4)], "ros2-sqlite")
+    db = next(bag.glob("*.db3"))
+    db.write_bytes(db.read_bytes()[: db.stat().st_size // 3])
+    return bag
+
+
+def ros2_missing_storage(folder: Path) -> Path:
+    """metadata.yaml without the storage file it lists."""
+    bag = _write(folder / "no_db_ros2", [textured_frame(i) for i in range(2)], "ros2-sqlite")
+    next(bag.glob("*.db3")).unlink()
+    return bag
+
+
+RECORDINGS.update({f.__name__: f for f in (ros2_cut_db, ros2_missing_storage)})
