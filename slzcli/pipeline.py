@@ -206,7 +206,7 @@ class Detector:
                 "chosen": sel.site is not None and c.cluster == _chosen_cluster(sel)})
         if sel.site is not None:
             pts = det.points.xyz_world
-            self.state.sites.append({"frame": det.frame, "site": sel.site, "kept_xyz": pts[sel.kept],
+            self.state.sites.append({"frame": det.frame.ref(), "site": sel.site, "kept_xyz": pts[sel.kept],
                                      "chosen_xyz": pts[sel.labels == _chosen_cluster(sel)]})
 
 

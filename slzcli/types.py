@@ -60,6 +60,27 @@ class Frame:
     def shape(self) -> tuple[int, int]:
         return self.depth_m.shape[0], self.depth_m.shape[1]
 
+    def ref(self) -> "FrameRef":
+        return FrameRef(self.index, self.stamp_ns, self.intrinsics, self.shape)
+
+
+@dataclass(frozen=True)
+class FrameRef:
+    """What outlives a frame (a site's origin): identity and camera, not the images.
+
+    A run keeps one per site found; holding the Frame instead kept two images per site and
+    made memory grow with the length of the recording.
+    """
+
+    index: int
+    stamp_ns: int
+    intrinsics: Intrinsics
+    shape: tuple[int, int]
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.intrinsics.K
+
 
 @dataclass(frozen=True)
 class StreamInfo:

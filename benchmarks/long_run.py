@@ -1,0 +1,187 @@
+"""Long recordings: peak memory of `slz detect` over 1,000 vs 10,000 frames (issue 10, "limits").
+
+Run: .venv/bin/python benchmarks/long_run.py [--lengths 1000,10000] [--size 640x480] [--keep DIR]
+Prints a table and writes benchmarks/results/long_run.json.
+
+Rendering 10,000 frames would take the renderer ~45 min, so a short hover (`--seed-frames`,
+rendered by `slz synth`) is played forwards and backwards (ping-pong: the camera motion stays
+continuous, SLAM keeps tracking) and written with the RecordingWriter at 20 Hz as JPEG colour +
+compressedDepth PNG, as a RealSense ROS driver records it. Each length runs twice through the
+real CLI (`python -m slzcli.cli detect --json`): with the default keyframe detections, and
+with a detection every `--every` frames, so that detections and their written frames grow
+with the length too. Memory is sampled from /proc every 0.2 s for the CLI process and,
+separately, its children (the ORB-SLAM3 worker); the exact peak of the largest process comes
+from getrusage(RUSAGE_CHILDREN). "rss at 10/50/90 %" are the CLI's resident MiB at those
+fractions of the run's wall time: flat means memory does not grow with the frames read.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+RESULTS = REPO / "benchmarks" / "results" / "long_run.json"
+sys.path.insert(0, str(REPO))
+
+SAMPLE_S = 0.2
+RATE_HZ = 20.0
+
+
+def slz(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "slzcli.cli", *args], cwd=REPO, capture_output=True, text=True,
+                          check=False)
+
+
+def size_overrides(width: int, height: int) -> list[str]:
+    """camera.* for a WxH render with the paper's field of view (fx scales with the width)."""
+    f = 462.137 * width / 640.0
+    out = []
+    for key, value in (("width", width), ("height", height), ("fx", f), ("fy", f), ("cx", width / 2),
+                       ("cy", height / 2)):
+        out += ["--set", f"camera.{key}={value}"]
+    return out
+
+
+def render_seed(folder: Path, frames: int, width: int, height: int) -> Path:
+    path = folder / "seed.mcap"
+    res = slz("synth", "parking_lot", "-o", str(path), "--frames", str(frames), *size_overrides(width, height))
+    if res.returncode != 0:
+        raise SystemExit(f"synth failed: {res.stderr}")
+    return path
+
+
+def write_long(seed: Path, out: Path, length: int) -> float:
+    """``length`` frames of ``seed`` in ping-pong order, restamped at RATE_HZ; returns MB written."""
+    from dataclasses import replace
+
+    from slzcli.config import load_config
+    from slzcli.outputs.recording import RecordingWriter
+    from slzcli.sources import open_recording
+
+    config = load_config()
+    with open_recording(seed, config) as rec:
+        frames = list(rec.frames())
+    cycle = frames + frames[-2:0:-1]
+    t0 = frames[0].stamp_ns
+    with RecordingWriter(out, "mcap", color_encoding="jpeg", depth_encoding="compressedDepth") as w:
+        for i in range(length):
+            w.write_frame(replace(cycle[i % len(cycle)], index=i, stamp_ns=t0 + int(round(i * 1e9 / RATE_HZ))))
+    return out.stat().st_size / 1e6
+
+
+def _rss_kib(pid: int) -> int:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def _children(pid: int) -> list[int]:
+    kids: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            kids += [int(k) for k in (task / "children").read_text().split()]
+        except OSError:
+            pass
+    return kids
+
+
+def detect(recording: Path, out: Path, *sets: str) -> dict:
+    """One `slz detect` run with memory sampled while it runs."""
+    cmd = [sys.executable, "-m", "slzcli.cli", "detect", str(recording), "-o", str(out), "--json", "--force"]
+    for s in sets:
+        cmd += ["--set", s]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    samples: list[tuple[float, int, int]] = []
+    while proc.poll() is None:
+        kids = _children(proc.pid)
+        samples.append((time.perf_counter() - t0, _rss_kib(proc.pid), sum(_rss_kib(k) for k in kids)))
+        time.sleep(SAMPLE_S)
+    stdout, stderr = proc.communicate()
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"detect {recording.name} failed: {stderr.strip()}")
+    summary = json.loads(stdout)
+    main = [s[1] for s in samples if s[1] > 0]
+
+    def at(frac: float) -> float:
+        pick = [s[1] for s in samples if s[0] >= frac * wall and s[1] > 0]
+        return round(pick[0] / 1024, 1) if pick else float("nan")
+
+    return {"frames": summary["frames"], "detections": summary["detections"], "keyframes": summary["keyframes"],
+            "status": summary["status"], "wall_s": round(wall, 1),
+            "ms_per_frame": round(1e3 * wall / max(summary["frames"], 1), 2),
+            "peak_rss_mb": round(max(main) / 1024, 1), "peak_orbslam3_rss_mb": round(max(s[2] for s in samples) / 1024, 1),
+            "rss_mb_at_10_50_90_pct": [at(0.1), at(0.5), at(0.9)],
+            "run_folder_mb": round(sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 1e6, 1)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--lengths", default="1000,10000")
+    ap.add_argument("--size", default="640x480", help="WxH of the rendered frames")
+    ap.add_argument("--seed-frames", type=int, default=100)
+    ap.add_argument("--every", type=int, default=25, help="detection period of the every_nth runs (frames)")
+    ap.add_argument("--keep", type=Path, help="work folder to keep (default: a temporary one)")
+    ap.add_argument("--out", type=Path, default=RESULTS)
+    args = ap.parse_args()
+    lengths = [int(x) for x in args.lengths.split(",")]
+    width, height = (int(v) for v in args.size.lower().split("x"))
+    work = args.keep or Path(tempfile.mkdtemp(prefix="slz_long_"))
+    work.mkdir(parents=True, exist_ok=True)
+    seed = render_seed(work, args.seed_frames, width, height)
+    modes = {"keyframes": [], f"every_{args.every}": ["landing.detect_on=every_nth",
+                                                       f"landing.every_nth_frame={args.every}"]}
+    rows = []
+    for n in lengths:
+        rec = work / f"long_{n}.mcap"
+        t0 = time.perf_counter()
+        mb = write_long(seed, rec, n)
+        write_s = time.perf_counter() - t0
+        for mode, sets in modes.items():
+            row = {"length": n, "mode": mode, "recording_mb": round(mb, 1), "write_s": round(write_s, 1),
+                   **detect(rec, work / f"run_{n}_{mode}", *sets)}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+        if args.keep is None:
+            rec.unlink()
+    largest = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    print(f"\n{'frames':>7} {'mode':>10} {'detections':>10} {'ms/frame':>9} {'peak MiB':>9} {'ORB MiB':>8} "
+          f"{'rss 10/50/90 %':>20} {'run MB':>7}")
+    for r in rows:
+        print(f"{r['frames']:>7} {r['mode']:>10} {r['detections']:>10} {r['ms_per_frame']:>9} {r['peak_rss_mb']:>9} "
+              f"{r['peak_orbslam3_rss_mb']:>8} {str(r['rss_mb_at_10_50_90_pct']):>20} {r['run_folder_mb']:>7}")
+    ratios = {}
+    for mode in modes:
+        by_n = {r["length"]: r for r in rows if r["mode"] == mode}
+        if len(by_n) >= 2:
+            lo, hi = by_n[min(by_n)], by_n[max(by_n)]
+            ratios[mode] = {"peak_rss_ratio": round(hi["peak_rss_mb"] / lo["peak_rss_mb"], 3),
+                            "peak_rss_delta_mb": round(hi["peak_rss_mb"] - lo["peak_rss_mb"], 1),
+                            "orbslam3_rss_ratio": round(hi["peak_orbslam3_rss_mb"] / max(lo["peak_orbslam3_rss_mb"], 1e-9), 3)}
+            print(f"{mode}: peak RSS {max(by_n)} vs {min(by_n)} frames = x{ratios[mode]['peak_rss_ratio']} "
+                  f"({ratios[mode]['peak_rss_delta_mb']:+} MiB); ORB-SLAM3 worker x{ratios[mode]['orbslam3_rss_ratio']}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({
+        "size": [width, height], "seed_frames": args.seed_frames, "rows": rows, "ratios": ratios,
+        "largest_process_peak_mb": round(largest, 1), "cpus": os.cpu_count(), "python": platform.python_version(),
+        "load_avg": [round(v, 2) for v in os.getloadavg()], "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }, indent=1) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
