@@ -18,7 +18,7 @@ from pathlib import Path
 
 from flights import render  # benchmarks/flights.py (the script's folder is on sys.path)
 from slzcli.config import load_config
-from slzcli.pipeline import detect_recording
+from slzcli.pipeline import RunOptions, detect_recording
 
 HERE = Path(__file__).resolve().parent
 
@@ -40,7 +40,7 @@ def main() -> None:
         print(head)
         for path in recordings:
             run = Path(tmp) / f"run_{path.stem}"
-            s = detect_recording(path, config, run, force=True, method=args.method)
+            s = detect_recording(path, config, run, RunOptions(force=True, method=args.method))
             timing = json.loads((run / "run.json").read_text())["timings"]
             gt = s.get("ground_truth") or {}
             mask, site = gt.get("mask") or {}, gt.get("site") or {}

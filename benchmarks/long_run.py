@@ -4,8 +4,8 @@ Run: .venv/bin/python benchmarks/long_run.py [--lengths 1000,10000] [--size 640x
 Prints a table and writes benchmarks/results/long_run.json.
 
 Rendering 10,000 frames would take the renderer ~45 min, so a short hover (`--seed-frames`,
-rendered by `slz synth`) is played forwards and backwards (ping-pong: the camera motion stays
-continuous, SLAM keeps tracking) and written with the RecordingWriter at 20 Hz as JPEG colour +
+rendered by `slz synth`) is played forwards and backwards (tests/long_recording.py: the camera
+motion stays continuous, SLAM keeps tracking) and written at 20 Hz as JPEG colour +
 compressedDepth PNG, as a RealSense ROS driver records it. Each length runs twice through the
 real CLI (`python -m slzcli.cli detect --json`): with the default keyframe detections, and
 with a detection every `--every` frames, so that detections and their written frames grow
@@ -31,6 +31,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = REPO / "benchmarks" / "results" / "long_run.json"
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))
+from long_recording import write_ping_pong  # noqa: E402
 
 SAMPLE_S = 0.2
 RATE_HZ = 20.0
@@ -60,21 +62,11 @@ def render_seed(folder: Path, frames: int, width: int, height: int) -> Path:
 
 
 def write_long(seed: Path, out: Path, length: int) -> float:
-    """``length`` frames of ``seed`` in ping-pong order, restamped at RATE_HZ; returns MB written."""
-    from dataclasses import replace
-
+    """``length`` frames of ``seed`` in ping-pong order, JPEG + compressedDepth; returns MB written."""
     from slzcli.config import load_config
-    from slzcli.outputs.recording import RecordingWriter
-    from slzcli.sources import open_recording
 
-    config = load_config()
-    with open_recording(seed, config) as rec:
-        frames = list(rec.frames())
-    cycle = frames + frames[-2:0:-1]
-    t0 = frames[0].stamp_ns
-    with RecordingWriter(out, "mcap", color_encoding="jpeg", depth_encoding="compressedDepth") as w:
-        for i in range(length):
-            w.write_frame(replace(cycle[i % len(cycle)], index=i, stamp_ns=t0 + int(round(i * 1e9 / RATE_HZ))))
+    write_ping_pong(seed, out, length, load_config(), rate_hz=RATE_HZ, color_encoding="jpeg",
+                    depth_encoding="compressedDepth")
     return out.stat().st_size / 1e6
 
 

@@ -40,6 +40,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError, SlzError
+from slzcli.pipeline import RunOptions
 
 log = logging.getLogger(__name__)
 
@@ -137,7 +138,7 @@ class FrameTick:
             self.done = done
 
 
-def run_task(task: Task, config: Config, force: bool, method: str | None,
+def run_task(task: Task, config: Config, options: RunOptions,
              progress: Callable[[int, int | None], None] | None = None) -> dict[str, Any]:
     """One recording -> its row: ``detect_recording`` under the run folder's lock; errors become rows."""
     from slzcli.outputs import run_lock
@@ -147,8 +148,7 @@ def run_task(task: Task, config: Config, force: bool, method: str | None,
     row: dict[str, Any] = {"recording": str(task.recording), "run": str(task.run_dir), "worker": _worker_id()}
     try:
         with run_lock.claim(task.run_dir):
-            summary = detect_recording(task.recording, config, task.run_dir, force=force, progress=progress,
-                                       method=method)
+            summary = detect_recording(task.recording, config, task.run_dir, options, progress)
     except SlzError as err:
         return {**row, "status": "failed", "skipped": False, "error": " ".join(str(err).split()),
                 "wall_s": round(time.perf_counter() - t0, 3), "peak_rss_mb": _peak_rss_mb()}
@@ -222,7 +222,7 @@ class BatchResult:
 
 
 def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, scheduler: str | None = None,
-              force: bool = False, method: str | None = None, summary_dir: Path | None = None,
+              options: RunOptions = RunOptions(), summary_dir: Path | None = None,
               on_progress: Callable[[BatchProgress], None] | None = None) -> BatchResult:
     """Run every task; rows come back in task order. With ``summary_dir``, writes summary.json/csv there.
 
@@ -242,7 +242,7 @@ def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, schedu
         try:
             engine.start()
             emit(BatchProgress(0, len(tasks), 0, 0.0))
-            _collect(engine, tasks, config, force, method, rows, t0, emit)
+            _collect(engine, tasks, config, options, rows, t0, emit)
         except KeyboardInterrupt:
             interrupted = True
             log.warning("interrupted: stopping the workers")
@@ -257,14 +257,15 @@ def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, schedu
         from slzcli.outputs.batch_summary import write_summary
 
         written = write_summary(summary_dir, {**result.totals(), "scheduler": scheduler,
-                                              "config_hash": config.hash(), "force": force}, filled)
+                                              "config_hash": config.hash(), "force": options.force,
+                                              "timeout_s": options.timeout_s}, filled)
         result = replace(result, summary_files=written)
     if interrupted:
         raise KeyboardInterrupt
     return result
 
 
-def _collect(engine: "_Engine", tasks: Sequence[Task], config: Config, force: bool, method: str | None,
+def _collect(engine: "_Engine", tasks: Sequence[Task], config: Config, options: RunOptions,
              rows: list[dict[str, Any] | None], t0: float, emit: Callable[[BatchProgress], None]) -> None:
     """Submit everything, then record rows as tasks finish (in this thread) and refresh the frame count."""
     def progress(row: dict[str, Any] | None = None) -> BatchProgress:
@@ -277,9 +278,9 @@ def _collect(engine: "_Engine", tasks: Sequence[Task], config: Config, force: bo
 
     done_q: "queue.Queue[tuple[int, Any]]" = queue.Queue()
     if engine.threaded:  # done callbacks run in the engine's threads: hand them over to this one
-        engine.submit_all(tasks, config, force, method, lambda i, outcome: done_q.put((i, outcome)), lambda: None)
+        engine.submit_all(tasks, config, options, lambda i, outcome: done_q.put((i, outcome)), lambda: None)
     else:
-        engine.submit_all(tasks, config, force, method, finish, lambda: emit(progress()))
+        engine.submit_all(tasks, config, options, finish, lambda: emit(progress()))
     shown = -1
     try:
         while any(r is None for r in rows):
@@ -343,7 +344,7 @@ class _Engine:
     def start(self) -> None:
         return None
 
-    def submit_all(self, tasks: Sequence[Task], config: Config, force: bool, method: str | None, done: Done,
+    def submit_all(self, tasks: Sequence[Task], config: Config, options: RunOptions, done: Done,
                    tick: Callable[[], None]) -> None:
         raise NotImplementedError
 
@@ -366,14 +367,14 @@ class _InlineEngine(_Engine):
     def __init__(self) -> None:
         self._frames = 0
 
-    def submit_all(self, tasks: Sequence[Task], config: Config, force: bool, method: str | None, done: Done,
+    def submit_all(self, tasks: Sequence[Task], config: Config, options: RunOptions, done: Done,
                    tick: Callable[[], None]) -> None:
         def count(n: int) -> None:
             self._frames += n
             tick()
 
         for i, task in enumerate(tasks):
-            done(i, run_task(task, config, force, method, FrameTick(count)))
+            done(i, run_task(task, config, options, FrameTick(count)))
 
     def frames(self) -> int:
         return self._frames
@@ -420,11 +421,11 @@ def _count_frames(n: int) -> None:
         _FRAMES.value += n
 
 
-def _pool_task(task: Task, config: Config, force: bool, method: str | None) -> dict[str, Any]:
+def _pool_task(task: Task, config: Config, options: RunOptions) -> dict[str, Any]:
     global _RUNNING
     _RUNNING = True
     try:
-        return run_task(task, config, force, method, FrameTick(_count_frames))
+        return run_task(task, config, options, FrameTick(_count_frames))
     except KeyboardInterrupt:
         os._exit(128 + signal.SIGINT)  # cleaned up on the way here; leaving takes no further task
     finally:
@@ -443,10 +444,10 @@ class _LocalEngine(_Engine):
         self._pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                             initargs=(self._counter, os.getpid()))
 
-    def submit_all(self, tasks: Sequence[Task], config: Config, force: bool, method: str | None, done: Done,
+    def submit_all(self, tasks: Sequence[Task], config: Config, options: RunOptions, done: Done,
                    tick: Callable[[], None]) -> None:
         for i, task in enumerate(tasks):
-            fut = self._pool.submit(_pool_task, task, config, force, method)
+            fut = self._pool.submit(_pool_task, task, config, options)
             fut.add_done_callback(lambda f, i=i: done(i, f))
 
     def frames(self) -> int:
@@ -474,11 +475,11 @@ class _LocalEngine(_Engine):
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _dask_task(task: Task, config: Config, force: bool, method: str | None, topic: str) -> dict[str, Any]:
+def _dask_task(task: Task, config: Config, options: RunOptions, topic: str) -> dict[str, Any]:
     from distributed import get_worker
 
     worker = get_worker()
-    return run_task(task, config, force, method, FrameTick(lambda n: worker.log_event(topic, n)))
+    return run_task(task, config, options, FrameTick(lambda n: worker.log_event(topic, n)))
 
 
 class _DaskEngine(_Engine):
@@ -512,11 +513,11 @@ class _DaskEngine(_Engine):
         with self._lock:
             self._frames += int(n)
 
-    def submit_all(self, tasks: Sequence[Task], config: Config, force: bool, method: str | None, done: Done,
+    def submit_all(self, tasks: Sequence[Task], config: Config, options: RunOptions, done: Done,
                    tick: Callable[[], None]) -> None:
         token = uuid.uuid4().hex[:8]
         for i, task in enumerate(tasks):
-            fut = self.client.submit(_dask_task, task, config, force, method, self.topic, pure=False,
+            fut = self.client.submit(_dask_task, task, config, options, self.topic, pure=False,
                                      key=f"slz-detect-{task.run_dir.name}-{token}-{i}")
             fut.add_done_callback(lambda f, i=i: done(i, f))
             self.futures.append(fut)

@@ -321,11 +321,17 @@ class _progress:
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run on this Dask distributed scheduler (e.g. tcp://host:8786) instead of local processes; "
                    "needs slz[dask] and the recordings at the same paths on the workers.")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(0, min_open=True), default=None, metavar="SECONDS",
+              help="Stop a recording when one stage (opening it, reading, SLAM, detection or writing of one "
+                   "frame, the final write) runs longer than this; it fails naming the stage, leaves no run "
+                   "folder, and a batch goes on. Default: no limit.")
 @common_options
 def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None, method: str | None,
-               force: bool, workers: int | None, scheduler: str | None) -> tuple[dict[str, Any], str]:
+               force: bool, workers: int | None, scheduler: str | None,
+               timeout_s: float | None) -> tuple[dict[str, Any], str]:
     """Maps, fuzzy score, mask, SLAM map points and the landing site of each recording (paths or globs)."""
     from slzcli import batch
+    from slzcli.pipeline import RunOptions
 
     paths = batch.expand(recordings)
     is_batch = len(recordings) > 1 or any(batch.is_pattern(r) for r in recordings)
@@ -333,7 +339,8 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     summary_dir = (output or Path("runs")) if is_batch else None
     with _BatchDisplay(is_batch) as show:
         result = batch.run_batch(tasks, config, workers=workers or batch.default_workers(), scheduler=scheduler,
-                                 force=force, method=method, summary_dir=summary_dir, on_progress=show)
+                                 options=RunOptions(force, method, timeout_s), summary_dir=summary_dir,
+                                 on_progress=show)
     rows = result.rows
     if not is_batch:
         row = rows[0]

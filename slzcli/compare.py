@@ -276,7 +276,7 @@ def _stats(values: list[float]) -> dict[str, float | None]:
 def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[str, MethodRun], tracker: Detector,
                truth: Any | None, map_curves: dict[str, CurveCounts], map_means: dict[str, list[float]],
                agreement: dict[str, list[MaskCounts]], wall_s: float) -> dict[str, Any]:
-    from slzcli.outputs.run_folder import landing_record
+    from slzcli.outputs.run_folder import landing_record, no_site_reason
 
     side = 2 * config.uav.footprint_m[0]
     per: dict[str, Any] = {}
@@ -287,7 +287,8 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         committed_of[m] = committed
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)
-        rec = landing_record(path, m, committed, "", {}, _reason(st), truth)
+        reason = no_site_reason(st, tracker.slam_name, len(tracker.state.keyframes))
+        rec = landing_record(path, m, committed, "", {}, reason, truth)
         entry: dict[str, Any] = {
             "method": m, "detections": st.detections, "sites_found": len(st.sites), "status": rec["status"],
             "reason": rec.get("reason"), "timings_ms": timing,
@@ -336,14 +337,6 @@ def _mean(v: list[float]) -> float | None:
 
 def _mask_fraction(run: MethodRun) -> float | None:
     return float(np.mean(run.mask_fractions)) if run.mask_fractions else None
-
-
-def _reason(st: Any) -> str:
-    if st.detections == 0:
-        return "no frame was due for detection (no keyframe was tracked)"
-    if not st.site_rows:
-        return "no SLAM map point of any detection frame fell on the landing mask"
-    return "no cluster of mask-filtered map points met the footprint in any detection frame"
 
 
 def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[str, Any] | None],

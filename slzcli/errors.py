@@ -48,3 +48,18 @@ class OutputError(SlzError):
     def __init__(self, path: str | Path, reason: str) -> None:
         self.path = str(path)
         super().__init__(f"{self.path}: {reason}")
+
+
+class StageTimeout(SlzError):
+    """One stage of a run took longer than ``--timeout``; names the recording and the stage.
+
+    Raised inside the stage (see ``slzcli/timeout.py``); the defaults are what a stage interrupted
+    from another thread can carry, before ``StageLimit`` replaces it with the full message.
+    """
+
+    def __init__(self, where: str = "", stage: str = "a stage", limit_s: float | None = None) -> None:
+        self.where, self.stage, self.limit_s = where, stage, limit_s
+        limit = f" {limit_s:g} s" if limit_s is not None else ""
+        prefix = f"{where}: " if where else ""
+        super().__init__(f"{prefix}{stage} took longer than --timeout{limit}; the run was stopped and left no "
+                         "output (raise --timeout, or see the README's failure modes)")

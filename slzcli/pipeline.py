@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import logging
 import platform
+import shutil
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -35,16 +37,19 @@ from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.outputs import files, results_mcap
+from slzcli.outputs.trajectory import KeyframeLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, TrackingState, get_backend
 from slzcli.slam.base import invert_pose
 from slzcli.sources import open_recording
 from slzcli.terrain.geometry import back_project
+from slzcli.timeout import StageLimit
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
 from slzcli.types import Frame, ScoreMap, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
+SPOOL_DIR = ".spool"  # keyframes on their way to keyframes.npz, inside the temporary run folder
 
 
 # ----------------------------------------------------------------------------- per-frame result
@@ -71,13 +76,14 @@ class RunState:
     stamps_ns: list[int] = field(default_factory=list)
     poses: list[np.ndarray | None] = field(default_factory=list)
     tracking: dict[str, int] = field(default_factory=dict)
-    keyframes: list[MapPoints] = field(default_factory=list)
+    keyframes: KeyframeLog = field(default_factory=KeyframeLog)  # count only unless given a folder
     site_rows: list[dict[str, Any]] = field(default_factory=list)
     sites: list[dict[str, Any]] = field(default_factory=list)
     truth: list[MaskCounts] = field(default_factory=list)
     truth_poses: list[np.ndarray | None] = field(default_factory=list)
     frames: int = 0
     detections: int = 0
+    detections_without_depth: int = 0
 
 
 def select_params(config: Config, method: str) -> SelectParams:
@@ -190,6 +196,7 @@ class Detector:
             truth = mask_counts(score.mask, gt_mask)
             self.state.truth.append(truth)
         self.state.detections += 1
+        self.state.detections_without_depth += not maps.valid.any()
         return Detection(frame, T_world_camera, maps, score, self.last_points, selection, edge, t, truth)
 
     def record(self, det: Detection) -> None:
@@ -253,48 +260,78 @@ def commit_site(sites: list[dict[str, Any]], side_m: float) -> dict[str, Any] | 
 
 
 # ----------------------------------------------------------------------------- one recording
-def detect_recording(path: Path, config: Config, out_dir: Path, *, force: bool = False,
-                     progress: Progress | None = None, method: str | None = None) -> dict[str, Any]:
-    """Run detection over one recording into ``out_dir``; returns the run summary (run.json's summary)."""
+@dataclass(frozen=True)
+class RunOptions:
+    """How to run a recording, beside its config; not in the config hash (they do not change results).
+
+    force: redo a run done before for the same config and input. method: fuzzy | bayes (None:
+    scoring.method). timeout_s: bound on each stage in wall time (``--timeout``; None: none).
+    """
+
+    force: bool = False
+    method: str | None = None
+    timeout_s: float | None = None
+
+
+def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOptions = RunOptions(),
+                     progress: Progress | None = None) -> dict[str, Any]:
+    """Run detection over one recording into ``out_dir``; returns the run summary (run.json's summary).
+
+    Memory does not grow with the recording: frames are streamed and dropped once written; what
+    accumulates per frame is its stamp, pose and stage times (RunState), per site a FrameRef.
+    """
     from slzcli.outputs import run_folder
 
-    method = method or config.scoring.method
+    method = options.method or config.scoring.method
     fingerprint = run_folder.input_fingerprint(path)
     previous = run_folder.previous_summary(out_dir, config.hash(), fingerprint)
-    if previous is not None and not force:
+    if previous is not None and not options.force:
         log.info("%s: already done for this config (%s); use --force to redo", out_dir, config.hash())
         return {**previous, "skipped": True}
-    truth = _ground_truth(path)
+    limit = StageLimit(options.timeout_s, str(path))
     t_start = time.perf_counter()
-    with files.atomic_dir(out_dir, replace=True) as tmp, results_mcap.open_results(tmp, config) as results:
-        with open_recording(path, config) as rec:
+    with files.atomic_dir(out_dir, replace=True) as tmp, ExitStack() as stack:
+        with limit.stage("opening the recording"):
+            truth = _ground_truth(path)
+            rec = stack.enter_context(open_recording(path, config))
             info = rec.info()
-            has_poses = any(c.role == "pose" and c.topic for c in info.choices)
             clouds = _recorded_clouds(path, config)
-            with get_backend(config, has_poses, clouds=clouds) as slam:
-                det = Detector(config, method, slam, slam.name, truth)
-                every = config.landing.every_nth_frame
-                for frame in rec.frames():
-                    check_frame_size(path, frame, config.sources.min_image_px)
-                    T, is_keyframe = det.track(frame)
-                    due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0
-                    if due:
-                        d = det.detect(frame, T)
-                        det.record(d)
-                        with det.state.timer.stage("write"):
-                            run_folder.write_detection(tmp, d, config)
-                            results.write_detection(d)
-                    if truth is not None:
-                        det.state.truth_poses.append(_truth_pose(truth, frame.stamp_ns))
-                    if progress is not None:
-                        progress(det.state.frames, info.expected_frames)
-            report = rec.report
+        results = stack.enter_context(results_mcap.open_results(tmp, config))
+        has_poses = any(c.role == "pose" and c.topic for c in info.choices)
+        slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
+        det = Detector(config, method, slam, slam.name, truth)
+        det.state.keyframes = KeyframeLog(tmp / SPOOL_DIR)
+        every = config.landing.every_nth_frame
+        frames = iter(rec.frames())
+        while True:
+            with limit.stage(f"reading frame {det.state.frames}"):
+                frame = next(frames, None)
+            if frame is None:
+                break
+            check_frame_size(path, frame, config.sources.min_image_px)
+            with limit.stage(f"SLAM on frame {frame.index}"):
+                T, is_keyframe = det.track(frame)
+            due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0
+            if due:
+                with limit.stage(f"detection on frame {frame.index}"):
+                    d = det.detect(frame, T)
+                    det.record(d)
+                with limit.stage(f"writing frame {frame.index}"), det.state.timer.stage("write"):
+                    run_folder.write_detection(tmp, d, config)
+                    results.write_detection(d)
+            if truth is not None:
+                det.state.truth_poses.append(_truth_pose(truth, frame.stamp_ns))
+            if progress is not None:
+                progress(det.state.frames, info.expected_frames)
         if det.state.frames == 0:
             raise DatasetError(path, "no RGB-D frame could be read")
-        committed = commit_site(det.state.sites, 2 * config.uav.footprint_m[0])
-        results.write_run(det.state.stamps_ns, det.state.poses, committed)
-        summary = run_folder.write_run(tmp, path, config, method, info, report, det, committed, truth,
-                                       time.perf_counter() - t_start, fingerprint)
+        with limit.stage("writing the run folder"):
+            committed = commit_site(det.state.sites, 2 * config.uav.footprint_m[0])
+            results.write_run(det.state.stamps_ns, det.state.poses, committed)
+            summary = run_folder.write_run(tmp, path, config, method, info, rec.report, det, committed, truth,
+                                           time.perf_counter() - t_start, fingerprint)
+            stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
+            shutil.rmtree(tmp / SPOOL_DIR)
     return summary
 
 
@@ -330,8 +367,15 @@ def _recorded_clouds(path: Path, config: Config) -> list[tuple[int, np.ndarray, 
 
 
 def versions() -> dict[str, str]:
-    import cv2
-    import open3d
+    """Versions for run.json. Open3D's comes from its metadata: importing it only to read the
+    version cost ~150 MiB of resident memory at the end of every run (the run's peak)."""
+    from importlib.metadata import PackageNotFoundError, version
 
+    import cv2
+
+    try:
+        o3d = version("open3d")
+    except PackageNotFoundError:
+        o3d = "not installed"
     return {"slz": __version__, "python": platform.python_version(), "numpy": np.__version__,
-            "opencv": cv2.__version__, "open3d": open3d.__version__}
+            "opencv": cv2.__version__, "open3d": o3d}

@@ -127,7 +127,7 @@ def test_one_torn_depth_message_skips_that_frame_and_counts_it(runner: CliRunner
 def test_depth_all_nan_is_no_safe_site_with_a_reason(runner: CliRunner, tmp_path: Path) -> None:
     summary, _ = detect_json(runner, B.depth_all_nan(tmp_path), tmp_path / "run")
     assert summary["status"] == "no_safe_site" and summary["frames"] == 3
-    assert "mask" in summary["reason"]
+    assert summary["reason"].startswith("no valid depth in any of the ") and "depth_unit_16u_m" in summary["reason"]
 
 
 def test_depth_all_one_value_is_flat_ground(runner: CliRunner, tmp_path: Path) -> None:

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from slzcli.evaluate.slam import ate, rpe, umeyama
-from slzcli.outputs.trajectory import keyframe_arrays, parse_tum, tum_text, write_keyframes, write_tum
+from slzcli.outputs.trajectory import KeyframeLog, parse_tum, tum_text, write_tum
 from slzcli.slam.base import MapPoints
 
 
@@ -91,15 +91,25 @@ def test_tum_round_trip(tmp_path) -> None:
     assert tum_text([], []).startswith("#")
 
 
-def test_keyframes_npz(tmp_path) -> None:
+def test_keyframes_npz_is_spooled_on_disk_and_complete(tmp_path) -> None:
     kfs = [MapPoints(np.arange(n, dtype=np.int64), np.full((n, 3), float(i)), np.zeros((n, 2)), i, 10 * i, np.eye(4))
            for i, n in enumerate((3, 0, 5))]
-    write_keyframes(tmp_path / "keyframes.npz", kfs)
+    log = KeyframeLog(tmp_path / "spool")
+    for kf in kfs:
+        log.append(kf)
+    assert len(log) == 3
+    log.write_npz(tmp_path / "keyframes.npz")
     z = np.load(tmp_path / "keyframes.npz")
+    assert z["kf_index"].tolist() == [0, 1, 2] and z["kf_stamp_ns"].tolist() == [0, 10, 20]
     assert z["kf_T_world_camera"].shape == (3, 4, 4)
     assert z["point_kf"].tolist() == [0, 0, 0, 2, 2, 2, 2, 2]
     assert z["point_xyz_world"].shape == (8, 3) and z["point_pixels"].shape == (8, 2)
-    assert keyframe_arrays([])["point_xyz_world"].shape == (0, 3)
+    np.testing.assert_array_equal(log.map_xyz(), np.vstack([k.xyz_world for k in kfs]))
+    empty = KeyframeLog(tmp_path / "empty")
+    empty.write_npz(tmp_path / "empty.npz")
+    z = np.load(tmp_path / "empty.npz")
+    assert z["point_xyz_world"].shape == (0, 3) and z["kf_T_world_camera"].shape == (0, 4, 4)
+    assert len(KeyframeLog()) == 0 and KeyframeLog().map_xyz().shape == (0, 3)
 
 
 # ----------------------------------------------------------------------------- PointCloud2 decoding

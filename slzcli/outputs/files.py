@@ -7,10 +7,12 @@ file, the new file, or a ``.tmp`` file that nothing trusts.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
 import tempfile
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -71,6 +73,68 @@ def write_npz(path: Path, **arrays: np.ndarray) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
+
+
+ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)  # fixed member time: the same arrays give the same bytes
+_COPY_BUFFER_BYTES = 1 << 20
+
+
+def write_npz_streamed(path: Path, members: dict[str, "np.ndarray | Path"], stored: frozenset[str] = frozenset()) -> None:
+    """An ``.npz`` (readable by ``np.load``) from arrays and from ``.npy`` files copied in chunks.
+
+    Members named in ``stored`` are not compressed (a reader can memory-map them); the rest are
+    deflated. Memory holds one chunk of a file member, never the whole array.
+    """
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w") as zf:
+        for name, member in members.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_EPOCH)
+            info.compress_type = zipfile.ZIP_STORED if name in stored else zipfile.ZIP_DEFLATED
+            if isinstance(member, Path):
+                size = member.stat().st_size
+                info.file_size = size
+                with open(member, "rb") as src, zf.open(info, "w", force_zip64=size > zipfile.ZIP64_LIMIT) as dst:
+                    shutil.copyfileobj(src, dst, _COPY_BUFFER_BYTES)
+            else:
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.asarray(member, order="C"), allow_pickle=False)
+                zf.writestr(info, buf.getvalue())
+
+
+class ArraySpool:
+    """Arrays that grow by rows on disk, not in memory, until they go into an ``.npz``.
+
+    ``spec``: member name -> (dtype, shape of one row). ``append`` adds rows to every member it
+    names; ``npy`` turns a member into a complete ``.npy`` file (header + rows) for
+    ``write_npz_streamed`` or ``np.load(mmap_mode="r")``. The folder is the caller's to remove.
+    """
+
+    def __init__(self, folder: Path, spec: dict[str, tuple[Any, tuple[int, ...]]]) -> None:
+        self.folder = Path(folder)
+        self.spec = {k: (np.dtype(d), tuple(shape)) for k, (d, shape) in spec.items()}
+        self.rows = dict.fromkeys(spec, 0)
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise OutputError(self.folder, f"cannot create spool folder ({err.strerror})") from err
+
+    def append(self, **rows: np.ndarray) -> None:
+        for name, values in rows.items():
+            dtype, shape = self.spec[name]
+            block = np.ascontiguousarray(values, dtype=dtype).reshape((-1, *shape))
+            with open(self.folder / f"{name}.bin", "ab") as fh:
+                fh.write(block.tobytes())
+            self.rows[name] += len(block)
+
+    def npy(self, name: str) -> Path:
+        dtype, shape = self.spec[name]
+        raw, out = self.folder / f"{name}.bin", self.folder / f"{name}.npy"
+        with open(out, "wb") as dst:
+            np.lib.format.write_array_header_1_0(dst, {"descr": np.lib.format.dtype_to_descr(dtype),
+                                                       "fortran_order": False, "shape": (self.rows[name], *shape)})
+            if raw.exists():
+                with open(raw, "rb") as src:
+                    shutil.copyfileobj(src, dst, _COPY_BUFFER_BYTES)
+        return out
 
 
 @contextmanager

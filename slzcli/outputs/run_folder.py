@@ -20,7 +20,7 @@ from slzcli.config import Config
 from slzcli.evaluate.safety import site_truth, total, visible_cells
 from slzcli.outputs import files, images
 from slzcli.outputs.points import write_points_ply
-from slzcli.outputs.trajectory import write_keyframes, write_tum
+from slzcli.outputs.trajectory import write_tum
 
 SITE_COLUMNS = ("frame", "stamp_ns", "cluster", "points", "x", "y", "z", "normal_variance", "extent_x_m",
                 "extent_y_m", "qualifies", "reason", "chosen")
@@ -136,12 +136,12 @@ def write_run(run_dir: Path, source: Path, config: Config, method: str, info: An
     world = ("the recording's world frame (recorded poses)" if det.slam_name == "recorded" else
              f"{det.slam_name} map, gravity-aligned: z up from camera.mount at the first tracked frame, "
              "x along that camera's x, origin at that camera")
-    reason = _no_site_reason(st, det)
+    reason = no_site_reason(st, det.slam_name, len(st.keyframes))
     landing = landing_record(source, method, committed, world, timings, reason, truth)
     files.write_json(run_dir / "landing.json", landing)
     files.write_text(run_dir / "sites.csv", sites_csv(st.site_rows))
     write_tum(run_dir / "trajectory.tum", st.stamps_ns, st.poses)
-    write_keyframes(run_dir / "keyframes.npz", st.keyframes)
+    st.keyframes.write_npz(run_dir / "keyframes.npz")
     write_points_ply(run_dir / "points.ply", _points_by_role(st, committed))
 
     summary: dict[str, Any] = {
@@ -161,11 +161,15 @@ def write_run(run_dir: Path, source: Path, config: Config, method: str, info: An
     return summary
 
 
-def _no_site_reason(st: Any, det: Any) -> str:
+def no_site_reason(st: Any, slam_name: str, keyframes: int) -> str:
+    """Why a run found no site, from its RunState (``slz detect`` and ``slz compare``)."""
     if st.detections == 0:
         return "no frame was due for detection (no keyframe was tracked)"
-    if not st.keyframes:
-        return f"the {det.slam_name} backend gave no keyframe with map points"
+    if st.detections_without_depth == st.detections:
+        return (f"no valid depth in any of the {st.detections} detection frames (all NaN or 0): check the depth "
+                "topic's encoding, sources.depth_unit_16u_m and sources.max_depth_m")
+    if not keyframes:
+        return f"the {slam_name} backend gave no keyframe with map points"
     if not st.site_rows:
         return "no SLAM map point of any keyframe fell on the landing mask"
     return "no cluster of mask-filtered map points met the footprint in any detection frame"
@@ -187,8 +191,7 @@ def _truth_summary(st: Any, landing: dict[str, Any]) -> dict[str, Any]:
 
 
 def _points_by_role(st: Any, committed: dict[str, Any] | None) -> dict[str, np.ndarray]:
-    roles: dict[str, np.ndarray] = {"map": np.vstack([k.xyz_world for k in st.keyframes]) if st.keyframes
-                                    else np.zeros((0, 3))}
+    roles: dict[str, np.ndarray] = {"map": st.keyframes.map_xyz()}
     if committed is not None:
         roles["kept"] = committed["kept_xyz"]
         roles["chosen"] = committed["chosen_xyz"]

@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from slzcli.outputs.files import write_npz, write_text
+from slzcli.outputs.files import ArraySpool, write_npz_streamed, write_text
 from slzcli.slam.base import MapPoints
 
 
@@ -70,19 +70,38 @@ def write_tum(path: Path, stamps_ns: Sequence[int], poses: Sequence[np.ndarray |
     write_text(Path(path), tum_text(stamps_ns, poses))
 
 
-def keyframe_arrays(keyframes: Sequence[MapPoints]) -> dict[str, np.ndarray]:
-    """The flat arrays of keyframes.npz."""
-    counts = np.array([len(k) for k in keyframes], dtype=np.int64)
-    return {
-        "kf_index": np.array([k.keyframe_index for k in keyframes], dtype=np.int64),
-        "kf_stamp_ns": np.array([k.stamp_ns for k in keyframes], dtype=np.int64),
-        "kf_T_world_camera": np.stack([k.T_world_camera for k in keyframes]) if keyframes else np.zeros((0, 4, 4)),
-        "point_kf": np.repeat(np.arange(len(keyframes)), counts),
-        "point_ids": np.concatenate([k.ids for k in keyframes]).astype(np.int64) if keyframes else np.zeros(0, np.int64),
-        "point_xyz_world": np.concatenate([k.xyz_world for k in keyframes]).reshape(-1, 3) if keyframes else np.zeros((0, 3)),
-        "point_pixels": np.concatenate([k.pixels for k in keyframes]).reshape(-1, 2) if keyframes else np.zeros((0, 2)),
-    }
+KEYFRAME_SPEC = {"kf_index": (np.int64, ()), "kf_stamp_ns": (np.int64, ()), "kf_T_world_camera": (np.float64, (4, 4)),
+                 "point_kf": (np.int64, ()), "point_ids": (np.int64, ()), "point_xyz_world": (np.float64, (3,)),
+                 "point_pixels": (np.float64, (2,))}
 
 
-def write_keyframes(path: Path, keyframes: Sequence[MapPoints]) -> None:
-    write_npz(Path(path), **keyframe_arrays(keyframes))
+class KeyframeLog:
+    """A run's keyframes, on disk as they come: memory does not grow with the keyframes of a long flight.
+
+    With ``folder`` None only the count is kept (``slz compare`` writes no map). ``write_npz``
+    gives keyframes.npz (flat arrays, see the module docstring); ``map_xyz`` memory-maps every point.
+    """
+
+    def __init__(self, folder: Path | None = None) -> None:
+        self.spool = ArraySpool(folder, KEYFRAME_SPEC) if folder is not None else None
+        self.count = 0
+
+    def append(self, kf: MapPoints) -> None:
+        if self.spool is not None:
+            self.spool.append(kf_index=[kf.keyframe_index], kf_stamp_ns=[kf.stamp_ns],
+                              kf_T_world_camera=kf.T_world_camera, point_kf=np.full(len(kf), self.count),
+                              point_ids=kf.ids, point_xyz_world=kf.xyz_world, point_pixels=kf.pixels)
+        self.count += 1
+
+    def __len__(self) -> int:
+        return self.count
+
+    def write_npz(self, path: Path) -> None:
+        if self.spool is None:
+            raise ValueError("a count-only keyframe log has no arrays to write")
+        write_npz_streamed(Path(path), {name: self.spool.npy(name) for name in KEYFRAME_SPEC})
+
+    def map_xyz(self) -> np.ndarray:
+        if self.spool is None:
+            return np.zeros((0, 3))
+        return np.load(self.spool.npy("point_xyz_world"), mmap_mode="r")

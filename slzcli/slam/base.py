@@ -111,8 +111,15 @@ class BackendBase:
     def __enter__(self):  # noqa: ANN204 - returns the concrete backend
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def abort(self) -> None:
+        """Free resources without waiting on them (after an error or a --timeout); default: close."""
         self.close()
+
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
 
 def invert_pose(T: np.ndarray) -> np.ndarray:

@@ -217,6 +217,10 @@ class OrbSlam3Backend(BackendBase):
             self._log.close()
             self._log = None
 
+    def abort(self) -> None:
+        """Kill the worker: after an error it may be stuck in the very call that failed."""
+        self._stop()
+
     def close(self) -> None:
         if self._proc is not None and self._proc.poll() is None:
             try:
@@ -240,7 +244,8 @@ class OrbSlam3Backend(BackendBase):
             self._conn.send(("track", np.ascontiguousarray(frame.rgb), depth, frame.stamp_ns * 1e-9))
         except (BrokenPipeError, OSError):
             pass  # _recv reports how the worker died
-        reply = self._recv(f"tracking frame {frame.index}", self.cfg.orbslam3.frame_timeout_s)
+        reply = self._recv(f"tracking frame {frame.index} of {frame.source or 'the recording'}",
+                           self.cfg.orbslam3.frame_timeout_s)
         if reply[0] == "error":  # the native tracker threw: the worker is alive, the frame is not usable
             h, w = frame.rgb.shape[:2]
             raise SlamWorkerError(f"{frame.source or 'recording'}: ORB-SLAM3 cannot track frame {frame.index} "

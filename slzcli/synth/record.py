@@ -10,13 +10,11 @@ Everything is seeded: the same scene, options and seed give the same bytes.
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
 import logging
 import os
 import shutil
 import tempfile
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -27,6 +25,7 @@ import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError, OutputError
+from slzcli.outputs import files
 from slzcli.outputs.recording import FORMATS, RecordingWriter
 from slzcli.synth.flight import Flight, make_flight
 from slzcli.synth.geometry import SceneMeshes, build_meshes
@@ -44,9 +43,7 @@ GT_POSE_TOPIC = "/ground_truth/camera_pose"
 WORLD_FRAME = "world"
 CAMERA_FRAME = "camera_color_optical_frame"
 SUFFIX_OF_FORMAT = {"mcap": ".mcap", "mcap-ros1": ".mcap", "ros1": ".bag"}   # ros2-*: a bag folder
-_ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)   # fixed zip member time, so the sidecar is byte-identical per seed
 _RAY_TOP_CLEARANCE_M = 1.0           # raster rays start this far above the highest vertex
-_COPY_BUFFER_BYTES = 1 << 20         # spool -> zip copy chunk
 
 
 @dataclass(frozen=True)
@@ -274,27 +271,12 @@ def write_sidecar(npz_path: Path, json_path: Path, members: dict[str, np.ndarray
     in ``STORED_MEMBERS`` are stored uncompressed so that the loader can memory-map them; the
     rest are deflated.
     """
-    tmp = npz_path.with_name(npz_path.name + ".tmp")
     try:
-        with zipfile.ZipFile(tmp, "w") as zf:
-            for name, member in members.items():
-                info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_EPOCH)
-                info.compress_type = zipfile.ZIP_STORED if name in STORED_MEMBERS else zipfile.ZIP_DEFLATED
-                if isinstance(member, Path):
-                    size = member.stat().st_size
-                    info.file_size = size
-                    with open(member, "rb") as src, zf.open(info, "w", force_zip64=size > zipfile.ZIP64_LIMIT) as dst:
-                        shutil.copyfileobj(src, dst, _COPY_BUFFER_BYTES)
-                else:
-                    buf = io.BytesIO()
-                    np.lib.format.write_array(buf, np.asarray(member, order="C"), allow_pickle=False)
-                    zf.writestr(info, buf.getvalue())
-        os.replace(tmp, npz_path)
+        files.write_npz_streamed(npz_path, members, stored=frozenset(STORED_MEMBERS))
         json_tmp = json_path.with_name(json_path.name + ".tmp")
         json_tmp.write_text(json.dumps(header, indent=1, sort_keys=True) + "\n")
         os.replace(json_tmp, json_path)
     except OSError as err:
-        tmp.unlink(missing_ok=True)
         raise OutputError(npz_path, f"cannot write ground truth ({err})") from err
 
 
