@@ -308,6 +308,12 @@ class _progress:
             self.bar.stop()
 
 
+def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """``--timeout SECONDS``: a bound on each stage of a run (slzcli/timeout.py)."""
+    return click.option("--timeout", "timeout_s", type=click.FloatRange(0, min_open=True), default=None,
+                        metavar="SECONDS", help=help_text)
+
+
 @main.command("detect")
 @click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path),
@@ -321,10 +327,9 @@ class _progress:
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run on this Dask distributed scheduler (e.g. tcp://host:8786) instead of local processes; "
                    "needs slz[dask] and the recordings at the same paths on the workers.")
-@click.option("--timeout", "timeout_s", type=click.FloatRange(0, min_open=True), default=None, metavar="SECONDS",
-              help="Stop a recording when one stage (opening it, reading, SLAM, detection or writing of one "
-                   "frame, the final write) runs longer than this; it fails naming the stage, leaves no run "
-                   "folder, and a batch goes on. Default: no limit.")
+@timeout_option("Stop a recording when one stage (opening it, reading, SLAM, detection or writing of one "
+                "frame, the final write) runs longer than this; it fails naming the stage, leaves no run folder, "
+                "and a batch goes on. Default: no limit.")
 @common_options
 def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None, method: str | None,
                force: bool, workers: int | None, scheduler: str | None,
@@ -451,9 +456,12 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
 @click.option("--variants", is_flag=True, help="Also re-render each synth recording's scene in the variants of "
               "compare.variants (ground material, light) and compare on each.")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
+@timeout_option("Stop when one stage (opening a recording, reading, SLAM or detection of one frame, the final "
+                "write) runs longer than this; the comparison fails naming the stage and leaves no output folder. "
+                "Default: no limit.")
 @common_options
 def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, output: Path | None,
-                variants: bool, force: bool) -> tuple[dict[str, Any], str]:
+                variants: bool, force: bool, timeout_s: float | None) -> tuple[dict[str, Any], str]:
     """Fuzzy vs Bayes on the same frames and SLAM points: time, agreement, accuracy against ground truth."""
     from slzcli.compare import compare, recording_name
     from slzcli.outputs.report import text_table
@@ -461,7 +469,8 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
     out = output or Path("runs") / f"compare_{recording_name(recordings[0])}"
     chosen = tuple(methods.split(",")) if methods is not None else None
     with _progress("compare") as progress:
-        summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=progress)
+        summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=progress,
+                          timeout_s=timeout_s)
     return summary, text_table(summary, str(out))
 
 

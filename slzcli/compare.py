@@ -32,6 +32,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -47,6 +48,7 @@ from slzcli.pipeline import (Detection, Detector, _ground_truth, _recorded_cloud
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
 from slzcli.sources import open_recording
+from slzcli.timeout import StageLimit
 from slzcli.types import TerrainMaps
 
 log = logging.getLogger(__name__)
@@ -162,18 +164,25 @@ def resolve_methods(methods: tuple[str, ...] | list[str], key: str = "--methods"
 
 # ----------------------------------------------------------------------------- one recording
 def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
-                      progress: Progress | None = None) -> dict[str, Any]:
-    """Run every method over one recording, sharing SLAM and maps; returns the numbers and the figure arrays."""
+                      progress: Progress | None = None, timeout_s: float | None = None) -> dict[str, Any]:
+    """Run every method over one recording, sharing SLAM and maps; returns the numbers and the figure arrays.
+
+    ``timeout_s`` bounds each stage as ``slz detect --timeout`` does (slzcli/timeout.py).
+    """
     path = Path(path)
-    truth = _ground_truth(path)
+    limit = StageLimit(timeout_s, str(path))
+    with limit.stage("reading the ground truth"):
+        truth = _ground_truth(path)
     levels = config.compare.pr_levels
     runs: dict[str, MethodRun] = {}
     map_curves = {n: CurveCounts.empty(levels) for n in TerrainMaps.NAMES}
     map_means: dict[str, list[float]] = {f"{n}_{c}": [] for n in TerrainMaps.NAMES for c in ("safe", "unsafe")}
     agreement: dict[str, list[MaskCounts]] = {}
     t_start = time.perf_counter()
-    with open_recording(path, config) as rec:
-        info = rec.info()
+    with ExitStack() as stack:
+        with limit.stage("opening the recording"):
+            rec = stack.enter_context(open_recording(path, config))
+            info = rec.info()
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         with get_backend(config, has_poses, clouds=_recorded_clouds(path, config)) as slam:
             tracker = Detector(config, methods[0], slam, slam.name, truth)
@@ -181,20 +190,27 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
                 runs[m] = MethodRun(m, Detector(config, m, None, slam.name, truth),
                                     pr=CurveCounts.empty(levels) if truth is not None else None)
             every = config.landing.every_nth_frame
-            for frame in rec.frames():
+            frames = iter(rec.frames())
+            while True:
+                with limit.stage(f"reading frame {tracker.state.frames}"):
+                    frame = next(frames, None)
+                if frame is None:
+                    break
                 check_frame_size(path, frame, config.sources.min_image_px)
-                T, is_keyframe = tracker.track(frame)
+                with limit.stage(f"SLAM on frame {frame.index}"):
+                    T, is_keyframe = tracker.track(frame)
                 slam_ms = tracker.state.timer.samples_ms["slam"][-1]
                 due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0
                 if due:
-                    maps, maps_ms = posed_maps(frame, T, config)
-                    gt_mask = truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000) if truth is not None else None
-                    dets = {m: _fuse(run, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
-                            for m, run in runs.items()}
-                    _agree(dets, agreement)
-                    _forget_views(runs, methods[0], frame.index)
-                    if gt_mask is not None:
-                        _map_truth(maps, gt_mask, map_curves, map_means)
+                    with limit.stage(f"detection on frame {frame.index}"):
+                        maps, maps_ms = posed_maps(frame, T, config)
+                        gt_mask = truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000) if truth is not None else None
+                        dets = {m: _fuse(run, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
+                                for m, run in runs.items()}
+                        _agree(dets, agreement)
+                        _forget_views(runs, methods[0], frame.index)
+                        if gt_mask is not None:
+                            _map_truth(maps, gt_mask, map_curves, map_means)
                 if progress is not None:
                     progress(tracker.state.frames, info.expected_frames)
     if tracker.state.frames == 0:
@@ -426,8 +442,12 @@ def _unique_names(results: list[dict[str, Any]]) -> None:
 
 
 def compare(paths: list[Path], config: Config, out_dir: Path, methods: tuple[str, ...] | None = None, *,
-            variants: bool = False, force: bool = False, progress: Progress | None = None) -> dict[str, Any]:
-    """Compare the methods over each recording (and, with ``variants``, its scene's variants) into ``out_dir``."""
+            variants: bool = False, force: bool = False, progress: Progress | None = None,
+            timeout_s: float | None = None) -> dict[str, Any]:
+    """Compare the methods over each recording (and, with ``variants``, its scene's variants) into ``out_dir``.
+
+    ``timeout_s`` bounds each stage of each recording and the final write (not the rendering of variants).
+    """
     from slzcli.outputs import report
 
     methods = resolve_methods(methods) if methods else resolve_methods(config.compare.methods, "compare.methods")
@@ -439,15 +459,16 @@ def compare(paths: list[Path], config: Config, out_dir: Path, methods: tuple[str
         if variants and not sidecar_paths(p)[1].is_file():  # fail before the long work, not after it
             raise DatasetError(p, f"--variants needs a `slz synth` recording ({sidecar_paths(p)[1].name} not found)")
     with files.atomic_dir(out_dir, replace=force) as tmp:
-        results = [compare_recording(Path(p), config, methods, progress) for p in paths]
+        results = [compare_recording(Path(p), config, methods, progress, timeout_s) for p in paths]
         _unique_names(results)
         variant_results: list[dict[str, Any]] = []
         if variants:
             for p, base in zip(paths, results):
                 folder = tmp / "variants" / base["name"]
                 for rec_path in render_variants(Path(p), config, folder, config.compare.variants):
-                    r = compare_recording(rec_path, config, methods, progress)
+                    r = compare_recording(rec_path, config, methods, progress, timeout_s)
                     r["variant_of"] = base["name"]
                     variant_results.append(r)
-        summary = report.write_comparison(tmp, config, methods, results, variant_results)
+        with StageLimit(timeout_s, str(out_dir)).stage("writing the comparison"):
+            summary = report.write_comparison(tmp, config, methods, results, variant_results)
     return {**summary, "output": str(out_dir)}

@@ -6,6 +6,7 @@ Example counts are kept moderate (the whole file runs in well under a minute).
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -80,6 +81,73 @@ def test_depth_roundtrips_in_any_encoding_and_byte_order(size, enc, big, ros1, s
     np.testing.assert_array_equal(np.isnan(out), counts == 0)
     ok = counts > 0
     np.testing.assert_allclose(out[ok], depth[ok], rtol=1e-6)
+
+
+def _valid_payloads() -> list[bytes]:
+    """Real jpeg, 8-bit png and compressedDepth (header + 16-bit png) bytes for the fuzzer to cut and flip."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    counts = rng.integers(0, 65536, (12, 16)).astype(np.uint16)
+    return [cv2.imencode(".jpg", rgb)[1].tobytes(), cv2.imencode(".png", rgb)[1].tobytes(),
+            decode.COMPRESSED_DEPTH_HEADER.pack(0, 0.0, 0.0) + cv2.imencode(".png", counts)[1].tobytes()]
+
+
+PAYLOADS = _valid_payloads()
+
+
+@st.composite
+def damaged(draw) -> bytes:
+    """A real payload cut short and with a few bytes overwritten, or plain garbage."""
+    if draw(st.booleans()):
+        return draw(st.binary(max_size=512))
+    data = bytearray(draw(st.sampled_from(PAYLOADS)))
+    data = data[: draw(st.integers(0, len(data)))]
+    for _ in range(draw(st.integers(0, 4))):
+        if data:
+            data[draw(st.integers(0, len(data) - 1))] = draw(st.integers(0, 255))
+    return bytes(data)
+
+
+def _image(encoding: str, height: int, width: int, step: int, big: bool, data: bytes):
+    from types import SimpleNamespace as NS
+
+    return NS(__msgtype__="sensor_msgs/msg/Image", encoding=encoding, height=height, width=width, step=step,
+              is_bigendian=big, data=np.frombuffer(data, np.uint8))
+
+
+def _compressed(fmt: str, data: bytes):
+    from types import SimpleNamespace as NS
+
+    return NS(__msgtype__="sensor_msgs/msg/CompressedImage", format=fmt, data=np.frombuffer(data, np.uint8))
+
+
+raw_images = st.builds(_image, st.sampled_from([*decode.COLOR_ENCODINGS, *decode.DEPTH_ENCODINGS, "64FC1", "", "8UC3"]),
+                       st.integers(0, 40), st.integers(0, 40), st.integers(0, 400), st.booleans(),
+                       st.binary(max_size=4096))
+compressed_images = st.builds(_compressed, st.sampled_from(
+    ["jpeg", "png", "rgb8; jpeg compressed bgr8", "16UC1; compressedDepth", "32FC1; compressedDepth png",
+     "16UC1; compressedDepth rvl", "", "bgr8; compressedDepth"]), damaged())
+
+
+@settings(max_examples=int(os.environ.get("SLZ_FUZZ_EXAMPLES", "300")), deadline=None)
+@given(msg=st.one_of(raw_images, compressed_images))
+def test_decoders_on_damaged_messages_give_an_image_or_a_decode_error(msg) -> None:
+    """Whatever a torn or hostile message holds, decoding raises DecodeError (the frame is skipped and
+    counted) or returns a well-formed image: never another exception, never a wrong dtype."""
+    from slzcli.errors import DecodeError
+
+    for fn, dtype, ndim in ((decode.decode_color, np.uint8, 3), (lambda m: decode.decode_depth(m, 0.001), np.float32, 2)):
+        try:
+            out = fn(msg)
+        except DecodeError:
+            continue
+        assert out.dtype == dtype and out.ndim == ndim
+        if ndim == 3:
+            assert out.shape[2] == 3
+        if hasattr(msg, "height"):
+            assert out.shape[:2] == (msg.height, msg.width)
 
 
 # ----------------------------------------------------------------------------- config loader

@@ -188,3 +188,20 @@ def test_a_generous_timeout_changes_nothing(runner, flights, tmp_path) -> None:
 def test_timeout_must_be_positive(runner, flights, tmp_path) -> None:
     res = runner.invoke(main, ["detect", str(flights["calm"]), "-o", str(tmp_path / "r"), "--timeout", "0"])
     assert res.exit_code == 2 and "--timeout" in res.output + res.stderr
+
+
+def test_compare_takes_the_same_bound(runner, flights, tmp_path, monkeypatch) -> None:
+    from slzcli import compare
+
+    real = compare.posed_maps
+
+    def slow_maps(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        stuck()
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(compare, "posed_maps", slow_maps)
+    out = tmp_path / "cmp"
+    res = runner.invoke(main, ["compare", str(flights["calm"]), "-o", str(out), "--timeout", "0.5"])
+    assert res.exit_code == 1
+    assert "calm.mcap: detection on frame 0 took longer than --timeout 0.5 s" in res.stderr
+    assert not out.exists() and list(tmp_path.iterdir()) == []

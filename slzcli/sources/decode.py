@@ -17,6 +17,10 @@ import numpy as np
 from slzcli.errors import DecodeError
 from slzcli.types import Intrinsics
 
+# A damaged jpeg/png makes OpenCV's decoder print its own warnings and errors on stderr, around
+# slz's one-line message; imdecode's None already becomes a DecodeError naming the message.
+cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+
 # sensor_msgs/image_encodings: (numpy dtype, channels) of the raw layouts we read.
 COLOR_ENCODINGS: dict[str, tuple[str, int]] = {
     "rgb8": ("u1", 3), "bgr8": ("u1", 3), "rgba8": ("u1", 4), "bgra8": ("u1", 4), "mono8": ("u1", 1),
@@ -70,6 +74,8 @@ def _raw_array(msg: Any, dtype: str, channels: int) -> np.ndarray:
     itemsize = np.dtype(dtype).itemsize
     row = w * channels * itemsize
     data = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
+    if h <= 0 or w <= 0:
+        raise DecodeError(f"Image {msg.encoding} is empty ({w}x{h} px)")
     if step < row or data.size < step * h:
         raise DecodeError(f"Image {msg.encoding} {w}x{h}: data has {data.size} bytes, step {step}; "
                           f"expected at least {row} bytes per row and {step * h} in all")
