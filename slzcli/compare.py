@@ -43,8 +43,8 @@ from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
 from slzcli.outputs import files
-from slzcli.pipeline import (Detection, Detector, _ground_truth, _recorded_clouds, check_frame_size, commit_site,
-                             posed_maps)
+from slzcli.pipeline import (Detection, Detector, commit_site, ground_truth_of, posed_maps, recorded_clouds,
+                             tracked_frames)
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
 from slzcli.sources import open_recording
@@ -172,7 +172,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
     path = Path(path)
     limit = StageLimit(timeout_s, str(path))
     with limit.stage("reading the ground truth"):
-        truth = _ground_truth(path)
+        truth = ground_truth_of(path)
     levels = config.compare.pr_levels
     runs: dict[str, MethodRun] = {}
     map_curves = {n: CurveCounts.empty(levels) for n in TerrainMaps.NAMES}
@@ -184,23 +184,13 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
             rec = stack.enter_context(open_recording(path, config))
             info = rec.info()
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
-        with get_backend(config, has_poses, clouds=_recorded_clouds(path, config)) as slam:
+        with get_backend(config, has_poses, clouds=recorded_clouds(path, config)) as slam:
             tracker = Detector(config, methods[0], slam, slam.name, truth)
             for m in methods:
                 runs[m] = MethodRun(m, Detector(config, m, None, slam.name, truth),
                                     pr=CurveCounts.empty(levels) if truth is not None else None)
-            every = config.landing.every_nth_frame
-            frames = iter(rec.frames())
-            while True:
-                with limit.stage(f"reading frame {tracker.state.frames}"):
-                    frame = next(frames, None)
-                if frame is None:
-                    break
-                check_frame_size(path, frame, config.sources.min_image_px)
-                with limit.stage(f"SLAM on frame {frame.index}"):
-                    T, is_keyframe = tracker.track(frame)
+            for frame, T, due in tracked_frames(path, rec, tracker, limit):
                 slam_ms = tracker.state.timer.samples_ms["slam"][-1]
-                due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0
                 if due:
                     with limit.stage(f"detection on frame {frame.index}"):
                         maps, maps_ms = posed_maps(frame, T, config)

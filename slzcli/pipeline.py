@@ -26,7 +26,7 @@ import time
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -43,8 +43,8 @@ from slzcli.slam import MapPoints, TrackingState, get_backend
 from slzcli.slam.base import invert_pose
 from slzcli.sources import open_recording
 from slzcli.terrain.geometry import back_project
-from slzcli.timeout import StageLimit
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
+from slzcli.timeout import StageLimit
 from slzcli.types import Frame, ScoreMap, TerrainMaps
 
 log = logging.getLogger(__name__)
@@ -292,26 +292,16 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     t_start = time.perf_counter()
     with files.atomic_dir(out_dir, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
-            truth = _ground_truth(path)
+            truth = ground_truth_of(path)
             rec = stack.enter_context(open_recording(path, config))
             info = rec.info()
-            clouds = _recorded_clouds(path, config)
+            clouds = recorded_clouds(path, config)
         results = stack.enter_context(results_mcap.open_results(tmp, config))
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
         det = Detector(config, method, slam, slam.name, truth)
         det.state.keyframes = KeyframeLog(tmp / SPOOL_DIR)
-        every = config.landing.every_nth_frame
-        frames = iter(rec.frames())
-        while True:
-            with limit.stage(f"reading frame {det.state.frames}"):
-                frame = next(frames, None)
-            if frame is None:
-                break
-            check_frame_size(path, frame, config.sources.min_image_px)
-            with limit.stage(f"SLAM on frame {frame.index}"):
-                T, is_keyframe = det.track(frame)
-            due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0
+        for frame, T, due in tracked_frames(path, rec, det, limit):
             if due:
                 with limit.stage(f"detection on frame {frame.index}"):
                     d = det.detect(frame, T)
@@ -335,6 +325,27 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     return summary
 
 
+def tracked_frames(path: Path, rec: Any, tracker: Detector,
+                   limit: StageLimit) -> Iterator[tuple[Frame, np.ndarray | None, bool]]:
+    """The frames of an open recording with their SLAM pose and whether detection is due.
+
+    Reading each frame and tracking it are stages under ``limit``; shared by ``slz detect``
+    and ``slz compare`` so both read, track and choose detection frames the same way.
+    """
+    config = tracker.config
+    every = config.landing.every_nth_frame
+    frames = iter(rec.frames())
+    while True:
+        with limit.stage(f"reading frame {tracker.state.frames}"):
+            frame = next(frames, None)
+        if frame is None:
+            return
+        check_frame_size(path, frame, config.sources.min_image_px)
+        with limit.stage(f"SLAM on frame {frame.index}"):
+            T, is_keyframe = tracker.track(frame)
+        yield frame, T, (is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0)
+
+
 def check_frame_size(path: Path, frame: Frame, min_px: tuple[int, ...]) -> None:
     """Refuse frames too small for feature tracking and the maps' windows (the native trackers throw)."""
     h, w = frame.rgb.shape[:2]
@@ -343,7 +354,8 @@ def check_frame_size(path: Path, frame: Frame, min_px: tuple[int, ...]) -> None:
                                  f"{min_px[0]}x{min_px[1]}")
 
 
-def _ground_truth(path: Path) -> Any | None:
+def ground_truth_of(path: Path) -> Any | None:
+    """The `slz synth` ground truth beside a recording, or None when it has no sidecar."""
     from slzcli.synth.groundtruth import load_ground_truth, sidecar_paths
 
     if not all(p.is_file() for p in sidecar_paths(path)):
@@ -358,7 +370,8 @@ def _truth_pose(truth: Any, stamp_ns: int) -> np.ndarray | None:
         return None
 
 
-def _recorded_clouds(path: Path, config: Config) -> list[tuple[int, np.ndarray, np.ndarray]]:
+def recorded_clouds(path: Path, config: Config) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """Recorded SLAM map clouds (slam.points_topic), or none."""
     if not config.slam.points_topic:
         return []
     from slzcli.slam.recorded import read_point_clouds
