@@ -43,11 +43,10 @@ from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
 from slzcli.outputs import files
-from slzcli.pipeline import (Detection, Detector, commit_site, ground_truth_of, posed_maps, recorded_clouds,
+from slzcli.pipeline import (Detection, Detector, commit_site, ground_truth_of, open_inputs, posed_maps,
                              tracked_frames)
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
-from slzcli.sources import open_recording
 from slzcli.timeout import StageLimit
 from slzcli.types import TerrainMaps
 
@@ -181,10 +180,9 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
     t_start = time.perf_counter()
     with ExitStack() as stack:
         with limit.stage("opening the recording"):
-            rec = stack.enter_context(open_recording(path, config))
-            info = rec.info()
+            rec, info, clouds = open_inputs(path, config, stack)
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
-        with get_backend(config, has_poses, clouds=recorded_clouds(path, config)) as slam:
+        with get_backend(config, has_poses, clouds=clouds) as slam:
             tracker = Detector(config, methods[0], slam, slam.name, truth)
             for m in methods:
                 runs[m] = MethodRun(m, Detector(config, m, None, slam.name, truth),

@@ -41,6 +41,7 @@ from slzcli.outputs.trajectory import KeyframeLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, TrackingState, get_backend
 from slzcli.slam.base import invert_pose
+from slzcli.slam.recorded import open_clouds
 from slzcli.sources import open_recording
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
@@ -293,9 +294,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     with files.atomic_dir(out_dir, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
             truth = ground_truth_of(path)
-            rec = stack.enter_context(open_recording(path, config))
-            info = rec.info()
-            clouds = recorded_clouds(path, config)
+            rec, info, clouds = open_inputs(path, config, stack)
         results = stack.enter_context(results_mcap.open_results(tmp, config))
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
@@ -323,6 +322,16 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
             shutil.rmtree(tmp / SPOOL_DIR)
     return summary
+
+
+def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, Any]:
+    """The open recording, its info and its recorded map clouds (or None), closed with ``stack``."""
+    rec = stack.enter_context(open_recording(path, config))
+    info = rec.info()
+    clouds = open_clouds(path, config)
+    if clouds is not None:
+        stack.enter_context(clouds)
+    return rec, info, clouds
 
 
 def tracked_frames(path: Path, rec: Any, tracker: Detector,
@@ -368,15 +377,6 @@ def _truth_pose(truth: Any, stamp_ns: int) -> np.ndarray | None:
         return truth.T_world_camera[truth.index_of(stamp_ns, tolerance_ns=1_000_000)]
     except DatasetError:
         return None
-
-
-def recorded_clouds(path: Path, config: Config) -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """Recorded SLAM map clouds (slam.points_topic), or none."""
-    if not config.slam.points_topic:
-        return []
-    from slzcli.slam.recorded import read_point_clouds
-
-    return read_point_clouds(path, config.slam.points_topic, config)
 
 
 def versions() -> dict[str, str]:

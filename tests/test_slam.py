@@ -205,7 +205,7 @@ def _write_recording(path, frames, truth, points_topic=None, clouds=()):
 
 
 def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_flight) -> None:
-    from slzcli.slam.recorded import RecordedBackend, read_point_clouds
+    from slzcli.slam.recorded import CloudStream, RecordedBackend, open_clouds
     from slzcli.sources import open_recording
 
     frames, truth = out_back_flight
@@ -215,10 +215,13 @@ def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_fligh
     _write_recording(path, frames, truth, "/orb_slam3/map_points", [(frames[2].stamp_ns, xyz)])
     config = load_config(overrides=["sources.topics.pose=/orb_slam3/camera_pose",
                                      "slam.points_topic=/orb_slam3/map_points"])
-    clouds = read_point_clouds(path, "/orb_slam3/map_points", config)
-    assert len(clouds) == 1 and clouds[0][2].tolist() == [0, 1, 2]
-    np.testing.assert_allclose(clouds[0][1], xyz, atol=1e-6)
-    with open_recording(path, config) as rec, RecordedBackend(config, clouds) as b:
+    with open_clouds(path, config) as clouds:
+        assert not clouds.empty
+        stamp, got, ids = clouds.nearest(frames[2].stamp_ns + 1000, 1_000_000)
+        assert stamp == frames[2].stamp_ns and ids.tolist() == [0, 1, 2]
+        np.testing.assert_allclose(got, xyz, atol=1e-6)
+        assert clouds.nearest(frames[2].stamp_ns, 1_000_000) is None  # each cloud goes to one frame
+    with open_recording(path, config) as rec, open_clouds(path, config) as clouds, RecordedBackend(config, clouds) as b:
         out = [(b.track(f), b.keyframe()) for f in rec.frames()]
     assert len(out) == 8
     for (r, _), T in zip(out, truth):
@@ -227,7 +230,45 @@ def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_fligh
     kfs = [k for _, k in out if k is not None]
     assert len(kfs) == 1 and kfs[0].ids.tolist() == [0, 1]
     with pytest.raises(DatasetError, match="not in the recording"):
-        read_point_clouds(path, "/nope", config)
+        CloudStream(path, "/nope", 0)
+
+
+def test_recorded_clouds_are_streamed_not_read_up_front(tmp_path, out_back_flight) -> None:
+    """A cloud per frame over the whole recording: the stream holds only the clouds near the current frame."""
+    from slzcli.slam.recorded import open_clouds
+
+    frames, truth = out_back_flight
+    path = tmp_path / "rec.mcap"
+    xyz = np.array([[0.0, 0.0, 0.0], [0.5, 0.2, 0.3]])
+    _write_recording(path, frames, truth, "/orb_slam3/map_points", [(f.stamp_ns, xyz) for f in frames])
+    config = load_config(overrides=["slam.points_topic=/orb_slam3/map_points"])
+    period = frames[1].stamp_ns - frames[0].stamp_ns
+    window = config.sources.pose_tolerance_ms + config.sources.reorder_window_ms
+    most = 0
+    with open_clouds(path, config) as clouds:
+        for f in frames:
+            stamp, _, _ = clouds.nearest(f.stamp_ns, int(config.sources.pose_tolerance_ms * 1e6))
+            assert stamp == f.stamp_ns
+            most = max(most, len(clouds._buffer))
+    assert len(frames) > most + 2 and most <= window * 1e6 / period + 2
+
+
+def test_detect_with_recorded_slam_output_uses_the_streamed_clouds(tmp_path, runner, out_back_flight) -> None:
+    import json
+
+    frames, truth = out_back_flight
+    frames, truth = frames[:10], truth[:10]
+    xyz = np.array([[0.0, 0.0, 0.0], [0.5, 0.2, 0.3], [0.2, -0.3, 0.1]])
+    path = tmp_path / "rec.mcap"
+    _write_recording(path, frames, truth, "/orb_slam3/map_points", [(frames[i].stamp_ns, xyz) for i in (1, 5)])
+    res = runner.invoke(main, ["detect", str(path), "-o", str(tmp_path / "run"), "--json",
+                               "--set", "sources.topics.pose=/orb_slam3/camera_pose",
+                               "--set", "slam.points_topic=/orb_slam3/map_points"])
+    assert res.exit_code == 0, res.output + res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["slam_backend"] == "recorded" and summary["frames"] == 10 and summary["keyframes"] == 2
+    z = np.load(tmp_path / "run" / "keyframes.npz")
+    assert z["kf_stamp_ns"].tolist() == [frames[1].stamp_ns, frames[5].stamp_ns]
 
 
 def test_vocab_build_cli_output_validates_loads_and_tracks(tmp_path, runner, out_back_flight, line_flight) -> None:

@@ -5,14 +5,15 @@ Odometry or /tf); map points come from a ``sensor_msgs/PointCloud2`` topic (what
 wrappers publish), decoded here with ``decode_pointcloud2`` (kept here, not in
 sources/decode.py, while that module is being written). A cloud is attached to the frame
 nearest in time (within ``sources.pose_tolerance_ms``); that frame is a keyframe and its
-map points are the cloud's points that project into its image.
+map points are the cloud's points that project into its image. Clouds are read as the
+frames advance (``CloudStream``), so memory does not grow with the recording.
 """
 
 from __future__ import annotations
 
 import bisect
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -71,36 +72,90 @@ def decode_pointcloud2(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     return xyz[ok], ids[ok]
 
 
-def read_point_clouds(path: str | Path, topic: str, config: Any) -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """(stamp_ns, xyz, ids) of every PointCloud2 on ``topic`` of a message recording, in time order."""
-    from slzcli.sources import guess_format
-    from slzcli.sources.decode import stamp_ns
+class CloudStream:
+    """The PointCloud2 messages of ``topic``, read as the frames advance, never all at once.
 
-    p = Path(path)
-    fmt = guess_format(p)
-    if fmt == "tum":
-        raise DatasetError(p, f"slam.points_topic {topic!r}: TUM folders carry no point clouds")
-    if fmt == "mcap":
-        from slzcli.sources.mcap import McapLog
-        log = McapLog(p)
-    else:
-        from slzcli.sources.rosbag import RosbagLog
-        log = RosbagLog(p if p.is_dir() or fmt == "ros1" else p.parent)
-    log.open()
-    try:
-        if topic not in log.topics():
-            raise DatasetError(p, f"slam.points_topic {topic!r} is not in the recording")
-        out = []
-        for raw in log.messages([topic]):
-            msg = log.deserialize(topic, raw.data)
-            try:
-                xyz, ids = decode_pointcloud2(msg)
-            except DecodeError as err:
-                raise DatasetError(p, f"{topic}: {err}") from err
-            out.append((stamp_ns(msg.header), xyz, ids))
-    finally:
-        log.close()
-    return sorted(out, key=lambda c: c[0])
+    Frames come in stamp order, so the stream reads ahead only to ``lookahead_ns`` past the
+    current frame and forgets clouds older than it by more than the tolerance: memory holds
+    the clouds near one frame however long the recording (the whole list used to be read
+    before the first frame). Each cloud goes to one frame at most. A context manager.
+    """
+
+    def __init__(self, path: str | Path, topic: str, lookahead_ns: int) -> None:
+        from slzcli.sources import guess_format
+
+        self.path, self.topic, self.lookahead_ns = Path(path), topic, lookahead_ns
+        fmt = guess_format(self.path)
+        if fmt == "tum":
+            raise DatasetError(self.path, f"slam.points_topic {topic!r}: TUM folders carry no point clouds")
+        if fmt == "mcap":
+            from slzcli.sources.mcap import McapLog
+            self._log: Any = McapLog(self.path)
+        else:
+            from slzcli.sources.rosbag import RosbagLog
+            self._log = RosbagLog(self.path if self.path.is_dir() or fmt == "ros1" else self.path.parent)
+        self._log.open()
+        try:
+            if topic not in self._log.topics():
+                raise DatasetError(self.path, f"slam.points_topic {topic!r} is not in the recording")
+            self._messages = self._log.messages([topic])
+            self._buffer: list[tuple[int, np.ndarray, np.ndarray]] = []  # by stamp
+            self._done = False
+            self._read_one()
+        except BaseException:
+            self._log.close()
+            raise
+        self.empty = not self._buffer
+
+    def _read_one(self) -> None:
+        from slzcli.sources.decode import stamp_ns
+
+        raw = next(self._messages, None)
+        if raw is None:
+            self._done = True
+            return
+        msg = self._log.deserialize(self.topic, raw.data)
+        try:
+            xyz, ids = decode_pointcloud2(msg)
+        except DecodeError as err:
+            raise DatasetError(self.path, f"{self.topic}: {err}") from err
+        cloud = (stamp_ns(msg.header), xyz, ids)
+        self._buffer.insert(bisect.bisect_right([c[0] for c in self._buffer], cloud[0]), cloud)
+
+    def nearest(self, stamp: int, tolerance_ns: int) -> tuple[int, np.ndarray, np.ndarray] | None:
+        """The unused cloud nearest in stamp to ``stamp`` within ``tolerance_ns``, taken out of the stream."""
+        while not self._done and (not self._buffer or self._buffer[-1][0] <= stamp + self.lookahead_ns):
+            self._read_one()
+        self._buffer = [c for c in self._buffer if c[0] >= stamp - tolerance_ns]
+        if not self._buffer:
+            return None
+        best = min(range(len(self._buffer)), key=lambda j: abs(self._buffer[j][0] - stamp))
+        if abs(self._buffer[best][0] - stamp) > tolerance_ns:
+            return None
+        return self._buffer.pop(best)
+
+    def close(self) -> None:
+        self._messages.close()  # a generator: closes the file it reads
+        self._log.close()
+
+    def __enter__(self) -> "CloudStream":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open_clouds(path: str | Path, config: Any) -> CloudStream | None:
+    """The recorded map clouds of ``slam.points_topic``, or None when no topic is configured.
+
+    Read-ahead: the pose tolerance plus the reorder window (a cloud may be logged after
+    clouds of later stamps by up to that window, as frames are).
+    """
+    topic = config.slam.points_topic
+    if not topic:
+        return None
+    ms = config.sources.pose_tolerance_ms + config.sources.reorder_window_ms
+    return CloudStream(path, topic, int(ms * 1e6))
 
 
 class RecordedBackend(BackendBase):
@@ -112,37 +167,26 @@ class RecordedBackend(BackendBase):
 
     name = "recorded"
 
-    def __init__(self, config: Any, clouds: Sequence[tuple[int, np.ndarray, np.ndarray]] = ()) -> None:
-        self.clouds = list(clouds)
-        self.stamps = [c[0] for c in self.clouds]
+    def __init__(self, config: Any, clouds: CloudStream | None = None) -> None:
+        self.clouds = clouds if clouds is not None and not clouds.empty else None
         self.tolerance_ns = int(config.sources.pose_tolerance_ms * 1e6)
-        self.used: set[int] = set()
         self._keyframe: MapPoints | None = None
         self._n_kf = 0
         self._kf_cfg = config.slam.keyframe
         self._last_kf_pose: np.ndarray | None = None
-
-    def _cloud_for(self, stamp: int) -> int | None:
-        i = bisect.bisect_left(self.stamps, stamp)
-        best = min((j for j in (i - 1, i) if 0 <= j < len(self.stamps)),
-                   key=lambda j: abs(self.stamps[j] - stamp), default=None)
-        if best is None or best in self.used or abs(self.stamps[best] - stamp) > self.tolerance_ns:
-            return None
-        return best
 
     def track(self, frame: Frame) -> TrackResult:
         self._keyframe = None
         if frame.T_world_camera is None:
             return TrackResult(frame.index, frame.stamp_ns, TrackingState.LOST, None, False, 0)
         pose = np.asarray(frame.T_world_camera, np.float64)
-        j = self._cloud_for(frame.stamp_ns)
-        if j is not None:
-            self.used.add(j)
-            _, xyz, ids = self.clouds[j]
+        cloud = self.clouds.nearest(frame.stamp_ns, self.tolerance_ns) if self.clouds is not None else None
+        if cloud is not None:
+            _, xyz, ids = cloud
             uv, ok = project(xyz, pose, frame.K, frame.intrinsics.width, frame.intrinsics.height)
             self._keyframe = MapPoints(ids[ok], xyz[ok], uv[ok], self._n_kf, frame.stamp_ns, pose)
             self._n_kf += 1
-        elif not self.clouds and is_new_keyframe(self._last_kf_pose, pose, 1, 1, self._kf_cfg.min_translation_m,
+        elif self.clouds is None and is_new_keyframe(self._last_kf_pose, pose, 1, 1, self._kf_cfg.min_translation_m,
                                                  self._kf_cfg.min_rotation_deg, 0.0):
             self._keyframe = MapPoints.empty(self._n_kf, frame.stamp_ns, pose)
             self._last_kf_pose = pose
