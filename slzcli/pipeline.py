@@ -301,6 +301,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         det = Detector(config, method, slam, slam.name, truth)
         det.state.keyframes = KeyframeLog(tmp / SPOOL_DIR)
         for frame, T, due in tracked_frames(path, rec, det, limit):
+            results.write_pose(frame.stamp_ns, T)
             if due:
                 with limit.stage(f"detection on frame {frame.index}"):
                     d = det.detect(frame, T)
@@ -316,7 +317,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             raise DatasetError(path, "no RGB-D frame could be read")
         with limit.stage("writing the run folder"):
             committed = commit_site(det.state.sites, 2 * config.uav.footprint_m[0])
-            results.write_run(det.state.stamps_ns, det.state.poses, committed)
+            results.write_run(committed)
             summary = run_folder.write_run(tmp, path, config, method, info, rec.report, det, committed, truth,
                                            time.perf_counter() - t_start, fingerprint)
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed

@@ -168,6 +168,8 @@ def test_results_mcap_reads_back_with_expected_topics_and_the_score_image(local_
         schemas = {info.channels[c].topic: info.schemas[info.channels[c].schema_id].name for c in info.channels}
         for schema, channel, message in reader.iter_messages():
             msgs.setdefault(channel.topic, []).append(store.deserialize_cdr(message.data, schema.name))
+        in_file = [m.log_time for _, c, m in reader.iter_messages(log_time_order=False) if c.topic != "/slz/landing_site"]
+    assert in_file == sorted(in_file)  # written as tracked; only the committed site (on its frame's stamp) comes last
     images = ["/slz/color", "/slz/score", "/slz/overlay", *(f"/slz/maps/{n}" for n in
                                                              ("depth_variance", "flatness", "inclination", "steepness"))]
     for topic in images:

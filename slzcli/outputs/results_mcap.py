@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -60,7 +60,7 @@ MARKER_ADD = 0
 
 
 class ResultsMcap:
-    """An open ``results.mcap``: per-detection messages as they come, poses and the committed site at the end."""
+    """An open ``results.mcap``: poses and per-detection messages as they come, the committed site at the end."""
 
     def __init__(self, path: Path, config: Config) -> None:
         self.path = Path(path)
@@ -105,14 +105,16 @@ class ResultsMcap:
             self._markers("site", site, colour, label, stamp)
 
     # ------------------------------------------------------------------ end of run
-    def write_run(self, stamps_ns: Sequence[int], poses: Sequence[np.ndarray | None],
-                  committed: dict[str, Any] | None) -> None:
-        """Camera poses (PoseStamped and /tf) of every tracked frame, and the committed site."""
-        for stamp, T in zip(stamps_ns, poses):
-            if T is None:
-                continue
-            self.writer.write_pose(f"{TOPIC}/camera_pose", stamp, T, "PoseStamped", WORLD_FRAME, CAMERA_FRAME)
-            self.writer.write_pose("/tf", stamp, T, "tf", WORLD_FRAME, CAMERA_FRAME)
+    def write_pose(self, stamp: int, T: np.ndarray | None) -> None:
+        """The camera pose of one tracked frame (PoseStamped and /tf), as it is tracked: the file stays in
+        time order and a long run holds no list of poses to write at its end."""
+        if T is None:
+            return
+        self.writer.write_pose(f"{TOPIC}/camera_pose", stamp, T, "PoseStamped", WORLD_FRAME, CAMERA_FRAME)
+        self.writer.write_pose("/tf", stamp, T, "tf", WORLD_FRAME, CAMERA_FRAME)
+
+    def write_run(self, committed: dict[str, Any] | None) -> None:
+        """The committed site (known at the end of the run)."""
         if committed is not None:
             site = committed["site"]
             label = (f"landing site: score {site.score:.2f}, seen in {committed['support']} of "
@@ -158,8 +160,10 @@ class NoResults:
     def write_detection(self, det: Any) -> None:
         return None
 
-    def write_run(self, stamps_ns: Sequence[int], poses: Sequence[np.ndarray | None],
-                  committed: dict[str, Any] | None) -> None:
+    def write_pose(self, stamp: int, T: np.ndarray | None) -> None:
+        return None
+
+    def write_run(self, committed: dict[str, Any] | None) -> None:
         return None
 
 
