@@ -233,7 +233,7 @@ def _forget_views(runs: dict[str, MethodRun], first: str, current: int) -> None:
     The committed site (known at the end) is one of the first method's sites, so the other
     frames' arrays can go: memory grows with the frames that gave a site, not with the recording.
     """
-    with_site = {s["frame"].index for s in runs[first].det.state.sites}
+    with_site = {s["frame"].index for s in runs[first].det.state.sites.sites}
     for run in runs.values():
         for k in [k for k in run.views if k != current and k not in with_site]:
             del run.views[k]
@@ -287,14 +287,14 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
     committed_of: dict[str, dict[str, Any] | None] = {}
     for m, run in runs.items():
         st = run.det.state
-        committed = commit_site(st.sites, side)
+        committed = commit_site(st.sites.sites, side)
         committed_of[m] = committed
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)
         reason = no_site_reason(st, tracker.slam_name, len(tracker.state.keyframes))
         rec = landing_record(path, m, committed, "", {}, reason, truth)
         entry: dict[str, Any] = {
-            "method": m, "detections": st.detections, "sites_found": len(st.sites), "status": rec["status"],
+            "method": m, "detections": st.detections, "sites_found": len(st.sites.sites), "status": rec["status"],
             "reason": rec.get("reason"), "timings_ms": timing,
             "site": None if committed is None else {
                 "frame": rec["frame"]["index"], "stamp_ns": rec["frame"]["stamp_ns"],
@@ -350,8 +350,8 @@ def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[
     if ca is not None and cb is not None:
         dist = float(np.linalg.norm(np.asarray(ca["site"].center_world) - np.asarray(cb["site"].center_world)))
     per_frame = []
-    sites_a = {s["frame"].index: s["site"] for s in runs[a].det.state.sites}
-    sites_b = {s["frame"].index: s["site"] for s in runs[b].det.state.sites}
+    sites_a = {s["frame"].index: s["site"] for s in runs[a].det.state.sites.sites}
+    sites_b = {s["frame"].index: s["site"] for s in runs[b].det.state.sites.sites}
     for k in sorted(set(sites_a) & set(sites_b)):
         per_frame.append(float(np.linalg.norm(np.asarray(sites_a[k].center_world) - np.asarray(sites_b[k].center_world))))
     agree = total(counts)

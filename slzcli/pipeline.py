@@ -37,7 +37,8 @@ from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.outputs import files, results_mcap
-from slzcli.outputs.trajectory import KeyframeLog
+from slzcli.outputs.site_log import SiteLog
+from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, TrackingState, get_backend
 from slzcli.slam.base import invert_pose
@@ -74,14 +75,12 @@ class RunState:
     """What accumulates over a recording: poses, detections' summaries, timings."""
 
     timer: StageTimer = field(default_factory=StageTimer)
-    stamps_ns: list[int] = field(default_factory=list)
-    poses: list[np.ndarray | None] = field(default_factory=list)
+    trajectory: PoseLog = field(default_factory=PoseLog)  # every frame's stamp and pose (None: not tracked)
     tracking: dict[str, int] = field(default_factory=dict)
     keyframes: KeyframeLog = field(default_factory=KeyframeLog)  # count only unless given a folder
-    site_rows: list[dict[str, Any]] = field(default_factory=list)
-    sites: list[dict[str, Any]] = field(default_factory=list)
+    sites: SiteLog = field(default_factory=SiteLog)  # candidate rows and sites (in memory unless given a folder)
     truth: list[MaskCounts] = field(default_factory=list)
-    truth_poses: list[np.ndarray | None] = field(default_factory=list)
+    truth_trajectory: PoseLog = field(default_factory=PoseLog)  # ground-truth poses of the same frames
     frames: int = 0
     detections: int = 0
     detections_without_depth: int = 0
@@ -153,8 +152,7 @@ class Detector:
         T = self._world(result.T_world_camera)
         st = self.state
         st.frames += 1
-        st.stamps_ns.append(frame.stamp_ns)
-        st.poses.append(T)
+        st.trajectory.append(frame.stamp_ns, T)
         st.tracking[result.state.value] = st.tracking.get(result.state.value, 0) + 1
         if points is not None and T is not None:
             if len(points) == 0 and self.slam_name == "recorded":
@@ -205,17 +203,15 @@ class Detector:
         sel = det.selection
         if sel is None:
             return
-        for c in sel.candidates:
-            self.state.site_rows.append({
-                "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
-                "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
-                "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
-                "qualifies": c.qualifies, "reason": c.reason,
-                "chosen": sel.site is not None and c.cluster == _chosen_cluster(sel)})
+        chosen = _chosen_cluster(sel) if sel.site is not None else None
+        self.state.sites.add_rows([{
+            "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
+            "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
+            "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
+            "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen} for c in sel.candidates])
         if sel.site is not None:
             pts = det.points.xyz_world
-            self.state.sites.append({"frame": det.frame.ref(), "site": sel.site, "kept_xyz": pts[sel.kept],
-                                     "chosen_xyz": pts[sel.labels == _chosen_cluster(sel)]})
+            self.state.sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen])
 
 
 def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config) -> tuple[TerrainMaps, float]:
@@ -300,6 +296,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
         det = Detector(config, method, slam, slam.name, truth)
         det.state.keyframes = KeyframeLog(tmp / SPOOL_DIR)
+        det.state.sites = SiteLog(tmp / SPOOL_DIR)
         for frame, T, due in tracked_frames(path, rec, det, limit):
             results.write_pose(frame.stamp_ns, T)
             if due:
@@ -310,13 +307,13 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
                     run_folder.write_detection(tmp, d, config)
                     results.write_detection(d)
             if truth is not None:
-                det.state.truth_poses.append(_truth_pose(truth, frame.stamp_ns))
+                det.state.truth_trajectory.append(frame.stamp_ns, _truth_pose(truth, frame.stamp_ns))
             if progress is not None:
                 progress(det.state.frames, info.expected_frames)
         if det.state.frames == 0:
             raise DatasetError(path, "no RGB-D frame could be read")
         with limit.stage("writing the run folder"):
-            committed = commit_site(det.state.sites, 2 * config.uav.footprint_m[0])
+            committed = commit_site(det.state.sites.sites, 2 * config.uav.footprint_m[0])
             results.write_run(committed)
             summary = run_folder.write_run(tmp, path, config, method, info, rec.report, det, committed, truth,
                                            time.perf_counter() - t_start, fingerprint)

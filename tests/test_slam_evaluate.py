@@ -153,3 +153,41 @@ def test_decode_pointcloud2_errors() -> None:
     short.data = short.data[:10]
     with pytest.raises(DecodeError, match="too few"):
         decode_pointcloud2(short)
+
+
+def test_pose_log_grows_past_its_capacity_and_keeps_missing_poses_missing() -> None:
+    from slzcli.outputs.trajectory import PoseLog
+
+    log = PoseLog(capacity=2)
+    poses = [np.eye(4) * (i + 1) if i % 3 else None for i in range(7)]
+    for i, T in enumerate(poses):
+        log.append(1000 + i, T)
+    assert len(log) == 7 and log.stamps == list(range(1000, 1007))
+    for got, want in zip(log.poses(), poses):
+        assert (got is None) == (want is None)
+        if want is not None:
+            np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("on_disk", [False, True])
+def test_site_log_gives_back_the_points_of_any_site(tmp_path, on_disk) -> None:
+    import csv
+
+    from slzcli.outputs.site_log import SITE_COLUMNS, SiteLog
+
+    log = SiteLog(tmp_path / "spool" if on_disk else None)
+    rng = np.random.default_rng(0)
+    stored = []
+    for i in range(4):
+        kept, chosen = rng.normal(size=(5 + i, 3)), rng.normal(size=(2 + i, 3))
+        log.add_rows([dict.fromkeys(SITE_COLUMNS, i), dict.fromkeys(SITE_COLUMNS, i)])
+        log.add_site(f"frame {i}", f"site {i}", kept, chosen)
+        stored.append((kept, chosen))
+    assert log.rows == 8 and [s["site"] for s in log.sites] == [f"site {i}" for i in range(4)]
+    for entry, (kept, chosen) in zip(log.sites, stored):
+        got_kept, got_chosen = log.points(entry)
+        np.testing.assert_array_equal(got_kept, kept)
+        np.testing.assert_array_equal(got_chosen, chosen)
+    log.write_csv(tmp_path / "sites.csv")
+    rows = list(csv.DictReader((tmp_path / "sites.csv").open()))
+    assert len(rows) == 8 and list(rows[0]) == list(SITE_COLUMNS) and rows[-1]["frame"] == "3"

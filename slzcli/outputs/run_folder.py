@@ -8,8 +8,6 @@ renamed into place only when all of it is written.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 from pathlib import Path
 from typing import Any
@@ -22,8 +20,6 @@ from slzcli.outputs import files, images
 from slzcli.outputs.points import write_points_ply
 from slzcli.outputs.trajectory import write_tum
 
-SITE_COLUMNS = ("frame", "stamp_ns", "cluster", "points", "x", "y", "z", "normal_variance", "extent_x_m",
-                "extent_y_m", "qualifies", "reason", "chosen")
 
 
 def input_fingerprint(path: Path) -> dict[str, Any]:
@@ -112,14 +108,6 @@ def _site_truth(truth: Any, frame: Any, center_camera: tuple[float, float, float
     return site_truth(truth.raster, (float(p[0]), float(p[1])), visible)
 
 
-def sites_csv(rows: list[dict[str, Any]]) -> str:
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=SITE_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    return buf.getvalue()
-
-
 def write_run(run_dir: Path, source: Path, config: Config, method: str, info: Any, report: Any, det: Any,
               committed: dict[str, Any] | None, truth: Any | None, wall_s: float,
               fingerprint: dict[str, Any]) -> dict[str, Any]:
@@ -139,8 +127,8 @@ def write_run(run_dir: Path, source: Path, config: Config, method: str, info: An
     reason = no_site_reason(st, det.slam_name, len(st.keyframes))
     landing = landing_record(source, method, committed, world, timings, reason, truth)
     files.write_json(run_dir / "landing.json", landing)
-    files.write_text(run_dir / "sites.csv", sites_csv(st.site_rows))
-    write_tum(run_dir / "trajectory.tum", st.stamps_ns, st.poses)
+    st.sites.write_csv(run_dir / "sites.csv")
+    write_tum(run_dir / "trajectory.tum", st.trajectory.stamps, st.trajectory.poses())
     st.keyframes.write_npz(run_dir / "keyframes.npz")
     write_points_ply(run_dir / "points.ply", _points_by_role(st, committed))
 
@@ -170,7 +158,7 @@ def no_site_reason(st: Any, slam_name: str, keyframes: int) -> str:
                 "topic's encoding, sources.depth_unit_16u_m and sources.max_depth_m")
     if not keyframes:
         return f"the {slam_name} backend gave no keyframe with map points"
-    if not st.site_rows:
+    if not st.sites.rows:
         return "no SLAM map point of any keyframe fell on the landing mask"
     return "no cluster of mask-filtered map points met the footprint in any detection frame"
 
@@ -179,11 +167,12 @@ def _truth_summary(st: Any, landing: dict[str, Any]) -> dict[str, Any]:
     from slzcli.evaluate.slam import ate, rpe
 
     out: dict[str, Any] = {"mask": total(st.truth).as_dict() if st.truth else None}
-    pairs = [(e, t) for e, t in zip(st.poses, st.truth_poses) if e is not None and t is not None]
+    est, true = st.trajectory.poses(), st.truth_trajectory.poses()
+    pairs = [(e, t) for e, t in zip(est, true) if e is not None and t is not None]
     if len(pairs) >= 3:
         res = ate([e for e, _ in pairs], [t for _, t in pairs])
         out["slam_ate_rmse_m"] = res.rmse_m
-        rel = rpe(st.poses, st.truth_poses)  # consecutive frames; lost frames are skipped, not interpolated
+        rel = rpe(est, true)  # consecutive frames; lost frames are skipped, not interpolated
         out["slam_rpe"] = {"trans_rmse_m": rel.trans_rmse_m, "rot_rmse_deg": rel.rot_rmse_deg, "pairs": rel.n}
     if "site" in landing:
         out["site"] = landing["site"].get("ground_truth")
@@ -193,7 +182,6 @@ def _truth_summary(st: Any, landing: dict[str, Any]) -> dict[str, Any]:
 def _points_by_role(st: Any, committed: dict[str, Any] | None) -> dict[str, np.ndarray]:
     roles: dict[str, np.ndarray] = {"map": st.keyframes.map_xyz()}
     if committed is not None:
-        roles["kept"] = committed["kept_xyz"]
-        roles["chosen"] = committed["chosen_xyz"]
+        roles["kept"], roles["chosen"] = st.sites.points(committed)
         roles["corner"] = np.asarray(committed["site"].corners_world)
     return roles

@@ -70,6 +70,38 @@ def write_tum(path: Path, stamps_ns: Sequence[int], poses: Sequence[np.ndarray |
     write_text(Path(path), tum_text(stamps_ns, poses))
 
 
+class PoseLog:
+    """Stamps and poses of every frame, in arrays that grow by doubling.
+
+    A frame costs 136 B here; a list of 4x4 arrays and a list of ints cost ~300 B a frame.
+    A frame without a pose is stored as NaN and comes back as None.
+    """
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self._stamps = np.zeros(capacity, np.int64)
+        self._T = np.full((capacity, 4, 4), np.nan)
+        self._n = 0
+
+    def append(self, stamp_ns: int, T: np.ndarray | None) -> None:
+        if self._n == len(self._stamps):
+            self._stamps = np.concatenate([self._stamps, np.zeros_like(self._stamps)])
+            self._T = np.concatenate([self._T, np.full_like(self._T, np.nan)])
+        self._stamps[self._n] = stamp_ns
+        self._T[self._n] = np.nan if T is None else T
+        self._n += 1
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def stamps(self) -> list[int]:
+        return self._stamps[: self._n].tolist()
+
+    def poses(self) -> list[np.ndarray | None]:
+        """Each frame's 4x4 pose, or None where it had none."""
+        return [T if np.isfinite(T[0, 0]) else None for T in self._T[: self._n]]
+
+
 KEYFRAME_SPEC = {"kf_index": (np.int64, ()), "kf_stamp_ns": (np.int64, ()), "kf_T_world_camera": (np.float64, (4, 4)),
                  "point_kf": (np.int64, ()), "point_ids": (np.int64, ()), "point_xyz_world": (np.float64, (3,)),
                  "point_pixels": (np.float64, (2,))}

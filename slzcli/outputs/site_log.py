@@ -1,0 +1,77 @@
+"""Every detection's candidate clusters (sites.csv) and the sites found, as a run goes.
+
+With a folder (``slz detect``), candidate rows are appended to a CSV file there and each
+site's points (its mask-filtered map points and its chosen cluster) to an on-disk spool:
+per site, memory keeps only its summary (frame, Site), so a long recording's detections do
+not add up in memory. Without one (``slz compare``, tests) everything stays in memory.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slzcli.outputs.files import ArraySpool, atomic_path
+
+SITE_COLUMNS = ("frame", "stamp_ns", "cluster", "points", "x", "y", "z", "normal_variance", "extent_x_m",
+                "extent_y_m", "qualifies", "reason", "chosen")
+POINT_SPEC = {"xyz": (np.float64, (3,)), "site": (np.int64, ()), "chosen": (np.bool_, ())}
+
+
+class SiteLog:
+    """Candidate rows and sites of one run; ``sites`` entries are dicts with "frame", "site", "id"."""
+
+    def __init__(self, folder: Path | None = None) -> None:
+        self.folder = Path(folder) if folder is not None else None
+        self.rows = 0
+        self.sites: list[dict[str, Any]] = []
+        self._rows: list[dict[str, Any]] = []
+        self._points: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._spool = ArraySpool(self.folder / "site_points", POINT_SPEC) if self.folder is not None else None
+        self._csv = self.folder / "sites.csv" if self.folder is not None else None
+        if self._csv is not None:
+            self._csv.write_text(",".join(SITE_COLUMNS) + "\n")
+
+    def add_rows(self, rows: list[dict[str, Any]]) -> None:
+        self.rows += len(rows)
+        if self._csv is None:
+            self._rows.extend(rows)
+            return
+        with open(self._csv, "a", newline="") as fh:
+            csv.DictWriter(fh, fieldnames=SITE_COLUMNS, lineterminator="\n").writerows(rows)
+
+    def add_site(self, frame: Any, site: Any, kept_xyz: np.ndarray, chosen_xyz: np.ndarray) -> None:
+        i = len(self.sites)
+        self.sites.append({"frame": frame, "site": site, "id": i})
+        if self._spool is None:
+            self._points[i] = (np.asarray(kept_xyz), np.asarray(chosen_xyz))
+            return
+        kept, chosen = np.asarray(kept_xyz).reshape(-1, 3), np.asarray(chosen_xyz).reshape(-1, 3)
+        self._spool.append(xyz=np.vstack([kept, chosen]), site=np.full(len(kept) + len(chosen), i),
+                           chosen=np.r_[np.zeros(len(kept), bool), np.ones(len(chosen), bool)])
+
+    def points(self, entry: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+        """(kept_xyz, chosen_xyz) of one site of ``sites``."""
+        if self._spool is None:
+            return self._points[entry["id"]]
+        xyz = np.load(self._spool.npy("xyz"), mmap_mode="r")
+        mine = np.load(self._spool.npy("site"), mmap_mode="r") == entry["id"]
+        chosen = np.load(self._spool.npy("chosen"), mmap_mode="r")
+        return np.array(xyz[mine & ~chosen]), np.array(xyz[mine & chosen])
+
+    def write_csv(self, path: Path) -> None:
+        """sites.csv: every candidate of every detection and why it did or did not qualify."""
+        with atomic_path(Path(path)) as tmp:
+            if self._csv is not None:
+                shutil.copyfile(self._csv, tmp)
+                return
+            buf = io.StringIO()
+            writer = csv.DictWriter(buf, fieldnames=SITE_COLUMNS, lineterminator="\n")
+            writer.writeheader()
+            writer.writerows(self._rows)
+            tmp.write_text(buf.getvalue())
