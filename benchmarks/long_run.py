@@ -22,6 +22,7 @@ import json
 import os
 import platform
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -173,6 +174,8 @@ def main() -> None:
         "load_avg": [round(v, 2) for v in os.getloadavg()], "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }, indent=1) + "\n")
     print(f"wrote {args.out}")
+    if args.keep is None:
+        shutil.rmtree(work, ignore_errors=True)  # the run folders: ~5 GB at 10,000 frames
 
 
 if __name__ == "__main__":

@@ -170,8 +170,6 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
     """
     path = Path(path)
     limit = StageLimit(timeout_s, str(path))
-    with limit.stage("reading the ground truth"):
-        truth = ground_truth_of(path)
     levels = config.compare.pr_levels
     runs: dict[str, MethodRun] = {}
     map_curves = {n: CurveCounts.empty(levels) for n in TerrainMaps.NAMES}
@@ -180,6 +178,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
     t_start = time.perf_counter()
     with ExitStack() as stack:
         with limit.stage("opening the recording"):
+            truth = ground_truth_of(path)
             rec, info, clouds = open_inputs(path, config, stack)
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         with get_backend(config, has_poses, clouds=clouds) as slam:

@@ -51,7 +51,7 @@ from slzcli.types import Frame, ScoreMap, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
-SPOOL_DIR = ".spool"  # keyframes on their way to keyframes.npz, inside the temporary run folder
+SPOOL_DIR = ".spool"  # keyframes, candidate rows and site points of a run, inside its temporary run folder
 
 
 # ----------------------------------------------------------------------------- per-frame result
@@ -125,7 +125,9 @@ def depth_points(frame: Frame, T_world_camera: np.ndarray, stride_px: int) -> Ma
 class Detector:
     """Runs the stages over the frames of one recording; holds SLAM and the run's accumulators."""
 
-    def __init__(self, config: Config, method: str, slam: Any, slam_name: str, truth: Any | None) -> None:
+    def __init__(self, config: Config, method: str, slam: Any, slam_name: str, truth: Any | None,
+                 spool: Path | None = None) -> None:
+        """``spool``: a folder for keyframes, candidate rows and site points (else they stay in memory)."""
         self.config = config
         self.method = method
         self.scorer: Scorer = get_scorer(config, method)
@@ -133,7 +135,7 @@ class Detector:
         self.slam = slam
         self.slam_name = slam_name
         self.truth = truth
-        self.state = RunState()
+        self.state = RunState(keyframes=KeyframeLog(spool), sites=SiteLog(spool))
         self.T_align: np.ndarray | None = np.eye(4) if slam_name == "recorded" else None
         self.last_points: MapPoints | None = None
 
@@ -274,8 +276,9 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
                      progress: Progress | None = None) -> dict[str, Any]:
     """Run detection over one recording into ``out_dir``; returns the run summary (run.json's summary).
 
-    Memory does not grow with the recording: frames are streamed and dropped once written; what
-    accumulates per frame is its stamp, pose and stage times (RunState), per site a FrameRef.
+    Memory does not grow with the recording: frames are streamed and dropped once written,
+    keyframes, candidate rows and site points go to a spool in the temporary run folder; what
+    stays per frame is its stamp, pose and stage times (~0.2 KB), per site its summary.
     """
     from slzcli.outputs import run_folder
 
@@ -294,9 +297,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         results = stack.enter_context(results_mcap.open_results(tmp, config))
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
-        det = Detector(config, method, slam, slam.name, truth)
-        det.state.keyframes = KeyframeLog(tmp / SPOOL_DIR)
-        det.state.sites = SiteLog(tmp / SPOOL_DIR)
+        det = Detector(config, method, slam, slam.name, truth, spool=tmp / SPOOL_DIR)
         for frame, T, due in tracked_frames(path, rec, det, limit):
             results.write_pose(frame.stamp_ns, T)
             if due:
