@@ -8,10 +8,11 @@ the recording fails with nothing partial left, and a batch goes on with the next
 - in the main thread (``slz detect`` on one recording, a local pool worker) by SIGALRM from
   ``setitimer``: a blocking read or wait is interrupted too (the handler raises, so PEP 475
   does not retry the call);
-- in any other thread (a Dask worker runs tasks in threads) by an asynchronous exception that
-  a timer thread sets (``PyThreadState_SetAsyncExc``). It lands at the next Python bytecode:
-  a stage stuck inside one native call is stopped when that call returns. The ORB-SLAM3
-  worker is a separate process bounded by ``slam.orbslam3.frame_timeout_s`` as well.
+- in any other thread (a Dask worker runs tasks in threads), or where there is no SIGALRM
+  (Windows), by an asynchronous exception that a timer thread sets
+  (``PyThreadState_SetAsyncExc``). It lands at the next Python bytecode: a stage stuck inside
+  one native call is stopped when that call returns. The ORB-SLAM3 worker is a separate
+  process bounded by ``slam.orbslam3.frame_timeout_s`` as well.
 
 Stages do not nest: a stage opened inside another is covered by the outer one's bound.
 """
@@ -49,7 +50,7 @@ class StageLimit:
             return
         self._active = True
         try:
-            if threading.current_thread() is threading.main_thread():
+            if threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer"):
                 with self._alarm(what):
                     yield
             else:
