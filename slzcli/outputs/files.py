@@ -112,6 +112,7 @@ class ArraySpool:
         self.folder = Path(folder)
         self.spec = {k: (np.dtype(d), tuple(shape)) for k, (d, shape) in spec.items()}
         self.rows = dict.fromkeys(spec, 0)
+        self._npy_rows: dict[str, int] = {}  # row count each finished .npy was written with
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as err:
@@ -126,8 +127,13 @@ class ArraySpool:
             self.rows[name] += len(block)
 
     def npy(self, name: str) -> Path:
+        """The member as a ``.npy`` file, written once per row count: rewriting it in place would
+        truncate a file an earlier caller may still have memory-mapped."""
         dtype, shape = self.spec[name]
         raw, out = self.folder / f"{name}.bin", self.folder / f"{name}.npy"
+        if self._npy_rows.get(name) == self.rows[name]:
+            return out
+        self._npy_rows[name] = self.rows[name]
         with open(out, "wb") as dst:
             np.lib.format.write_array_header_1_0(dst, {"descr": np.lib.format.dtype_to_descr(dtype),
                                                        "fortran_order": False, "shape": (self.rows[name], *shape)})
