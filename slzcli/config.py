@@ -15,6 +15,7 @@ import json
 import re
 import types
 import typing
+from importlib import resources
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -23,7 +24,17 @@ import yaml
 
 from slzcli.errors import ConfigError
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+def package_dir(*parts: str) -> Path:
+    """A data folder shipped inside the installed package (wheels unpack to real files).
+
+    The repo's ``configs/`` and ``datasets/scenes/`` are links to these folders, so an
+    editable checkout and an installed wheel read the same files the same way.
+    """
+    path = resources.files("slzcli").joinpath(*parts)
+    return Path(str(path))
+
+
+CONFIG_DIR = package_dir("configs")
 DEFAULT_CONFIG = CONFIG_DIR / "default.yaml"
 
 Normalise = Literal["absolute", "frame"]

@@ -1,4 +1,4 @@
-"""Scene definitions for ``slz synth``: YAML files in ``datasets/scenes/`` -> frozen dataclasses.
+"""Scene definitions for ``slz synth``: YAML files in ``slzcli/synth/scenes/`` (linked from ``datasets/scenes/``) -> frozen dataclasses.
 
 A scene is data: a ground (plane with an optional gentle slope and smooth undulation),
 materials, and primitives (box, cylinder, cone, sphere, ramp, stairs). Primitives that share
@@ -21,9 +21,10 @@ from typing import Any, Literal
 import numpy as np
 import yaml
 
+from slzcli.config import package_dir
 from slzcli.errors import ConfigError
 
-SCENES_DIR = Path(__file__).resolve().parent.parent.parent / "datasets" / "scenes"
+SCENES_DIR = package_dir("synth", "scenes")
 COMMON_FILE = "_common.yaml"
 
 TextureKind = Literal["plain", "noise", "tiles", "stripes"]
