@@ -5,8 +5,13 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO := runs/demo
+# Versions known to pass; floors stay in pyproject.toml. `make test-latest` tries the newest on purpose.
+CONSTRAINTS := constraints.txt
+EXTRAS := test,lint,orbslam3,dask
+LATEST := .venv-latest
+LINTED := slzcli tests benchmarks
 
-.PHONY: demo test sysdeps venv bench clean
+.PHONY: demo test lint test-latest constraints sysdeps venv bench clean
 
 # open3d's wheel links against libusb-1.0 and libgomp; install them when absent.
 sysdeps:
@@ -20,16 +25,40 @@ sysdeps:
 	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 libgomp1 >/dev/null; \
 	fi
 
-$(STAMP): pyproject.toml | sysdeps
+$(STAMP): pyproject.toml $(CONSTRAINTS) | sysdeps
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test,orbslam3,dask]'
+	$(BIN)/python -m pip install -q -c $(CONSTRAINTS) --upgrade pip
+	$(BIN)/python -m pip install -q -c $(CONSTRAINTS) -e '.[$(EXTRAS)]'
 	touch $(STAMP)
 
 venv: $(STAMP)
 
-test: $(STAMP)
+lint: $(STAMP)
+	$(BIN)/ruff check $(LINTED)
+	$(BIN)/mypy
+
+test: lint
 	$(BIN)/python -m pytest
+
+# The newest releases that meet pyproject's floors, in a scratch venv, through lint and the whole suite.
+# When it passes, `make constraints` records those versions as the new known-good set.
+test-latest: sysdeps
+	rm -rf $(LATEST)
+	$(PY) -m venv $(LATEST)
+	$(LATEST)/bin/python -m pip install -q --upgrade pip
+	$(LATEST)/bin/python -m pip install -q --upgrade --upgrade-strategy eager -e '.[$(EXTRAS)]'
+	$(LATEST)/bin/python -m pip freeze --all --exclude-editable > $(LATEST)/versions.txt
+	$(LATEST)/bin/ruff check $(LINTED)
+	$(LATEST)/bin/mypy
+	$(LATEST)/bin/python -m pytest
+	touch $(LATEST)/.passed
+	@echo "newest releases pass; 'make constraints' records them in $(CONSTRAINTS)"
+
+constraints:
+	@test -f $(LATEST)/.passed || { echo "run 'make test-latest' first: only a set that passed is recorded"; exit 1; }
+	{ sed -n '/^#/p' $(CONSTRAINTS); cat $(LATEST)/versions.txt; } > $(CONSTRAINTS).new
+	mv $(CONSTRAINTS).new $(CONSTRAINTS)
+	@git --no-pager diff --stat -- $(CONSTRAINTS) 2>/dev/null || true
 
 # Render a ground-truthed flight, read it, detect the landing site, simulate the IBVS descent.
 demo: $(STAMP)
@@ -52,4 +81,4 @@ bench: $(STAMP)
 	for b in read synth terrain scoring masks slam ibvs; do $(BIN)/python benchmarks/$$b.py || exit 1; done
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) $(LATEST) runs .pytest_cache .mypy_cache .ruff_cache
