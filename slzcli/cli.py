@@ -433,9 +433,18 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
         result = f"landing site at ({x:.2f}, {y:.2f}, {z:.2f}) m in the run's world frame"
     else:
         result = f"no safe site: {s['reason']}"
-    lines = [head, "  " + result,
-             f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, mask {t['mask']:.1f} ms, "
-             f"slam {t['slam']:.1f} ms, select {t['select']:.1f} ms (medians)"]
+    lines = [head, "  " + result]
+    noise, lim = s.get("depth_noise") or {}, s.get("depth_limits")
+    if lim:
+        a = noise.get("a_per_m_median", noise.get("a_per_m"))
+        where = f"a = {a:.4f} 1/m ({noise.get('source')}), " if a is not None else ""
+        lines.append(f"  depth noise: {where}sigma {lim['sigma_m']:.3f} m at {lim['altitude_m']:.1f} m; maps on "
+                     f"{lim['block_px']} px blocks; steps >= {lim['step_min_m']:.2f} m and slopes >= "
+                     f"{lim['slope_min_deg']:.1f} deg detectable"
+                     + ("" if noise.get("detections_not_vouched", 0) == 0 else
+                        f"; {noise['detections_not_vouched']} detection frame(s) could not vouch"))
+    lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, mask {t['mask']:.1f} ms, "
+                 f"slam {t['slam']:.1f} ms, select {t['select']:.1f} ms (medians)")
     gt = s.get("ground_truth")
     if gt and gt.get("mask"):
         m = gt["mask"]

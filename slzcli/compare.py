@@ -190,7 +190,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
                 slam_ms = tracker.state.timer.samples_ms["slam"][-1]
                 if due:
                     with limit.stage(f"detection on frame {frame.index}"):
-                        maps, maps_ms = posed_maps(frame, T, config)
+                        maps, maps_ms = posed_maps(frame, T, config, tracker.noise_for(frame))
                         gt_mask = truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000) if truth is not None else None
                         dets = {m: _fuse(run, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
                                 for m, run in runs.items()}

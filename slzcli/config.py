@@ -90,7 +90,6 @@ class SourcesCfg:
 class DepthVarianceCfg:
     kernel_px: int = rng(3, 99, odd=True)
     s0_m: float = rng(0, lo_open=True)
-    noise_a_per_m: float = rng(0)
     min_valid_fraction: float = rng(0, 1, lo_open=True)
     normalise: Normalise = "absolute"
 
@@ -126,7 +125,23 @@ class SteepnessCfg:
 
 
 @dataclass(frozen=True)
+class NoiseEstimateCfg:
+    frames: int = rng(1, 1000)
+    min_residuals: int = rng(10)
+    prior_a_per_m: float = rng(0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class LimitsCfg:
+    confidence_sigma: float = rng(0, lo_open=True)
+    blocks_per_footprint: float = rng(1)
+
+
+@dataclass(frozen=True)
 class TerrainCfg:
+    noise: Literal["auto"] | float = rng(0)
+    noise_estimate: NoiseEstimateCfg
+    limits: LimitsCfg
     depth_variance: DepthVarianceCfg
     flatness: FlatnessCfg
     inclination: InclinationCfg
@@ -168,6 +183,7 @@ class UavCfg:
     size_m: tuple[float, ...] = rng(0, lo_open=True, n=3)
     footprint_m: tuple[float, ...] = rng(0, lo_open=True, n=2)
     max_slope_deg: float = rng(0, 90, lo_open=True)
+    max_step_m: float = rng(0, lo_open=True)
     thrust_min_n: float = rng(0)
     thrust_max_n: float = rng(0, lo_open=True)
     torque_max_n_m: tuple[float, ...] = rng(0, lo_open=True, n=3)
@@ -532,7 +548,15 @@ def _check(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> Any
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         if value is None:
             return None
-        return _check(args[0], value, path, meta, source)
+        errors = []
+        for arg in args:   # the first alternative the value fits (e.g. "auto" or a number)
+            try:
+                return _check(arg, value, path, meta, source)
+            except ConfigError as err:
+                errors.append(err)
+        if len(args) == 1:
+            raise errors[0]
+        raise ConfigError(path, f"expected {_alternatives(args)}, got {_kind(value)} {value!r}", source)
     return _scalar(tp, value, path, meta, source)
 
 
@@ -564,6 +588,16 @@ def _scalar(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> An
     if meta.get("odd") and int(value) % 2 != 1:
         raise ConfigError(path, f"must be odd, got {value}", source)
     return value
+
+
+def _alternatives(args: typing.Sequence[Any]) -> str:
+    names = []
+    for arg in args:
+        if typing.get_origin(arg) is Literal:
+            names.extend(repr(c) for c in typing.get_args(arg))
+        else:
+            names.append({float: "a number", int: "an integer", str: "a string", bool: "true or false"}.get(arg, str(arg)))
+    return " or ".join(names)
 
 
 def _join(path: str, key: str) -> str:

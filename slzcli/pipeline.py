@@ -45,7 +45,9 @@ from slzcli.slam.base import invert_pose
 from slzcli.slam.recorded import open_clouds
 from slzcli.sources import open_recording
 from slzcli.terrain.geometry import back_project
+from slzcli.terrain.limits import Working, limit_reason
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
+from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.timeout import StageLimit
 from slzcli.types import Frame, ScoreMap, TerrainMaps
 
@@ -84,6 +86,10 @@ class RunState:
     frames: int = 0
     detections: int = 0
     detections_without_depth: int = 0
+    noise: NoiseTracker | None = None  # the depth noise of the detection frames, smoothed over the run
+    unvouched: int = 0                 # detection frames whose noise hides what the UAV cannot tolerate
+    worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
+    unvouched_reason: str = ""         # limits.limit_reason of that frame
 
 
 def select_params(config: Config, method: str) -> SelectParams:
@@ -135,7 +141,8 @@ class Detector:
         self.slam = slam
         self.slam_name = slam_name
         self.truth = truth
-        self.state = RunState(keyframes=KeyframeLog(spool), sites=SiteLog(spool))
+        self.state = RunState(keyframes=KeyframeLog(spool), sites=SiteLog(spool),
+                              noise=NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
         self.T_align: np.ndarray | None = np.eye(4) if slam_name == "recorded" else None
         self.last_points: MapPoints | None = None
 
@@ -166,9 +173,14 @@ class Detector:
             st.keyframes.append(points)
         return T, points is not None and result.state == TrackingState.OK
 
+    def noise_for(self, frame: Frame) -> DepthNoise:
+        """The depth noise a detection frame's maps use: its own estimate smoothed over the run's."""
+        assert self.state.noise is not None
+        return self.state.noise.update(frame.depth_m)
+
     def detect(self, frame: Frame, T_world_camera: np.ndarray | None) -> Detection:
         """Maps, score, mask and (with a pose and map points) the site of one frame."""
-        maps, maps_ms = posed_maps(frame, T_world_camera, self.config)
+        maps, maps_ms = posed_maps(frame, T_world_camera, self.config, self.noise_for(frame))
         return self.fuse(frame, T_world_camera, maps, maps_ms)
 
     def fuse(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps,
@@ -180,12 +192,20 @@ class Detector:
         raw = self.scorer(maps)
         t["score"] = _lap(t0)
         t0 = time.perf_counter()
-        score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config)
+        score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config, maps.work)
         t["mask"] = _lap(t0)
         edge = maps.edge_distance_m
         selection = None
+        vouched = maps.work is None or maps.work.vouched
+        if not vouched:
+            assert maps.work is not None
+            self.state.unvouched += 1
+            worst = self.state.worst_unvouched
+            if worst is None or maps.work.altitude_m > worst.altitude_m:
+                self.state.worst_unvouched = maps.work
+                self.state.unvouched_reason = limit_reason(maps.work, self.config.terrain, self.config.uav)
         t0 = time.perf_counter()
-        if T_world_camera is not None and self.last_points is not None:
+        if vouched and T_world_camera is not None and self.last_points is not None:
             selection = select_site(self.last_points.xyz_world, T_world_camera, frame.K, score.mask, score.score,
                                     self.params, edge_distance_m=edge)
         t["select"] = _lap(t0)
@@ -213,14 +233,19 @@ class Detector:
             "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen} for c in sel.candidates])
         if sel.site is not None:
             pts = det.points.xyz_world
-            self.state.sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen])
+            limits = det.maps.work.as_dict() if det.maps.work is not None else None
+            self.state.sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits)
 
 
-def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config) -> tuple[TerrainMaps, float]:
-    """The four terrain maps of a frame (with its SLAM pose, when there is one) and their time in ms."""
+def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
+               noise: DepthNoise | None = None) -> tuple[TerrainMaps, float]:
+    """The four terrain maps of a frame (with its SLAM pose, when there is one) and their time in ms.
+
+    ``noise``: the run's depth noise (``Detector.noise_for``); None measures it on this frame alone.
+    """
     posed = frame if T_world_camera is None else _with_pose(frame, T_world_camera)
     t0 = time.perf_counter()
-    maps = frame_maps(posed, config)
+    maps = frame_maps(posed, config, noise)
     return maps, _lap(t0)
 
 

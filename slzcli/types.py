@@ -8,8 +8,12 @@ the OpenCV/ROS optical frame (x right, y down, z forward); world frame z up.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # a type only: terrain imports types, not the other way round
+    from slzcli.terrain.limits import Working
 
 
 @dataclass(frozen=True)
@@ -136,6 +140,7 @@ class TerrainMaps:
     valid: np.ndarray
     slope_deg: np.ndarray
     edge_distance_m: np.ndarray | None = None  # metres to the nearest depth edge or hole (acceptance test)
+    work: Working | None = None  # block size, windows and detection limits the maps were made with
 
     NAMES = ("depth_variance", "flatness", "inclination", "steepness")
 

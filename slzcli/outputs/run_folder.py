@@ -92,6 +92,7 @@ def landing_record(source: Path, method: str, committed: dict[str, Any] | None, 
             "acceptance": {"passed": s.accepted, "reason": s.acceptance_reason, "tilt_deg": s.tilt_deg,
                            "edge_clearance_m": s.edge_clearance_m},
             "support": {"detections_agreeing": committed["support"], "detections_with_site": committed["detections"]},
+            "depth_limits": committed.get("limits"),
         }
         if truth is not None:
             rec["site"]["ground_truth"] = _site_truth(truth, frame, s.center_camera).as_dict()
@@ -137,6 +138,8 @@ def write_run(run_dir: Path, source: Path, config: Config, method: str, info: An
         "status": landing["status"], "site_world": landing.get("site", {}).get("center_world"),
         "reason": landing.get("reason"), "slam_backend": det.slam_name, "tracking": st.tracking,
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
+        "depth_noise": _noise_summary(st),
+        "depth_limits": landing.get("site", {}).get("depth_limits") or _noise_summary(st).get("not_vouched"),
         "pairing": {"paired": report.paired, "unpaired_color": report.unpaired_color,
                     "unpaired_depth": report.unpaired_depth, "undecodable": report.undecodable,
                     "notes": list(report.notes)},
@@ -156,11 +159,27 @@ def no_site_reason(st: Any, slam_name: str, keyframes: int) -> str:
     if st.detections_without_depth == st.detections:
         return (f"no valid depth in any of the {st.detections} detection frames (all NaN or 0): check the depth "
                 "topic's encoding, sources.depth_unit_16u_m and sources.max_depth_m")
+    if st.unvouched and st.unvouched == st.detections:
+        return st.unvouched_reason
     if not keyframes:
-        return f"the {slam_name} backend gave no keyframe with map points"
-    if not st.sites.rows:
-        return "no SLAM map point of any keyframe fell on the landing mask"
-    return "no cluster of mask-filtered map points met the footprint in any detection frame"
+        reason = f"the {slam_name} backend gave no keyframe with map points"
+    elif not st.sites.rows:
+        reason = "no SLAM map point of any keyframe fell on the landing mask"
+    else:
+        reason = "no cluster of mask-filtered map points met the footprint in any detection frame"
+    if st.unvouched:
+        reason += (f"; {st.unvouched} of {st.detections} detection frames could not vouch for any site: "
+                   f"{st.unvouched_reason}")
+    return reason
+
+
+def _noise_summary(st: Any) -> dict[str, Any]:
+    """The depth noise the maps were made with, and how many detection frames it kept from vouching."""
+    out: dict[str, Any] = dict(st.noise.summary()) if st.noise is not None else {}
+    out["detections_not_vouched"] = st.unvouched
+    if st.worst_unvouched is not None:
+        out["not_vouched"] = {**st.worst_unvouched.as_dict(), "reason": st.unvouched_reason}
+    return out
 
 
 def _truth_summary(st: Any, landing: dict[str, Any]) -> dict[str, Any]:

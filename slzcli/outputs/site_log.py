@@ -45,9 +45,11 @@ class SiteLog:
         with open(self._csv, "a", newline="") as fh:
             csv.DictWriter(fh, fieldnames=SITE_COLUMNS, lineterminator="\n").writerows(rows)
 
-    def add_site(self, frame: Any, site: Any, kept_xyz: np.ndarray, chosen_xyz: np.ndarray) -> None:
+    def add_site(self, frame: Any, site: Any, kept_xyz: np.ndarray, chosen_xyz: np.ndarray,
+                 limits: dict[str, Any] | None = None) -> None:
+        """``limits``: what the depth noise of the site's frame let the maps see (``Working.as_dict``)."""
         i = len(self.sites)
-        self.sites.append({"frame": frame, "site": site, "id": i})
+        self.sites.append({"frame": frame, "site": site, "id": i, "limits": limits})
         if self._spool is None:
             self._points[i] = (np.asarray(kept_xyz), np.asarray(chosen_xyz))
             return

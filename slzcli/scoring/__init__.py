@@ -7,6 +7,7 @@ pixels without depth (``valid`` False) score 0. ``score_frame`` adds the landing
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,6 +17,7 @@ from slzcli.errors import ConfigError
 from slzcli.scoring import bayes, closed_form, fuzzy, lut
 from slzcli.scoring.mask import landing_mask
 from slzcli.scoring.rules import RuleBase, did_you_mean, load_rules
+from slzcli.terrain.limits import Working
 from slzcli.types import Intrinsics, ScoreMap, TerrainMaps
 
 
@@ -110,11 +112,23 @@ def get_scorer(config: Config, method: str | None = None) -> Scorer:
 def score_frame(scorer: Scorer, maps: TerrainMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
                 config: Config) -> ScoreMap:
     """Score the maps and make the landing mask (min filter of the UAV footprint, then threshold)."""
-    return mask_score(scorer, scorer(maps), depth_m, intrinsics, config)
+    return mask_score(scorer, scorer(maps), depth_m, intrinsics, config, maps.work)
 
 
 def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics,
-               config: Config) -> ScoreMap:
-    """The landing mask of a score already computed (so the pipeline can time the two apart)."""
-    return landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
-                        config.mask.margin_factor, scorer.threshold(config), config.mask.smooth_m)
+               config: Config, work: Working | None = None) -> ScoreMap:
+    """The landing mask of a score already computed (so the pipeline can time the two apart).
+
+    ``work``: the maps' working scale; nothing is called safe where its noise limits fail (the
+    whole frame when it cannot vouch, else the pixels beyond its ``vouch_depth_m``).
+    """
+    sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
+                      config.mask.margin_factor, scorer.threshold(config), config.mask.smooth_m)
+    if work is None:
+        return sm
+    if not work.vouched:
+        return ScoreMap(sm.method, sm.score, np.zeros_like(sm.mask))
+    if math.isfinite(work.vouch_depth_m):
+        with np.errstate(invalid="ignore"):
+            np.logical_and(sm.mask, np.asarray(depth_m) <= work.vouch_depth_m, out=sm.mask)
+    return sm

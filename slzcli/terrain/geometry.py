@@ -203,6 +203,56 @@ def normal_field(depth_m: np.ndarray, intrinsics: Intrinsics, window_px: int,
     return NormalField(nx=gu, ny=gv, nz=wc, ok=ok)
 
 
+def plane_residual_var(inv_depth: np.ndarray, valid: np.ndarray, window_px: int,
+                       min_valid_fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """Residual variance (float32, per pixel) of a least-squares plane fitted to ``inv_depth`` over
+    a ``window_px`` window, valid pixels only, and where it is defined (enough valid pixels).
+
+    Inverse depth is exactly linear in the pixel coordinates on any 3-D plane, so the residual
+    is what is *not* a plane: roughness, steps, noise. Population variance (sum / n); sums in
+    float64 (inverse depth at 10 m is 0.1, its residual 1e-4). Partial windows get the full
+    weighted fit, like ``normal_field``.
+    """
+    k = int(window_px)
+    t = np.arange(-(k // 2), k // 2 + 1, dtype=np.float64)
+    one = np.ones(k, dtype=np.float64)
+    full_n = float(k * k)
+    full_ctt = float(k * (t * t).sum())
+    w = np.where(valid, inv_depth, 0.0).astype(np.float64)
+    m = valid.astype(np.float64)
+
+    def corr(img: np.ndarray, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
+        return cv2.sepFilter2D(img, cv2.CV_64F, kx, ky, borderType=cv2.BORDER_CONSTANT)
+
+    n = corr(m, one, one)
+    ok = valid & (n >= max(4.0, min_valid_fraction * full_n) - 0.5)
+    sw, sww = corr(w, one, one), corr(w * w, one, one)
+    swu, swv = corr(w, t, one), corr(w, one, t)
+    nn = np.maximum(n, 1.0)
+    ss = sww - sw * sw / nn - swu * swu / full_ctt - swv * swv / full_ctt   # full windows: u, v centred
+    partial = ok & (n < full_n - 0.5)
+    idx = np.flatnonzero(partial)
+    if idx.size:
+        def at(img: np.ndarray) -> np.ndarray:
+            return np.take(img.reshape(-1), idx)
+
+        cn, cw, cww, cwu, cwv = at(n), at(sw), at(sww), at(swu), at(swv)
+        su, sv = at(corr(m, t, one)), at(corr(m, one, t))
+        suu, svv, suv = at(corr(m, t * t, one)), at(corr(m, one, t * t)), at(corr(m, t, t))
+        mu, mv = su / cn, sv / cn                       # centre the regressors on the valid pixels
+        cuu, cvv, cuv = suu - su * mu, svv - sv * mv, suv - su * mv
+        xu, xv = cwu - cw * mu, cwv - cw * mv
+        det = cuu * cvv - cuv * cuv
+        good = (det > _DEGENERATE_REL_DET * cuu * cvv) & (det > 0)
+        det = np.where(good, det, 1.0)
+        pu = (cvv * xu - cuv * xv) / det
+        pv = (cuu * xv - cuv * xu) / det
+        np.put(ss, idx, cww - cw * cw / cn - pu * xu - pv * xv)
+        ok.reshape(-1)[idx[~good]] = False
+    var = np.maximum(ss, 0.0) / nn
+    return var.astype(np.float32), ok
+
+
 def image_normals(depth_m: np.ndarray, intrinsics: Intrinsics, window_px: int,
                   min_valid_fraction: float) -> np.ndarray:
     """Unit surface normals (H x W x 3 float32, camera frame) oriented towards the camera; NaN where none.
@@ -299,12 +349,14 @@ def _footprint_half_px(z_work: np.ndarray, intr_work: Intrinsics, radius_m: floa
 
 def patch_pca(depth_m: np.ndarray, intrinsics: Intrinsics, radius_m: float, work_px: int,
               min_points: int, up_camera: np.ndarray | None = None, *, valid: np.ndarray | None = None,
-              filled: np.ndarray | None = None) -> PatchPCA:
+              filled: np.ndarray | None = None, noise_a_per_m: float = 0.0) -> PatchPCA:
     """PCA of the ``radius_m`` neighbourhood of every pixel, in image space (see module doc).
 
     ``up_camera`` (world up in the camera frame) shapes the windows as level discs; None
     takes them face-on. ``valid`` and ``filled`` (depth with holes at 0) may be passed when
-    already known.
+    already known. ``noise_a_per_m``: the depth noise of one reduced cell, sigma_z = a z^2; its
+    spread along the viewing ray (sigma^2 r r^T) is removed from each patch's covariance, so
+    noise alone does not make level ground look curved.
     """
     intr = fit_intrinsics(intrinsics, depth_m.shape)
     big_h, big_w = depth_m.shape
@@ -361,6 +413,14 @@ def patch_pca(depth_m: np.ndarray, intrinsics: Intrinsics, radius_m: float, work
     e = s[..., 1:]
     e /= np.where(ok, n, 1.0)[..., None]                 # window means of x_i and x_i x_j
     cov = [e[..., 3 + k] - e[..., i] * e[..., j] for k, (i, j) in enumerate(pairs)]
+    if noise_a_per_m > 0:                                # noise lies along the ray through the patch
+        p = [e[..., i] + centre[i] for i in range(3)]
+        with np.errstate(invalid="ignore", divide="ignore"):   # invalid patches stay NaN, dropped below
+            inv_norm = 1.0 / np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+            var = (noise_a_per_m * p[2] * p[2]) ** 2
+            ray = [c * inv_norm for c in p]
+            for kk, (i, j) in enumerate(pairs):
+                cov[kk] = cov[kk] - var * ray[i] * ray[j]
     eig = eigvalsh3(*cov)
     np.clip(eig, 0.0, None, out=eig)
     trace = eig.sum(axis=-1)

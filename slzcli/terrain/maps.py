@@ -5,8 +5,15 @@ or too little valid neighbourhood to say (unknown is unsafe). Each map has two m
 ``absolute`` maps a physical quantity through a fixed documented range, so 1 means the same
 thing in every frame; ``frame`` reproduces the paper's per-frame min-max (Eq. 5).
 
+Noise. Every map runs on b x b block means of the depth (inverse depth averaged, so planes stay
+planes), with windows in blocks, and is then upsampled: b, the slope window and Canny's depth
+scaling come from the frame's measured depth noise and the UAV's limits (``limits.py``); with
+little noise b = 1 and the maps are the paper's at full resolution. The noise is removed where
+it adds to a statistic (the depth variance's residual variance, the patch covariance's spread
+along the viewing ray), never by a constant fitted to a simulator.
+
 Absolute ranges (all from config):
-  depth variance  exp(-s / s0_m), s = local depth standard deviation in metres
+  depth variance  exp(-s / s0_m), s = residual depth std about the window's plane, noise removed
   flatness        min(d / clearance_m, 1), d = ground distance (m) to the nearest depth edge or hole
   inclination     exp(-C / curvature_ref), C = l0 / (l0 + l1 + l2) of the radius_m patch
   steepness       exp(-(psi / slope_limit_deg)^2), psi = surface slope against gravity
@@ -21,10 +28,12 @@ import cv2
 import numpy as np
 
 from slzcli.config import (Config, DepthVarianceCfg, FlatnessCfg, InclinationCfg, Mount,
-                           SteepnessCfg, TerrainCfg)
+                           SteepnessCfg, TerrainCfg, UavCfg)
 from slzcli.errors import DatasetError
 from slzcli.terrain.geometry import (NormalField, fit_intrinsics, median_depth_m, normal_field, patch_pca,
-                                     valid_depth, window_px)
+                                     plane_residual_var, valid_depth, window_px)
+from slzcli.terrain.limits import Working, working_scale
+from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.types import Frame, Intrinsics, TerrainMaps
 
 # cv2.distanceTransform mask sizes by the config value (3 or 5 px).
@@ -75,67 +84,67 @@ def _prepare(depth_m: np.ndarray, what: str = "depth image") -> _Depth:
 
 
 # ----------------------------------------------------------------------------- maps
-def depth_variance_map(depth_m: np.ndarray, cfg: DepthVarianceCfg) -> np.ndarray:
-    """Alg. 1: local depth standard deviation s over a kernel_px window -> exp(-s / s0_m).
+def depth_variance_map(depth_m: np.ndarray, cfg: DepthVarianceCfg, noise_a_per_m: float = 0.0) -> np.ndarray:
+    """Alg. 1 on a full-resolution depth image: see ``_depth_variance``; ``noise_a_per_m`` is a in
+    sigma_z = a z^2 of that image's pixels (0: no noise removed)."""
+    return _depth_variance(_prepare(depth_m), cfg, noise_a_per_m)
 
-    The sensor's own noise (sigma = noise_a_per_m z^2, RealSense-like) is subtracted from the
-    local variance first: at 10 m a 3x3 window of a level floor otherwise shows ~5 cm of
-    "variation" that is only noise, and the map stops telling ground from clutter.
 
-    Valid-only sums (holes do not bleed); sums and sums of squares accumulate in float64 so
-    E[D^2] - E[D]^2 keeps millimetres at tens of metres.
+def _roughness_m(d: _Depth, cfg: DepthVarianceCfg, noise_a_per_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(s, ok): the residual depth std (m) about the plane of each kernel_px window, noise removed.
+
+    Alg. 1 takes the plain local std; at the working scale a window spans up to a footprint,
+    where a safe 15-degree ramp alone would read as several cm of "variation", so the plane
+    (the steepness map's business) is removed first. The fit is in inverse depth, where noise
+    sigma_w = a is the same at every range and a plane is exact; its expected share of the
+    residual variance, a^2 (n - 3) / n, is subtracted, then s = z^2 sigma_w in metres.
     """
-    return _depth_variance(_prepare(depth_m), cfg)
-
-
-def _depth_variance(d: _Depth, cfg: DepthVarianceCfg) -> np.ndarray:
-    k = (cfg.kernel_px, cfg.kernel_px)
-    n = cv2.boxFilter(d.valid.view(np.uint8), cv2.CV_32F, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
-    ok = d.valid & (n >= cfg.min_valid_fraction * cfg.kernel_px * cfg.kernel_px)
-    s1 = cv2.boxFilter(d.filled, cv2.CV_64F, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
-    s2 = cv2.sqrBoxFilter(d.filled, cv2.CV_64F, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
-    s2 *= n                                             # n^2 var = n sum(D^2) - sum(D)^2, in float64
-    mean = np.zeros(n.shape, np.float32)
-    np.divide(s1, n, out=mean, where=ok, casting="unsafe")
-    s1 *= s1
-    s2 -= s1
-    var = np.abs(s2).astype(np.float32)                 # the cancellation is done: float32 from here
-    n *= n
-    np.divide(var, n, out=var, where=ok)
-    if cfg.noise_a_per_m > 0:                           # remove the sensor's own variance, (a z^2)^2
-        mean *= mean
-        mean *= np.float32(cfg.noise_a_per_m)
-        mean *= mean
-        var -= mean
+    inv = np.zeros(d.depth.shape, np.float32)
+    np.divide(np.float32(1.0), d.depth, out=inv, where=d.valid)
+    var, ok = plane_residual_var(inv, d.valid, cfg.kernel_px, cfg.min_valid_fraction)
+    if noise_a_per_m > 0:
+        n = cfg.kernel_px * cfg.kernel_px
+        var -= np.float32(noise_a_per_m * noise_a_per_m * (n - 3) / n)
         np.maximum(var, 0.0, out=var)
     s = np.sqrt(var, out=var)
-    s *= np.float32(-1.0 / cfg.s0_m)
-    return _finish(np.exp(s, out=s), ok, cfg.normalise)
+    z2 = np.multiply(d.filled, d.filled)
+    s *= z2
+    return s, ok
 
 
-def depth_edges(depth_m: np.ndarray, cfg: FlatnessCfg) -> np.ndarray:
+def _depth_variance(d: _Depth, cfg: DepthVarianceCfg, noise_a_per_m: float = 0.0) -> np.ndarray:
+    s, ok = _roughness_m(d, cfg, noise_a_per_m)
+    return _roughness_map(s, ok, cfg)
+
+
+def _roughness_map(s: np.ndarray, ok: np.ndarray, cfg: DepthVarianceCfg) -> np.ndarray:
+    x = np.multiply(s, np.float32(-1.0 / cfg.s0_m), dtype=np.float32)
+    return _finish(np.exp(x, out=x), ok, cfg.normalise)
+
+
+def depth_edges(depth_m: np.ndarray, cfg: FlatnessCfg, metres_per_level: float | None = None) -> np.ndarray:
     """Alg. 2 edges: Canny(canny_low, canny_high) of depth at metres_per_level, plus every hole.
 
     Canny is fed the Sobel derivatives of ``depth / metres_per_level`` directly: the same
     operator and thresholds as Canny on the fixed-scale 8-bit image, without its 256-level
     range (which would clip everything beyond 2.55 m of relief at 1 cm per level).
     """
-    return _depth_edges(_prepare(depth_m), cfg)
+    return _clear_of_edges(_prepare(depth_m), cfg, metres_per_level) == 0
 
 
-def _depth_edges(d: _Depth, cfg: FlatnessCfg) -> np.ndarray:
-    return _clear_of_edges(d, cfg) == 0
+def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None = None) -> np.ndarray:
+    """uint8: 1 where a pixel is neither a depth edge nor a hole (the distance-transform input).
 
-
-def _clear_of_edges(d: _Depth, cfg: FlatnessCfg) -> np.ndarray:
-    """uint8: 1 where a pixel is neither a depth edge nor a hole (the distance-transform input)."""
+    ``metres_per_level``: the depth scaling (default ``cfg.metres_per_level``); on noisy depth the
+    working scale raises it so the noise's derivatives stay below Canny's low threshold.
+    """
     img = d.filled
     if cfg.blur_px > 1:   # normalised blur: holes do not pull their neighbours' depth to 0
         ksize = (cfg.blur_px, cfg.blur_px)
         num = cv2.GaussianBlur(img, ksize, 0)
         den = cv2.GaussianBlur(d.valid.astype(np.float32), ksize, 0)
         img = np.divide(num, den, out=num, where=d.valid)
-    scale = float(1.0 / cfg.metres_per_level)
+    scale = float(1.0 / (metres_per_level or cfg.metres_per_level))
     derivs = []
     for dx, dy in ((1, 0), (0, 1)):
         g = cv2.Sobel(img, cv2.CV_32F, dx, dy, ksize=3, scale=scale, borderType=cv2.BORDER_REPLICATE)
@@ -163,9 +172,9 @@ def _flatness(dist_px: np.ndarray, edge_m: np.ndarray, valid: np.ndarray, cfg: F
     return _finish(edge_m / np.float32(cfg.clearance_m), valid, "absolute")
 
 
-def _edge_distance_px(d: _Depth, cfg: FlatnessCfg) -> np.ndarray:
+def _edge_distance_px(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None = None) -> np.ndarray:
     """Pixel distance of every pixel to the nearest depth edge or hole (float32)."""
-    clear = _clear_of_edges(d, cfg)
+    clear = _clear_of_edges(d, cfg, metres_per_level)
     if cv2.countNonZero(clear) == clear.size:   # no edge and no hole anywhere: all as far as can be
         return np.full(clear.shape, np.float32(max(clear.shape)), dtype=np.float32)
     return cv2.distanceTransform(clear, cv2.DIST_L2, _DIST_MASKS[cfg.distance_mask])
@@ -221,14 +230,13 @@ def steepness_map(psi_rad: np.ndarray, cfg: SteepnessCfg) -> np.ndarray:
     return _finish(x, ok, cfg.normalise)
 
 
-def _slope(d: _Depth, intr: Intrinsics, up: np.ndarray, cfg: SteepnessCfg) -> np.ndarray:
-    """Slope psi (radians) of every pixel from the plane fit over the metric window.
+def _slope(d: _Depth, intr: Intrinsics, up: np.ndarray, win: int, cfg: SteepnessCfg) -> np.ndarray:
+    """Slope psi (radians) of every pixel from the plane fit over a ``win`` x ``win`` window.
 
     A window ``step`` times ``normal_px`` wide runs as a ``normal_px``-ish window on the depth
     averaged over step x step blocks (valid pixels only), and the slope is upsampled: the same
     ground size and the same noise averaging for ~step^2 less work. Pixels without depth stay NaN.
     """
-    win = normal_window_px(d.depth, intr, cfg)
     step = max(1, win // cfg.normal_px)
     if step == 1:
         return slope_rad(normal_field(d.depth, intr, win, cfg.min_valid_fraction, valid=d.valid), up)
@@ -293,12 +301,60 @@ def mount_from_up(up_camera: np.ndarray) -> tuple[float, float]:
 
 
 # ----------------------------------------------------------------------------- all four
+def noise_free_working(depth_m: np.ndarray, intr: Intrinsics, cfg: TerrainCfg, uav: UavCfg) -> Working | None:
+    """The working scale of a depth image known to be exact (None without depth)."""
+    return frame_working(depth_m, intr, DepthNoise.white(0.0, "none"), cfg, uav)
+
+
+def frame_working(depth_m: np.ndarray, intr: Intrinsics, noise: DepthNoise, cfg: TerrainCfg,
+                  uav: UavCfg) -> Working | None:
+    """``limits.working_scale`` at the frame's median depth (None without depth)."""
+    depth = median_depth_m(depth_m)
+    if depth is None:
+        return None
+    intr = fit_intrinsics(intr, np.asarray(depth_m).shape)
+    return working_scale(noise, depth, 0.5 * (intr.fx + intr.fy), cfg, uav)
+
+
+def _blocks(d: _Depth, intr: Intrinsics, block: int) -> tuple[_Depth, Intrinsics]:
+    """block x block means of inverse depth (a plane stays a plane); a block needs half its pixels."""
+    h, w = d.depth.shape
+    size = (max(1, w // block), max(1, h // block))
+    inv = np.zeros(d.depth.shape, np.float32)
+    np.divide(np.float32(1.0), d.depth, out=inv, where=d.valid)
+    num = cv2.resize(inv, size, interpolation=cv2.INTER_AREA)
+    den = cv2.resize(d.valid.view(np.uint8).astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    ok = (den >= 0.5) & (num > 0)
+    depth = np.full(num.shape, np.nan, np.float32)
+    np.divide(den, num, out=depth, where=ok)
+    return _Depth(depth, ok, np.where(ok, depth, np.float32(0))), fit_intrinsics(intr, depth.shape)
+
+
+def _upsample(values: np.ndarray, ok: np.ndarray, worst: float, shape: tuple[int, int],
+              valid: np.ndarray) -> np.ndarray:
+    """Block-level quantity -> full resolution (bilinear); undefined blocks enter as ``worst`` and
+    stay undefined (NaN), as do pixels without depth."""
+    h, w = shape
+    if values.shape == (h, w):
+        out = values.astype(np.float32, copy=True)
+        out[~(ok & valid)] = np.nan
+        return out
+    filled = np.where(ok, values, np.float32(worst)).astype(np.float32)
+    out = cv2.resize(filled, (w, h), interpolation=cv2.INTER_LINEAR)
+    defined = cv2.resize(ok.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+    out[~(defined & valid)] = np.nan
+    return out
+
+
 def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | None,
-                 gravity_camera: np.ndarray, cfg: TerrainCfg) -> TerrainMaps:
+                 gravity_camera: np.ndarray, cfg: TerrainCfg, work: Working | None = None,
+                 noise: DepthNoise | None = None) -> TerrainMaps:
     """The four maps of one frame (or bare depth image), plus slope in degrees and validity.
 
     ``intrinsics`` may be None for a Frame (its own are used); ``gravity_camera`` is world up
-    in the camera frame (see ``gravity_up_in_camera``).
+    in the camera frame (see ``gravity_up_in_camera``). ``work`` (``frame_working``) sets the
+    block size and windows and ``noise`` the noise removed; without them the depth is taken as
+    exact: full resolution, the configured windows, nothing removed.
     """
     if isinstance(frame_or_depth, Frame):
         depth = frame_or_depth.depth_m
@@ -313,25 +369,53 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
         raise DatasetError("gravity", f"gravity_camera must be a finite non-zero 3-vector, got {gravity_camera!r}")
     up = up / np.linalg.norm(up)
     intr = fit_intrinsics(intrinsics, d.depth.shape)
+    block = work.block_px if work is not None else 1
+    win = work.slope_window_blocks if work is not None else normal_window_px(d.depth, intr, cfg.steepness)
+    mpl = work.metres_per_level if work is not None else None
+    db, intr_b = (d, intr) if block == 1 else _blocks(d, intr, block)
+    noise_a = noise.a_at(block) if noise is not None else 0.0
 
-    psi = _slope(d, intr, up, cfg.steepness)
+    rough, rough_ok = _roughness_m(db, cfg.depth_variance, noise_a)
+    edge_px = _edge_distance_px(db, cfg.flatness, mpl)
+    edge_m = _ground_m(edge_px, db, intr_b)
+    psi = _slope(db, intr_b, up, win, cfg.steepness)
+    inc = cfg.inclination
+    work_w = min(inc.work_px, db.depth.shape[1])
+    cell_px = block * db.depth.shape[1] / work_w
+    pca = patch_pca(db.depth, intr_b, inc.radius_m, work_w, inc.min_points, up, valid=db.valid, filled=db.filled,
+                    noise_a_per_m=noise.a_at(cell_px) if noise is not None else 0.0)
+
+    shape, valid = d.depth.shape, d.valid
+    rough = _upsample(rough, rough_ok, 10.0 * cfg.depth_variance.s0_m, shape, valid)
+    psi = _upsample(psi, np.isfinite(psi), math.pi / 2, shape, valid)
+    curvature = _upsample(pca.curvature, np.isfinite(pca.curvature), 1.0 / 3.0, shape, valid)
+    edge_m = np.nan_to_num(_upsample(edge_m, db.valid, 0.0, shape, valid), nan=0.0)
+    if block == 1:
+        edge_px_full = edge_px
+    else:
+        edge_px_full = np.nan_to_num(_upsample(edge_px * np.float32(block), db.valid, 0.0, shape, valid), nan=0.0)
     slope_deg = np.multiply(psi, np.float32(180.0 / math.pi))
-    pca = patch_pca(d.depth, intr, cfg.inclination.radius_m, cfg.inclination.work_px,
-                    cfg.inclination.min_points, up, valid=d.valid, filled=d.filled)
-    edge_px = _edge_distance_px(d, cfg.flatness)
-    edge_m = _ground_m(edge_px, d, intr)
+    rough_ok_full = np.isfinite(rough)
     return TerrainMaps(
-        depth_variance=_depth_variance(d, cfg.depth_variance),
-        flatness=_flatness(edge_px, edge_m, d.valid, cfg.flatness),
+        depth_variance=_roughness_map(np.nan_to_num(rough, nan=0.0), rough_ok_full, cfg.depth_variance),
+        flatness=_flatness(edge_px_full, edge_m, valid, cfg.flatness),
         edge_distance_m=edge_m,
-        inclination=inclination_map(pca.curvature, cfg.inclination),
+        inclination=inclination_map(curvature, cfg.inclination),
         steepness=steepness_map(psi, cfg.steepness),
-        valid=d.valid,
+        valid=valid,
         slope_deg=slope_deg,
+        work=work,
     )
 
 
-def frame_maps(frame: Frame, config: Config) -> TerrainMaps:
-    """compute_maps with gravity from the frame's pose, or from ``camera.mount`` without one."""
+def frame_maps(frame: Frame, config: Config, noise: DepthNoise | None = None) -> TerrainMaps:
+    """compute_maps with gravity from the frame's pose (or ``camera.mount``) and windows from the noise.
+
+    ``noise``: what the recording's ``NoiseTracker`` says; None measures it on this frame alone
+    (or takes ``terrain.noise`` when that is a number).
+    """
     up = gravity_up_in_camera(frame.T_world_camera, config.camera.mount)
-    return compute_maps(frame, None, up, config.terrain)
+    if noise is None:
+        noise = NoiseTracker(config.terrain.noise, config.terrain.noise_estimate).update(frame.depth_m)
+    work = frame_working(frame.depth_m, frame.intrinsics, noise, config.terrain, config.uav)
+    return compute_maps(frame, None, up, config.terrain, work, noise)

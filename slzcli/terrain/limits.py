@@ -1,0 +1,177 @@
+"""The working scale, windows and detection limits of one frame, derived from its depth noise.
+
+Nothing here is tuned to a sensor: the inputs are the measured noise (``noise.DepthNoise``),
+the frame's median depth and focal length, and the UAV's physical limits (footprint, the step
+it tolerates, its slope limit). One frame, one set of windows (like the mask's minimum filter):
+
+- **Block size b.** The maps run on b x b block means of the depth. b is the smallest that lets
+  the depth-variance map tell its own half-value roughness (``s0 ln 2``) from the noise at
+  ``confidence_sigma``: the 3 x 3-block plane-fit residual variance of pure noise has a standard
+  deviation of sqrt(2/6) sigma_b^2. b never exceeds the size that leaves
+  ``blocks_per_footprint`` blocks across the footprint (coarser could not place a landing square).
+- **Slope window.** The steepness plane fit covers K x K blocks, at least ``normal_size_m`` and
+  at most the footprint, the smallest K for which both limits below hold.
+- **Limits** (what the issue calls the smallest step and slope detectable): a step is
+  detectable when the difference of the two half-window means exceeds k times its noise,
+  ``h_min = 2 k sigma / K`` (K x K samples, half on each side), and a slope when the fitted
+  gradient exceeds k times its noise, ``tan(psi_min) = k sigma sqrt(12) / (spacing K sqrt(K^2 - 1))``.
+  Correlated noise is handled by evaluating both with the noise measured at every coarser block
+  scale that still gives 3 samples across the window, and keeping the worst.
+- **Vouching.** The frame can vouch for a site when ``h_min <= uav.max_step_m`` and
+  ``psi_min <= uav.max_slope_deg``. With fixed pixel windows, h_min grows as z^2 and psi_min as z
+  (sigma ~ z^2, spacing ~ z), so the same windows vouch up to ``vouch_depth_m``; nothing beyond
+  it is called safe.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from slzcli.config import TerrainCfg, UavCfg
+from slzcli.terrain.noise import SCALES_PX, DepthNoise
+
+_PLANE_DOF_3X3 = 6.0      # 9 samples less the 3 parameters of a plane
+_STEP_SLOPE_FACTOR = 1.5  # least-squares slope of a centred step of height h over a window w: 1.5 h / w
+
+
+@dataclass(frozen=True)
+class Working:
+    """How one frame's maps are computed, and what they can and cannot see (see the module doc)."""
+
+    altitude_m: float          # the frame's median depth: the windows are sized there
+    sigma_m: float             # pixel-scale depth noise at that depth
+    block_px: int              # the maps run on block_px x block_px block means
+    block_m: float             # a block's side on the ground at altitude_m
+    slope_window_blocks: int   # odd; the steepness plane fit's window, in blocks
+    metres_per_level: float    # flatness: Canny's depth scaling (config floor, or the noise's)
+    step_min_m: float          # smallest step distinguishable from the noise
+    slope_min_deg: float       # smallest slope distinguishable from the noise
+    vouch_depth_m: float       # the limits hold up to this depth (inf: everywhere)
+    vouched: bool              # both limits within the UAV's tolerance at altitude_m
+    max_step_m: float
+    max_slope_deg: float
+    focal_px: float            # the camera's, for the altitude at which the limits would hold
+    noise: DepthNoise          # what the windows were derived from
+
+    @property
+    def slope_window_m(self) -> float:
+        return self.slope_window_blocks * self.block_m
+
+    def as_dict(self) -> dict[str, object]:
+        return {"altitude_m": round(self.altitude_m, 3), "sigma_m": round(self.sigma_m, 4),
+                "block_px": self.block_px, "block_m": round(self.block_m, 4),
+                "slope_window_m": round(self.slope_window_m, 3), "metres_per_level": round(self.metres_per_level, 5),
+                "step_min_m": round(self.step_min_m, 4), "slope_min_deg": round(self.slope_min_deg, 2),
+                "vouch_depth_m": None if math.isinf(self.vouch_depth_m) else round(self.vouch_depth_m, 2),
+                "vouched": self.vouched}
+
+    def hidden(self) -> str:
+        """What the noise hides, in words ("" when nothing the UAV cares about)."""
+        parts = []
+        if self.step_min_m > self.max_step_m:
+            parts.append(f"steps below {self.step_min_m:.2f} m (the UAV tolerates {self.max_step_m:.2f} m)")
+        if self.slope_min_deg > self.max_slope_deg:
+            parts.append(f"slopes below {self.slope_min_deg:.0f} deg (limit {self.max_slope_deg:.0f} deg)")
+        return " and ".join(parts)
+
+
+@functools.lru_cache(maxsize=16)
+def _gradient_noise_gain(blur_px: int) -> float:
+    """L2 norm of the Sobel-x kernel after the flatness map's Gaussian blur: noise std of one derivative."""
+    size = 4 * blur_px + 9
+    delta = np.zeros((size, size), np.float32)
+    delta[size // 2, size // 2] = 1.0
+    img = cv2.GaussianBlur(delta, (blur_px, blur_px), 0) if blur_px > 1 else delta
+    g = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_CONSTANT)
+    return float(np.sqrt(np.sum(g.astype(np.float64) ** 2)))
+
+
+def _odd_at_least(x: float) -> int:
+    k = max(1, math.ceil(x - 1e-9))
+    return k if k % 2 == 1 else k + 1
+
+
+def _odd_at_most(x: float) -> int:
+    k = max(1, math.floor(x + 1e-9))
+    return k if k % 2 == 1 else k - 1
+
+
+def _limits(noise: DepthNoise, z: float, focal_px: float, block_px: int, blocks: int,
+            k: float) -> tuple[float, float]:
+    """(smallest step m, smallest slope deg) distinguishable at k sigma in a blocks x blocks window."""
+    step, tan_slope = 0.0, 0.0
+    scales = [block_px] + [s for s in SCALES_PX if s > block_px]
+    for b in scales:
+        n = blocks * block_px / b                        # samples across the window at this scale
+        if b != block_px and n < 3.0:
+            break
+        sigma = noise.sigma_m(z, b)
+        spacing = b * z / focal_px
+        step = max(step, 2.0 * k * sigma / n)
+        tan_slope = max(tan_slope, k * sigma * math.sqrt(12.0) / (spacing * n * math.sqrt(max(n * n - 1.0, 1.0))))
+    return step, math.degrees(math.atan(tan_slope))
+
+
+def working_scale(noise: DepthNoise, depth_m: float, focal_px: float, cfg: TerrainCfg, uav: UavCfg) -> Working:
+    """Block size, slope window and limits of a frame whose median depth is ``depth_m``."""
+    lim = cfg.limits
+    k = lim.confidence_sigma
+    footprint = max(uav.footprint_m)
+    px_per_m = focal_px / depth_m
+    b_max = max(1, math.floor(footprint * px_per_m / lim.blocks_per_footprint))
+    s_half_sq = (cfg.depth_variance.s0_m * math.log(2.0)) ** 2
+    block = b_max
+    for b in range(1, b_max + 1):
+        if k * math.sqrt(2.0 / _PLANE_DOF_3X3) * noise.sigma_m(depth_m, b) ** 2 <= s_half_sq:
+            block = b
+            break
+    block_m = block * depth_m / focal_px
+    st = cfg.steepness
+    k_max = max(3, _odd_at_most(footprint / block_m))
+    # the noise-free window: normal_size_m on the ground, within [normal_px, normal_max_px] pixels
+    free_px = min(max(st.normal_px, st.normal_size_m * px_per_m), st.normal_max_px)
+    k_min = min(k_max, max(3, _odd_at_least(free_px / block - 1e-9)))
+    blocks, (step, slope) = k_max, _limits(noise, depth_m, focal_px, block, k_max, k)
+    for kk in range(k_min, k_max + 1, 2):
+        s, p = _limits(noise, depth_m, focal_px, block, kk, k)
+        if s <= uav.max_step_m and p <= uav.max_slope_deg:
+            blocks, step, slope = kk, s, p
+            break
+    vouched = step <= uav.max_step_m and slope <= uav.max_slope_deg
+    ratio = min(math.sqrt(uav.max_step_m / step) if step > 0 else math.inf,
+                uav.max_slope_deg / slope if slope > 0 else math.inf)
+    flat = cfg.flatness
+    noise_mpl = k * noise.sigma_m(depth_m, block) * _gradient_noise_gain(flat.blur_px) / flat.canny_low
+    return Working(altitude_m=depth_m, sigma_m=noise.sigma_m(depth_m), block_px=block, block_m=block_m,
+                   slope_window_blocks=blocks, metres_per_level=max(flat.metres_per_level, noise_mpl),
+                   step_min_m=step, slope_min_deg=slope, vouch_depth_m=depth_m * ratio, vouched=vouched,
+                   max_step_m=uav.max_step_m, max_slope_deg=uav.max_slope_deg, focal_px=focal_px, noise=noise)
+
+
+def vouchable_altitude_m(noise: DepthNoise, focal_px: float, cfg: TerrainCfg, uav: UavCfg,
+                         upper_m: float, lower_m: float = 0.3) -> float | None:
+    """The highest altitude below ``upper_m`` at which this noise would let a frame vouch (None: none)."""
+    if not working_scale(noise, lower_m, focal_px, cfg, uav).vouched:
+        return None
+    lo, hi = lower_m, upper_m
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        if working_scale(noise, mid, focal_px, cfg, uav).vouched:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def limit_reason(work: Working, cfg: TerrainCfg, uav: UavCfg) -> str:
+    """The one-line "why not" of a frame that cannot vouch, e.g.
+    "at 9.8 m the depth noise (sigma ~ 0.37 m) hides steps below 0.30 m ...; below 6.1 m it would not"."""
+    below = vouchable_altitude_m(work.noise, work.focal_px, cfg, uav, work.altitude_m)
+    tail = f"; below {below:.1f} m it would not" if below is not None else "; at no altitude with this sensor"
+    return (f"at {work.altitude_m:.1f} m the depth noise (sigma ~ {work.sigma_m:.2f} m) hides "
+            f"{work.hidden()}{tail}")

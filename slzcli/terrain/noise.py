@@ -1,0 +1,170 @@
+"""Depth noise measured from the depth itself: sigma_z = a_b z^2 at every block scale b.
+
+Stereo depth error grows with the square of range (sigma_z = z^2 s / (f B)), so in inverse
+depth w = 1/z it is constant: sigma_w = a with sigma_z = a z^2. Inverse depth has a second
+gift: a plane is exactly linear in the pixel coordinates, so the residual of a pixel against
+the mean of its 3 x 3 neighbourhood is pure noise on any plane, level or tilted, near or far
+(a terrain's curvature and edges are a minority the median ignores). For white noise the
+residual's variance is (8/9) a^2; a MAD turns it into a robust estimate of a.
+
+Real stereo noise is not white: SGBM's aggregation and the projector pattern correlate it over
+several pixels, so averaging a block of b x b pixels removes far less than the factor b that
+white noise would give (the real RealSense frames of the test data: a_8 ~ 2 a_1). The same
+estimate on a pyramid of b x b block means (of inverse depth, so planes stay planes) measures
+a_b at b = 1, 2, 4, 8, 16: the noise in the band each map works in. Every window of
+the maps and every detection limit is derived from these numbers (``limits.py``).
+
+``NoiseTracker`` smooths the per-frame estimates over a recording (a running median of the
+last few detection frames), so one odd frame cannot swing the windows.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from slzcli.config import NoiseEstimateCfg
+
+_MAD_TO_SIGMA = 1.482602218505602       # sigma of a normal distribution / its median absolute deviation
+_RESIDUAL_SCALE = math.sqrt(8.0 / 9.0)  # std of (x - mean of its 3 x 3 window) / std of x, white noise
+SCALES_PX = (1, 2, 4, 8, 16)            # block sides of the pyramid, px (each level halves the last)
+
+
+@dataclass(frozen=True)
+class DepthNoise:
+    """``sigma_z(z, b) = a_b z^2``: the depth noise of b x b block means at range z.
+
+    ``a_per_m[i]`` belongs to ``SCALES_PX[i]`` (1/m). ``source``: "estimated" (from this frame or
+    the smoothed recent ones), "config" (``terrain.noise`` set to a number: white noise assumed,
+    a_b = a / b) or "prior" (no estimate possible: ``terrain.noise_estimate.prior_a_per_m`` at
+    every scale, i.e. no credit for averaging). ``residuals``: pixels the pixel-scale estimate used.
+    """
+
+    a_per_m: tuple[float, ...]
+    source: str
+    residuals: int = 0
+
+    @property
+    def a1_per_m(self) -> float:
+        """The pixel-scale coefficient, the one a sensor datasheet quotes."""
+        return self.a_per_m[0]
+
+    def a_at(self, block_px: float) -> float:
+        """a at any block side: log-log interpolation; beyond the pyramid, no further reduction."""
+        b = max(1.0, float(block_px))
+        logs = np.log(SCALES_PX[: len(self.a_per_m)])
+        vals = np.log(np.maximum(np.asarray(self.a_per_m, dtype=np.float64), 1e-12))
+        return float(np.exp(np.interp(math.log(b), logs, vals)))
+
+    def sigma_m(self, depth_m: float, block_px: float = 1.0) -> float:
+        return self.a_at(block_px) * depth_m * depth_m
+
+    @classmethod
+    def white(cls, a_per_m: float, source: str) -> DepthNoise:
+        """Uncorrelated noise of pixel-scale coefficient a: a_b = a / b."""
+        return cls(tuple(a_per_m / b for b in SCALES_PX), source)
+
+    @classmethod
+    def flat(cls, a_per_m: float, source: str) -> DepthNoise:
+        """Noise that averaging does not reduce (a_b = a): the cautious assumption without data."""
+        return cls(tuple(a_per_m for _ in SCALES_PX), source)
+
+    def as_dict(self) -> dict[str, object]:
+        return {"model": "sigma_z = a_b z^2 (b x b pixel blocks)", "source": self.source,
+                "a_per_m": {str(b): round(a, 7) for b, a in zip(SCALES_PX, self.a_per_m, strict=False)},
+                "residuals": self.residuals}
+
+
+def _residual_mad(w: np.ndarray, ok: np.ndarray, min_count: int) -> tuple[float, int]:
+    """Robust std of (w - mean of its 3 x 3 window) over pixels whose whole window is in ``ok``."""
+    wf = np.where(ok, w, np.float32(0)).astype(np.float32, copy=False)
+    mean = cv2.blur(wf, (3, 3), borderType=cv2.BORDER_CONSTANT)
+    inside = cv2.blur(ok.astype(np.float32), (3, 3), borderType=cv2.BORDER_CONSTANT) > 1.0 - 1e-6
+    r = (wf - mean)[inside]
+    if r.size < min_count:
+        return math.nan, int(r.size)
+    return _MAD_TO_SIGMA * float(np.median(np.abs(r))) / _RESIDUAL_SCALE, int(r.size)
+
+
+def estimate_noise(depth_m: np.ndarray, cfg: NoiseEstimateCfg) -> DepthNoise | None:
+    """a_b at every scale of ``SCALES_PX`` from one depth image; None when it has too little depth.
+
+    A block enters a level only when all its pixels have depth (a half-empty block is not the
+    mean the noise model describes). A level with fewer than ``cfg.min_residuals`` usable
+    windows keeps the previous level's value (no credit for averaging it cannot see).
+    """
+    depth = np.asarray(depth_m, dtype=np.float32)
+    valid = np.isfinite(depth) & (depth > 0)
+    w = np.zeros(depth.shape, np.float32)
+    np.divide(np.float32(1.0), depth, out=w, where=valid)
+    count = valid.astype(np.float32)
+    out: list[float] = []
+    first_n = 0
+    for level, block in enumerate(SCALES_PX):
+        full = float(block * block)
+        ok = count > full - 0.5
+        mean_w = np.divide(w, np.maximum(count, 1.0), dtype=np.float32)
+        a, n = _residual_mad(mean_w, ok, cfg.min_residuals)
+        if level == 0:
+            if not math.isfinite(a):
+                return None
+            first_n = n
+        out.append(a if math.isfinite(a) else out[-1])
+        h, wd = w.shape[0] // 2 * 2, w.shape[1] // 2 * 2
+        if h < 6 or wd < 6:
+            out.extend(out[-1] for _ in SCALES_PX[level + 1:])
+            break
+        w = w[:h, :wd].reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
+        count = count[:h, :wd].reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
+    # Each level is a band-pass of the noise (wavelengths ~2-6 blocks): what a map working at
+    # that scale sees. A coarser level may read higher than white noise would (correlated error,
+    # or terrain the median did not reject): both make the maps more careful, never less.
+    return DepthNoise(tuple(out), "estimated", first_n)
+
+
+class NoiseTracker:
+    """The noise a recording's detection frames are computed with: per-frame estimates, smoothed.
+
+    ``terrain.noise`` a number: that coefficient (white), always. ``auto``: the running median
+    (per scale) of the last ``frames`` estimates; a frame too empty for an estimate reuses the
+    median, and before any estimate the prior is used (counted, so the run can say so).
+    """
+
+    def __init__(self, noise: float | str, cfg: NoiseEstimateCfg) -> None:
+        self.fixed = None if noise == "auto" else DepthNoise.white(float(noise), "config")
+        self.cfg = cfg
+        self._recent: deque[tuple[float, ...]] = deque(maxlen=cfg.frames)
+        self.estimates: list[float] = []      # pixel-scale a of every frame estimated (for the report)
+        self.prior_frames = 0
+
+    def update(self, depth_m: np.ndarray) -> DepthNoise:
+        if self.fixed is not None:
+            return self.fixed
+        est = estimate_noise(depth_m, self.cfg)
+        if est is not None:
+            self._recent.append(est.a_per_m)
+            self.estimates.append(est.a1_per_m)
+        if not self._recent:
+            self.prior_frames += 1
+            return DepthNoise.flat(self.cfg.prior_a_per_m, "prior")
+        med = np.median(np.asarray(self._recent, dtype=np.float64), axis=0)
+        return DepthNoise(tuple(float(x) for x in med), "estimated", est.residuals if est else 0)
+
+    def summary(self) -> dict[str, object]:
+        """What run.json reports: the source and the spread of the per-frame estimates."""
+        if self.fixed is not None:
+            return {"source": "config", "a_per_m": self.fixed.a1_per_m}
+        a = np.asarray(self.estimates, dtype=np.float64)
+        out: dict[str, object] = {"source": "estimated" if a.size else "prior", "frames_estimated": int(a.size),
+                                  "frames_on_prior": self.prior_frames}
+        if a.size:
+            out.update({"a_per_m_median": float(np.median(a)), "a_per_m_min": float(a.min()),
+                        "a_per_m_max": float(a.max())})
+        if self._recent:
+            last = np.median(np.asarray(self._recent, dtype=np.float64), axis=0)
+            out["a_per_m_by_block_px"] = {str(b): float(x) for b, x in zip(SCALES_PX, last, strict=False)}
+        return out
