@@ -102,6 +102,7 @@ class FlatnessCfg:
     blur_px: int = rng(1, 31, odd=True)
     distance_mask: int = rng(3, 5, odd=True)
     clearance_m: float = rng(0, lo_open=True)
+    hole_min_m: float = rng(0)
     normalise: Normalise = "absolute"
 
 

@@ -16,7 +16,7 @@ it tolerates, its slope limit). One frame, one set of windows (like the mask's m
   ``h_min = 2 k sigma / K`` (K x K samples, half on each side), and a slope when the fitted
   gradient exceeds k times its noise, ``tan(psi_min) = k sigma sqrt(12) / (spacing K sqrt(K^2 - 1))``.
   Correlated noise is handled by evaluating both with the noise measured at every coarser block
-  scale that still gives 3 samples across the window, and keeping the worst.
+  scale that still gives 2 samples across the window, and keeping the worst.
 - **Vouching.** The frame can vouch for a site when ``h_min <= uav.max_step_m`` and
   ``psi_min <= uav.max_slope_deg``. With fixed pixel windows, h_min grows as z^2 and psi_min as z
   (sigma ~ z^2, spacing ~ z), so the same windows vouch up to ``vouch_depth_m``; nothing beyond
@@ -36,7 +36,11 @@ from slzcli.config import TerrainCfg, UavCfg
 from slzcli.terrain.noise import SCALES_PX, DepthNoise
 
 _PLANE_DOF_3X3 = 6.0      # 9 samples less the 3 parameters of a plane
-_STEP_SLOPE_FACTOR = 1.5  # least-squares slope of a centred step of height h over a window w: 1.5 h / w
+# A coarser scale still counts while it puts this many samples across the window: correlated
+# noise tilts a window most at wavelengths near its own size (measured with Gaussian-filtered
+# noise: stopping at 3 samples missed half the slope noise); for white noise n = 2 overstates
+# the slope noise by 15 % at most.
+_MIN_SAMPLES_ACROSS = 2.0
 
 
 @dataclass(frozen=True)
@@ -108,7 +112,7 @@ def _limits(noise: DepthNoise, z: float, focal_px: float, block_px: int, blocks:
     scales = [block_px] + [s for s in SCALES_PX if s > block_px]
     for b in scales:
         n = blocks * block_px / b                        # samples across the window at this scale
-        if b != block_px and n < 3.0:
+        if b != block_px and n < _MIN_SAMPLES_ACROSS:
             break
         sigma = noise.sigma_m(z, b)
         spacing = b * z / focal_px

@@ -132,11 +132,15 @@ def depth_edges(depth_m: np.ndarray, cfg: FlatnessCfg, metres_per_level: float |
     return _clear_of_edges(_prepare(depth_m), cfg, metres_per_level) == 0
 
 
-def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None = None) -> np.ndarray:
+def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None = None,
+                    hole_px: float = 0.0) -> np.ndarray:
     """uint8: 1 where a pixel is neither a depth edge nor a hole (the distance-transform input).
 
     ``metres_per_level``: the depth scaling (default ``cfg.metres_per_level``); on noisy depth the
     working scale raises it so the noise's derivatives stay below Canny's low threshold.
+    ``hole_px``: holes narrower than this (``flatness.hole_min_m`` on the ground) do not count as
+    edges: a real stereo sensor drops isolated pixels everywhere, and a speck of no data cannot
+    hide what a landing cares about. Their pixels still have no depth (they score 0).
     """
     img = d.filled
     if cfg.blur_px > 1:   # normalised blur: holes do not pull their neighbours' depth to 0
@@ -152,7 +156,13 @@ def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None 
         derivs.append(cv2.add(g, 0.0, dtype=cv2.CV_16S))
     edges = cv2.Canny(derivs[0], derivs[1], cfg.canny_low, cfg.canny_high)   # 255 on edges
     clear = cv2.compare(edges, 0, cv2.CMP_EQ)                                 # 255 off edges
-    return cv2.bitwise_and(clear, d.valid.view(np.uint8))                     # holes are edges
+    known = d.valid.view(np.uint8)
+    side = int(math.ceil(hole_px))
+    if side >= 2:                                    # an opening of the hole mask keeps the wide holes
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side))
+        known = 1 - cv2.morphologyEx(1 - known, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_CONSTANT,
+                                     borderValue=0)
+    return cv2.bitwise_and(clear, known)                                      # holes are edges
 
 
 def flatness_map(depth_m: np.ndarray, intrinsics: Intrinsics, cfg: FlatnessCfg) -> np.ndarray:
@@ -172,9 +182,10 @@ def _flatness(dist_px: np.ndarray, edge_m: np.ndarray, valid: np.ndarray, cfg: F
     return _finish(edge_m / np.float32(cfg.clearance_m), valid, "absolute")
 
 
-def _edge_distance_px(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None = None) -> np.ndarray:
-    """Pixel distance of every pixel to the nearest depth edge or hole (float32)."""
-    clear = _clear_of_edges(d, cfg, metres_per_level)
+def _edge_distance_px(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None = None,
+                      hole_px: float = 0.0) -> np.ndarray:
+    """Pixel distance of every pixel to the nearest depth edge or wide hole (float32)."""
+    clear = _clear_of_edges(d, cfg, metres_per_level, hole_px)
     if cv2.countNonZero(clear) == clear.size:   # no edge and no hole anywhere: all as far as can be
         return np.full(clear.shape, np.float32(max(clear.shape)), dtype=np.float32)
     return cv2.distanceTransform(clear, cv2.DIST_L2, _DIST_MASKS[cfg.distance_mask])
@@ -376,7 +387,9 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
     noise_a = noise.a_at(block) if noise is not None else 0.0
 
     rough, rough_ok = _roughness_m(db, cfg.depth_variance, noise_a)
-    edge_px = _edge_distance_px(db, cfg.flatness, mpl)
+    z_med = work.altitude_m if work is not None else median_depth_m(d.depth)
+    hole_px = cfg.flatness.hole_min_m * 0.5 * (intr_b.fx + intr_b.fy) / z_med if z_med else 0.0
+    edge_px = _edge_distance_px(db, cfg.flatness, mpl, hole_px)
     edge_m = _ground_m(edge_px, db, intr_b)
     psi = _slope(db, intr_b, up, win, cfg.steepness)
     inc = cfg.inclination
