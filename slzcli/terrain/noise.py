@@ -57,8 +57,10 @@ class DepthNoise:
         """a at any block side: log-log interpolation; beyond the pyramid, no further reduction."""
         b = max(1.0, float(block_px))
         logs = np.log(SCALES_PX[: len(self.a_per_m)])
-        vals = np.log(np.maximum(np.asarray(self.a_per_m, dtype=np.float64), 1e-12))
-        return float(np.exp(np.interp(math.log(b), logs, vals)))
+        vals = np.asarray(self.a_per_m, dtype=np.float64)
+        if np.any(vals <= 0):   # exact depth (or a level of it): interpolate linearly, zero stays zero
+            return float(np.interp(math.log(b), logs, vals))
+        return float(np.exp(np.interp(math.log(b), logs, np.log(vals))))
 
     def sigma_m(self, depth_m: float, block_px: float = 1.0) -> float:
         return self.a_at(block_px) * depth_m * depth_m
