@@ -301,6 +301,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                 "score": rec["site"]["score"], "cluster_points": rec["site"]["cluster"]["points"],
                 "acceptance": rec["site"]["acceptance"], "support": rec["site"]["support"]},
             "mask_fraction": _mask_fraction(run),
+            "detections_not_vouched": st.unvouched,
             "inputs": [{"frame": i, "stamp_ns": t, "points": p, "maps": q} for i, t, p, q in run.inputs],
         }
         if truth is not None:
@@ -322,6 +323,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         "slam_backend": tracker.slam_name, "tracking": tracker.state.tracking, "keyframes": len(tracker.state.keyframes),
         "inputs_identical": True,
         "methods": per, "pairs": pairs, "wall_s": round(wall_s, 3), "ground_truth": truth is not None,
+        "depth_noise": tracker.state.noise.summary() if tracker.state.noise is not None else None,
     }
     if truth is not None:
         header = truth.header
