@@ -31,11 +31,26 @@ FAILS: dict[str, tuple[str | None, str]] = {
     "corrupt_compressed_colour": (None, "not a decodable jpeg/png"),
     "ros2_cut_db": ("malformed", "malformed"),
     "ros2_missing_storage": ("database files are missing", "database files are missing"),
+    # issue 15: validated before use, named (these were silently wrong or an "internal error")
+    "camera_info_principal_outside": ("CameraInfo on /camera/aligned_depth_to_color/camera_info: principal point "
+                                      "(cx, cy) = (-1e+06, -1e+06) px is outside the 160x120 image",) * 2,
+    "camera_info_size_zero": ("width = 0 px must be >= 1",) * 2,
+    "camera_info_fx_huge": ("fx = 1e+300 px gives a horizontal field of view of 9.17e-297 deg",) * 2,
+    "camera_info_aspect_mismatch": (None, "frame 0 (/camera/color/image_raw): CameraInfo on "
+                                          "/camera/aligned_depth_to_color/camera_info: intrinsics for 160x160 px do "
+                                          "not fit the 160x120 px images"),
+    "symlink_loop": ("symbolic link loop",) * 2,
+    "tum_camera_width_zero": ("camera.yaml: width = 0 px must be >= 1",) * 2,
+    "tum_camera_fx_negative": ("camera.yaml: fx = -128 px must be > 0",) * 2,
+    "tum_camera_fx_nan": ("camera.yaml: fx = nan is not a finite number",) * 2,
+    "tum_camera_fx_huge": ("camera.yaml: fx = 1e+300 px gives a horizontal field of view",) * 2,
 }
 RESULTS = ("cut_middle", "cut_before_footer", "mismatched_sizes", "camera_info_zeros", "depth_all_nan",
            "depth_constant", "stamps_backwards", "duplicated_messages", "no_texture", "short_image_data",
-           "camera_info_nan")
-assert set(FAILS) | set(RESULTS) | {"very_large"} == set(B.RECORDINGS)
+           "camera_info_nan", "stamps_all_zero", "stamps_all_zero_log_zero", "stamps_duplicated", "two_depth_topics",
+           "pose_nan", "tum_missing_images")
+OTHER = {"very_large", "log_time_near_2_64"}  # tests of their own below
+assert set(FAILS) | set(RESULTS) | OTHER == set(B.RECORDINGS)
 
 
 def invoke(runner: CliRunner, *args: str):
@@ -178,6 +193,11 @@ def test_very_large_frame_finishes_in_a_subprocess(tmp_path: Path) -> None:
     ("config_unknown_key", "mask.treshold", "unknown key"),
     ("config_not_a_mapping", "", "must be a mapping"),
     ("config_bad_yaml", "", "not valid YAML"),
+    ("config_latin1", "", "not UTF-8 text (nor UTF-16 with a byte-order mark): invalid continuation byte"),
+    ("config_utf16_no_bom", "", "not UTF-8 text"),
+    ("config_binary", "", "not UTF-8 text"),
+    ("config_deep", "", "nested too deeply for the YAML parser"),
+    ("config_contradictory", "terrain.flatness.canny_low", "must be <= terrain.flatness.canny_high"),
 ])
 def test_bad_config_file_is_one_line_naming_file_and_key(runner: CliRunner, tmp_path: Path, case: str, key: str,
                                                          cause: str) -> None:
@@ -206,3 +226,86 @@ def test_tracker_failure_below_the_size_floor_is_named_not_internal(runner: CliR
                  "--set", f"slam.backend={backend}")
     error_line(res, path, cause)
     assert set(tmp_path.iterdir()) == before
+
+
+# ----------------------------------------------------------------------------- issue 15: stamps, topics, poses
+def warnings_of(stderr: str) -> list[str]:
+    lines = stderr.splitlines()
+    assert all(ln.startswith(("slz: WARNING:", "slz: error:")) for ln in lines), stderr  # one line each
+    return [ln for ln in lines if ln.startswith("slz: WARNING:")]
+
+
+def test_header_stamps_of_zero_use_the_log_time_with_one_counted_warning_per_stream(runner: CliRunner,
+                                                                                     tmp_path: Path) -> None:
+    path = B.stamps_all_zero(tmp_path)
+    summary, stderr = detect_json(runner, path, tmp_path / "run")
+    assert summary["frames"] == 10
+    warned = warnings_of(stderr)
+    assert len(warned) == 2 and all("10 of 10 message(s) have header stamp 0" in w for w in warned)
+    assert "/camera/color/image_raw" in warned[0] and "/camera/aligned_depth_to_color/image_raw" in warned[1]
+    assert sum("header stamp 0" in n for n in summary["pairing"]["notes"]) == 2
+
+
+def test_one_stamp_for_ten_different_frames_is_warned_and_counted(runner: CliRunner, tmp_path: Path) -> None:
+    """Ten images under one stamp became one frame with only a run.json note; now a warning says so."""
+    path = B.stamps_duplicated(tmp_path)
+    res = invoke(runner, "info", str(path), "--json")
+    assert res.exit_code == 0 and json.loads(res.stdout)["frames"] == 1
+    assert any("9 of 10 message(s) repeat the stamp of a different earlier message" in w
+               for w in warnings_of(res.stderr))
+    summary, stderr = detect_json(runner, path, tmp_path / "run")
+    assert summary["frames"] == 1
+    warned = warnings_of(stderr)
+    assert len(warned) == 1 and "/camera/color/image_raw: 9 of 10" in warned[0] and path.name in warned[0]
+    # identical depth images under one stamp are a recorded-twice duplicate: a note, no warning
+    assert any("9 of 10 message(s) repeat" in n for n in summary["pairing"]["notes"])
+
+
+def test_stamps_and_log_times_all_zero_say_so(runner: CliRunner, tmp_path: Path) -> None:
+    summary, stderr = detect_json(runner, B.stamps_all_zero_log_zero(tmp_path), tmp_path / "run")
+    assert summary["frames"] == 1
+    warned = warnings_of(stderr)
+    assert any("header stamp 0" in w for w in warned) and any("repeat the stamp" in w for w in warned)
+
+
+def test_log_times_beyond_int64_are_skipped_with_a_count_not_an_overflow(runner: CliRunner, tmp_path: Path) -> None:
+    path = B.log_time_near_2_64(tmp_path)
+    res = invoke(runner, "info", str(path), "--json")
+    assert res.exit_code == 0 and json.loads(res.stdout)["frames"] == 0
+    assert any("4 of 4 message(s) have a stamp out of range" in w for w in warnings_of(res.stderr))
+    before = set(tmp_path.iterdir())
+    res = invoke(runner, "detect", str(path), "-o", str(tmp_path / "run"))
+    error_line(res, path, "no frame has a usable stamp (first: stamp 18446744073709550616 ns is beyond 2^63 ns")
+    assert set(tmp_path.iterdir()) == before
+
+
+def test_depth_topic_is_chosen_by_encoding_before_name(runner: CliRunner, tmp_path: Path) -> None:
+    """An rgb8 /camera/depth/colorized sorted before the 16UC1 topic and won; every frame then failed."""
+    path = B.two_depth_topics(tmp_path)
+    info = json.loads(invoke(runner, "info", str(path), "--json").stdout)
+    assert info["streams"]["depth"]["topic"] == "/camera/depth/image_rect_raw"
+    assert "/camera/depth/colorized (rgb8)" in info["streams"]["depth"]["reason"]
+    summary, _ = detect_json(runner, path, tmp_path / "run")
+    assert summary["frames"] == 4 and summary["pairing"]["undecodable"] == 0
+
+
+def test_a_nan_pose_is_refused_at_the_source_with_one_warning(runner: CliRunner, tmp_path: Path) -> None:
+    """A NaN position reached the maps ("must be a finite 4x4 matrix, got shape (4, 4)", no file named)."""
+    path = B.pose_nan(tmp_path)
+    out = tmp_path / "run"
+    res = invoke(runner, "detect", str(path), "-o", str(out), "--json", "--set", "landing.detect_on=every_nth")
+    assert res.exit_code == 0, res.stderr
+    warned = warnings_of(res.stderr)
+    assert len(warned) == 1 and "pose on /camera/pose not usable: non-finite position" in warned[0]
+    assert path.name in warned[0]
+    summary = json.loads(res.stdout)
+    assert summary["frames"] == 4 and summary["tracking"] == {"ok": 3, "lost": 1}
+    assert "nan" not in (out / "trajectory.tum").read_text().lower()
+
+
+def test_missing_tum_images_are_one_warning_and_a_count(runner: CliRunner, tmp_path: Path) -> None:
+    summary, stderr = detect_json(runner, B.tum_missing_images(tmp_path), tmp_path / "run")
+    assert summary["frames"] == 5 and summary["pairing"]["undecodable"] == 25
+    warned = warnings_of(stderr)
+    assert len(warned) == 1 and "rgb/5.png" in warned[0] and "counted, not shown" in warned[0]
+    assert any(n.startswith("25 of 30 frame(s) not readable") for n in summary["pairing"]["notes"])
