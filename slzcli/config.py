@@ -214,6 +214,7 @@ class SimCfg:
     abort_tilt_deg: float = rng(0, 180, lo_open=True)
     success_radius_m: float = rng(0, lo_open=True)
     start_m: tuple[float, ...] = rng(n=3)
+    target_tolerance: float = rng(0, 0.5, lo_open=True)
 
 
 @dataclass(frozen=True)

@@ -467,3 +467,51 @@ RECORDINGS.update({f.__name__: f for f in (
     stamps_all_zero, stamps_all_zero_log_zero, stamps_duplicated, log_time_near_2_64, two_depth_topics, pose_nan,
     symlink_loop, tum_camera_width_zero, tum_camera_fx_negative, tum_camera_fx_nan, tum_camera_fx_huge,
     tum_missing_images)})
+
+
+# ----------------------------------------------------------------------------- landing.json targets (slz land simulate)
+FOOTPRINT_M = (0.656, 0.656)  # uav.footprint_m of the default config
+
+
+def _landing(folder: Path, name: str, corners: list[list[float]] | None = None, center: list[float] | None = None,
+             text: str | None = None) -> Path:
+    import json
+
+    run = folder / name
+    run.mkdir(parents=True)
+    c = center if center is not None else [1.0, -0.5, 0.1]
+    if corners is None:
+        corners = [[c[0] + sx * FOOTPRINT_M[0], c[1] + sy * FOOTPRINT_M[1], c[2]]
+                   for sx, sy in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
+    doc = {"status": "site", "method": "fuzzy", "source": "flight.mcap", "frame": {"index": 3, "stamp_ns": 1},
+           "site": {"pixel": [320, 240], "center_camera": [0, 0, 5], "center_world": c, "corners_world": corners,
+                    "normal_world": [0, 0, 1], "cluster": {}, "score": 0.9},
+           "world_frame": "test", "timings_ms": {}}
+    (run / "landing.json").write_text(text if text is not None else json.dumps(doc))
+    return run
+
+
+def landing_good(folder: Path) -> Path:
+    return _landing(folder, "landing_good")
+
+
+def landing_collinear(folder: Path) -> Path:
+    return _landing(folder, "landing_collinear", [[1.0 + d, -0.5, 0.1] for d in (-0.9, -0.3, 0.3, 0.9)])
+
+
+def landing_tiny(folder: Path) -> Path:
+    c = [1.0, -0.5, 0.1]
+    return _landing(folder, "landing_tiny", [[c[0] + sx * 1e-9, c[1] + sy * 1e-9, c[2]]
+                                             for sx, sy in ((1, 1), (1, -1), (-1, 1), (-1, -1))])
+
+
+def landing_identical(folder: Path) -> Path:
+    return _landing(folder, "landing_identical", [[1.0, -0.5, 0.1]] * 4)
+
+
+def landing_deep(folder: Path) -> Path:
+    return _landing(folder, "landing_deep", text='{"status": "site", "site": ' + "[" * 100000 + "]" * 100000 + "}")
+
+
+LANDINGS: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
+    landing_collinear, landing_tiny, landing_identical, landing_deep)}

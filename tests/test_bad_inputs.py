@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -309,3 +310,71 @@ def test_missing_tum_images_are_one_warning_and_a_count(runner: CliRunner, tmp_p
     warned = warnings_of(stderr)
     assert len(warned) == 1 and "rgb/5.png" in warned[0] and "counted, not shown" in warned[0]
     assert any(n.startswith("25 of 30 frame(s) not readable") for n in summary["pairing"]["notes"])
+
+
+# ----------------------------------------------------------------------------- issue 15: land simulate targets and values
+@pytest.mark.parametrize("case,cause", [
+    ("landing_collinear", "site.corners_world: corners 0 and 1 are 0.6 m apart; the Eq. 10 square of uav.footprint_m"),
+    ("landing_tiny", "site.corners_world: corners 0 and 1 are 2e-09 m apart"),
+    ("landing_identical", "site.corners_world: corners 0 and 1 are 0 m apart"),
+    ("landing_deep", "nested too deeply"),
+])
+def test_a_landing_target_that_is_not_the_footprint_square_is_refused(runner: CliRunner, tmp_path: Path, case: str,
+                                                                      cause: str) -> None:
+    """Collinear, 1e-9 m or coincident corners 'landed' or ended as corners_lost with exit 0."""
+    run = B.LANDINGS[case](tmp_path)
+    res = invoke(runner, "land", "simulate", str(run), "--start", "0,0,3")
+    error_line(res, run / "landing.json", cause)
+    assert not (run / "ibvs").exists()
+
+
+def test_a_landing_square_of_another_footprint_names_the_key(runner: CliRunner, tmp_path: Path) -> None:
+    run = B.landing_good(tmp_path)
+    res = invoke(runner, "land", "simulate", str(run), "--start", "0,0,3", "--set", "uav.footprint_m=[0.5, 0.5]")
+    error_line(res, run / "landing.json", "uav.footprint_m = [0.5, 0.5]")
+    assert "use the config slz detect used" in res.stderr
+
+
+@pytest.mark.parametrize("args,option", [
+    (["--start", "nan,0,10"], "--start"),      # wrote a bare NaN into metrics.json with exit 0
+    (["--start", "0,0,inf"], "--start"),
+    (["--start", "0,0"], "--start"),           # was exit 1 from deep inside
+    (["--seed", "-1"], "--seed"),              # was "internal error (ValueError ...)"
+])
+def test_bad_land_simulate_values_are_usage_errors(runner: CliRunner, tmp_path: Path, args: list[str],
+                                                   option: str) -> None:
+    run = B.landing_good(tmp_path)
+    res = invoke(runner, "land", "simulate", str(run), *args)
+    assert res.exit_code == 2 and option in res.stderr, res.output
+    assert not (run / "ibvs").exists()
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "1e300", "0", "-2"])
+def test_bad_timeouts_are_usage_errors(runner: CliRunner, tmp_path: Path, value: str) -> None:
+    """nan, inf and 1e300 were accepted; the timer then raised OverflowError ("internal error")."""
+    rec = B.good(tmp_path, n=2)
+    before = set(tmp_path.iterdir())
+    for cmd in (["detect", str(rec), "-o", str(tmp_path / "run")], ["compare", str(rec), "-o", str(tmp_path / "c")]):
+        res = invoke(runner, *cmd, "--timeout", value)
+        assert res.exit_code == 2 and "--timeout" in res.stderr, res.output
+    assert set(tmp_path.iterdir()) == before
+
+
+def test_synth_rate_nan_is_a_usage_error(runner: CliRunner, tmp_path: Path) -> None:
+    res = invoke(runner, "synth", "clear_field", "-o", str(tmp_path / "f.mcap"), "--rate", "nan", "--frames", "1")
+    assert res.exit_code == 2 and "--rate" in res.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_every_json_slz_writes_is_strict(tmp_path: Path) -> None:
+    """NaN and inf become null (no value); the writer never emits bare NaN."""
+    import math
+
+    from slzcli.outputs.files import json_text, write_json
+
+    obj = {"a": float("nan"), "b": [1.0, float("inf")], "c": np.float32("nan"), "d": np.array([np.nan, 2.0])}
+    write_json(tmp_path / "x.json", obj)
+    text = (tmp_path / "x.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text) == {"a": None, "b": [1.0, None], "c": None, "d": [None, 2.0]}
+    assert json.loads(json_text({"x": -math.inf}, indent=None)) == {"x": None}

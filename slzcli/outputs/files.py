@@ -65,8 +65,27 @@ def write_text(path: Path, text: str) -> None:
     write_bytes(path, text.encode())
 
 
+def finite_json(obj: Any) -> Any:
+    """``obj`` with every NaN or infinite float replaced by None: in slz's JSON, null means "no value"
+    (not computed, or not a number). Bare ``NaN`` / ``Infinity`` are not JSON and break other readers."""
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite_json(obj.tolist())
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj
+
+
+def json_text(obj: Any, indent: int | None = 2, **kw: Any) -> str:
+    """Strict JSON (``allow_nan=False``) of ``obj`` after ``finite_json``: every JSON slz writes goes through here."""
+    return json.dumps(finite_json(obj), indent=indent, default=_json_default, allow_nan=False, **kw)
+
+
 def write_json(path: Path, obj: Any) -> None:
-    write_text(path, json.dumps(obj, indent=2, default=_json_default) + "\n")
+    write_text(path, json_text(obj) + "\n")
 
 
 def write_npz(path: Path, **arrays: np.ndarray) -> None:

@@ -10,7 +10,6 @@ Everything is seeded: the same scene, options and seed give the same bytes.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import os
 import shutil
@@ -274,7 +273,7 @@ def write_sidecar(npz_path: Path, json_path: Path, members: dict[str, np.ndarray
     try:
         files.write_npz_streamed(npz_path, members, stored=frozenset(STORED_MEMBERS))
         json_tmp = json_path.with_name(json_path.name + ".tmp")
-        json_tmp.write_text(json.dumps(header, indent=1, sort_keys=True) + "\n")
+        json_tmp.write_text(files.json_text(header, indent=1, sort_keys=True) + "\n")
         os.replace(json_tmp, json_path)
     except OSError as err:
         raise OutputError(npz_path, f"cannot write ground truth ({err})") from err
