@@ -378,3 +378,127 @@ def test_every_json_slz_writes_is_strict(tmp_path: Path) -> None:
     assert "NaN" not in text and "Infinity" not in text
     assert json.loads(text) == {"a": None, "b": [1.0, None], "c": None, "d": [None, 2.0]}
     assert json.loads(json_text({"x": -math.inf}, indent=None)) == {"x": None}
+
+
+# ----------------------------------------------------------------------------- issue 15: read and write errors
+def _fail_for(monkeypatch: pytest.MonkeyPatch, target: object, name: str, under: Path, err: int, strerror: str,
+              arg: int = 0) -> None:
+    """Make ``target.name`` raise OSError(err) when its argument ``arg`` lies under ``under``."""
+    import errno as _errno  # noqa: F401 - callers pass errno values
+
+    real = getattr(target, name)
+
+    def fake(*args: object, **kw: object) -> object:
+        if str(args[arg]).startswith(str(under)):
+            raise OSError(err, strerror)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(target, name, fake)
+
+
+def test_an_unreadable_recording_is_exit_1_and_one_line(runner: CliRunner, tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """click pre-checked readability: exit 2 and four usage lines. (Root reads everything, hence the patch.)"""
+    import builtins
+    import errno
+
+    rec = B.good(tmp_path, n=2)
+    _fail_for(monkeypatch, builtins, "open", rec, errno.EACCES, "Permission denied")
+    for cmd in (["info", str(rec)], ["detect", str(rec), "-o", str(tmp_path / "run")]):
+        error_line(invoke(runner, *cmd), rec, "cannot read (Permission denied)")
+    assert not (tmp_path / "run").exists()
+
+
+def test_an_unreadable_tum_list_names_the_file(runner: CliRunner, tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    import errno
+
+    folder = B.tum_missing_images(tmp_path)
+    _fail_for(monkeypatch, Path, "read_text", folder / "rgb.txt", errno.EACCES, "Permission denied")
+    error_line(invoke(runner, "info", str(folder)), folder / "rgb.txt", "rgb.txt: cannot read (Permission denied)")
+
+
+@pytest.mark.parametrize("where", ["png", "spool", "results_mcap"])
+def test_disk_full_during_detect_names_the_file_and_leaves_nothing(runner: CliRunner, tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch,
+                                                                   where: str) -> None:
+    """ENOSPC was "internal error (OSError: [Errno 28] No space left on device)", no path named."""
+    import builtins
+    import errno
+
+    from slzcli.outputs import recording
+
+    rec = B.good(tmp_path, n=3)
+    out = tmp_path / "out" / "run"
+    out.parent.mkdir()
+    if where == "png":  # every atomic file write (PNGs, JSON, CSV, PLY, npz)
+        _fail_for(monkeypatch, Path, "write_bytes", out.parent, errno.ENOSPC, "No space left on device")
+        cause = "/frames/000000/depth_variance.png: cannot write (No space left on device)"
+    elif where == "spool":
+        real_open = builtins.open
+
+        def open_full(file: object, mode: str = "r", *a: object, **kw: object) -> object:
+            if "a" in mode and str(file).startswith(str(out.parent)):
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return real_open(file, mode, *a, **kw)
+
+        monkeypatch.setattr(builtins, "open", open_full)
+        cause = "/.spool/"
+    else:
+        def write_full(self: object, *a: object) -> None:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        monkeypatch.setattr(recording._McapBackend, "write", write_full)
+        cause = "results.mcap: cannot write (No space left on device)"
+    res = invoke(runner, "detect", str(rec), "-o", str(out))
+    error_line(res, out, cause)
+    assert str(out) in res.stderr and ".partial" not in res.stderr  # the run folder's name, not its temporary one
+    assert list(out.parent.iterdir()) == []
+
+
+@pytest.mark.parametrize("where", ["recording", "sidecar", "preview"])
+def test_disk_full_during_synth_names_the_file_and_leaves_nothing(runner: CliRunner, tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch,
+                                                                  where: str) -> None:
+    import errno
+    import shutil
+
+    from slzcli.outputs import recording
+
+    def full(*a: object, **kw: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    out = tmp_path / "f.mcap"
+    if where == "recording":
+        monkeypatch.setattr(recording._McapBackend, "write", full)
+        named = "f.mcap: cannot write"
+    elif where == "sidecar":
+        monkeypatch.setattr(shutil, "copyfileobj", full)
+        named = "f.mcap.gt.npz: cannot write"
+    else:
+        real = Path.write_bytes
+        monkeypatch.setattr(Path, "write_bytes", lambda p, data: full() if "preview" in p.name else real(p, data))
+        named = "f.mcap.preview.png: cannot write"
+    res = invoke(runner, "synth", "clear_field", "-o", str(out), "--frames", "2")
+    error_line(res, out, named)
+    assert list(tmp_path.iterdir()) == []  # all or nothing: no recording without its ground truth
+
+
+def test_a_read_only_batch_folder_names_summary_json(runner: CliRunner, tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """PermissionError on summary.json was an internal error. (Patched: root may write anywhere.)"""
+    import errno
+    import os
+
+    for d in ("a", "b"):
+        (tmp_path / d).mkdir()
+    recs = [B.good(tmp_path / d, n=2) for d in ("a", "b")]
+    out = tmp_path / "ro"
+    out.mkdir()
+    _fail_for(monkeypatch, os, "open", out, errno.EACCES, "Permission denied")
+    _fail_for(monkeypatch, os, "mkdir", out, errno.EACCES, "Permission denied")
+    res = invoke(runner, "detect", *map(str, recs), "-o", str(out), "--workers", "1")
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("slz: error:")]
+    assert res.exit_code == 1 and len(errors) == 1, res.stderr
+    assert "summary.json: cannot write (Permission denied)" in errors[0]
+    assert list(out.iterdir()) == []

@@ -7,6 +7,7 @@ file, the new file, or a ``.tmp`` file that nothing trusts.
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import os
@@ -35,6 +36,19 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
+# errno values that only a write gives: an OSError carrying one is named as the output's, wherever it surfaced.
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS})
+
+
+@contextmanager
+def naming_write_errors(path: Path) -> Iterator[None]:
+    """An OSError (disk full, no permission, read-only) while writing ``path`` -> OutputError naming it."""
+    try:
+        yield
+    except OSError as err:
+        raise OutputError(path, f"cannot write ({err.strerror or err})") from err
+
+
 @contextmanager
 def atomic_path(path: Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it into place, else remove it."""
@@ -44,13 +58,15 @@ def atomic_path(path: Path) -> Iterator[Path]:
     except OSError as err:
         raise OutputError(path.parent, f"cannot create folder ({err.strerror})") from err
     # The real suffix is kept last so that writers that pick a format by extension still work.
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.tmp-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
+    with naming_write_errors(path):
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.tmp-", suffix=path.suffix, dir=path.parent)
+        os.close(fd)
     tmp = Path(tmp_name)
     try:
-        yield tmp
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
+        with naming_write_errors(path):
+            yield tmp
+            os.chmod(tmp, 0o666 & ~_UMASK)
+            os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -141,7 +157,7 @@ class ArraySpool:
         for name, values in rows.items():
             dtype, shape = self.spec[name]
             block = np.ascontiguousarray(values, dtype=dtype).reshape((-1, *shape))
-            with open(self.folder / f"{name}.bin", "ab") as fh:
+            with naming_write_errors(self.folder / f"{name}.bin"), open(self.folder / f"{name}.bin", "ab") as fh:
                 fh.write(block.tobytes())
             self.rows[name] += len(block)
 
@@ -153,7 +169,7 @@ class ArraySpool:
         if self._npy_rows.get(name) == self.rows[name]:
             return out
         self._npy_rows[name] = self.rows[name]
-        with open(out, "wb") as dst:
+        with naming_write_errors(out), open(out, "wb") as dst:
             np.lib.format.write_array_header_1_0(dst, {"descr": np.lib.format.dtype_to_descr(dtype),
                                                        "fortran_order": False, "shape": (self.rows[name], *shape)})
             if raw.exists():
@@ -178,16 +194,25 @@ def atomic_dir(path: Path, *, replace: bool = False) -> Iterator[Path]:
     except OSError as err:
         raise OutputError(path, f"cannot create output folder ({err.strerror})") from err
     try:
-        yield tmp
-        os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes 0700; a finished run gets the user's usual mode
-        if path.exists():
-            old = path.with_name(f".{path.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        try:
+            yield tmp
+        except OutputError as err:  # name the folder's own path, not its temporary name
+            raise OutputError(err.path.replace(str(tmp), str(path), 1), err.reason) from err
+        except OSError as err:
+            if err.errno not in WRITE_ERRNOS:
+                raise
+            where = err.filename.replace(str(tmp), str(path), 1) if isinstance(err.filename, str) else path
+            raise OutputError(where, f"cannot write ({err.strerror or err})") from err
+        with naming_write_errors(path):
+            os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes 0700; a finished run gets the user's usual mode
+            if path.exists():
+                old = path.with_name(f".{path.name}.old")
+                shutil.rmtree(old, ignore_errors=True)
+                os.replace(path, old)
+                os.replace(tmp, path)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                os.replace(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
