@@ -11,6 +11,7 @@ import logging
 import math
 import sys
 import threading
+import warnings
 from pathlib import Path
 from typing import Any, Callable
 
@@ -36,19 +37,23 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(fn)
     def wrapper(config_file: Path | None, overrides: tuple[str, ...], as_json: bool, verbose: int,
                 **kwargs: Any) -> None:
-        _setup_logging(verbose)
+        warned = _setup_logging(verbose)
         try:
             config = load_config(config_file, overrides)
             result = fn(config=config, **kwargs)
         except SlzError as err:
+            warned.flush()
             _fail(str(err))
         except KeyboardInterrupt:
+            warned.flush()
             click.echo("slz: interrupted", err=True)
             sys.exit(130)
         except Exception as err:  # a bug: still one line by default, the traceback with -vv
+            warned.flush()
             if verbose >= 2:
                 raise
             _fail(f"internal error ({type(err).__name__}: {err}); rerun with -vv for the traceback")
+        warned.flush()
         if result is not None:
             summary, text = result
             from slzcli.outputs.files import json_text  # strict JSON: NaN/inf become null
@@ -63,10 +68,40 @@ def _fail(message: str) -> None:
     sys.exit(1)
 
 
-def _setup_logging(verbose: int) -> None:
+class _WarningLines:
+    """Python warnings (numpy's RuntimeWarning, ...) as one ``slz: WARNING:`` line per kind, repeats counted.
+
+    The default display is two lines (file:line and the source line) and, through logging, one
+    more per repeat elsewhere; here each (category, text) is shown once and the repeats are
+    summed in one line at the end of the command (``flush``).
+    """
+
+    def __init__(self) -> None:
+        self.seen: dict[tuple[str, str], int] = {}
+
+    def __call__(self, message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: Any = None, line: str | None = None) -> None:
+        key = (category.__name__, " ".join(str(message).split()))
+        self.seen[key] = self.seen.get(key, 0) + 1
+        if self.seen[key] == 1:
+            log.warning("%s: %s (at %s:%d; repeats are counted, not shown)", key[0], key[1], Path(filename).name,
+                        lineno)
+
+    def flush(self) -> None:
+        repeats = {k: n - 1 for k, n in self.seen.items() if n > 1}
+        if repeats:
+            log.warning("%d repeat(s) of the warning(s) above were not shown (%s)", sum(repeats.values()),
+                        "; ".join(f"{k[0]} x{n}" for k, n in repeats.items()))
+        self.seen.clear()
+
+
+def _setup_logging(verbose: int) -> _WarningLines:
     level = logging.WARNING if verbose == 0 else logging.INFO if verbose == 1 else logging.DEBUG
     logging.basicConfig(level=level, format="slz: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
-    logging.captureWarnings(True)
+    handler = _WarningLines()
+    warnings.showwarning = handler
+    warnings.filterwarnings("always", category=RuntimeWarning)  # numpy: each occurrence reaches the handler
+    return handler
 
 
 # ----------------------------------------------------------------------------- commands

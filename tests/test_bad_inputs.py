@@ -502,3 +502,25 @@ def test_a_read_only_batch_folder_names_summary_json(runner: CliRunner, tmp_path
     assert res.exit_code == 1 and len(errors) == 1, res.stderr
     assert "summary.json: cannot write (Permission denied)" in errors[0]
     assert list(out.iterdir()) == []
+
+
+def test_python_warnings_are_one_line_each_and_repeats_counted(runner: CliRunner, tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """numpy RuntimeWarnings reached stderr as 'file.py:196: RuntimeWarning: ...' plus the source line."""
+    from slzcli.sources import info_text as it
+
+    real = it.info_text
+
+    def noisy(info: object) -> str:
+        with np.errstate(invalid="warn"):
+            for _ in range(5):
+                np.float32(np.inf) - np.float32(np.inf)  # "invalid value encountered in scalar subtract"
+        return real(info)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(it, "info_text", noisy)
+    res = invoke(runner, "info", str(B.good(tmp_path, n=2)))
+    assert res.exit_code == 0
+    warned = warnings_of(res.stderr)
+    assert len(warned) == 2, res.stderr
+    assert warned[0].startswith("slz: WARNING: RuntimeWarning: invalid value encountered")
+    assert "4 repeat(s)" in warned[1]
