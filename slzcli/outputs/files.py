@@ -105,9 +105,8 @@ def write_json(path: Path, obj: Any) -> None:
 
 
 def write_npz(path: Path, **arrays: np.ndarray) -> None:
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
+    """A deflated ``.npz`` like ``np.savez_compressed``, but safe to interrupt (see ``_zip_for_writing``)."""
+    write_npz_streamed(path, dict(arrays))
 
 
 ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)  # fixed member time: the same arrays give the same bytes
@@ -120,7 +119,7 @@ def write_npz_streamed(path: Path, members: dict[str, "np.ndarray | Path"], stor
     Members named in ``stored`` are not compressed (a reader can memory-map them); the rest are
     deflated. Memory holds one chunk of a file member, never the whole array.
     """
-    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w") as zf:
+    with atomic_path(path) as tmp, _zip_for_writing(tmp) as zf:
         for name, member in members.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_EPOCH)
             info.compress_type = zipfile.ZIP_STORED if name in stored else zipfile.ZIP_DEFLATED
@@ -133,6 +132,25 @@ def write_npz_streamed(path: Path, members: dict[str, "np.ndarray | Path"], stor
                 buf = io.BytesIO()
                 np.lib.format.write_array(buf, np.asarray(member, order="C"), allow_pickle=False)
                 zf.writestr(info, buf.getvalue())
+
+
+@contextmanager
+def _zip_for_writing(path: Path) -> Iterator[zipfile.ZipFile]:
+    """A ZipFile for writing that an interrupt can abandon cleanly.
+
+    Ctrl-C or SIGTERM (KeyboardInterrupt) or ``--timeout`` landing while a member is being closed left
+    the ZipFile with an open writing handle: its close() then raised ValueError, which replaced the
+    interrupt, and ZipFile.__del__ later printed "Exception ignored ... Traceback". On any exception the
+    archive is dropped here instead (the caller removes the temporary file), so nothing is left to finish.
+    """
+    with open(path, "wb") as fh:
+        zf = zipfile.ZipFile(fh, "w")
+        try:
+            yield zf
+        except BaseException:
+            zf.fp = None  # abandoned: close() and __del__ have nothing to write
+            raise
+        zf.close()
 
 
 class ArraySpool:
