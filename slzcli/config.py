@@ -607,7 +607,6 @@ PAIRS: tuple[tuple[str, str, str, str], ...] = (
     ("synth.sensor.min_range_m", "<", "synth.sensor.max_range_m", "the depth sensor's range"),
     ("slam.odometry.min_depth_m", "<", "slam.odometry.max_depth_m", "the depths used for map points"),
     ("slam.orb.fast_min_threshold", "<=", "slam.orb.fast_threshold", "ORB's FAST thresholds (fallback and first)"),
-    ("control.sim.switch_hold_s", "<", "control.sim.timeout_s", "the touch-down switch must fit in a run"),
     ("camera.cx", "<=", "camera.width", "the principal point lies in the image"),
     ("camera.cy", "<=", "camera.height", "the principal point lies in the image"),
     ("sources.intrinsics.min_fov_deg", "<", "sources.intrinsics.max_fov_deg", "the field-of-view range"),

@@ -127,7 +127,6 @@ def test_cli_bad_config_is_one_line_exit_1(runner, tmp_path: Path) -> None:
         (["synth.sensor.min_range_m=30.0"], "synth.sensor.min_range_m", "< synth.sensor.max_range_m"),
         (["slam.odometry.min_depth_m=25.0"], "slam.odometry.min_depth_m", "< slam.odometry.max_depth_m"),
         (["slam.orb.fast_min_threshold=30"], "slam.orb.fast_min_threshold", "<= slam.orb.fast_threshold"),
-        (["control.sim.switch_hold_s=60.0"], "control.sim.switch_hold_s", "< control.sim.timeout_s"),
         (["camera.cx=700.0"], "camera.cx", "<= camera.width"),
         (["camera.fx=1000000000.0"], "camera", "field of view"),
         (["sources.intrinsics.min_fov_deg=100.0", "sources.intrinsics.max_fov_deg=90.0"],
