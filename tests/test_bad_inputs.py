@@ -312,7 +312,7 @@ def test_missing_tum_images_are_one_warning_and_a_count(runner: CliRunner, tmp_p
     assert any(n.startswith("25 of 30 frame(s) not readable") for n in summary["pairing"]["notes"])
 
 
-# ----------------------------------------------------------------------------- issue 15: land simulate targets and values
+# ----------------------------------------------------------------------------- issue 15: land simulate, values
 @pytest.mark.parametrize("case,cause", [
     ("landing_collinear", "site.corners_world: corners 0 and 1 are 0.6 m apart; the Eq. 10 square of uav.footprint_m"),
     ("landing_tiny", "site.corners_world: corners 0 and 1 are 2e-09 m apart"),
