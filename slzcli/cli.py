@@ -7,9 +7,11 @@ config or a failure with a one-line reason naming the file or key, 2 usage.
 from __future__ import annotations
 
 import functools
-import json
 import logging
+import math
 import sys
+import threading
+import warnings
 from pathlib import Path
 from typing import Any, Callable
 
@@ -26,7 +28,7 @@ log = logging.getLogger("slzcli")
 def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     """--config, --set, --json and -v on every command; the resolved Config is passed as ``config``."""
 
-    @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
+    @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path, readable=False),
                   help="YAML file layered over configs/default.yaml.")
     @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
                   help="Override one key, e.g. --set mask.threshold=0.6 (repeatable).")
@@ -35,22 +37,28 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(fn)
     def wrapper(config_file: Path | None, overrides: tuple[str, ...], as_json: bool, verbose: int,
                 **kwargs: Any) -> None:
-        _setup_logging(verbose)
+        warned = _setup_logging(verbose)
         try:
             config = load_config(config_file, overrides)
             result = fn(config=config, **kwargs)
         except SlzError as err:
+            warned.flush()
             _fail(str(err))
         except KeyboardInterrupt:
+            warned.flush()
             click.echo("slz: interrupted", err=True)
             sys.exit(130)
         except Exception as err:  # a bug: still one line by default, the traceback with -vv
+            warned.flush()
             if verbose >= 2:
                 raise
             _fail(f"internal error ({type(err).__name__}: {err}); rerun with -vv for the traceback")
+        warned.flush()
         if result is not None:
             summary, text = result
-            click.echo(json.dumps(summary, indent=None, default=_json_default) if as_json else text)
+            from slzcli.outputs.files import json_text  # strict JSON: NaN/inf become null
+
+            click.echo(json_text(summary, indent=None) if as_json else text)
 
     return wrapper
 
@@ -60,18 +68,40 @@ def _fail(message: str) -> None:
     sys.exit(1)
 
 
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, Path):
-        return str(obj)
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+class _WarningLines:
+    """Python warnings (numpy's RuntimeWarning, ...) as one ``slz: WARNING:`` line per kind, repeats counted.
+
+    The default display is two lines (file:line and the source line) and, through logging, one
+    more per repeat elsewhere; here each (category, text) is shown once and the repeats are
+    summed in one line at the end of the command (``flush``).
+    """
+
+    def __init__(self) -> None:
+        self.seen: dict[tuple[str, str], int] = {}
+
+    def __call__(self, message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: Any = None, line: str | None = None) -> None:
+        key = (category.__name__, " ".join(str(message).split()))
+        self.seen[key] = self.seen.get(key, 0) + 1
+        if self.seen[key] == 1:
+            log.warning("%s: %s (at %s:%d; repeats are counted, not shown)", key[0], key[1], Path(filename).name,
+                        lineno)
+
+    def flush(self) -> None:
+        repeats = {k: n - 1 for k, n in self.seen.items() if n > 1}
+        if repeats:
+            log.warning("%d repeat(s) of the warning(s) above were not shown (%s)", sum(repeats.values()),
+                        "; ".join(f"{k[0]} x{n}" for k, n in repeats.items()))
+        self.seen.clear()
 
 
-def _setup_logging(verbose: int) -> None:
+def _setup_logging(verbose: int) -> _WarningLines:
     level = logging.WARNING if verbose == 0 else logging.INFO if verbose == 1 else logging.DEBUG
     logging.basicConfig(level=level, format="slz: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
-    logging.captureWarnings(True)
+    handler = _WarningLines()
+    warnings.showwarning = handler
+    warnings.filterwarnings("always", category=RuntimeWarning)  # numpy: each occurrence reaches the handler
+    return handler
 
 
 # ----------------------------------------------------------------------------- commands
@@ -120,7 +150,7 @@ def config_dump(config: Config) -> tuple[dict[str, Any], str]:
 
 
 @main.command("info")
-@click.argument("bag", type=click.Path(path_type=Path))
+@click.argument("bag", type=click.Path(path_type=Path, readable=False))
 @common_options
 def info_cmd(config: Config, bag: Path) -> tuple[dict[str, Any], str]:
     """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames."""
@@ -138,8 +168,9 @@ def vocab_group() -> None:
 
 
 @vocab_group.command("build")
-@click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+@click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path, readable=False))
+@click.option("-o", "--output", "output", required=True,
+              type=click.Path(dir_okay=False, path_type=Path, readable=False),
               help="Vocabulary file to write (DBoW2 text format).")
 @common_options
 def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path) -> tuple[dict[str, Any], str]:
@@ -161,9 +192,24 @@ def _start_floats(ctx: click.Context, param: click.Parameter, value: str | None)
     if ctx.params.get("scenario") is not None:
         raise click.BadParameter("give --scenario or --start, not both")
     try:
-        return tuple(float(v) for v in value.split(","))
+        values = tuple(float(v) for v in value.split(","))
     except ValueError:
         raise click.BadParameter(f"expected comma-separated numbers, got {value!r}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise click.BadParameter(f"every value must be a finite number, got {value!r}")
+    if len(values) not in (3, 4):
+        raise click.BadParameter(f"expected X,Y,Z or X,Y,Z,YAW, got {len(values)} value(s)")
+    return values
+
+
+class FiniteFloatRange(click.FloatRange):
+    """click's FloatRange lets NaN through (every comparison with NaN is false); this one does not."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        rv = super().convert(value, param, ctx)
+        if not math.isfinite(rv):
+            self.fail(f"{rv} is not a finite number", param, ctx)
+        return rv
 
 
 @main.group("land")
@@ -172,8 +218,8 @@ def land_group() -> None:
 
 
 @land_group.command("simulate")
-@click.argument("run", type=click.Path(path_type=Path))
-@click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path),
+@click.argument("run", type=click.Path(path_type=Path, readable=False))
+@click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="Output folder (default: RUN/ibvs).")
 @click.option("--scenario", type=click.IntRange(1, 4), help="Paper start (world frame): 1 (0,0,10), "
               "2 (-3,12,9), 3 (0,0,7), 4 (0,0,10) m.")
@@ -181,7 +227,7 @@ def land_group() -> None:
               help="Start as an offset from the site centre (m, world x/y/up; yaw deg). Default: control.sim.start_m.")
 @click.option("--runs", type=click.IntRange(1), default=1, show_default=True,
               help="Monte Carlo runs over start scatter, pose noise and gusts.")
-@click.option("--seed", type=int, default=None, help="Seed of the noise (and of the start scatter); "
+@click.option("--seed", type=click.IntRange(0), default=None, help="Seed of the noise (and of the start scatter); "
               "default control.noise.seed.")
 @common_options
 def land_simulate(config: Config, run: Path, output: Path | None, scenario: int | None,
@@ -195,7 +241,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
 
     if scenario is not None and start is not None:  # when --start came first on the command line
         raise ConfigError("--start", "give --scenario or --start, not both")
-    target, _ = ibvs_out.read_target(run, config.uav.footprint_m)
+    target, _ = ibvs_out.read_target(run, config.uav.footprint_m, config.control.sim.target_tolerance)
     out = output or ibvs_out.landing_path(run).parent / "ibvs"
     start_world = resolve_start(target, config, scenario, start)
     cam = config.camera
@@ -222,7 +268,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
 
 @main.command("synth")
 @click.argument("scene", required=False)
-@click.option("-o", "--output", "output", type=click.Path(path_type=Path),
+@click.option("-o", "--output", "output", type=click.Path(path_type=Path, readable=False),
               help="Recording to write (default: SCENE[_VARIANTS]_s{seed}.mcap/.bag or a bag folder, here).")
 @click.option("--list", "list_scenes", is_flag=True, help="List the scenes and their variants, then exit.")
 @click.option("--frames", type=click.IntRange(1), help="Number of frames (default synth.frames).")
@@ -237,11 +283,11 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
               type=click.Choice(["16UC1", "32FC1", "mono16", "compressedDepth", "compressedDepth-32FC1"]))
 @click.option("--color-encoding", default="rgb8", show_default=True,
               type=click.Choice(["rgb8", "bgr8", "jpeg", "png"]), help="Raw Image or CompressedImage (jpeg, png).")
-@click.option("--rate", "rate_hz", type=click.FloatRange(1, 200), help="Frame rate in Hz (default synth.rate_hz).")
+@click.option("--rate", "rate_hz", type=FiniteFloatRange(1, 200), help="Frame rate in Hz (default synth.rate_hz).")
 @click.option("--path", "path_kind", type=click.Choice(["hover", "descent"]), help="Camera path (default synth.path).")
 @click.option("--variant", "variants", multiple=True, help="Scene variant (repeatable), e.g. sand, low_light; "
               "or SCENE:sand+low_light.")
-@click.option("--contact-sheet", "sheet", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--contact-sheet", "sheet", type=click.Path(dir_okay=False, path_type=Path, readable=False),
               help="Where to write the preview PNG (default OUT.preview.png).")
 @click.option("--force", is_flag=True, help="Replace an existing recording.")
 @common_options
@@ -310,13 +356,14 @@ class _progress:
 
 def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """``--timeout SECONDS``: a bound on each stage of a run (slzcli/timeout.py)."""
-    return click.option("--timeout", "timeout_s", type=click.FloatRange(0, min_open=True), default=None,
-                        metavar="SECONDS", help=help_text)
+    # The largest wait both SIGALRM's setitimer and threading.Timer accept (about 292 years).
+    return click.option("--timeout", "timeout_s", type=FiniteFloatRange(0, threading.TIMEOUT_MAX, min_open=True),
+                        default=None, metavar="SECONDS", help=help_text)
 
 
 @main.command("detect")
-@click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path),
+@click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path, readable=False))
+@click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="One recording: its run folder (default runs/<name>). Several, or a quoted glob pattern: "
                    "the folder for one run folder each plus summary.json and summary.csv (default runs/).")
 @click.option("--method", type=click.Choice(["fuzzy", "bayes"]), default=None,
@@ -457,10 +504,10 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
 
 
 @main.command("compare")
-@click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path, readable=False))
 @click.option("--methods", default=None, metavar="A,B", help="Methods to compare (default: compare.methods, "
               "fuzzy,bayes).")
-@click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path),
+@click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="Output folder (default runs/compare_<first recording>).")
 @click.option("--variants", is_flag=True, help="Also re-render each synth recording's scene in the variants of "
               "compare.variants (ground material, light) and compare on each.")

@@ -73,8 +73,16 @@ class Topics:
 
 
 @dataclass(frozen=True)
+class IntrinsicsCheckCfg:
+    min_fov_deg: float = rng(0, 180, lo_open=True)
+    max_fov_deg: float = rng(0, 180, lo_open=True)
+    aspect_tolerance: float = rng(0, 1)
+
+
+@dataclass(frozen=True)
 class SourcesCfg:
     topics: Topics
+    intrinsics: IntrinsicsCheckCfg
     pose_frame: str
     use_ground_truth_pose: bool
     sync_tolerance_ms: float = rng(0, lo_open=True)
@@ -200,7 +208,7 @@ class LandingCfg:
     min_cluster_points: int = rng(3)
     min_extent_factor: float = rng(0)
     bayes_min_extent_factor: float = rng(0)
-    seed: int = rng(0)
+    seed: int = rng(0, 2**32 - 1)  # scipy's kmeans2 takes seeds below 2^32 only
     detect_on: Literal["keyframes", "every_nth"]
     depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
@@ -223,6 +231,7 @@ class SimCfg:
     abort_tilt_deg: float = rng(0, 180, lo_open=True)
     success_radius_m: float = rng(0, lo_open=True)
     start_m: tuple[float, ...] = rng(n=3)
+    target_tolerance: float = rng(0, 0.5, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -455,21 +464,42 @@ def load_config(config_file: str | Path | None = None, overrides: typing.Sequenc
     for item in overrides:
         key, value = parse_override(item)
         data = merge(data, _nest(key, value), source="--set")
-    return build(Config, data, "", source=str(config_file) if config_file else None)
+    where = str(config_file) if config_file else None
+    config = build(Config, data, "", source=where)
+    validate_pairs(config, where or ("--set" if overrides else None))
+    return config
 
 
 def read_yaml_mapping(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError("", "config file not found", source=str(path))
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise ConfigError("", f"not valid YAML ({_yaml_where(err)})", source=str(path)) from err
+    data = _load_yaml_file(path)
     if data is None:
         return {}
     if not isinstance(data, dict):
         raise ConfigError("", "the top level must be a mapping of sections", source=str(path))
     return data
+
+
+def _load_yaml_file(path: Path) -> Any:
+    """A YAML file's content; ConfigError naming the file when it cannot be read or parsed.
+
+    Bytes go to the parser, which reads UTF-8 and, after a byte-order mark, UTF-16 (YAML 1.1);
+    anything else (Latin-1, a binary file) is a ReaderError, i.e. "not valid YAML" with the place.
+    """
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise ConfigError("", f"cannot read ({err.strerror or err})", source=str(path)) from err
+    try:
+        return yaml.safe_load(raw)
+    except yaml.reader.ReaderError as err:
+        raise ConfigError("", f"not UTF-8 text (nor UTF-16 with a byte-order mark): {err.reason} at position "
+                              f"{err.position}; save it as UTF-8", source=str(path)) from err
+    except yaml.YAMLError as err:
+        raise ConfigError("", f"not valid YAML ({_yaml_where(err)})", source=str(path)) from err
+    except RecursionError as err:
+        raise ConfigError("", "not a usable config: nested too deeply for the YAML parser", source=str(path)) from err
 
 
 def parse_override(item: str) -> tuple[str, Any]:
@@ -484,6 +514,8 @@ def parse_override(item: str) -> tuple[str, Any]:
         value = yaml.safe_load(text) if text.strip() else ""
     except yaml.YAMLError as err:
         raise ConfigError(key, f"value {text!r} is not valid YAML") from err
+    except RecursionError as err:
+        raise ConfigError(key, "value is nested too deeply for the YAML parser") from err
     return key, value
 
 
@@ -585,7 +617,7 @@ def _scalar(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> An
     if lo is not None and (value <= lo if meta.get("lo_open") else value < lo):
         raise ConfigError(path, f"must be {'>' if meta.get('lo_open') else '>='} {lo}, got {value}", source)
     if hi is not None and value > hi:
-        raise ConfigError(path, f"must be <= {hi:g}, got {value}", source)
+        raise ConfigError(path, f"must be <= {hi if isinstance(hi, int) else format(hi, 'g')}, got {value}", source)
     if meta.get("odd") and int(value) % 2 != 1:
         raise ConfigError(path, f"must be odd, got {value}", source)
     return value
@@ -599,6 +631,52 @@ def _alternatives(args: typing.Sequence[Any]) -> str:
         else:
             names.append({float: "a number", int: "an integer", str: "a string", bool: "true or false"}.get(arg, str(arg)))
     return " or ".join(names)
+
+
+# ----------------------------------------------------------------------------- cross-field checks
+# (smaller, relation, larger, why): values that are each in range but contradict each other.
+PAIRS: tuple[tuple[str, str, str, str], ...] = (
+    ("terrain.flatness.canny_low", "<=", "terrain.flatness.canny_high", "Canny's hysteresis thresholds"),
+    ("terrain.steepness.normal_px", "<=", "terrain.steepness.normal_max_px", "smallest and largest normal window"),
+    ("uav.thrust_min_n", "<", "uav.thrust_max_n", "the thrust range"),
+    ("synth.sensor.min_range_m", "<", "synth.sensor.max_range_m", "the depth sensor's range"),
+    ("slam.odometry.min_depth_m", "<", "slam.odometry.max_depth_m", "the depths used for map points"),
+    ("slam.orb.fast_min_threshold", "<=", "slam.orb.fast_threshold", "ORB's FAST thresholds (fallback and first)"),
+    ("camera.cx", "<=", "camera.width", "the principal point lies in the image"),
+    ("camera.cy", "<=", "camera.height", "the principal point lies in the image"),
+    ("sources.intrinsics.min_fov_deg", "<", "sources.intrinsics.max_fov_deg", "the field-of-view range"),
+)
+
+
+def _get(config: Config, key: str) -> Any:
+    node: Any = config
+    for part in key.split("."):
+        node = getattr(node, part)
+    return node
+
+
+def validate_pairs(config: Config, source: str | None = None) -> None:
+    """Refuse values that are fine alone but contradict each other, naming both keys."""
+    for small, rel, large, why in PAIRS:
+        a, b = _get(config, small), _get(config, large)
+        if not (a <= b if rel == "<=" else a < b):
+            raise ConfigError(small, f"must be {rel} {large} ({why}); got {a:g} and {b:g}", source)
+    uav, weight = config.uav, config.uav.mass_kg * config.control.gravity_m_s2
+    if uav.thrust_max_n <= weight:
+        raise ConfigError("uav.thrust_max_n", f"must exceed the weight uav.mass_kg x control.gravity_m_s2 = "
+                                              f"{weight:.3g} N (it could not hover); got {uav.thrust_max_n:g}", source)
+    if uav.thrust_min_n >= weight:
+        raise ConfigError("uav.thrust_min_n", f"must be below the weight uav.mass_kg x control.gravity_m_s2 = "
+                                              f"{weight:.3g} N (it could not descend); got {uav.thrust_min_n:g}",
+                          source)
+    from slzcli.sources.validate import intrinsics_problem  # here: sources imports this module
+    from slzcli.types import Intrinsics
+
+    cam, lim = config.camera, config.sources.intrinsics
+    problem = intrinsics_problem(Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height),
+                                 lim.min_fov_deg, lim.max_fov_deg)
+    if problem is not None:
+        raise ConfigError("camera", problem, source)
 
 
 def _join(path: str, key: str) -> str:

@@ -47,6 +47,7 @@ class OutputError(SlzError):
 
     def __init__(self, path: str | Path, reason: str) -> None:
         self.path = str(path)
+        self.reason = reason
         super().__init__(f"{self.path}: {reason}")
 
 

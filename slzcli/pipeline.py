@@ -43,7 +43,7 @@ from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, TrackingState, get_backend
 from slzcli.slam.base import invert_pose
 from slzcli.slam.recorded import open_clouds
-from slzcli.sources import open_recording
+from slzcli.sources import check_readable, open_recording
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.limits import Working, limit_reason
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
@@ -308,6 +308,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     from slzcli.outputs import run_folder
 
     method = options.method or config.scoring.method
+    check_readable(path)  # a missing, looping or unreadable input is named before anything else reads it
     fingerprint = run_folder.input_fingerprint(path)
     previous = run_folder.previous_summary(out_dir, config.hash(), fingerprint)
     if previous is not None and not options.force:

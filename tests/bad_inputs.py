@@ -206,12 +206,44 @@ def config_bad_yaml(folder: Path) -> Path:
     return p
 
 
+def config_latin1(folder: Path) -> Path:
+    p = folder / "latin1.yaml"
+    p.write_bytes("# caméra\nmask:\n  threshold: 0.6\n".encode("latin-1"))
+    return p
+
+
+def config_utf16_no_bom(folder: Path) -> Path:
+    p = folder / "utf16.yaml"
+    p.write_bytes("mask:\n  threshold: 0.6\n".encode("utf-16-le"))
+    return p
+
+
+def config_binary(folder: Path) -> Path:
+    p = folder / "binary.yaml"
+    p.write_bytes(np.random.default_rng(3).bytes(2048))
+    return p
+
+
+def config_deep(folder: Path) -> Path:
+    """20000 nested flow lists: the YAML composer recursed until RecursionError."""
+    p = folder / "deep.yaml"
+    p.write_text("mask: " + "[" * 20000 + "]" * 20000 + "\n")
+    return p
+
+
+def config_contradictory(folder: Path) -> Path:
+    p = folder / "contradictory.yaml"
+    p.write_text("terrain:\n  flatness:\n    canny_low: 230\n")
+    return p
+
+
 RECORDINGS: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
     empty, garbage, wrong_magic, cut_header, cut_middle, cut_before_footer, cut_ros1,
     unsupported_depth_encoding, mismatched_sizes, camera_info_zeros, depth_all_nan, depth_constant,
     stamps_backwards, duplicated_messages, one_pixel, very_large, no_texture)}
 CONFIGS: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
-    config_wrong_type, config_unknown_key, config_not_a_mapping, config_bad_yaml)}
+    config_wrong_type, config_unknown_key, config_not_a_mapping, config_bad_yaml, config_latin1, config_utf16_no_bom,
+    config_binary, config_deep, config_contradictory)}
 
 
 # ----------------------------------------------------------------------------- damaged messages
@@ -276,3 +308,210 @@ def ros2_missing_storage(folder: Path) -> Path:
 
 
 RECORDINGS.update({f.__name__: f for f in (ros2_cut_db, ros2_missing_storage)})
+
+
+# ----------------------------------------------------------------------------- values that must be validated (issue 15)
+def _with_info(path: Path, intr: Intrinsics, n: int = 3) -> Path:
+    """Colour, depth and a CameraInfo ``intr`` on both info topics."""
+    with RecordingWriter(path, "mcap") as w:
+        for i in range(n):
+            f = textured_frame(i)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.depth_topic, *w.depth_message(f.depth_m, f.stamp_ns), f.stamp_ns)
+            for topic in (w.layout.color_info, w.layout.depth_info):
+                w.write_raw(topic, "sensor_msgs/msg/CameraInfo", w._camera_info(intr, f.stamp_ns), f.stamp_ns)
+    return path
+
+
+def camera_info_principal_outside(folder: Path) -> Path:
+    """cx = cy = -1e6: a K that looks calibrated but puts the optical axis far outside the image."""
+    return _with_info(folder / "info_cx_outside.mcap", Intrinsics(0.8 * W, 0.8 * W, -1e6, -1e6, W, H))
+
+
+def camera_info_size_zero(folder: Path) -> Path:
+    """A good K with width = height = 0."""
+    return _with_info(folder / "info_size_zero.mcap", Intrinsics(0.8 * W, 0.8 * W, (W - 1) / 2, (H - 1) / 2, 0, 0))
+
+
+def camera_info_fx_huge(folder: Path) -> Path:
+    """fx = fy = 1e300: finite and positive, but a field of view of nothing."""
+    return _with_info(folder / "info_fx_huge.mcap", Intrinsics(1e300, 1e300, (W - 1) / 2, (H - 1) / 2, W, H))
+
+
+def camera_info_aspect_mismatch(folder: Path) -> Path:
+    """A CameraInfo for 160x160 on 160x120 images: scaling it would stretch one axis."""
+    return _with_info(folder / "info_aspect.mcap", Intrinsics(0.8 * W, 0.8 * W, 79.5, 79.5, W, W))
+
+
+def _stamped(path: Path, stamps: list[int], log_ns: list[int] | None = None, n: int | None = None) -> Path:
+    """Frames 0..n-1 (different images) with the given header stamps and log times."""
+    log_ns = log_ns if log_ns is not None else stamps
+    with RecordingWriter(path, "mcap") as w:
+        for i, (stamp, logt) in enumerate(zip(stamps, log_ns, strict=True)):
+            f = textured_frame(i)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, stamp), logt)
+            w.write_raw(w.depth_topic, *w.depth_message(f.depth_m, stamp), logt)
+            w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, stamp), logt)
+    return path
+
+
+def stamps_all_zero(folder: Path) -> Path:
+    """Every header stamp 0 (a driver that never set them); log times are distinct."""
+    return _stamped(folder / "stamps_zero.mcap", [0] * 10, [T0_NS + i * PERIOD_NS for i in range(10)])
+
+
+def stamps_all_zero_log_zero(folder: Path) -> Path:
+    """Header stamps and log times all 0: nothing to tell the frames apart."""
+    return _stamped(folder / "stamps_zero_log_zero.mcap", [0] * 10, [0] * 10)
+
+
+def stamps_duplicated(folder: Path) -> Path:
+    """Ten different frames, every one stamped with the same time (a stuck clock)."""
+    return _stamped(folder / "stamps_duplicated.mcap", [T0_NS] * 10, [T0_NS + i * PERIOD_NS for i in range(10)])
+
+
+def log_time_near_2_64(folder: Path) -> Path:
+    """MCAP log times (and header stamps 0) near 2^64 ns: beyond what an int64 stamp can hold."""
+    big = 2**64 - 1000
+    return _stamped(folder / "log_time_huge.mcap", [0] * 4, [big + i for i in range(4)])
+
+
+def two_depth_topics(folder: Path) -> Path:
+    """A 16UC1 depth topic and an rgb8 colourised one whose name sorts first (RealSense `colorizer`)."""
+    p = folder / "two_depth.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(4):
+            f = textured_frame(i)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            w.write_raw("/camera/depth/colorized", "sensor_msgs/msg/Image", w._image(f.stamp_ns, f.rgb, "rgb8"),
+                        f.stamp_ns)
+            w.write_raw("/camera/depth/image_rect_raw", *w.depth_message(f.depth_m, f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, f.stamp_ns),
+                        f.stamp_ns)
+    return p
+
+
+def pose_nan(folder: Path) -> Path:
+    """A recorded PoseStamped whose position is NaN in one of four frames."""
+    p = folder / "pose_nan.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(4):
+            f = textured_frame(i)
+            w.write_frame(f)
+            T = np.eye(4)
+            T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # looking down
+            T[:3, 3] = (0.01 * i, 0.0, ALTITUDE_M)
+            if i == 1:
+                T[0, 3] = np.nan
+            w.write_pose("/camera/pose", f.stamp_ns, T)
+    return p
+
+
+def symlink_loop(folder: Path) -> Path:
+    p = folder / "loop.mcap"
+    p.symlink_to(p.name)
+    return p
+
+
+def _tum(folder: Path, name: str, camera_yaml: str | None = None, n: int = 3, missing: int = 0) -> Path:
+    import cv2
+
+    root = folder / name
+    (root / "rgb").mkdir(parents=True)
+    (root / "depth").mkdir()
+    rgb_lines, depth_lines = [], []
+    for i in range(n):
+        f = textured_frame(i)
+        t = f"{1305031102 + i * 0.1:.6f}"
+        rgb_lines.append(f"{t} rgb/{i}.png")
+        depth_lines.append(f"{t} depth/{i}.png")
+        if i >= n - missing:
+            continue  # listed, never written
+        cv2.imwrite(str(root / "rgb" / f"{i}.png"), f.rgb[:, :, ::-1])
+        cv2.imwrite(str(root / "depth" / f"{i}.png"), np.uint16(f.depth_m * 5000))
+    (root / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (root / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+    if camera_yaml is not None:
+        (root / "camera.yaml").write_text(camera_yaml)
+    return root
+
+
+def _camera_yaml(**over: object) -> str:
+    values = {"fx": 0.8 * W, "fy": 0.8 * W, "cx": (W - 1) / 2, "cy": (H - 1) / 2, "width": W, "height": H, **over}
+    return "".join(f"{k}: {v}\n" for k, v in values.items())
+
+
+def tum_camera_width_zero(folder: Path) -> Path:
+    return _tum(folder, "tum_width_zero", _camera_yaml(width=0))
+
+
+def tum_camera_fx_negative(folder: Path) -> Path:
+    return _tum(folder, "tum_fx_negative", _camera_yaml(fx=-128.0))
+
+
+def tum_camera_fx_nan(folder: Path) -> Path:
+    return _tum(folder, "tum_fx_nan", _camera_yaml(fx=".nan"))
+
+
+def tum_camera_fx_huge(folder: Path) -> Path:
+    return _tum(folder, "tum_fx_huge", _camera_yaml(fx=1e300, fy=1e300))
+
+
+def tum_missing_images(folder: Path) -> Path:
+    """30 frames listed, the images of 25 of them missing: one warning line with the count, not 25."""
+    return _tum(folder, "tum_missing", n=30, missing=25)
+
+
+RECORDINGS.update({f.__name__: f for f in (
+    camera_info_principal_outside, camera_info_size_zero, camera_info_fx_huge, camera_info_aspect_mismatch,
+    stamps_all_zero, stamps_all_zero_log_zero, stamps_duplicated, log_time_near_2_64, two_depth_topics, pose_nan,
+    symlink_loop, tum_camera_width_zero, tum_camera_fx_negative, tum_camera_fx_nan, tum_camera_fx_huge,
+    tum_missing_images)})
+
+
+# ----------------------------------------------------------------------------- landing.json targets (slz land simulate)
+FOOTPRINT_M = (0.656, 0.656)  # uav.footprint_m of the default config
+
+
+def _landing(folder: Path, name: str, corners: list[list[float]] | None = None, center: list[float] | None = None,
+             text: str | None = None) -> Path:
+    import json
+
+    run = folder / name
+    run.mkdir(parents=True)
+    c = center if center is not None else [1.0, -0.5, 0.1]
+    if corners is None:
+        corners = [[c[0] + sx * FOOTPRINT_M[0], c[1] + sy * FOOTPRINT_M[1], c[2]]
+                   for sx, sy in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
+    doc = {"status": "site", "method": "fuzzy", "source": "flight.mcap", "frame": {"index": 3, "stamp_ns": 1},
+           "site": {"pixel": [320, 240], "center_camera": [0, 0, 5], "center_world": c, "corners_world": corners,
+                    "normal_world": [0, 0, 1], "cluster": {}, "score": 0.9},
+           "world_frame": "test", "timings_ms": {}}
+    (run / "landing.json").write_text(text if text is not None else json.dumps(doc))
+    return run
+
+
+def landing_good(folder: Path) -> Path:
+    return _landing(folder, "landing_good")
+
+
+def landing_collinear(folder: Path) -> Path:
+    return _landing(folder, "landing_collinear", [[1.0 + d, -0.5, 0.1] for d in (-0.9, -0.3, 0.3, 0.9)])
+
+
+def landing_tiny(folder: Path) -> Path:
+    c = [1.0, -0.5, 0.1]
+    return _landing(folder, "landing_tiny", [[c[0] + sx * 1e-9, c[1] + sy * 1e-9, c[2]]
+                                             for sx, sy in ((1, 1), (1, -1), (-1, 1), (-1, -1))])
+
+
+def landing_identical(folder: Path) -> Path:
+    return _landing(folder, "landing_identical", [[1.0, -0.5, 0.1]] * 4)
+
+
+def landing_deep(folder: Path) -> Path:
+    return _landing(folder, "landing_deep", text='{"status": "site", "site": ' + "[" * 100000 + "]" * 100000 + "}")
+
+
+LANDINGS: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
+    landing_collinear, landing_tiny, landing_identical, landing_deep)}

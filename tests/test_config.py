@@ -113,3 +113,41 @@ def test_cli_bad_config_is_one_line_exit_1(runner, tmp_path: Path) -> None:
     assert res.exit_code == 1 and "missing.yaml" in res.stderr
     res = runner.invoke(main, ["config", "dump", "--set", "novalue"])
     assert res.exit_code == 1 and "KEY=VALUE" in res.stderr
+
+
+@pytest.mark.parametrize(
+    ("overrides", "key", "words"),
+    [
+        (["terrain.flatness.canny_low=230"], "terrain.flatness.canny_low", "<= terrain.flatness.canny_high"),
+        (["terrain.steepness.normal_px=31", "terrain.steepness.normal_max_px=29"], "terrain.steepness.normal_px",
+         "<= terrain.steepness.normal_max_px"),
+        (["uav.thrust_min_n=7.0", "uav.thrust_max_n=6.0"], "uav.thrust_min_n", "< uav.thrust_max_n"),
+        (["uav.thrust_max_n=3.0"], "uav.thrust_max_n", "must exceed the weight"),
+        (["uav.thrust_min_n=5.0"], "uav.thrust_min_n", "must be below the weight"),
+        (["synth.sensor.min_range_m=30.0"], "synth.sensor.min_range_m", "< synth.sensor.max_range_m"),
+        (["slam.odometry.min_depth_m=25.0"], "slam.odometry.min_depth_m", "< slam.odometry.max_depth_m"),
+        (["slam.orb.fast_min_threshold=30"], "slam.orb.fast_min_threshold", "<= slam.orb.fast_threshold"),
+        (["camera.cx=700.0"], "camera.cx", "<= camera.width"),
+        (["camera.fx=1000000000.0"], "camera", "field of view"),
+        (["sources.intrinsics.min_fov_deg=100.0", "sources.intrinsics.max_fov_deg=90.0"],
+         "sources.intrinsics.min_fov_deg", "< sources.intrinsics.max_fov_deg"),
+        (["landing.seed=4294967296"], "landing.seed", "<= 4294967295"),  # scipy's kmeans2 refused it, deep inside
+    ],
+)
+def test_contradictory_values_name_both_keys(overrides: list[str], key: str, words: str) -> None:
+    """Each value is in its range; together they cannot work (canny_low > canny_high used to be accepted)."""
+    with pytest.raises(ConfigError) as info:
+        load_config(overrides=overrides)
+    assert info.value.key == key
+    assert words in str(info.value)
+
+
+def test_a_utf16_config_with_a_byte_order_mark_is_read(tmp_path: Path) -> None:
+    f = tmp_path / "utf16.yaml"
+    f.write_bytes("mask:\n  threshold: 0.6\n".encode("utf-16"))  # with BOM, as Windows editors save it
+    assert load_config(f).mask.threshold == 0.6
+
+
+def test_a_deep_set_value_is_a_config_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="nested too deeply"):
+        load_config(overrides=["mask.threshold=" + "[" * 20000 + "]" * 20000])

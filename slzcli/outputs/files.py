@@ -7,6 +7,7 @@ file, the new file, or a ``.tmp`` file that nothing trusts.
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import os
@@ -35,6 +36,19 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
+# errno values that only a write gives: an OSError carrying one is named as the output's, wherever it surfaced.
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS})
+
+
+@contextmanager
+def naming_write_errors(path: Path) -> Iterator[None]:
+    """An OSError (disk full, no permission, read-only) while writing ``path`` -> OutputError naming it."""
+    try:
+        yield
+    except OSError as err:
+        raise OutputError(path, f"cannot write ({err.strerror or err})") from err
+
+
 @contextmanager
 def atomic_path(path: Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it into place, else remove it."""
@@ -44,13 +58,15 @@ def atomic_path(path: Path) -> Iterator[Path]:
     except OSError as err:
         raise OutputError(path.parent, f"cannot create folder ({err.strerror})") from err
     # The real suffix is kept last so that writers that pick a format by extension still work.
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.tmp-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
+    with naming_write_errors(path):
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.tmp-", suffix=path.suffix, dir=path.parent)
+        os.close(fd)
     tmp = Path(tmp_name)
     try:
-        yield tmp
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
+        with naming_write_errors(path):
+            yield tmp
+            os.chmod(tmp, 0o666 & ~_UMASK)
+            os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -65,14 +81,32 @@ def write_text(path: Path, text: str) -> None:
     write_bytes(path, text.encode())
 
 
+def finite_json(obj: Any) -> Any:
+    """``obj`` with every NaN or infinite float replaced by None: in slz's JSON, null means "no value"
+    (not computed, or not a number). Bare ``NaN`` / ``Infinity`` are not JSON and break other readers."""
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite_json(obj.tolist())
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj
+
+
+def json_text(obj: Any, indent: int | None = 2, **kw: Any) -> str:
+    """Strict JSON (``allow_nan=False``) of ``obj`` after ``finite_json``: every JSON slz writes goes through here."""
+    return json.dumps(finite_json(obj), indent=indent, default=_json_default, allow_nan=False, **kw)
+
+
 def write_json(path: Path, obj: Any) -> None:
-    write_text(path, json.dumps(obj, indent=2, default=_json_default) + "\n")
+    write_text(path, json_text(obj) + "\n")
 
 
 def write_npz(path: Path, **arrays: np.ndarray) -> None:
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
+    """A deflated ``.npz`` like ``np.savez_compressed``, but safe to interrupt (see ``_zip_for_writing``)."""
+    write_npz_streamed(path, dict(arrays))
 
 
 ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)  # fixed member time: the same arrays give the same bytes
@@ -85,7 +119,7 @@ def write_npz_streamed(path: Path, members: dict[str, "np.ndarray | Path"], stor
     Members named in ``stored`` are not compressed (a reader can memory-map them); the rest are
     deflated. Memory holds one chunk of a file member, never the whole array.
     """
-    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w") as zf:
+    with atomic_path(path) as tmp, _zip_for_writing(tmp) as zf:
         for name, member in members.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_EPOCH)
             info.compress_type = zipfile.ZIP_STORED if name in stored else zipfile.ZIP_DEFLATED
@@ -98,6 +132,25 @@ def write_npz_streamed(path: Path, members: dict[str, "np.ndarray | Path"], stor
                 buf = io.BytesIO()
                 np.lib.format.write_array(buf, np.asarray(member, order="C"), allow_pickle=False)
                 zf.writestr(info, buf.getvalue())
+
+
+@contextmanager
+def _zip_for_writing(path: Path) -> Iterator[zipfile.ZipFile]:
+    """A ZipFile for writing that an interrupt can abandon cleanly.
+
+    Ctrl-C or SIGTERM (KeyboardInterrupt) or ``--timeout`` landing while a member is being closed left
+    the ZipFile with an open writing handle: its close() then raised ValueError, which replaced the
+    interrupt, and ZipFile.__del__ later printed "Exception ignored ... Traceback". On any exception the
+    archive is dropped here instead (the caller removes the temporary file), so nothing is left to finish.
+    """
+    with open(path, "wb") as fh:
+        zf = zipfile.ZipFile(fh, "w")
+        try:
+            yield zf
+        except BaseException:
+            zf.fp = None  # abandoned: close() and __del__ have nothing to write
+            raise
+        zf.close()
 
 
 class ArraySpool:
@@ -122,7 +175,7 @@ class ArraySpool:
         for name, values in rows.items():
             dtype, shape = self.spec[name]
             block = np.ascontiguousarray(values, dtype=dtype).reshape((-1, *shape))
-            with open(self.folder / f"{name}.bin", "ab") as fh:
+            with naming_write_errors(self.folder / f"{name}.bin"), open(self.folder / f"{name}.bin", "ab") as fh:
                 fh.write(block.tobytes())
             self.rows[name] += len(block)
 
@@ -134,7 +187,7 @@ class ArraySpool:
         if self._npy_rows.get(name) == self.rows[name]:
             return out
         self._npy_rows[name] = self.rows[name]
-        with open(out, "wb") as dst:
+        with naming_write_errors(out), open(out, "wb") as dst:
             np.lib.format.write_array_header_1_0(dst, {"descr": np.lib.format.dtype_to_descr(dtype),
                                                        "fortran_order": False, "shape": (self.rows[name], *shape)})
             if raw.exists():
@@ -159,16 +212,25 @@ def atomic_dir(path: Path, *, replace: bool = False) -> Iterator[Path]:
     except OSError as err:
         raise OutputError(path, f"cannot create output folder ({err.strerror})") from err
     try:
-        yield tmp
-        os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes 0700; a finished run gets the user's usual mode
-        if path.exists():
-            old = path.with_name(f".{path.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        try:
+            yield tmp
+        except OutputError as err:  # name the folder's own path, not its temporary name
+            raise OutputError(err.path.replace(str(tmp), str(path), 1), err.reason) from err
+        except OSError as err:
+            if err.errno not in WRITE_ERRNOS:
+                raise
+            where = err.filename.replace(str(tmp), str(path), 1) if isinstance(err.filename, str) else path
+            raise OutputError(where, f"cannot write ({err.strerror or err})") from err
+        with naming_write_errors(path):
+            os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes 0700; a finished run gets the user's usual mode
+            if path.exists():
+                old = path.with_name(f".{path.name}.old")
+                shutil.rmtree(old, ignore_errors=True)
+                os.replace(path, old)
+                os.replace(tmp, path)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                os.replace(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -17,6 +17,7 @@ import numpy as np
 
 from slzcli.control.simulate import SimResult, Target
 from slzcli.errors import DatasetError, NoSiteFound
+from slzcli.landing.corners import corners_problem
 from slzcli.outputs.files import write_json, write_text
 
 
@@ -37,13 +38,19 @@ def landing_path(path: Path) -> Path:
     raise DatasetError(path, "not found")
 
 
-def read_target(path: Path, footprint_m: tuple[float, ...]) -> tuple[Target, dict[str, Any]]:
-    """The landing square of a landing.json, and the parsed document; no site -> NoSiteFound."""
+def read_target(path: Path, footprint_m: tuple[float, ...], tolerance: float) -> tuple[Target, dict[str, Any]]:
+    """The landing square of a landing.json, and the parsed document; no site -> NoSiteFound.
+
+    The corners must be the Eq. 10 square of ``footprint_m`` within ``tolerance``
+    (``control.sim.target_tolerance``, a fraction of the footprint).
+    """
     file = landing_path(path)
     try:
         doc = json.loads(file.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise DatasetError(file, f"not readable JSON ({err})") from err
+    except RecursionError as err:
+        raise DatasetError(file, "not a landing.json: nested too deeply to read") from err
     if not isinstance(doc, dict) or "status" not in doc:
         raise DatasetError(file, "missing key 'status' (expected the landing.json of `slz detect`)")
     if doc["status"] == "no_safe_site":
@@ -70,6 +77,11 @@ def read_target(path: Path, footprint_m: tuple[float, ...]) -> tuple[Target, dic
             raise DatasetError(file, "site.corners_world: expected four [x, y, z] points") from err
     if not (np.isfinite(center).all() and np.isfinite(corners_arr).all()):
         raise DatasetError(file, "site: centre or corners are not finite numbers")
+    problem = corners_problem(center, corners_arr, footprint_m, tolerance)
+    if problem is not None:
+        raise DatasetError(file, f"site.corners_world: {problem}, beyond control.sim.target_tolerance = "
+                                 f"{tolerance:g} x the side; not a landing square of this UAV: use the config "
+                                 "slz detect used")
     return Target(center, corners_arr), doc
 
 

@@ -225,7 +225,10 @@ class RecordingWriter:
             data = self.typestore.serialize_ros1(msg, msgtype)
         else:
             data = self.typestore.serialize_cdr(msg, msgtype)
-        self._backend.write(topic, msgtype, data, int(stamp_ns))
+        try:
+            self._backend.write(topic, msgtype, data, int(stamp_ns))
+        except OSError as err:  # disk full, quota, read-only: name the recording, not "internal error"
+            raise OutputError(self.path, f"cannot write ({err.strerror or err})") from err
 
     def _header(self, stamp_ns: int, frame_id: str) -> Any:
         t = self.typestore.types

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from slzcli.outputs.files import ArraySpool, atomic_path
+from slzcli.outputs.files import ArraySpool, atomic_path, naming_write_errors
 
 SITE_COLUMNS = ("frame", "stamp_ns", "cluster", "points", "x", "y", "z", "normal_variance", "extent_x_m",
                 "extent_y_m", "qualifies", "reason", "chosen")
@@ -35,14 +35,15 @@ class SiteLog:
         self._spool = ArraySpool(self.folder / "site_points", POINT_SPEC) if self.folder is not None else None
         self._csv = self.folder / "sites.csv" if self.folder is not None else None
         if self._csv is not None:
-            self._csv.write_text(",".join(SITE_COLUMNS) + "\n")
+            with naming_write_errors(self._csv):
+                self._csv.write_text(",".join(SITE_COLUMNS) + "\n")
 
     def add_rows(self, rows: list[dict[str, Any]]) -> None:
         self.rows += len(rows)
         if self._csv is None:
             self._rows.extend(rows)
             return
-        with open(self._csv, "a", newline="") as fh:
+        with naming_write_errors(self._csv), open(self._csv, "a", newline="") as fh:
             csv.DictWriter(fh, fieldnames=SITE_COLUMNS, lineterminator="\n").writerows(rows)
 
     def add_site(self, frame: Any, site: Any, kept_xyz: np.ndarray, chosen_xyz: np.ndarray,

@@ -11,19 +11,43 @@ bag (sqlite3 or mcap storage); a folder with ``rgb.txt`` -> TUM RGB-D. Use as::
 
 from __future__ import annotations
 
+import errno
+import os
+import stat
 from pathlib import Path
 
 from slzcli.config import Config
 from slzcli.errors import DatasetError
 from slzcli.sources.recording import Recording, RecordingInfo
 
-__all__ = ["Recording", "RecordingInfo", "open_recording", "guess_format"]
+__all__ = ["Recording", "RecordingInfo", "open_recording", "guess_format", "check_readable"]
+
+
+def check_readable(path: Path) -> None:
+    """DatasetError naming ``path`` when it is missing, a broken or looping link, or unreadable."""
+    try:
+        st = os.stat(path)
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            raise DatasetError(path, "symbolic link loop (the link leads back to itself)") from err
+        if path.is_symlink():
+            raise DatasetError(path, f"broken symbolic link (to {os.readlink(path)!r}: no such file)") from err
+        if err.errno in (errno.ENOENT, errno.ENOTDIR):
+            raise DatasetError(path, "no such file or folder") from err
+        raise DatasetError(path, f"cannot read ({err.strerror or err})") from err
+    try:
+        if stat.S_ISDIR(st.st_mode):
+            os.listdir(path)
+        else:
+            with open(path, "rb"):
+                pass
+    except OSError as err:
+        raise DatasetError(path, f"cannot read ({err.strerror or err})") from err
 
 
 def guess_format(path: Path) -> str:
     """'ros1', 'mcap', 'ros2' or 'tum'; DatasetError naming the path when it is none of them."""
-    if not path.exists():
-        raise DatasetError(path, "no such file or folder")
+    check_readable(path)
     if path.is_dir():
         if (path / "metadata.yaml").is_file():
             return "ros2"

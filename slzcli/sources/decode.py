@@ -167,9 +167,10 @@ def match_depth_to_color(depth_m: np.ndarray, color_shape: tuple[int, int]) -> n
 
 # ----------------------------------------------------------------------------- camera info
 def decode_camera_info(msg: Any) -> Intrinsics:
-    """``CameraInfo`` -> Intrinsics (K row-major; distortion model and D recorded)."""
+    """``CameraInfo`` -> Intrinsics (K row-major; distortion model and D recorded), not yet checked."""
     k = np.asarray(_f(msg, "k", "K"), dtype=np.float64).reshape(-1)
-    if k.size != 9 or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0:
+    if k.size != 9 or not np.all(np.isfinite(k)) or (k[0] == 0 and k[4] == 0):
+        # Uncalibrated (ROS: K left zero) or unreadable; any other bad K is refused by validate.py.
         raise DecodeError(f"CameraInfo has no usable K ({k.tolist()})")
     d = tuple(float(v) for v in np.asarray(_f(msg, "d", "D"), dtype=np.float64).reshape(-1))
     return Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]), int(msg.width), int(msg.height),
@@ -218,6 +219,8 @@ def transform_matrix(translation: Any, rotation: Any) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = quat_to_matrix(rotation.x, rotation.y, rotation.z, rotation.w)
     T[:3, 3] = (translation.x, translation.y, translation.z)
+    if not np.all(np.isfinite(T[:3, 3])):
+        raise DecodeError(f"non-finite position {T[:3, 3].tolist()}")
     return T
 
 

@@ -12,9 +12,11 @@ from __future__ import annotations
 import abc
 import logging
 from collections import deque
-from dataclasses import dataclass, replace
+from collections.abc import Collection, Generator, Iterator
+from contextlib import closing
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Collection, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -22,8 +24,18 @@ from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources import decode
 from slzcli.sources.recording import Recording, RecordingInfo
-from slzcli.sources.sync import Pair, PoseTrack, StreamPairer
-from slzcli.sources.topics import CAMERA_INFO, ODOMETRY, POSE_STAMPED, TF, Choices, choose_streams
+from slzcli.sources.sync import Pair, PoseTrack, Stream, StreamPairer
+from slzcli.sources.topics import (
+    COMPRESSED,
+    IMAGE,
+    ODOMETRY,
+    POSE_STAMPED,
+    TF,
+    Choices,
+    choose_streams,
+    normalise_msgtype,
+)
+from slzcli.sources.validate import StampCounts, intrinsics_problem, size_problem, stamp_problem
 from slzcli.types import Frame, Intrinsics, PairingReport, StreamInfo
 
 log = logging.getLogger(__name__)
@@ -90,7 +102,7 @@ class MessageRecording(Recording):
         if not self._topics:
             why = self.log.warnings[0] if self.log.warnings else "empty or not a recording"
             raise DatasetError(self.path, f"the recording has no readable topics ({why})")
-        self.choices = choose_streams(self._topics, self.cfg, str(self.path))
+        self.choices = choose_streams(self._topics, self.cfg, str(self.path), self._peek_encodings())
 
     def close(self) -> None:
         self.log.close()
@@ -100,7 +112,7 @@ class MessageRecording(Recording):
             raise DatasetError(self.path, "recording is not open (use it as a context manager)")
         return self.choices
 
-    def _wrap(self, it: Iterator[RawMessage]) -> Iterator[RawMessage]:
+    def _wrap(self, it: Iterator[RawMessage]) -> Generator[RawMessage, None, None]:
         try:
             yield from it
         except SlzError:
@@ -108,9 +120,64 @@ class MessageRecording(Recording):
         except Exception as err:  # third-party reader errors, wrapped once here
             raise DatasetError(self.path, f"cannot read messages ({type(err).__name__}: {err})") from err
 
-    def _stamp(self, msg: RawMessage) -> tuple[int, str]:
+    def _peek_encodings(self) -> dict[str, str]:
+        """The encoding of the first message of each Image topic, when there are more image topics
+        than the colour and the depth stream (so that the choice cannot go by name alone)."""
+        types = {t: normalise_msgtype(m) for t, m in self._topics.items()}
+        images = [t for t, m in types.items() if m == IMAGE]
+        if sum(m in (IMAGE, COMPRESSED) for m in types.values()) <= 2 or not images:
+            return {}
+        found: dict[str, str] = {}
+        with closing(self._wrap(self.log.messages(images))) as messages:
+            for msg in messages:
+                if msg.topic not in found:
+                    try:
+                        found[msg.topic] = str(getattr(self.log.deserialize(msg.topic, msg.data), "encoding", ""))
+                    except DecodeError:
+                        found[msg.topic] = ""
+                if len(found) == len(images):
+                    break
+        return found
+
+    def _stamp(self, msg: RawMessage, counts: StampCounts | None = None) -> tuple[int, str] | None:
+        """(stamp, frame_id) of a colour or depth message; None (counted) when the stamp is unusable.
+
+        Header stamp 0: the log time. Negative, or beyond int64 ns: skipped. DecodeError when the
+        message is too short to hold a header.
+        """
         stamp, frame = decode.header_stamp(msg.data, self.log.is_ros1(msg.topic))
-        return (stamp if stamp > 0 else msg.log_ns), frame
+        counts = counts if counts is not None else StampCounts()
+        counts.messages += 1
+        if stamp == 0:
+            counts.zero += 1
+            stamp = msg.log_ns
+        problem = stamp_problem(stamp)
+        if problem is not None:
+            counts.out_of_range += 1
+            counts.first_out_of_range = counts.first_out_of_range or problem
+            return None
+        return stamp, frame
+
+    def _check_info(self, topic: str, k: Intrinsics) -> Intrinsics:
+        """A decoded CameraInfo, checked: DatasetError naming the topic when it cannot be used."""
+        lim = self.cfg.intrinsics
+        problem = intrinsics_problem(k, lim.min_fov_deg, lim.max_fov_deg)
+        if problem is not None:
+            raise DatasetError(self.path, f"CameraInfo on {topic}: {problem}; fix the camera's calibration, or set "
+                                          "sources.topics.camera_info to another CameraInfo topic")
+        return k
+
+    def _stamp_report(self, ch: Choices, counts: dict[str, StampCounts], pairer: StreamPairer) -> list[str]:
+        """One line per stream and kind of stamp problem, with its count."""
+        lines = []
+        for role, topic in (("color", ch.color.topic), ("depth", ch.depth.topic)):
+            c = counts[role]
+            c.repeated = pairer.repeated[role]
+            lines += [f"{topic}: {p}" for p in c.problems()]
+        if pairer.late:
+            lines.append(f"{pairer.late} colour/depth message(s) arrived later than sources.reorder_window_ms "
+                         "allows and were not paired")
+        return lines
 
     # ------------------------------------------------------------------ info
     def info(self) -> RecordingInfo:
@@ -121,6 +188,7 @@ class MessageRecording(Recording):
         undecodable = 0
         info_failed = False
         first = last = None
+        stamps = {"color": StampCounts(), "depth": StampCounts()}
         for msg in self._wrap(self.log.messages(())):
             c = counts.setdefault(msg.topic, [0, 0, 0])
             c[1] = msg.log_ns if c[0] == 0 else min(c[1], msg.log_ns)
@@ -129,15 +197,18 @@ class MessageRecording(Recording):
             first = msg.log_ns if first is None else min(first, msg.log_ns)
             last = msg.log_ns if last is None else max(last, msg.log_ns)
             if msg.topic in (ch.color.topic, ch.depth.topic):
+                role: Stream = "color" if msg.topic == ch.color.topic else "depth"
                 try:
-                    stamp, _ = self._stamp(msg)
+                    stamped = self._stamp(msg, stamps[role])
                 except DecodeError:
                     undecodable += 1
                     continue
-                pairer.push("color" if msg.topic == ch.color.topic else "depth", stamp)
+                if stamped is not None:
+                    pairer.push(role, stamped[0], msg.data)
             elif msg.topic == ch.camera_info.topic and intrinsics is None:
                 try:
-                    intrinsics = decode.decode_camera_info(self.log.deserialize(msg.topic, msg.data))
+                    intrinsics = self._check_info(msg.topic, decode.decode_camera_info(
+                        self.log.deserialize(msg.topic, msg.data)))
                 except DecodeError as err:  # reported once (a later CameraInfo may still be good), not fatal
                     if not info_failed:
                         log.warning("%s: CameraInfo on %s not decodable: %s", self.path, msg.topic, err)
@@ -148,7 +219,10 @@ class MessageRecording(Recording):
         source = f"CameraInfo on {ch.camera_info.topic}" if intrinsics is not None else "config camera section"
         if intrinsics is None:
             intrinsics = self._config_intrinsics()
-        report = self._report(pairer, 0, undecodable, ())
+        stamp_lines = self._stamp_report(ch, stamps, pairer)
+        for line in stamp_lines:
+            log.warning("%s: %s", self.path, line)
+        report = self._report(pairer, 0, undecodable, tuple(stamp_lines))
         return RecordingInfo(str(self.path), self.log.format, ((last or 0) - (first or 0)) * 1e-9, streams,
                              ch.all(), intrinsics, source, report, tuple(self.log.warnings))
 
@@ -156,9 +230,9 @@ class MessageRecording(Recording):
         cam = self.config.camera
         return Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
 
-    def _report(self, pairer: StreamPairer, without_pose: int, undecodable: int, notes: tuple[str, ...]) -> PairingReport:
-        extra = (f"{pairer.late} message(s) arrived later than sources.reorder_window_ms and were not paired",) \
-            if pairer.late else ()
+    def _report(self, pairer: StreamPairer, without_pose: int, undecodable: int,
+                notes: tuple[str, ...]) -> PairingReport:
+        extra: tuple[str, ...] = ()
         if pairer.duplicates:
             extra += (f"{pairer.duplicates} duplicated colour/depth message(s) (same topic and stamp) were dropped",)
         return PairingReport(pairer.paired, pairer.unpaired["color"], pairer.unpaired["depth"], without_pose,
@@ -179,21 +253,27 @@ class MessageRecording(Recording):
         pending: deque[Pair] = deque()
         newest: int | None = None
         has_pose = ch.pose.topic is not None
+        stamps = {"color": StampCounts(), "depth": StampCounts()}
         for msg in self._wrap(self.log.messages(topics)):
             if msg.topic in (ch.color.topic, ch.depth.topic):
+                is_color = msg.topic == ch.color.topic
                 try:
-                    stamp, frame_id = self._stamp(msg)
+                    stamped = self._stamp(msg, stamps["color" if is_color else "depth"])
                 except DecodeError as err:
                     state.undecodable(self.path, msg.topic, err)
                     continue
-                is_color = msg.topic == ch.color.topic
+                if stamped is None:
+                    continue
+                stamp, frame_id = stamped
                 if is_color and poses.camera_frame is None:
                     poses.camera_frame = cfg.pose_frame or frame_id
                 pending.extend(pairer.push("color" if is_color else "depth", stamp, msg))
                 newest = stamp if newest is None else max(newest, stamp)
             elif msg.topic == ch.camera_info.topic:
                 try:
-                    state.info = decode.decode_camera_info(self.log.deserialize(msg.topic, msg.data))
+                    state.info = self._check_info(msg.topic, decode.decode_camera_info(
+                        self.log.deserialize(msg.topic, msg.data)))
+                    state.info_source = f"CameraInfo on {msg.topic}"
                 except DecodeError as err:
                     state.note(f"CameraInfo on {msg.topic} not usable: {err}")
             else:
@@ -213,27 +293,32 @@ class MessageRecording(Recording):
             frame = self._decode(pending.popleft(), state, poses)
             if frame is not None:
                 yield frame
-        self.report = self._report(pairer, state.without_pose, state.n_undecodable, tuple(state.notes))
+        state.pose_summary()
+        notes = tuple(state.notes) + tuple(self._stamp_report(ch, stamps, pairer))
+        self.report = self._report(pairer, state.without_pose, state.n_undecodable, notes)
         if self.log.warnings:
             log.warning("%s: %d frames recovered (%s)", self.path, state.yielded, "; ".join(self.log.warnings))
         if state.yielded == 0 and state.first_error is not None:
             raise DatasetError(self.path, f"no frame could be decoded: {state.first_error}")
+        bad_stamps = [c.first_out_of_range for c in stamps.values() if c.out_of_range]
+        if state.yielded == 0 and bad_stamps:
+            raise DatasetError(self.path, f"no frame has a usable stamp (first: {bad_stamps[0]})")
 
     def _first_color_frame_id(self) -> str | None:
         """The colour header's frame_id, read from the first colour message (for tf composition)."""
         ch = self._need_choices()
         for msg in self._wrap(self.log.messages([ch.color.topic] if ch.color.topic else [])):
             try:
-                return self._stamp(msg)[1] or None
+                return decode.header_stamp(msg.data, self.log.is_ros1(msg.topic))[1] or None
             except DecodeError:
                 return None
         return None
 
-    def _decode(self, pair: Pair, state: "_FrameState", poses: "_PoseSource") -> Frame | None:
+    def _decode(self, pair: Pair, state: _FrameState, poses: _PoseSource) -> Frame | None:
         ch = self._need_choices()
         try:
-            rgb = decode.decode_color(self.log.deserialize(ch.color.topic, pair.color.data))
-            depth = decode.decode_depth(self.log.deserialize(ch.depth.topic, pair.depth.data),
+            rgb = decode.decode_color(self.log.deserialize(pair.color.topic, pair.color.data))
+            depth = decode.decode_depth(self.log.deserialize(pair.depth.topic, pair.depth.data),
                                         self.cfg.depth_unit_16u_m, self.cfg.max_depth_m)
         except DecodeError as err:
             state.undecodable(self.path, f"{ch.color.topic} / {ch.depth.topic}", err)
@@ -247,6 +332,10 @@ class MessageRecording(Recording):
         if intr is None:
             state.note("no CameraInfo before the first frame: intrinsics from the config camera section")
             intr = self._config_intrinsics()
+            state.info_source = "the config camera section"
+        problem = size_problem(intr, w, h, self.cfg.intrinsics.aspect_tolerance)
+        if problem is not None:
+            raise DatasetError(self.path, f"frame {state.yielded} ({ch.color.topic}): {state.info_source}: {problem}")
         if (intr.width, intr.height) != (w, h):
             state.note(f"intrinsics for {intr.width}x{intr.height} scaled to the colour size {w}x{h}")
             intr = intr.scaled(w, h)
@@ -263,7 +352,10 @@ class _FrameState:
 
     def __init__(self) -> None:
         self.info: Intrinsics | None = None
+        self.info_source = ""
         self.yielded = 0
+        self.bad_poses = 0
+        self.first_bad_pose = ""
         self.without_pose = 0
         self.n_undecodable = 0
         self.first_error: str | None = None
@@ -273,6 +365,18 @@ class _FrameState:
         if text not in self.notes:
             self.notes.append(text)
             log.info("%s", text)
+
+    def bad_pose(self, path: Path, topic: str, err: Exception) -> None:
+        """A pose message that cannot be used: warned about once, then counted (pose_summary)."""
+        self.bad_poses += 1
+        if not self.first_bad_pose:
+            self.first_bad_pose = f"pose on {topic} not usable: {err}"
+            log.warning("%s: %s (the frames it would pose carry none; further unusable poses are counted, not "
+                        "shown)", path, self.first_bad_pose)
+
+    def pose_summary(self) -> None:
+        if self.bad_poses:
+            self.note(f"{self.bad_poses} pose message(s) not usable (first: {self.first_bad_pose})")
 
     def undecodable(self, path: Path, topic: str, err: Exception) -> None:
         self.n_undecodable += 1
@@ -309,7 +413,7 @@ class _PoseSource:
             elif self.ch.pose_type in (POSE_STAMPED, ODOMETRY):
                 self._feed_pose(*decode.decode_pose(m))
         except DecodeError as err:
-            self.state.note(f"pose on {msg.topic} not usable: {err}")
+            self.state.bad_pose(self.rec.path, msg.topic, err)
 
     def _feed_tf(self, transforms: list[tuple[int, str, str, np.ndarray]]) -> None:
         if not self.camera_frame:

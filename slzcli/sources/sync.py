@@ -8,6 +8,8 @@ messages pair as sorted ones would. ``pair_stamps`` applies the rule to whole li
 no later message can still be a candidate (newest stamp seen minus ``window_ns`` is
 taken as a lower bound for any stamp still to come), then settles that group. A
 message that arrives later than the window allows is counted as late and unpaired. A
+second message of a stream with a stamp already held is dropped: counted as a duplicate
+when its bytes are the same (recorded twice), as ``repeated`` when they differ. A
 chain of overlapping candidates longer than two windows (e.g. 60 Hz depth against 30 Hz
 colour) is settled one window at a time so memory stays bounded (only pairs straddling
 such a cut can differ from ``pair_stamps`` on the whole lists).
@@ -21,8 +23,9 @@ from __future__ import annotations
 
 import bisect
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, Sequence
+from typing import Any, Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -93,6 +96,7 @@ class StreamPairer:
         self.unpaired = {"color": 0, "depth": 0}
         self.late = 0
         self.duplicates = 0
+        self.repeated = {"color": 0, "depth": 0}
 
     def push(self, stream: Stream, stamp_ns: int, payload: Any = None) -> list[Pair]:
         """Add one message; returns the pairs that can no longer change, in stamp order."""
@@ -102,8 +106,11 @@ class StreamPairer:
             return []
         i = bisect.bisect_left(self._buf, int(stamp_ns), key=lambda it: it.stamp_ns)
         while i < len(self._buf) and self._buf[i].stamp_ns == stamp_ns:
-            if self._buf[i].stream == stream:  # the same message recorded twice: one frame, not two
-                self.duplicates += 1
+            if self._buf[i].stream == stream:  # one frame per stamp and stream: the first message is kept
+                if _same(self._buf[i].payload, payload):
+                    self.duplicates += 1  # the same message recorded twice
+                else:
+                    self.repeated[stream] += 1  # another message under the same stamp: a stuck clock
                 return []
             i += 1
         bisect.insort(self._buf, _Item(int(stamp_ns), next(self._seq), stream, payload))
@@ -126,13 +133,14 @@ class StreamPairer:
     def _first_group_end(self) -> int:
         """Index of the last item of the first group of mutually reachable candidates."""
         tol = self.tolerance_ns
-        last_c = last_d = None
+        last_c: int | None = None
+        last_d: int | None = None
         stamps = [it.stamp_ns for it in self._buf]
         streams = [it.stream for it in self._buf]
         # Suffix minima of colour and depth stamps to test each cut in one pass.
         n = len(stamps)
-        next_c = [None] * (n + 1)
-        next_d = [None] * (n + 1)
+        next_c: list[int | None] = [None] * (n + 1)
+        next_d: list[int | None] = [None] * (n + 1)
         for i in range(n - 1, -1, -1):
             next_c[i] = stamps[i] if streams[i] == "color" else next_c[i + 1]
             next_d[i] = stamps[i] if streams[i] == "depth" else next_d[i + 1]
@@ -141,8 +149,9 @@ class StreamPairer:
                 last_c = stamps[i]
             else:
                 last_d = stamps[i]
-            ok_c = last_c is None or next_d[i + 1] is None or next_d[i + 1] - last_c > tol
-            ok_d = last_d is None or next_c[i + 1] is None or next_c[i + 1] - last_d > tol
+            nd, nc = next_d[i + 1], next_c[i + 1]
+            ok_c = last_c is None or nd is None or nd - last_c > tol
+            ok_d = last_d is None or nc is None or nc - last_d > tol
             if ok_c and ok_d:
                 return i
         return n - 1
@@ -172,6 +181,20 @@ class StreamPairer:
         self.unpaired["color"] += len(colors) - len(idx)
         self.unpaired["depth"] += len(depths) - len(idx)
         return [Pair(colors[i].stamp_ns, depths[j].stamp_ns, colors[i].payload, depths[j].payload) for i, j in idx]
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Whether two payloads hold the same bytes (None, when no payload is kept, counts as the same).
+
+    A payload with a ``data`` attribute (a raw message) is compared by that.
+    """
+    a, b = getattr(a, "data", a), getattr(b, "data", b)
+    if a is None or b is None or a is b:
+        return True
+    try:
+        return bool(memoryview(a) == memoryview(b))
+    except TypeError:
+        return bool(a == b)
 
 
 class PoseTrack:

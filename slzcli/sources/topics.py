@@ -1,10 +1,11 @@
 """Which topic slz reads for each role (color, depth, camera_info, pose), with a human reason.
 
-Automatic choice by message type and name; ``sources.topics.*`` overrides it. Rules
+Automatic choice by message type, encoding and name; ``sources.topics.*`` overrides it. Rules
 (datasets/README.md): colour = an Image/CompressedImage topic whose name does not say
-depth/infra/ir, preferring names with color/colour/rgb and raw over compressed; depth =
-an Image or compressedDepth topic with "depth" in its name, preferring
-``aligned_depth_to_color`` (same pixel grid as colour), then raw over compressed;
+depth/infra/ir, preferring a colour encoding, then names with color/colour/rgb, then raw over
+compressed; depth = an Image or compressedDepth topic with "depth" in its name, preferring a
+depth encoding (16UC1, mono16, 32FC1), then ``aligned_depth_to_color`` (same pixel grid as
+colour), then raw over compressed;
 camera_info = the CameraInfo beside the depth topic when depth is aligned, else beside
 the colour topic, else any; pose = PoseStamped, then Odometry, then /tf, skipping topics
 named as ground truth unless ``sources.use_ground_truth_pose``.
@@ -13,11 +14,12 @@ named as ground truth unless ``sources.use_ground_truth_pose``.
 from __future__ import annotations
 
 import re
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 from slzcli.config import SourcesCfg
 from slzcli.errors import DatasetError
+from slzcli.sources.decode import COLOR_ENCODINGS, DEPTH_ENCODINGS
 from slzcli.types import StreamChoice
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -63,11 +65,18 @@ class Choices:
         return (self.color, self.depth, self.camera_info, self.pose)
 
 
-def choose_streams(topics: Mapping[str, str], cfg: SourcesCfg, path: str) -> Choices:
-    """Pick the topic for every role; DatasetError (naming ``path``) when colour or depth is missing."""
+def choose_streams(topics: Mapping[str, str], cfg: SourcesCfg, path: str,
+                   encodings: Mapping[str, str] | None = None) -> Choices:
+    """Pick the topic for every role; DatasetError (naming ``path``) when colour or depth is missing.
+
+    ``encodings``: the ``encoding`` of the first message of Image topics, when known; a topic
+    whose encoding does not fit the role ranks after every one that does (an rgb8
+    ``/camera/depth/colorized`` is not depth, whatever its name says).
+    """
     types = {t: normalise_msgtype(m) for t, m in topics.items()}
-    color = _pick_color(types, cfg.topics.color, path)
-    depth = _pick_depth(types, cfg.topics.depth, path, exclude=color.topic)
+    enc = dict(encodings or {})
+    color = _pick_color(types, cfg.topics.color, path, enc)
+    depth = _pick_depth(types, cfg.topics.depth, path, exclude=color.topic, encodings=enc)
     info = _pick_info(types, cfg.topics.camera_info, color.topic, depth.topic, path)
     pose = _pick_pose(types, cfg, path)
     return Choices(color, depth, info, pose, types.get(pose.topic) if pose.topic else None)
@@ -87,7 +96,19 @@ def _is_depth_name(topic: str) -> bool:
     return "depth" in topic.lower()
 
 
-def _pick_color(types: Mapping[str, str], override: str, path: str) -> StreamChoice:
+def _fits(encodings: Mapping[str, str], topic: str, allowed: Collection[str]) -> bool:
+    """Whether a topic's known encoding suits a role (unknown: assumed to)."""
+    enc = encodings.get(topic)
+    return not enc or enc in allowed
+
+
+def _misfits(encodings: Mapping[str, str], cands: list[str], allowed: Collection[str], role: str) -> str | None:
+    bad = [f"{t} ({encodings[t]})" for t in cands if not _fits(encodings, t, allowed)]
+    return f"ranked last as not {role}: {', '.join(bad)}" if bad else None
+
+
+def _pick_color(types: Mapping[str, str], override: str, path: str,
+                encodings: Mapping[str, str]) -> StreamChoice:
     if override:
         return _override(types, override, "color", (IMAGE, COMPRESSED), path)
     skip = re.compile(r"depth|infra|(^|[/_])ir([/_]|\d|$)|disparity|mask|label|segment", re.I)
@@ -97,20 +118,23 @@ def _pick_color(types: Mapping[str, str], override: str, path: str) -> StreamCho
                                  "'depth'/'infra' in its name); set sources.topics.color")
     named = re.compile(r"colou?r|rgb", re.I)
 
-    def rank(t: str) -> tuple[int, int, str]:
-        return (0 if named.search(t) else 1, 0 if types[t] == IMAGE else 1, t)
+    def rank(t: str) -> tuple[int, int, int, str]:
+        return (0 if _fits(encodings, t, COLOR_ENCODINGS) else 1, 0 if named.search(t) else 1,
+                0 if types[t] == IMAGE else 1, t)
 
     best = min(cands, key=rank)
-    why = [types[best].rsplit("/", 1)[-1]]
+    why = [types[best].rsplit("/", 1)[-1] + (f" {encodings[best]}" if encodings.get(best) else "")]
     why.append("name says colour" if named.search(best) else "no depth/infrared in the name")
     if types[best] == IMAGE and any(types[t] == COMPRESSED for t in cands):
         why.append("raw preferred over compressed")
     if len(cands) > 1:
         why.append(f"{len(cands) - 1} other candidate(s)")
-    return StreamChoice("color", best, "; ".join(why))
+    misfit = _misfits(encodings, cands, COLOR_ENCODINGS, "colour")
+    return StreamChoice("color", best, "; ".join(why + ([misfit] if misfit else [])))
 
 
-def _pick_depth(types: Mapping[str, str], override: str, path: str, exclude: str | None) -> StreamChoice:
+def _pick_depth(types: Mapping[str, str], override: str, path: str, exclude: str | None,
+                encodings: Mapping[str, str]) -> StreamChoice:
     if override:
         return _override(types, override, "depth", (IMAGE, COMPRESSED), path)
     cands = [t for t, m in types.items() if t != exclude and _is_depth_name(t)
@@ -119,16 +143,18 @@ def _pick_depth(types: Mapping[str, str], override: str, path: str, exclude: str
         raise DatasetError(path, "no depth stream (no Image or compressedDepth topic with 'depth' in its name); "
                                  "set sources.topics.depth")
 
-    def rank(t: str) -> tuple[int, int, str]:
-        return (0 if "aligned_depth_to_color" in t else 1, 0 if types[t] == IMAGE else 1, t)
+    def rank(t: str) -> tuple[int, int, int, str]:
+        return (0 if _fits(encodings, t, DEPTH_ENCODINGS) else 1, 0 if "aligned_depth_to_color" in t else 1,
+                0 if types[t] == IMAGE else 1, t)
 
     best = min(cands, key=rank)
     why = ["aligned to colour (aligned_depth_to_color preferred)" if "aligned_depth_to_color" in best
            else "depth in the name; not aligned to colour: resized to the colour size if sizes differ"]
-    why.append("raw Image" if types[best] == IMAGE else "compressedDepth")
+    why.append(f"raw Image {encodings.get(best, '')}".rstrip() if types[best] == IMAGE else "compressedDepth")
     if len(cands) > 1:
         why.append(f"{len(cands) - 1} other candidate(s)")
-    return StreamChoice("depth", best, "; ".join(why))
+    misfit = _misfits(encodings, cands, DEPTH_ENCODINGS, "depth (16UC1, mono16, 32FC1 or compressedDepth)")
+    return StreamChoice("depth", best, "; ".join(why + ([misfit] if misfit else [])))
 
 
 def _pick_info(types: Mapping[str, str], override: str, color: str | None, depth: str | None,

@@ -12,8 +12,8 @@ distortion]) is read, else the config camera section is used.
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import cv2
 import numpy as np
@@ -24,6 +24,7 @@ from slzcli.errors import DatasetError, DecodeError
 from slzcli.sources import decode
 from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import PoseTrack, pair_stamps
+from slzcli.sources.validate import intrinsics_problem, pose_problem, size_problem, stamp_problem
 from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
 
 log = logging.getLogger(__name__)
@@ -36,10 +37,37 @@ def parse_stamp(text: str) -> int:
     return int(whole) * 1_000_000_000 + int((frac + "000000000")[:9] or 0) * (1 if not whole.startswith("-") else -1)
 
 
+def unique_stamps(rows: list[tuple[int, str]], name: str) -> tuple[list[tuple[int, str]], list[str]]:
+    """Rows with usable, distinct stamps (the first of a repeated stamp kept) and what was wrong, counted."""
+    out, seen, bad, repeated, zero = [], set(), 0, 0, 0
+    for stamp, file in rows:
+        if stamp_problem(stamp) is not None:
+            bad += 1
+            continue
+        zero += stamp == 0
+        if stamp in seen:
+            repeated += 1
+            continue
+        seen.add(stamp)
+        out.append((stamp, file))
+    n = len(rows)
+    problems = [text for count, text in (
+        (bad, f"{name}: {bad} of {n} stamp(s) out of range (negative or beyond 2^63 ns) were skipped"),
+        (zero, f"{name}: {zero} of {n} stamp(s) are 0"),
+        (repeated, f"{name}: {repeated} of {n} line(s) repeat an earlier stamp and were skipped")) if count]
+    return out, problems
+
+
 def read_list(path: Path, min_fields: int) -> list[list[str]]:
     """Non-comment lines of a TUM list, split on whitespace or commas; DatasetError on a short line."""
     rows = []
-    for no, line in enumerate(path.read_text().splitlines(), 1):
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise DatasetError(path, f"cannot read ({err.strerror or err})") from err
+    except UnicodeDecodeError as err:
+        raise DatasetError(path, f"not a text list (byte {err.start} is not UTF-8)") from err
+    for no, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -63,6 +91,7 @@ class TumRecording(Recording):
         self._intr: Intrinsics | None = None
         self._intr_source = ""
         self._pairs: list[tuple[int, int]] = []
+        self._notes: list[str] = []
 
     def open(self) -> None:
         for name in ("rgb.txt", "depth.txt"):
@@ -78,9 +107,17 @@ class TumRecording(Recording):
                     T = np.eye(4)
                     T[:3, :3] = decode.quat_to_matrix(*map(float, r[4:8]))
                     T[:3, 3] = list(map(float, r[1:4]))
+                    problem = pose_problem(T)
+                    if problem is not None:
+                        raise DecodeError(f"groundtruth.txt at {r[0]}: {problem}")
                     self._gt.append((parse_stamp(r[0]), T))
         except (ValueError, DecodeError) as err:
             raise DatasetError(self.path, f"malformed TUM list ({err})") from err
+        self._rgb, rgb_problems = unique_stamps(self._rgb, "rgb.txt")
+        self._depth, depth_problems = unique_stamps(self._depth, "depth.txt")
+        for problem in rgb_problems + depth_problems:
+            log.warning("%s: %s", self.path, problem)
+            self._notes.append(problem)
         if not self._rgb:
             raise DatasetError(self.path / "rgb.txt", "no colour images listed")
         if not self._depth:
@@ -96,12 +133,19 @@ class TumRecording(Recording):
         cam_file = self.path / "camera.yaml"
         if cam_file.is_file():
             try:
-                c = yaml.safe_load(cam_file.read_text())
-                return Intrinsics(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]), int(c["width"]),
-                                  int(c["height"]), str(c.get("distortion_model", "")),
-                                  tuple(float(v) for v in c.get("distortion", ()))), str(cam_file)
-            except (yaml.YAMLError, KeyError, TypeError, ValueError) as err:
+                c = yaml.safe_load(cam_file.read_bytes())
+                k = Intrinsics(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]), int(c["width"]),
+                               int(c["height"]), str(c.get("distortion_model", "")),
+                               tuple(float(v) for v in c.get("distortion", ())))
+            except OSError as err:
+                raise DatasetError(cam_file, f"cannot read ({err.strerror or err})") from err
+            except (yaml.YAMLError, KeyError, TypeError, ValueError, OverflowError, RecursionError) as err:
                 raise DatasetError(cam_file, f"needs fx, fy, cx, cy, width, height ({err})") from err
+            lim = self.cfg.intrinsics
+            problem = intrinsics_problem(k, lim.min_fov_deg, lim.max_fov_deg)
+            if problem is not None:
+                raise DatasetError(cam_file, problem)
+            return k, str(cam_file)
         cam = self.config.camera
         return Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height), "config camera section"
 
@@ -119,9 +163,10 @@ class TumRecording(Recording):
                 StreamChoice("camera_info", None, f"intrinsics from {self._intr_source}"),
                 self._pose_choice())
 
-    def _report(self, without_pose: int, undecodable: int) -> PairingReport:
+    def _report(self, without_pose: int, undecodable: int, notes: tuple[str, ...] = ()) -> PairingReport:
         n = len(self._pairs)
-        return PairingReport(n, len(self._rgb) - n, len(self._depth) - n, without_pose, undecodable)
+        return PairingReport(n, len(self._rgb) - n, len(self._depth) - n, without_pose, undecodable,
+                             tuple(self._notes) + notes)
 
     def info(self) -> RecordingInfo:
         def stream(name: str, rows: list) -> StreamInfo:
@@ -142,6 +187,7 @@ class TumRecording(Recording):
             for stamp, T in self._gt:
                 track.add(stamp, T)
         without_pose = undecodable = index = 0
+        first_error = ""
         assert self._intr is not None
         for i, j in self._pairs:
             stamp, rgb_name = self._rgb[i]
@@ -149,19 +195,25 @@ class TumRecording(Recording):
             raw = cv2.imread(str(self.path / self._depth[j][1]), cv2.IMREAD_UNCHANGED)
             if bgr is None or raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
                 undecodable += 1
-                log.warning("%s: %s / %s: missing or not an 8-bit colour / 16-bit depth PNG", self.path,
-                            rgb_name, self._depth[j][1])
+                if not first_error:  # one line; the rest are counted (run.json pairing.undecodable)
+                    first_error = f"{rgb_name} / {self._depth[j][1]}: missing or not an 8-bit colour / 16-bit depth PNG"
+                    log.warning("%s: %s (further unreadable frames are counted, not shown)", self.path, first_error)
                 continue
             depth = decode.depth_to_metres(raw, 1.0 / self.cfg.tum_depth_scale, self.cfg.max_depth_m)
             rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
             depth = decode.match_depth_to_color(depth, rgb.shape[:2])
+            problem = size_problem(self._intr, rgb.shape[1], rgb.shape[0], self.cfg.intrinsics.aspect_tolerance)
+            if problem is not None:
+                raise DatasetError(self.path, f"frame {index} ({rgb_name}): {self._intr_source}: {problem}")
             intr = self._intr if (self._intr.width, self._intr.height) == (rgb.shape[1], rgb.shape[0]) \
                 else self._intr.scaled(rgb.shape[1], rgb.shape[0])
-            T = track.at(stamp) if track is not None else None
-            if track is not None and T is None:
+            pose = track.at(stamp) if track is not None else None
+            if track is not None and pose is None:
                 without_pose += 1
-            yield Frame(index, stamp, rgb, depth, intr, T, str(self.path))
+            yield Frame(index, stamp, rgb, depth, intr, pose, str(self.path))
             index += 1
-        self.report = self._report(without_pose, undecodable)
+        notes = (f"{undecodable} of {len(self._pairs)} frame(s) not readable (first: {first_error})",) \
+            if undecodable else ()
+        self.report = self._report(without_pose, undecodable, notes)
         if index == 0 and self._pairs:
             raise DatasetError(self.path, "no frame could be read (images missing or of the wrong kind)")

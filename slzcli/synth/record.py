@@ -10,7 +10,6 @@ Everything is seeded: the same scene, options and seed give the same bytes.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import os
 import shutil
@@ -146,7 +145,41 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
     flight_seed, sensor_rng = seeds(options.seed)
     flight = make_flight(options.start_m, options.frames, options.rate_hz, options.path,  # type: ignore[arg-type]
                          config.synth.flight, flight_seed, config.synth.start_stamp_ns)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(out.parent, f"cannot create folder ({err.strerror or err})") from err
+    preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
+    outputs = [out, *sidecar_paths(out), preview_path]
+    before = {p: _identity(p) for p in outputs}
+    try:
+        return _synthesize(out, options, config, scene, world, flight, sensor_rng, preview_path, progress)
+    except BaseException:
+        # All or nothing: what this run wrote goes (an older recording it did not yet replace stays).
+        for p in outputs:
+            if _identity(p) not in (None, before[p]):
+                _remove_output(p)
+        raise
+
+
+def _identity(path: Path) -> tuple[int, int, int] | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino, st.st_mtime_ns
+
+
+def _remove_output(path: Path) -> None:
+    if path.is_dir():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def _synthesize(out: Path, options: SynthOptions, config: Config, scene: Scene, world: World, flight: Flight,
+                sensor_rng: np.random.Generator, preview_path: Path,
+                progress: Callable[[int, int], None] | None) -> dict[str, object]:
     sheet_rows: list[dict[str, object]] = []
     keep = {0, options.frames // 2}
     safe_first = float("nan")
@@ -175,7 +208,6 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
             "T_world_camera": np.asarray(flight.T_world_camera, np.float64),
             **spool.members(), **raster_arrays(world.raster)}
         write_sidecar(npz_path, json_path, members, header)
-    preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
     _write_png(preview_path, contact_sheet(sheet_rows, world.raster.safe, world.raster.usable))
     log.info("synth: %s (%d frames of %s), ground truth %s, preview %s", out, options.frames, scene.name,
              npz_path, preview_path)
@@ -219,8 +251,11 @@ class TruthSpool:
         """Append one frame's (H, W) safe mask and object ids."""
         if self.written >= self._n or safe.shape != (self._h, self._w) or object_id.shape != (self._h, self._w):
             raise ValueError(f"truth frame {self.written}: expected {self._n} frames of {self._h}x{self._w}")
-        self._files["safe_masks"].write(np.packbits(safe.astype(bool), axis=-1).tobytes())
-        self._files["object_ids"].write(np.ascontiguousarray(object_id, dtype=np.uint16).tobytes())
+        try:
+            self._files["safe_masks"].write(np.packbits(safe.astype(bool), axis=-1).tobytes())
+            self._files["object_ids"].write(np.ascontiguousarray(object_id, dtype=np.uint16).tobytes())
+        except OSError as err:
+            raise OutputError(self._dir or self._parent, f"cannot spool ground truth ({err.strerror or err})") from err
         self.written += 1
 
     def members(self) -> dict[str, Path]:
@@ -271,23 +306,12 @@ def write_sidecar(npz_path: Path, json_path: Path, members: dict[str, np.ndarray
     in ``STORED_MEMBERS`` are stored uncompressed so that the loader can memory-map them; the
     rest are deflated.
     """
-    try:
-        files.write_npz_streamed(npz_path, members, stored=frozenset(STORED_MEMBERS))
-        json_tmp = json_path.with_name(json_path.name + ".tmp")
-        json_tmp.write_text(json.dumps(header, indent=1, sort_keys=True) + "\n")
-        os.replace(json_tmp, json_path)
-    except OSError as err:
-        raise OutputError(npz_path, f"cannot write ground truth ({err})") from err
+    files.write_npz_streamed(npz_path, members, stored=frozenset(STORED_MEMBERS))
+    files.write_text(json_path, files.json_text(header, indent=1, sort_keys=True) + "\n")
 
 
 def _write_png(path: Path, rgb: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
     ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise OutputError(path, "PNG encoding failed")
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_bytes(data.tobytes())
-        os.replace(tmp, path)
-    except OSError as err:
-        raise OutputError(path, f"cannot write preview ({err})") from err
+    files.write_bytes(path, data.tobytes())

@@ -291,8 +291,9 @@ def gravity_up_in_camera(T_world_camera: np.ndarray | None, mount: Mount) -> np.
     """
     if T_world_camera is not None:
         T = np.asarray(T_world_camera, dtype=np.float64)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise DatasetError("pose", f"T_world_camera must be a finite 4x4 matrix, got shape {T.shape}")
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):  # recorded poses are checked where decoded
+            what = f"shape {T.shape}" if T.shape != (4, 4) else "non-finite values (NaN or inf)"
+            raise DatasetError("pose", f"T_world_camera must be a finite 4x4 matrix, got {what}")
         up = T[2, :3].copy()                          # third row of R = R^T e3
         norm = np.linalg.norm(up)
         if norm == 0:

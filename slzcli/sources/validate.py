@@ -1,0 +1,98 @@
+"""Checks on what a recording claims before slz uses it: intrinsics, stamps, poses.
+
+Pure functions: each returns the reason a value is unusable (or None), and the caller names
+the file, topic or key. Nothing here imports the config (config.py uses ``intrinsics_problem``
+on the ``camera`` section too).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from slzcli.types import Intrinsics
+
+STAMP_MAX_NS = 2**63 - 1  # stamps are int64 nanoseconds everywhere downstream (numpy, MCAP readers, TUM)
+
+
+def intrinsics_problem(k: Intrinsics, min_fov_deg: float, max_fov_deg: float) -> str | None:
+    """Why a pinhole model cannot be used, or None: finite, positive focal lengths, a size of at
+    least 1x1 px, the principal point inside the image, a field of view within the given range."""
+    for name in ("fx", "fy", "cx", "cy"):
+        value = getattr(k, name)
+        if not math.isfinite(value):
+            return f"{name} = {value} is not a finite number"
+    for name in ("fx", "fy"):
+        if getattr(k, name) <= 0:
+            return f"{name} = {getattr(k, name):g} px must be > 0"
+    for name in ("width", "height"):
+        if int(getattr(k, name)) < 1:
+            return f"{name} = {getattr(k, name)} px must be >= 1"
+    if not (0 <= k.cx <= k.width and 0 <= k.cy <= k.height):
+        return (f"principal point (cx, cy) = ({k.cx:g}, {k.cy:g}) px is outside the {k.width}x{k.height} image")
+    for axis, f, size in (("horizontal", k.fx, k.width), ("vertical", k.fy, k.height)):
+        fov = math.degrees(2.0 * math.atan(size / (2.0 * f)))
+        if not min_fov_deg <= fov <= max_fov_deg:
+            name = "fx" if axis == "horizontal" else "fy"
+            return (f"{name} = {f:g} px gives a {axis} field of view of {fov:.3g} deg over {size} px, outside "
+                    f"sources.intrinsics.min_fov_deg..max_fov_deg = {min_fov_deg:g}..{max_fov_deg:g} deg "
+                    "(a focal length in the wrong unit?)")
+    return None
+
+
+def size_problem(k: Intrinsics, width: int, height: int, aspect_tolerance: float) -> str | None:
+    """Why intrinsics made for ``k.width x k.height`` cannot be scaled to an image of ``width x height``."""
+    if (k.width, k.height) == (width, height):
+        return None
+    ours, theirs = k.width / k.height, width / height
+    if abs(ours - theirs) <= aspect_tolerance * theirs:
+        return None
+    return (f"intrinsics for {k.width}x{k.height} px do not fit the {width}x{height} px images (aspect ratio "
+            f"{ours:.3f} vs {theirs:.3f}, more than sources.intrinsics.aspect_tolerance = {aspect_tolerance:g} "
+            "apart): not the calibration of this stream")
+
+
+def stamp_problem(stamp_ns: int) -> str | None:
+    """Why a stamp cannot be used (negative, or beyond int64 nanoseconds), or None."""
+    if stamp_ns < 0:
+        return f"stamp {stamp_ns} ns is negative"
+    if stamp_ns > STAMP_MAX_NS:
+        return f"stamp {stamp_ns} ns is beyond 2^63 ns (year 2262)"
+    return None
+
+
+def pose_problem(T: np.ndarray) -> str | None:
+    """Why a 4x4 pose cannot be used (shape, non-finite values, a rotation that is not one), or None."""
+    T = np.asarray(T)
+    if T.shape != (4, 4):
+        return f"pose has shape {T.shape}, expected 4x4"
+    if not np.all(np.isfinite(T)):
+        return "pose has non-finite values (NaN or inf)"
+    return None
+
+
+@dataclass
+class StampCounts:
+    """What was wrong with the stamps of one stream, counted over a pass (reported once, at its end)."""
+
+    messages: int = 0
+    zero: int = 0          # header stamp 0: the log (receive) time was used
+    out_of_range: int = 0  # negative or beyond int64 ns: skipped
+    repeated: int = 0      # an earlier message of the stream had the same stamp and other content: skipped
+    first_out_of_range: str = ""
+
+    def problems(self) -> list[str]:
+        """One phrase per kind of problem, with its count (empty when the stamps were fine)."""
+        out = []
+        n = self.messages
+        if self.zero:
+            out.append(f"{self.zero} of {n} message(s) have header stamp 0 (their log time is used instead)")
+        if self.out_of_range:
+            out.append(f"{self.out_of_range} of {n} message(s) have a stamp out of range and were skipped "
+                       f"(first: {self.first_out_of_range})")
+        if self.repeated:
+            out.append(f"{self.repeated} of {n} message(s) repeat the stamp of a different earlier message and were "
+                       "skipped (a stuck or unset clock?)")
+        return out
