@@ -21,7 +21,8 @@ Decisions:
   tau = 1 nothing is predicted and precision counts as 1. The area is the step-wise area
   (average precision, ``CurveCounts.auc``), so a saturated score is not flattered.
 - Site distances are horizontal and vertical together (3-D, metres) in the run's world
-  frame: both methods share it, so no alignment is needed.
+  frame: both methods share it, so no alignment is needed. After a SLAM map reset two
+  committed sites may lie in different map segments (unrelated frames): no distance then.
 - Times are per detection frame: ``slam`` is the tracking time of that frame, ``maps`` the
   shared map time (counted for each method, as each would pay it alone), ``frame`` the sum
   of slam, maps, score, mask and select. Frames that are only tracked are not in ``frame``.
@@ -210,7 +211,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
 def _fuse(run: MethodRun, tracker: Detector, frame: Any, T: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
           slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
     det = run.det
-    det.last_points = tracker.last_points
+    det.last_points, det.segment = tracker.last_points, tracker.segment
     d = det.fuse(frame, T, maps, maps_ms)
     det.record(d)
     det.state.timer.add("slam", slam_ms)
@@ -348,7 +349,7 @@ def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[
           counts: list[MaskCounts]) -> dict[str, Any]:
     ca, cb = committed[a], committed[b]
     dist = None
-    if ca is not None and cb is not None:
+    if ca is not None and cb is not None and ca["segment"] == cb["segment"]:  # else: two unrelated SLAM maps
         dist = float(np.linalg.norm(np.asarray(ca["site"].center_world) - np.asarray(cb["site"].center_world)))
     per_frame = []
     sites_a = {s["frame"].index: s["site"] for s in runs[a].det.state.sites.sites}
