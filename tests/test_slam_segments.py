@@ -63,8 +63,9 @@ class TwoMaps(BackendBase):
 
     name = "twomaps"
 
-    def __init__(self, truth) -> None:
+    def __init__(self, truth, keyframes_in: tuple[int, ...] = (0, 1)) -> None:
         self.truth = truth
+        self.keyframes_in = keyframes_in
         self._kf: MapPoints | None = None
 
     def track(self, frame: Frame) -> TrackResult:
@@ -76,8 +77,10 @@ class TwoMaps(BackendBase):
         world = np.eye(4) if segment == 0 else SECOND_MAP
         T_true = self.truth.T_world_camera[self.truth.index_of(frame.stamp_ns, TOL_NS)]
         T = world @ invert_pose(first) @ T_true
-        self._kf = pipeline.depth_points(frame, T, POINT_STRIDE_PX)
-        return TrackResult(frame.index, frame.stamp_ns, TrackingState.OK, T, True, len(self._kf), segment)
+        if segment in self.keyframes_in:
+            self._kf = pipeline.depth_points(frame, T, POINT_STRIDE_PX)
+        return TrackResult(frame.index, frame.stamp_ns, TrackingState.OK, T, self._kf is not None,
+                           0 if self._kf is None else len(self._kf), segment)
 
     def keyframe(self) -> MapPoints | None:
         return self._kf
@@ -206,6 +209,19 @@ def test_two_maps_stay_apart_in_every_output(two_maps, flight, tmp_path) -> None
     assert frames["/slz/mask"] == [("camera", "")] * LOST + [("camera_1", "")] * (FRAMES - LOST - 1)
     assert frames["/slz/map_points"] == [("world", "")] * LOST + [("world_1", "")] * (FRAMES - LOST - 1)
     assert frames["/slz/landing_site"] == [("world_1", "")]
+
+
+def test_a_new_map_never_uses_the_old_maps_points(monkeypatch, flight, tmp_path) -> None:
+    """Map 1 makes no keyframe: its frames have no map points to select from (map 0's are in another frame)."""
+    truth = load_ground_truth(flight)
+    monkeypatch.setattr(pipeline, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth, (0,)))
+    config = load_config(overrides=["landing.detect_on=every_nth", "landing.every_nth_frame=1"])
+    summary = detect_recording(flight, config, tmp_path / "run", RunOptions())
+    assert summary["detections"] == FRAMES
+    rows = (tmp_path / "run" / "sites.csv").read_text().splitlines()
+    frames = {int(r.split(",")[0]) for r in rows[1:]}
+    assert frames and max(frames) < LOST  # candidates only on map 0's frames, where its points are
+    assert {r.split(",")[-1] for r in rows[1:]} == {"0"}
 
 
 def test_cli_says_how_many_maps_and_warns_once(two_maps, flight, tmp_path, runner) -> None:
