@@ -503,6 +503,10 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
     with _progress("compare") as progress:
         summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=progress,
                           timeout_s=timeout_s)
+    for r in summary.get("recordings", []):
+        if _slam_maps(r) > 1:
+            log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
+                        "committed within one map", r["source"], r["slam"]["maps"])
     return summary, text_table(summary, str(out))
 
 

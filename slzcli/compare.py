@@ -48,6 +48,7 @@ from slzcli.pipeline import (Detection, Detector, commit_site, ground_truth_of, 
                              tracked_frames)
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
+from slzcli.slam.segments import segment_table
 from slzcli.timeout import StageLimit
 from slzcli.types import TerrainMaps
 
@@ -300,7 +301,8 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                 "frame": rec["frame"]["index"], "stamp_ns": rec["frame"]["stamp_ns"],
                 "center_world": rec["site"]["center_world"], "center_camera": rec["site"]["center_camera"],
                 "score": rec["site"]["score"], "cluster_points": rec["site"]["cluster"]["points"],
-                "acceptance": rec["site"]["acceptance"], "support": rec["site"]["support"]},
+                "acceptance": rec["site"]["acceptance"], "support": rec["site"]["support"],
+                "map_segment": committed["segment"]},
             "mask_fraction": _mask_fraction(run),
             "detections_not_vouched": st.unvouched,
             "inputs": [{"frame": i, "stamp_ns": t, "points": p, "maps": q} for i, t, p, q in run.inputs],
@@ -322,6 +324,8 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         "source": str(path), "name": recording_name(path), "frames": tracker.state.frames,
         "detections": runs[methods[0]].det.state.detections,
         "slam_backend": tracker.slam_name, "tracking": tracker.state.tracking, "keyframes": len(tracker.state.keyframes),
+        "slam": {"maps": len(segment_table(tracker.state.trajectory.segments(), tracker.state.trajectory.has_pose(),
+                                           tracker.state.keyframes.per_segment))},
         "inputs_identical": True,
         "methods": per, "pairs": pairs, "wall_s": round(wall_s, 3), "ground_truth": truth is not None,
         "depth_noise": tracker.state.noise.summary() if tracker.state.noise is not None else None,

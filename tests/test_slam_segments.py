@@ -224,6 +224,20 @@ def test_a_new_map_never_uses_the_old_maps_points(monkeypatch, flight, tmp_path)
     assert {r.split(",")[-1] for r in rows[1:]} == {"0"}
 
 
+def test_compare_counts_the_maps_and_measures_no_distance_across_them(monkeypatch, flight, tmp_path, runner) -> None:
+    from slzcli import compare
+
+    truth = load_ground_truth(flight)
+    monkeypatch.setattr(compare, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth))
+    res = runner.invoke(main, ["compare", str(flight), "-o", str(tmp_path / "cmp"), "--json"])
+    assert res.exit_code == 0, res.output
+    rec = json.loads(res.stdout)["recordings"][0]
+    assert rec["slam"]["maps"] == 2 and "started 2 maps" in res.stderr
+    segs = {m: e["site"]["map_segment"] for m, e in rec["methods"].items()}
+    (pair,) = rec["pairs"]
+    assert (pair["site_distance_m"] is None) == (segs["fuzzy"] != segs["bayes"]), segs
+
+
 def test_cli_says_how_many_maps_and_warns_once(two_maps, flight, tmp_path, runner) -> None:
     res = runner.invoke(main, ["detect", str(flight), "-o", str(tmp_path / "run")])
     assert res.exit_code == 0, res.output
