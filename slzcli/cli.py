@@ -394,6 +394,8 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
                                  options=RunOptions(force, method, timeout_s), summary_dir=summary_dir,
                                  on_progress=show)
     rows = result.rows
+    for r in rows:
+        _warn_slam_maps(r.get("summary"))
     if not is_batch:
         row = rows[0]
         if row["status"] == "failed":
@@ -408,6 +410,23 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     return {"batch": totals, "runs": runs}, _batch_text(totals, rows)
 
 
+def _slam_maps(s: dict[str, Any] | None) -> int:
+    """How many SLAM maps a run's summary reports (1 for a summary written before maps were counted)."""
+    return int(((s or {}).get("slam") or {}).get("maps", 1))
+
+
+def _warn_slam_maps(s: dict[str, Any] | None) -> None:
+    """One warning line when SLAM started several maps: a run's results are in one map's frame."""
+    if _slam_maps(s) <= 1:
+        return
+    slam = s["slam"]  # type: ignore[index]
+    seg = next(g for g in slam["segments"] if g["segment"] == slam["segment"])
+    what = "the site, trajectory.tum and points.ply are" if s["status"] == "site" else "trajectory.tum is"  # type: ignore[index]
+    log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; %s in map %d (frames %d-%d, "
+                "%d tracked); run.json summary.slam lists them all", s["source"], slam["maps"], what,  # type: ignore[index]
+                slam["segment"], seg["first_frame"], seg["last_frame"], seg["frames_tracked"])
+
+
 def _batch_text(t: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     lines = []
     for r in rows:
@@ -418,7 +437,8 @@ def _batch_text(t: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         else:
             what = "no safe site" + (f": {r['summary']['reason']}" if r.get("summary") else "")
         done = "skipped (done before)" if r.get("skipped") else f"{r['frames']} frames in {r['wall_s']:.1f} s"
-        lines.append(f"  {name}: {what}; {done}")
+        maps = _slam_maps(r.get("summary"))
+        lines.append(f"  {name}: {what}; {done}" + (f"; {maps} SLAM maps" if maps > 1 else ""))
     fps = "n/a" if t["frames_per_s"] is None else f"{t['frames_per_s']:.2f}"
     rpm = "n/a" if t["recordings_per_min"] is None else f"{t['recordings_per_min']:.1f}"
     return "\n".join([
@@ -472,12 +492,15 @@ class _BatchDisplay:
 
 def _detect_text(out: Path, s: dict[str, Any]) -> str:
     t = s["timings_ms"]
-    head = f"{s['source']}: {s['frames']} frames, {s['detections']} detections ({s['method']}, SLAM {s['slam_backend']})"
+    maps = _slam_maps(s)
+    head = (f"{s['source']}: {s['frames']} frames, {s['detections']} detections ({s['method']}, "
+            f"SLAM {s['slam_backend']}" + (f", {maps} maps)" if maps > 1 else ")"))
     if s.get("skipped"):
         head += " [skipped: done before for this config; --force redoes it]"
     if s["status"] == "site":
         x, y, z = s["site_world"]
-        result = f"landing site at ({x:.2f}, {y:.2f}, {z:.2f}) m in the run's world frame"
+        where = f"SLAM map {s['slam']['segment']}'s world frame" if maps > 1 else "the run's world frame"
+        result = f"landing site at ({x:.2f}, {y:.2f}, {z:.2f}) m in {where}"
     else:
         result = f"no safe site: {s['reason']}"
     lines = [head, "  " + result]
@@ -527,6 +550,10 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
     with _progress("compare") as progress:
         summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=progress,
                           timeout_s=timeout_s)
+    for r in summary.get("recordings", []):
+        if _slam_maps(r) > 1:
+            log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
+                        "committed within one map", r["source"], r["slam"]["maps"])
     return summary, text_table(summary, str(out))
 
 

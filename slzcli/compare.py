@@ -21,7 +21,8 @@ Decisions:
   tau = 1 nothing is predicted and precision counts as 1. The area is the step-wise area
   (average precision, ``CurveCounts.auc``), so a saturated score is not flattered.
 - Site distances are horizontal and vertical together (3-D, metres) in the run's world
-  frame: both methods share it, so no alignment is needed.
+  frame: both methods share it, so no alignment is needed. After a SLAM map reset two
+  committed sites may lie in different map segments (unrelated frames): no distance then.
 - Times are per detection frame: ``slam`` is the tracking time of that frame, ``maps`` the
   shared map time (counted for each method, as each would pay it alone), ``frame`` the sum
   of slam, maps, score, mask and select. Frames that are only tracked are not in ``frame``.
@@ -47,6 +48,7 @@ from slzcli.pipeline import (Detection, Detector, commit_site, ground_truth_of, 
                              tracked_frames)
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
+from slzcli.slam.segments import segment_table
 from slzcli.timeout import StageLimit
 from slzcli.types import TerrainMaps
 
@@ -210,7 +212,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
 def _fuse(run: MethodRun, tracker: Detector, frame: Any, T: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
           slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
     det = run.det
-    det.last_points = tracker.last_points
+    det.last_points, det.segment = tracker.last_points, tracker.segment
     d = det.fuse(frame, T, maps, maps_ms)
     det.record(d)
     det.state.timer.add("slam", slam_ms)
@@ -299,7 +301,8 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                 "frame": rec["frame"]["index"], "stamp_ns": rec["frame"]["stamp_ns"],
                 "center_world": rec["site"]["center_world"], "center_camera": rec["site"]["center_camera"],
                 "score": rec["site"]["score"], "cluster_points": rec["site"]["cluster"]["points"],
-                "acceptance": rec["site"]["acceptance"], "support": rec["site"]["support"]},
+                "acceptance": rec["site"]["acceptance"], "support": rec["site"]["support"],
+                "map_segment": committed["segment"]},
             "mask_fraction": _mask_fraction(run),
             "detections_not_vouched": st.unvouched,
             "inputs": [{"frame": i, "stamp_ns": t, "points": p, "maps": q} for i, t, p, q in run.inputs],
@@ -321,6 +324,8 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         "source": str(path), "name": recording_name(path), "frames": tracker.state.frames,
         "detections": runs[methods[0]].det.state.detections,
         "slam_backend": tracker.slam_name, "tracking": tracker.state.tracking, "keyframes": len(tracker.state.keyframes),
+        "slam": {"maps": len(segment_table(tracker.state.trajectory.segments(), tracker.state.trajectory.has_pose(),
+                                           tracker.state.keyframes.per_segment))},
         "inputs_identical": True,
         "methods": per, "pairs": pairs, "wall_s": round(wall_s, 3), "ground_truth": truth is not None,
         "depth_noise": tracker.state.noise.summary() if tracker.state.noise is not None else None,
@@ -348,7 +353,7 @@ def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[
           counts: list[MaskCounts]) -> dict[str, Any]:
     ca, cb = committed[a], committed[b]
     dist = None
-    if ca is not None and cb is not None:
+    if ca is not None and cb is not None and ca["segment"] == cb["segment"]:  # else: two unrelated SLAM maps
         dist = float(np.linalg.norm(np.asarray(ca["site"].center_world) - np.asarray(cb["site"].center_world)))
     per_frame = []
     sites_a = {s["frame"].index: s["site"] for s in runs[a].det.state.sites.sites}

@@ -8,13 +8,17 @@ nothing a rerun would trust; a rerun with the same inputs and config is skipped.
 World frame. Recorded poses are taken as given (REP 103, z up). A SLAM backend's world is
 its first camera frame; it is turned into a gravity-aligned frame (z up from the camera
 mount, x along the first camera's x, origin at the first camera) so that the slope test
-and the Eq. 10 square mean what they say.
+and the Eq. 10 square mean what they say. After a map reset the backend's poses are in a
+new world frame (a new map segment, ``slzcli.slam.segments``): each segment is aligned
+the same way from its own first tracked frame, and its map points never serve a frame of
+another segment.
 
 The committed site. Every detection frame may give a site; the one written to
 ``landing.json`` is the site confirmed by the most detections (other sites within one
-footprint side of it), among those that pass the acceptance test when any do; ties go
-to the lower normal variance, then to the later frame. One lucky keyframe cannot
-outvote a site seen again and again.
+footprint side of it, in the same map segment: positions in different segments are in
+different frames), among those that pass the acceptance test when any do; ties go to the
+lower normal variance, then to the later frame. One lucky keyframe cannot outvote a site
+seen again and again. The committed site's segment is the run's world frame.
 """
 
 from __future__ import annotations
@@ -70,6 +74,7 @@ class Detection:
     edge_m: np.ndarray
     timings_ms: dict[str, float]
     truth: MaskCounts | None = None
+    segment: int = 0  # SLAM map segment of the pose and points
 
 
 @dataclass
@@ -77,7 +82,7 @@ class RunState:
     """What accumulates over a recording: poses, detections' summaries, timings."""
 
     timer: StageTimer = field(default_factory=StageTimer)
-    trajectory: PoseLog = field(default_factory=PoseLog)  # every frame's stamp and pose (None: not tracked)
+    trajectory: PoseLog = field(default_factory=PoseLog)  # every frame's stamp, pose (None: not tracked), segment
     tracking: dict[str, int] = field(default_factory=dict)
     keyframes: KeyframeLog = field(default_factory=KeyframeLog)  # count only unless given a folder
     sites: SiteLog = field(default_factory=SiteLog)  # candidate rows and sites (in memory unless given a folder)
@@ -143,34 +148,38 @@ class Detector:
         self.truth = truth
         self.state = RunState(keyframes=KeyframeLog(spool), sites=SiteLog(spool),
                               noise=NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
-        self.T_align: np.ndarray | None = np.eye(4) if slam_name == "recorded" else None
+        self.align: dict[int, np.ndarray] = {}  # T_world_slam of each map segment, from its first pose
+        self.segment = 0  # map segment of the latest frame
         self.last_points: MapPoints | None = None
 
-    def _world(self, T_slam_camera: np.ndarray | None) -> np.ndarray | None:
+    def _world(self, T_slam_camera: np.ndarray | None, segment: int) -> np.ndarray | None:
         if T_slam_camera is None:
             return None
-        if self.T_align is None:
-            self.T_align = gravity_alignment(gravity_up_in_camera(None, self.config.camera.mount)) @ invert_pose(T_slam_camera)
-        return self.T_align @ T_slam_camera
+        if segment not in self.align:
+            self.align[segment] = np.eye(4) if self.slam_name == "recorded" else \
+                gravity_alignment(gravity_up_in_camera(None, self.config.camera.mount)) @ invert_pose(T_slam_camera)
+        return self.align[segment] @ T_slam_camera
 
     def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
         """SLAM on one frame: the gravity-aligned pose and whether it is a keyframe with map points."""
         with self.state.timer.stage("slam"):
             result = self.slam.track(frame)
             points = self.slam.keyframe() if result.is_keyframe else None
-        T = self._world(result.T_world_camera)
+        if result.segment != self.segment:  # a new map: the old map's points are in another frame
+            self.segment, self.last_points = result.segment, None
+        T = self._world(result.T_world_camera, self.segment)
         st = self.state
         st.frames += 1
-        st.trajectory.append(frame.stamp_ns, T)
+        st.trajectory.append(frame.stamp_ns, T, self.segment)
         st.tracking[result.state.value] = st.tracking.get(result.state.value, 0) + 1
         if points is not None and T is not None:
             if len(points) == 0 and self.slam_name == "recorded":
                 points = depth_points(frame, T, self.config.landing.depth_points_stride_px)
             else:
-                points = MapPoints(points.ids, _apply(self.T_align, points.xyz_world), points.pixels,
+                points = MapPoints(points.ids, _apply(self.align[self.segment], points.xyz_world), points.pixels,
                                    points.keyframe_index, points.stamp_ns, T)
             self.last_points = points
-            st.keyframes.append(points)
+            st.keyframes.append(points, self.segment)
         return T, points is not None and result.state == TrackingState.OK
 
     def noise_for(self, frame: Frame) -> DepthNoise:
@@ -218,7 +227,8 @@ class Detector:
             self.state.truth.append(truth)
         self.state.detections += 1
         self.state.detections_without_depth += not maps.valid.any()
-        return Detection(frame, T_world_camera, maps, score, self.last_points, selection, edge, t, truth)
+        return Detection(frame, T_world_camera, maps, score, self.last_points, selection, edge, t, truth,
+                         self.segment)
 
     def record(self, det: Detection) -> None:
         """Add a detection's site and candidates to the run's tables."""
@@ -230,11 +240,13 @@ class Detector:
             "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
             "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
             "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
-            "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen} for c in sel.candidates])
+            "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment}
+            for c in sel.candidates])
         if sel.site is not None:
             pts = det.points.xyz_world
             limits = det.maps.work.as_dict() if det.maps.work is not None else None
-            self.state.sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits)
+            self.state.sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits,
+                                      det.segment)
 
 
 def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
@@ -269,17 +281,25 @@ def _lap(t0: float) -> float:
 
 
 def commit_site(sites: list[dict[str, Any]], side_m: float) -> dict[str, Any] | None:
-    """The site confirmed by the most detections (see the module docstring)."""
+    """The site confirmed by the most detections of its own map segment (see the module docstring).
+
+    Adds ``support`` (agreeing detections, this one included), ``detections`` (sites of the run),
+    ``segment`` and ``segment_detections`` (sites of that segment) to the chosen entry.
+    """
     if not sites:
         return None
     pool = [s for s in sites if s["site"].accepted] or sites
     centres = np.array([s["site"].center_world for s in pool])
-    support = (np.linalg.norm(centres[:, None, :2] - centres[None, :, :2], axis=2) <= side_m).sum(axis=1)
+    seg = np.array([s["segment"] for s in pool])
+    near = np.linalg.norm(centres[:, None, :2] - centres[None, :, :2], axis=2) <= side_m
+    support = (near & (seg[:, None] == seg[None, :])).sum(axis=1)
     order = sorted(range(len(pool)), key=lambda i: (-support[i], pool[i]["site"].normal_variance,
                                                       -pool[i]["frame"].index))
     best = dict(pool[order[0]])
     best["support"] = int(support[order[0]])
     best["detections"] = len(sites)
+    best["segment"] = int(seg[order[0]])
+    best["segment_detections"] = sum(s["segment"] == best["segment"] for s in sites)
     return best
 
 
@@ -325,7 +345,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
         det = Detector(config, method, slam, slam.name, truth, spool=tmp / SPOOL_DIR)
         for frame, T, due in tracked_frames(path, rec, det, limit):
-            results.write_pose(frame.stamp_ns, T)
+            results.write_pose(frame.stamp_ns, T, det.segment)
             if due:
                 with limit.stage(f"detection on frame {frame.index}"):
                     d = det.detect(frame, T)

@@ -4,6 +4,12 @@ Estimated and true poses are T_world_camera (4x4) of the same frames, each in it
 frame; SE(3) alignment removes that frame difference (Sim(3) also a scale, for monocular).
 Conventions follow Sturm et al. 2012 (TUM RGB-D benchmark): ATE = RMSE of position after
 alignment; RPE over a frame delta = RMSE of the translational (and rotational) drift.
+
+Map segments: after a SLAM map reset the estimated poses are in a new world frame
+(``slzcli.slam.segments``), so one alignment over the whole run would fit two unrelated
+frames at once. ``ate_by_segment`` aligns each segment on its own and gives each one's ATE
+and a combined figure (the RMSE over every aligned frame); RPE pairs never straddle two
+segments.
 """
 
 from __future__ import annotations
@@ -89,12 +95,53 @@ def ate(estimated: Sequence[np.ndarray | None], truth: Sequence[np.ndarray | Non
     return AteResult(float(np.sqrt(np.mean(err ** 2))), float(err.mean()), float(err.max()), len(E), al)
 
 
-def rpe(estimated: Sequence[np.ndarray | None], truth: Sequence[np.ndarray | None], delta: int = 1) -> RpeResult:
-    """Relative pose error between frames i and i+delta where all four poses exist (no alignment needed)."""
+@dataclass(frozen=True)
+class SegmentedAte:
+    """ATE per map segment (each aligned on its own) and combined: the RMSE over all their frames.
+
+    Segments with fewer than 3 frames with both poses cannot be aligned: they are in ``skipped``
+    (segment -> frames) and not in the combined figure.
+    """
+
+    per_segment: dict[int, AteResult]
+    skipped: dict[int, int]
+    rmse_m: float
+    n: int
+
+
+def ate_by_segment(estimated: Sequence[np.ndarray | None], truth: Sequence[np.ndarray | None],
+                   segments: Sequence[int], with_scale: bool = False) -> SegmentedAte:
+    """``ate`` of each map segment on its own (one alignment each) and the combined RMSE."""
+    if not len(estimated) == len(truth) == len(segments):
+        raise ValueError(f"{len(estimated)} estimated poses, {len(truth)} true ones, {len(segments)} segments")
+    per: dict[int, AteResult] = {}
+    skipped: dict[int, int] = {}
+    for k in sorted({int(s) for s, e in zip(segments, estimated, strict=True) if e is not None}):  # a few maps
+        mine = [e if s == k else None for e, s in zip(estimated, segments, strict=True)]
+        n = sum(e is not None and g is not None for e, g in zip(mine, truth, strict=True))
+        if n < 3:
+            skipped[k] = n
+            continue
+        per[k] = ate(mine, truth, with_scale)
+    if not per:
+        raise ValueError("ATE needs at least 3 frames with both poses in one map segment")
+    n_all = sum(r.n for r in per.values())
+    rmse = float(np.sqrt(sum(r.n * r.rmse_m ** 2 for r in per.values()) / n_all))
+    return SegmentedAte(per, skipped, rmse, n_all)
+
+
+def rpe(estimated: Sequence[np.ndarray | None], truth: Sequence[np.ndarray | None], delta: int = 1,
+        segments: Sequence[int] | None = None) -> RpeResult:
+    """Relative pose error between frames i and i+delta where all four poses exist (no alignment needed).
+
+    With ``segments`` (each frame's map segment), pairs from two different segments are left out.
+    """
     if len(estimated) != len(truth):
         raise ValueError(f"{len(estimated)} estimated poses but {len(truth)} true ones")
+    same = (lambda i: segments[i] == segments[i + delta]) if segments is not None else (lambda i: True)
     idx = [i for i in range(len(truth) - delta)
-           if all(p is not None for p in (estimated[i], estimated[i + delta], truth[i], truth[i + delta]))]
+           if all(p is not None for p in (estimated[i], estimated[i + delta], truth[i], truth[i + delta]))
+           and same(i)]
     if not idx:
         raise ValueError(f"RPE needs at least one pair of frames {delta} apart with both poses")
     E0, E1 = _stack([estimated[i] for i in idx]), _stack([estimated[i + delta] for i in idx])

@@ -4,8 +4,13 @@ Written while the run goes (one detection at a time, streamed to the MCAP writer
 bounded by one chunk), through the project's one recording writer (``outputs/recording.py``:
 rosbags CDR, schemas from the ROS 2 Humble type store, atomic rename on close).
 
-Topics. Frame ids: ``world`` is the run's world frame (landing.json ``world_frame``), ``camera``
-the optical frame of the colour camera (x right, y down, z forward).
+Topics. Frame ids: ``world`` is the world frame of the first SLAM map segment, ``camera`` the
+optical frame of the colour camera (x right, y down, z forward). After a SLAM map reset the
+poses are in a new, unrelated world frame (``slzcli.slam.segments``): map segment K >= 1 has
+its own pair ``world_K`` -> ``camera_K`` (``frame_ids``), so /tf is a forest of one tree per
+segment and nothing is drawn in a frame it is not in; pick the segment's ``world_K`` as the
+3D panel's fixed frame. The committed site is in its segment's frames (run.json
+``summary.slam`` names the run's segment).
 
     /slz/color                      sensor_msgs/Image rgb8       every detection frame
     /slz/camera_info                sensor_msgs/CameraInfo       of the depth image the maps are on
@@ -20,7 +25,8 @@ the optical frame of the colour camera (x right, y down, z forward).
     /slz/site                       visualization_msgs/MarkerArray   this detection's site and square
     /slz/landing_site               visualization_msgs/MarkerArray   the committed site (landing.json)
     /slz/camera_pose                geometry_msgs/PoseStamped    every tracked frame (world)
-    /tf                             tf2_msgs/TFMessage           world -> camera, every tracked frame
+    /tf                             tf2_msgs/TFMessage           world -> camera (world_K -> camera_K in
+                                                                 map segment K), every tracked frame
 
 Images are mono8 so that a script gets the values back (value = byte / 255); the overlay is
 the picture to look at. Frames without a pose have no /tf, so their clouds stay in ``camera``.
@@ -59,6 +65,13 @@ MARKER = {"SPHERE": 2, "LINE_STRIP": 4, "TEXT_VIEW_FACING": 9}  # visualization_
 MARKER_ADD = 0
 
 
+def frame_ids(segment: int) -> tuple[str, str]:
+    """(world, camera) frame ids of a SLAM map segment: ``world``/``camera`` for the first, ``_K`` suffixed after."""
+    if segment == 0:
+        return WORLD_FRAME, CAMERA_FRAME
+    return f"{WORLD_FRAME}_{segment}", f"{CAMERA_FRAME}_{segment}"
+
+
 class ResultsMcap:
     """An open ``results.mcap``: poses and per-detection messages as they come, the committed site at the end."""
 
@@ -81,37 +94,39 @@ class ResultsMcap:
         from slzcli.outputs.run_folder import detection_overlay_bgr
 
         frame, stamp = det.frame, det.frame.stamp_ns
-        self._image("color", frame.rgb, "rgb8", stamp)
+        world, camera = frame_ids(det.segment)
+        self._image("color", frame.rgb, "rgb8", stamp, camera)
         h, w = det.score.mask.shape
-        self._raw("camera_info", CAMERA_INFO, self._camera_info(frame.intrinsics.scaled(w, h), stamp), stamp)
+        self._raw("camera_info", CAMERA_INFO, self._camera_info(frame.intrinsics.scaled(w, h), stamp, camera), stamp)
         for name, values in det.maps.as_dict().items():
-            self._image(f"maps/{name}", mono8(values), "mono8", stamp)
-        self._image("score", mono8(det.score.score), "mono8", stamp)
-        self._image("overlay", cv2.cvtColor(detection_overlay_bgr(det), cv2.COLOR_BGR2RGB), "rgb8", stamp)
+            self._image(f"maps/{name}", mono8(values), "mono8", stamp, camera)
+        self._image("score", mono8(det.score.score), "mono8", stamp, camera)
+        self._image("overlay", cv2.cvtColor(detection_overlay_bgr(det), cv2.COLOR_BGR2RGB), "rgb8", stamp, camera)
         xyz_cam = back_project(det.frame.depth_m, frame.intrinsics)[::self.stride_px, ::self.stride_px]
         safe = det.score.mask[::self.stride_px, ::self.stride_px] & np.all(np.isfinite(xyz_cam), axis=2)
-        self._cloud("mask", xyz_cam[safe], CAMERA_FRAME, stamp)
+        self._cloud("mask", xyz_cam[safe], camera, stamp)
         sel = det.selection
         if det.points is not None:
-            self._cloud("map_points", det.points.xyz_world, WORLD_FRAME, stamp)
+            self._cloud("map_points", det.points.xyz_world, world, stamp)
         if sel is not None and det.points is not None:
             kept = np.asarray(sel.kept, dtype=bool)
-            self._cloud("candidates", det.points.xyz_world[kept], WORLD_FRAME, stamp,
+            self._cloud("candidates", det.points.xyz_world[kept], world, stamp,
                         cluster=np.asarray(sel.labels)[kept])
         if sel is not None and sel.site is not None:
             site = sel.site
             colour = ACCEPTED_RGBA if site.accepted else REJECTED_RGBA
             label = f"score {site.score:.2f}" + ("" if site.accepted else f" ({site.acceptance_reason})")
-            self._markers("site", site, colour, label, stamp)
+            self._markers("site", site, colour, label, stamp, world)
 
     # ------------------------------------------------------------------ end of run
-    def write_pose(self, stamp: int, T: np.ndarray | None) -> None:
-        """The camera pose of one tracked frame (PoseStamped and /tf), as it is tracked: the file stays in
-        time order and a long run holds no list of poses to write at its end."""
+    def write_pose(self, stamp: int, T: np.ndarray | None, segment: int = 0) -> None:
+        """The camera pose of one tracked frame (PoseStamped and /tf, in its map segment's frames), as it is
+        tracked: the file stays in time order and a long run holds no list of poses to write at its end."""
         if T is None:
             return
-        self.writer.write_pose(f"{TOPIC}/camera_pose", stamp, T, "PoseStamped", WORLD_FRAME, CAMERA_FRAME)
-        self.writer.write_pose("/tf", stamp, T, "tf", WORLD_FRAME, CAMERA_FRAME)
+        world, camera = frame_ids(segment)
+        self.writer.write_pose(f"{TOPIC}/camera_pose", stamp, T, "PoseStamped", world, camera)
+        self.writer.write_pose("/tf", stamp, T, "tf", world, camera)
 
     def write_run(self, committed: dict[str, Any] | None) -> None:
         """The committed site (known at the end of the run)."""
@@ -119,24 +134,25 @@ class ResultsMcap:
             site = committed["site"]
             label = (f"landing site: score {site.score:.2f}, seen in {committed['support']} of "
                      f"{committed['detections']} detections")
-            self._markers("landing_site", site, COMMITTED_RGBA, label, committed["frame"].stamp_ns)
+            self._markers("landing_site", site, COMMITTED_RGBA, label, committed["frame"].stamp_ns,
+                          frame_ids(committed["segment"])[0])
 
     # ------------------------------------------------------------------ messages
     def _raw(self, name: str, msgtype: str, msg: Any, stamp: int) -> None:
         self.writer.write_raw(f"{TOPIC}/{name}", msgtype, msg, stamp)
 
-    def _image(self, name: str, pixels: np.ndarray, encoding: str, stamp: int) -> None:
+    def _image(self, name: str, pixels: np.ndarray, encoding: str, stamp: int, camera: str) -> None:
         data = np.ascontiguousarray(pixels, dtype=np.uint8)
         h, w = data.shape[:2]
-        msg = self.writer.message(IMAGE, header=self.writer.header(stamp, CAMERA_FRAME), height=h, width=w,
+        msg = self.writer.message(IMAGE, header=self.writer.header(stamp, camera), height=h, width=w,
                                   encoding=encoding, is_bigendian=0, step=data.size // h, data=data.reshape(-1))
         self._raw(name, IMAGE, msg, stamp)
 
-    def _camera_info(self, k: Any, stamp: int) -> Any:
+    def _camera_info(self, k: Any, stamp: int, camera: str) -> Any:
         t = self.writer.typestore.types
         roi = t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         p = np.array([[k.fx, 0, k.cx, 0], [0, k.fy, k.cy, 0], [0, 0, 1, 0]], dtype=np.float64).reshape(-1)
-        return t[CAMERA_INFO](header=self.writer.header(stamp, CAMERA_FRAME), height=k.height, width=k.width,
+        return t[CAMERA_INFO](header=self.writer.header(stamp, camera), height=k.height, width=k.width,
                               distortion_model="plumb_bob", d=np.zeros(5), k=k.K.reshape(-1).astype(np.float64),
                               r=np.eye(3).reshape(-1), p=p, binning_x=0, binning_y=0, roi=roi)
 
@@ -144,8 +160,8 @@ class ResultsMcap:
         msg = point_cloud(self.writer, np.asarray(xyz), frame_id, stamp, **extra)
         self._raw(name, POINT_CLOUD, msg, stamp)
 
-    def _markers(self, name: str, site: Any, rgba: tuple[float, ...], label: str, stamp: int) -> None:
-        self._raw(name, MARKER_ARRAY, site_markers(self.writer, site, rgba, label, stamp, name), stamp)
+    def _markers(self, name: str, site: Any, rgba: tuple[float, ...], label: str, stamp: int, world: str) -> None:
+        self._raw(name, MARKER_ARRAY, site_markers(self.writer, site, rgba, label, stamp, name, world), stamp)
 
 
 class NoResults:
@@ -160,7 +176,7 @@ class NoResults:
     def write_detection(self, det: Any) -> None:
         return None
 
-    def write_pose(self, stamp: int, T: np.ndarray | None) -> None:
+    def write_pose(self, stamp: int, T: np.ndarray | None, segment: int = 0) -> None:
         return None
 
     def write_run(self, committed: dict[str, Any] | None) -> None:
@@ -194,14 +210,14 @@ def point_cloud(writer: RecordingWriter, xyz: np.ndarray, frame_id: str, stamp: 
 
 
 def site_markers(writer: RecordingWriter, site: Any, rgba: tuple[float, ...], label: str, stamp: int,
-                 ns: str) -> Any:
-    """The site as three markers in ``world``: the closed Eq. 10 square, a centre sphere, a label."""
+                 ns: str, world: str = WORLD_FRAME) -> Any:
+    """The site as three markers in ``world`` (its segment's): the closed Eq. 10 square, a centre sphere, a label."""
     t = writer.typestore.types
     gm = "geometry_msgs/msg/"
     colour = t["std_msgs/msg/ColorRGBA"](*map(float, rgba))
     centre = np.asarray(site.center_world, dtype=np.float64)
     corners = np.asarray(site.corners_world, dtype=np.float64)[[0, 1, 3, 2, 0]]  # ++, +-, --, -+ and close
-    header = writer.header(stamp, WORLD_FRAME)
+    header = writer.header(stamp, world)
 
     def marker(mid: int, kind: str, position: np.ndarray, scale: tuple[float, float, float],
                points: np.ndarray | None = None, text: str = "") -> Any:

@@ -1,9 +1,15 @@
 """The run folder of ``slz detect`` (DESIGN.md "Run folder") and the ``landing.json`` contract.
 
-Files: run.json, landing.json, sites.csv, points.ply, trajectory.tum, keyframes.npz,
+Files: run.json, landing.json, sites.csv, points.ply, trajectory.tum (and trajectory.seg<K>.tum
+after a SLAM map reset), keyframes.npz,
 frames/NNNNNN/{depth_variance,flatness,inclination,steepness,score,mask,overlay}.png + maps.npz.
 Everything here writes into the temporary run folder the pipeline hands it; the folder is
 renamed into place only when all of it is written.
+
+SLAM map segments (``slzcli.slam.segments``): landing.json, trajectory.tum and the map points
+of points.ply are in the world frame of one segment, the run's (``map_segment`` in
+landing.json, ``summary.slam.segment`` in run.json); run.json ``summary.slam`` lists every
+segment with its frames, keyframes, TUM file and results.mcap frame id.
 """
 
 from __future__ import annotations
@@ -18,8 +24,9 @@ from slzcli.config import Config
 from slzcli.evaluate.safety import site_truth, total, visible_cells
 from slzcli.outputs import files, images
 from slzcli.outputs.points import write_points_ply
-from slzcli.outputs.trajectory import write_tum
-
+from slzcli.outputs.results_mcap import frame_ids
+from slzcli.outputs.trajectory import write_trajectories
+from slzcli.slam.segments import Segment, primary_segment, segment_table
 
 
 def input_fingerprint(path: Path) -> dict[str, Any]:
@@ -74,8 +81,9 @@ def detection_overlay_bgr(det: Any) -> np.ndarray:
 
 
 def landing_record(source: Path, method: str, committed: dict[str, Any] | None, world_frame: str,
-                   timings: dict[str, float], reason: str, truth: Any | None) -> dict[str, Any]:
-    """landing.json: the contract in DESIGN.md, plus the acceptance test and ground-truth check."""
+                   timings: dict[str, float], reason: str, truth: Any | None,
+                   map_segment: int | None = None) -> dict[str, Any]:
+    """landing.json: the contract in DESIGN.md, plus the acceptance test, ground-truth check and map segment."""
     rec: dict[str, Any] = {"status": "site" if committed else "no_safe_site", "method": method,
                            "source": str(source)}
     if committed is None:
@@ -91,12 +99,14 @@ def landing_record(source: Path, method: str, committed: dict[str, Any] | None, 
             "score": s.score,
             "acceptance": {"passed": s.accepted, "reason": s.acceptance_reason, "tilt_deg": s.tilt_deg,
                            "edge_clearance_m": s.edge_clearance_m},
-            "support": {"detections_agreeing": committed["support"], "detections_with_site": committed["detections"]},
+            "support": {"detections_agreeing": committed["support"], "detections_with_site": committed["detections"],
+                        "detections_with_site_in_map_segment": committed["segment_detections"]},
             "depth_limits": committed.get("limits"),
         }
         if truth is not None:
             rec["site"]["ground_truth"] = _site_truth(truth, frame, s.center_camera).as_dict()
     rec["world_frame"] = world_frame
+    rec["map_segment"] = map_segment
     rec["timings_ms"] = timings
     return rec
 
@@ -122,21 +132,22 @@ def write_run(run_dir: Path, source: Path, config: Config, method: str, info: An
     timings = {"maps": med.get("maps", 0.0), method: med.get("score", 0.0), "mask": med.get("mask", 0.0),
                "slam": med.get("slam", 0.0), "select": med.get("select", 0.0),
                "total": round(sum(med.get(k, 0.0) for k in per_frame), 3)}
-    world = ("the recording's world frame (recorded poses)" if det.slam_name == "recorded" else
-             f"{det.slam_name} map, gravity-aligned: z up from camera.mount at the first tracked frame, "
-             "x along that camera's x, origin at that camera")
+    table = segment_table(st.trajectory.segments(), st.trajectory.has_pose(), st.keyframes.per_segment)
+    primary = primary_segment(table, None if committed is None else committed["segment"])
+    world = world_frame_text(det.slam_name, table, primary)
     reason = no_site_reason(st, det.slam_name, len(st.keyframes))
-    landing = landing_record(source, method, committed, world, timings, reason, truth)
+    landing = landing_record(source, method, committed, world, timings, reason, truth, primary)
     files.write_json(run_dir / "landing.json", landing)
     st.sites.write_csv(run_dir / "sites.csv")
-    write_tum(run_dir / "trajectory.tum", st.trajectory.stamps, st.trajectory.poses())
+    tum_files = write_trajectories(run_dir, st.trajectory, primary)
     st.keyframes.write_npz(run_dir / "keyframes.npz")
-    write_points_ply(run_dir / "points.ply", _points_by_role(st, committed))
+    write_points_ply(run_dir / "points.ply", _points_by_role(st, committed, primary if len(table) > 1 else None))
 
     summary: dict[str, Any] = {
         "source": str(source), "method": method, "frames": st.frames, "detections": st.detections,
         "status": landing["status"], "site_world": landing.get("site", {}).get("center_world"),
         "reason": landing.get("reason"), "slam_backend": det.slam_name, "tracking": st.tracking,
+        "slam": slam_summary(det.slam_name, table, primary, tum_files),
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
         "depth_noise": _noise_summary(st),
         "depth_limits": landing.get("site", {}).get("depth_limits") or _noise_summary(st).get("not_vouched"),
@@ -150,6 +161,28 @@ def write_run(run_dir: Path, source: Path, config: Config, method: str, info: An
         "summary": summary, "config_hash": config.hash(), "input": fingerprint, "versions": versions(),
         "config": config.to_dict(), "recording": info.to_dict(), "timings": timing})
     return summary
+
+
+def world_frame_text(slam_name: str, table: list[Segment], primary: int | None) -> str:
+    """landing.json ``world_frame``: what the run's world frame is, and which map segment it belongs to."""
+    if slam_name == "recorded":
+        return "the recording's world frame (recorded poses)"
+    if len(table) <= 1 or primary is None:
+        return (f"{slam_name} map, gravity-aligned: z up from camera.mount at the first tracked frame, "
+                "x along that camera's x, origin at that camera")
+    first = next(s for s in table if s.segment == primary).first_frame
+    return (f"{slam_name} map segment {primary} (of {len(table)} maps: tracking was lost and new maps begun, "
+            f"each in its own frame), gravity-aligned: z up from camera.mount at its first tracked frame "
+            f"(frame {first}), x along that camera's x, origin at that camera")
+
+
+def slam_summary(slam_name: str, table: list[Segment], primary: int | None,
+                 tum_files: dict[int, str]) -> dict[str, Any]:
+    """run.json ``summary.slam``: how many maps the backend started and what each one holds."""
+    return {"backend": slam_name, "maps": len(table), "segment": primary, "segments": [
+        {"segment": s.segment, "frames_tracked": s.frames_tracked, "first_frame": s.first_frame,
+         "last_frame": s.last_frame, "keyframes": s.keyframes, "trajectory": tum_files.get(s.segment),
+         "mcap_frame": frame_ids(s.segment)[0]} for s in table]}
 
 
 def no_site_reason(st: Any, slam_name: str, keyframes: int) -> str:
@@ -183,23 +216,30 @@ def _noise_summary(st: Any) -> dict[str, Any]:
 
 
 def _truth_summary(st: Any, landing: dict[str, Any]) -> dict[str, Any]:
-    from slzcli.evaluate.slam import ate, rpe
+    from slzcli.evaluate.slam import ate_by_segment, rpe
 
     out: dict[str, Any] = {"mask": total(st.truth).as_dict() if st.truth else None}
-    est, true = st.trajectory.poses(), st.truth_trajectory.poses()
-    pairs = [(e, t) for e, t in zip(est, true) if e is not None and t is not None]
-    if len(pairs) >= 3:
-        res = ate([e for e, _ in pairs], [t for _, t in pairs])
+    est, true, segs = st.trajectory.poses(), st.truth_trajectory.poses(), st.trajectory.segments().tolist()
+    try:
+        res = ate_by_segment(est, true, segs)  # each map segment aligned on its own
+    except ValueError:  # fewer than 3 frames with both poses in every segment
+        res = None
+    if res is not None:
         out["slam_ate_rmse_m"] = res.rmse_m
-        rel = rpe(est, true)  # consecutive frames; lost frames are skipped, not interpolated
-        out["slam_rpe"] = {"trans_rmse_m": rel.trans_rmse_m, "rot_rmse_deg": rel.rot_rmse_deg, "pairs": rel.n}
+        out["slam_ate_segments"] = [{"segment": k, "rmse_m": r.rmse_m, "frames": r.n} for k, r in res.per_segment.items()]
+        try:
+            rel = rpe(est, true, segments=segs)  # consecutive frames of one segment; lost frames are skipped
+            out["slam_rpe"] = {"trans_rmse_m": rel.trans_rmse_m, "rot_rmse_deg": rel.rot_rmse_deg, "pairs": rel.n}
+        except ValueError:  # no two consecutive frames with all four poses
+            out["slam_rpe"] = None
     if "site" in landing:
         out["site"] = landing["site"].get("ground_truth")
     return out
 
 
-def _points_by_role(st: Any, committed: dict[str, Any] | None) -> dict[str, np.ndarray]:
-    roles: dict[str, np.ndarray] = {"map": st.keyframes.map_xyz()}
+def _points_by_role(st: Any, committed: dict[str, Any] | None, segment: int | None) -> dict[str, np.ndarray]:
+    """points.ply roles; ``segment``: only that map segment's map points (None: all, a run of one segment)."""
+    roles: dict[str, np.ndarray] = {"map": st.keyframes.map_xyz(segment)}
     if committed is not None:
         roles["kept"], roles["chosen"] = st.sites.points(committed)
         roles["corner"] = np.asarray(committed["site"].corners_world)

@@ -19,12 +19,15 @@ import numpy as np
 from slzcli.outputs.files import ArraySpool, atomic_path, naming_write_errors
 
 SITE_COLUMNS = ("frame", "stamp_ns", "cluster", "points", "x", "y", "z", "normal_variance", "extent_x_m",
-                "extent_y_m", "qualifies", "reason", "chosen")
+                "extent_y_m", "qualifies", "reason", "chosen", "segment")
 POINT_SPEC = {"xyz": (np.float64, (3,)), "site": (np.int64, ()), "chosen": (np.bool_, ())}
 
 
 class SiteLog:
-    """Candidate rows and sites of one run; ``sites`` entries are dicts with "frame", "site", "id"."""
+    """Candidate rows and sites of one run; ``sites`` entries are dicts with "frame", "site", "id", "segment".
+
+    Positions (rows' x, y, z and sites) are in the world frame of their SLAM map segment.
+    """
 
     def __init__(self, folder: Path | None = None) -> None:
         self.folder = Path(folder) if folder is not None else None
@@ -47,10 +50,11 @@ class SiteLog:
             csv.DictWriter(fh, fieldnames=SITE_COLUMNS, lineterminator="\n").writerows(rows)
 
     def add_site(self, frame: Any, site: Any, kept_xyz: np.ndarray, chosen_xyz: np.ndarray,
-                 limits: dict[str, Any] | None = None) -> None:
-        """``limits``: what the depth noise of the site's frame let the maps see (``Working.as_dict``)."""
+                 limits: dict[str, Any] | None = None, segment: int = 0) -> None:
+        """``limits``: what the depth noise of the site's frame let the maps see (``Working.as_dict``);
+        ``segment``: the SLAM map segment whose world frame the site is in."""
         i = len(self.sites)
-        self.sites.append({"frame": frame, "site": site, "id": i, "limits": limits})
+        self.sites.append({"frame": frame, "site": site, "id": i, "limits": limits, "segment": segment})
         if self._spool is None:
             self._points[i] = (np.asarray(kept_xyz), np.asarray(chosen_xyz))
             return

@@ -178,7 +178,7 @@ class OdometryBackend(BackendBase):
             if self.lost_for >= self.cfg.reinit_after_frames and self.last_pose is not None:
                 res = self._initialise(frame, px, desc, self.last_pose)
                 if res.state is TrackingState.OK:
-                    log.warning("odometry: new map at frame %d from the last known pose", frame.index)
+                    log.info("odometry: new map at frame %d from the last known pose", frame.index)
                     return res
             self.velocity = np.eye(4)
             return TrackResult(frame.index, frame.stamp_ns, TrackingState.LOST, None, False, 0, self.segment)
