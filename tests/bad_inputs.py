@@ -276,3 +276,33 @@ def ros2_missing_storage(folder: Path) -> Path:
 
 
 RECORDINGS.update({f.__name__: f for f in (ros2_cut_db, ros2_missing_storage)})
+
+
+# ----------------------------------------------------------------------------- output folders slz must not write into
+# Each returns (recording, -o): `slz detect` must refuse the -o with one line and change nothing.
+def out_users_folder(folder: Path) -> tuple[Path, Path]:
+    out = folder / "thesis"
+    out.mkdir()
+    (out / "thesis.tex").write_text("\\chapter{Landing}\n")
+    return good(folder, n=2), out
+
+
+def out_holds_the_recording(folder: Path) -> tuple[Path, Path]:
+    return good(folder, n=2), folder
+
+
+def out_is_the_input_bag(folder: Path) -> tuple[Path, Path]:
+    bag = _write(folder / "bag_ros2", [textured_frame(i) for i in range(2)], "ros2-mcap")
+    return bag, bag
+
+
+def out_is_a_compare_folder(folder: Path) -> tuple[Path, Path]:
+    out = folder / "cmp"
+    out.mkdir()
+    (out / "compare.json").write_text('{"slz_output": {"kind": "compare", "state": "finished", "files": '
+                                      '["compare.json"]}}\n')
+    return good(folder, n=2), out
+
+
+OUTPUTS: dict[str, Callable[[Path], tuple[Path, Path]]] = {f.__name__: f for f in (
+    out_users_folder, out_holds_the_recording, out_is_the_input_bag, out_is_a_compare_folder)}

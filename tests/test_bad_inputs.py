@@ -206,3 +206,18 @@ def test_tracker_failure_below_the_size_floor_is_named_not_internal(runner: CliR
                  "--set", f"slam.backend={backend}")
     error_line(res, path, cause)
     assert set(tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("case,cause", [
+    ("out_users_folder", "is not an slz detect run folder"),
+    ("out_holds_the_recording", "holds the input"),
+    ("out_is_the_input_bag", "is the input recording"),
+    ("out_is_a_compare_folder", "is an slz compare folder, not an slz detect run folder"),
+])
+def test_output_folder_slz_did_not_make_is_refused_and_left_as_it_was(runner: CliRunner, tmp_path: Path, case: str,
+                                                                       cause: str) -> None:
+    rec, out = B.OUTPUTS[case](tmp_path)
+    before = sorted((str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in tmp_path.rglob("*"))
+    res = invoke(runner, "detect", str(rec), "-o", str(out), "--set", "slam.backend=odometry")
+    error_line(res, out, cause)
+    assert sorted((str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in tmp_path.rglob("*")) == before
