@@ -8,8 +8,8 @@ helpers for the odd cases) and returns the path to hand to ``slz info`` / ``slz 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 

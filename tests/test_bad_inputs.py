@@ -13,10 +13,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import bad_inputs as B
 import pytest
 from click.testing import CliRunner
 
-import bad_inputs as B
 from slzcli.cli import main
 
 # case -> (cause in the `slz info` error or None when info succeeds, cause in the `slz detect` error)

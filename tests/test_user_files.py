@@ -175,11 +175,44 @@ def test_the_skip_keys_on_the_recording_its_ground_truth_and_slz_version(runner,
     refused(invoke(runner, "detect", str(rec), "-o", str(run), *FAST), str(run), "versions")
 
 
+def test_the_skip_keys_on_the_method(runner, tmp_path) -> None:
+    """--method is not in the config dict: a bayes rerun used to be 'skipped' with the fuzzy result."""
+    rec, run = B.good(tmp_path, n=3), tmp_path / "run"
+    detect(runner, rec, run)
+    refused(invoke(runner, "detect", str(rec), "-o", str(run), *FAST, "--method", "bayes"), str(run),
+            "method fuzzy -> bayes")
+    assert detect(runner, rec, run, "--method", "bayes", "--force")["method"] == "bayes"
+
+
+def test_the_key_covers_the_orb_vocabulary_when_orbslam3_may_run(tmp_path) -> None:
+    from slzcli.config import load_config
+    from slzcli.slam.vocabulary import DEFAULT_VOCABULARY
+
+    rec, vocab = B.good(tmp_path, n=2), tmp_path / "vocab.txt"
+    shutil.copy(DEFAULT_VOCABULARY, vocab)
+    cfg = load_config(overrides=["slam.backend=orbslam3", f"slam.vocabulary={vocab}"])
+
+    def key() -> str:
+        return fingerprint.run_key(cfg, "fuzzy", fingerprint.run_inputs(rec, cfg, {}), fingerprint.versions(cfg))
+
+    before = key()
+    assert [e["path"] for e in fingerprint.run_inputs(rec, cfg, {})["vocabulary"]] == [str(vocab.resolve())]
+    vocab.write_bytes(vocab.read_bytes().replace(b"1", b"2", 1))
+    assert key() != before
+    odometry = load_config(overrides=["slam.backend=odometry", f"slam.vocabulary={vocab}"])
+    assert fingerprint.run_inputs(rec, odometry, {})["vocabulary"] == []  # not read: not in the key
+
+
 def test_a_rerun_does_not_rehash_unchanged_inputs(runner, tmp_path, monkeypatch) -> None:
     rec, run = B.good(tmp_path, n=3), tmp_path / "run"
     hashed: list[str] = []
     real = fingerprint.sha256_of
-    monkeypatch.setattr(fingerprint, "sha256_of", lambda p: hashed.append(Path(p).name) or real(p))
+
+    def counted(p: Path) -> str:
+        hashed.append(Path(p).name)
+        return real(p)
+
+    monkeypatch.setattr(fingerprint, "sha256_of", counted)
     detect(runner, rec, run)
     assert "good.mcap" in hashed and "fuzzy_rules.yaml" in hashed
     hashed.clear()
@@ -275,7 +308,12 @@ def test_a_second_batch_waits_for_the_first_and_reports_its_run_as_done(runner, 
     out = tmp_path / "runs"
     locked, waiting = threading.Event(), threading.Event()
     warn = run_lock.log.warning
-    monkeypatch.setattr(run_lock.log, "warning", lambda *a: (waiting.set(), warn(*a)))
+
+    def warning(*args: object) -> None:
+        waiting.set()
+        warn(*args)
+
+    monkeypatch.setattr(run_lock.log, "warning", warning)
     config = load_config(overrides=["slam.backend=odometry"])
 
     def first_batch() -> None:  # holds run a's lock until the CLI waits for it, then finishes run a
