@@ -12,11 +12,13 @@ tasks to an engine, counts progress and collects one row per recording:
   same paths (a shared filesystem) and have slz installed; frame counts reach the progress
   bar as worker events.
 
-Safety. Each task holds its run folder's lock and first removes the ``.RUN.*.partial``
-folders a killed process left (``outputs/run_lock.py``). Ctrl-C or SIGTERM stop the batch:
-the local workers' running recordings are interrupted and remove their temporary folders,
-queued ones are cancelled, the summary records what was done, then ``KeyboardInterrupt`` goes
-on to the caller. Pool workers watch their parent: if it is killed outright they stop too.
+Safety. Each task holds its run folder's lock (waiting while another batch writes that run, then
+skipping it as done) and first removes the ``.RUN.*.partial`` folders a killed process left
+(``outputs/run_lock.py``). A run folder is written only where ``outputs/output_dir.py`` allows
+(missing, empty, or a ``slz detect`` run folder; never a recording or a folder holding one).
+Ctrl-C or SIGTERM stop the batch: the local workers' running recordings are interrupted and
+remove their temporary folders, queued ones are cancelled, the summary records what was done,
+then ``KeyboardInterrupt`` goes on to the caller. Pool workers watch their parent: if it is killed outright they stop too.
 A task already running on a Dask worker cannot be interrupted; it finishes its (atomic) run.
 """
 
@@ -63,11 +65,15 @@ class Task:
 
 
 def is_pattern(arg: str | Path) -> bool:
-    return any(c in GLOB_CHARS for c in str(arg))
+    """A glob pattern: it has ``*?[`` and no file or folder has exactly that name (``flight[1].mcap`` is a name)."""
+    return any(c in GLOB_CHARS for c in str(arg)) and not os.path.lexists(os.path.expanduser(str(arg)))
 
 
 def expand(args: Sequence[str | Path]) -> list[Path]:
-    """Paths and glob patterns -> recordings, in the order given (a pattern's matches sorted), no repeats."""
+    """Paths and glob patterns -> recordings, in the order given (a pattern's matches sorted), no repeats.
+
+    An argument naming an existing file or folder is that path, even with glob characters in it.
+    """
     found: list[Path] = []
     for arg in args:
         if is_pattern(arg):
@@ -98,13 +104,19 @@ def plan(recordings: Sequence[Path], output: Path | None, *, batch: bool) -> lis
     """Run folders: ``output`` itself for one recording named alone, else ``output/<name>`` each.
 
     ``output`` defaults to ``runs``. Two recordings with the same name get their parent folder's
-    name in front; recordings that still collide are a usage error.
+    name in front; recordings that still collide are a usage error. A run folder that would be, or
+    hold, one of the recordings is refused (OutputError) before anything runs, as is a batch folder
+    whose summary.json / summary.csv slz did not write.
     """
+    from slzcli.outputs import batch_summary, output_dir
+
     if not batch:
         if len(recordings) != 1:
             raise ConfigError("recordings", "one recording expected outside a batch")
         rec = recordings[0]
-        return [Task(rec.absolute(), (output or Path("runs") / run_name(rec)).absolute())]
+        task = Task(rec.absolute(), (output or Path("runs") / run_name(rec)).absolute())
+        output_dir.refuse_inputs(task.run_dir, [task.recording])
+        return [task]
     base = (output or Path("runs")).absolute()
     names = [run_name(p) for p in recordings]
     clash = {n for n in names if names.count(n) > 1}
@@ -113,7 +125,11 @@ def plan(recordings: Sequence[Path], output: Path | None, *, batch: bool) -> lis
     if twice:
         raise ConfigError("recordings", f"several recordings would share the run folder {base / twice[0]}; "
                                         "run them into different -o folders")
-    return [Task(p.absolute(), base / n) for p, n in zip(recordings, names)]
+    tasks = [Task(p.absolute(), base / n) for p, n in zip(recordings, names)]
+    for t in tasks:
+        output_dir.refuse_inputs(t.run_dir, [r.recording for r in tasks])
+    batch_summary.check_folder(base)
+    return tasks
 
 
 def default_workers() -> int:
@@ -147,7 +163,7 @@ def run_task(task: Task, config: Config, options: RunOptions,
     t0 = time.perf_counter()
     row: dict[str, Any] = {"recording": str(task.recording), "run": str(task.run_dir), "worker": _worker_id()}
     try:
-        with run_lock.claim(task.run_dir):
+        with run_lock.claim(task.run_dir, wait=True):  # another batch on this run: wait, then find it done
             summary = detect_recording(task.recording, config, task.run_dir, options, progress)
     except SlzError as err:
         return {**row, "status": "failed", "skipped": False, "error": " ".join(str(err).split()),

@@ -289,7 +289,8 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
               "or SCENE:sand+low_light.")
 @click.option("--contact-sheet", "sheet", type=click.Path(dir_okay=False, path_type=Path, readable=False),
               help="Where to write the preview PNG (default OUT.preview.png).")
-@click.option("--force", is_flag=True, help="Replace an existing recording.")
+@click.option("--force", is_flag=True, help="Replace an existing recording (a file, or a rosbag2 folder holding only "
+              "the bag) and its ground truth.")
 @common_options
 def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scenes: bool, frames: int | None,
               scenario: int | None, start: tuple[float, ...] | None, seed: int | None, fmt: str,
@@ -368,7 +369,8 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
                    "the folder for one run folder each plus summary.json and summary.csv (default runs/).")
 @click.option("--method", type=click.Choice(["fuzzy", "bayes"]), default=None,
               help="Fusion method (default: scoring.method).")
-@click.option("--force", is_flag=True, help="Redo runs whose outputs exist for the same config.")
+@click.option("--force", is_flag=True, help="Replace finished runs (only the files slz writes in a run folder): "
+              "redo one done for the same config and inputs, or replace one of another config.")
 @click.option("--workers", type=click.IntRange(1), default=None,
               help="Local worker processes, one recording each (default: the number of cores).")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
@@ -496,7 +498,7 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
     head = (f"{s['source']}: {s['frames']} frames, {s['detections']} detections ({s['method']}, "
             f"SLAM {s['slam_backend']}" + (f", {maps} maps)" if maps > 1 else ")"))
     if s.get("skipped"):
-        head += " [skipped: done before for this config; --force redoes it]"
+        head += " [skipped: done before with the same config and input bytes; --force redoes it]"
     if s["status"] == "site":
         x, y, z = s["site_world"]
         where = f"SLAM map {s['slam']['segment']}'s world frame" if maps > 1 else "the run's world frame"
@@ -534,7 +536,7 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
               help="Output folder (default runs/compare_<first recording>).")
 @click.option("--variants", is_flag=True, help="Also re-render each synth recording's scene in the variants of "
               "compare.variants (ground material, light) and compare on each.")
-@click.option("--force", is_flag=True, help="Replace an existing output folder.")
+@click.option("--force", is_flag=True, help="Replace an existing slz compare folder (only the files it wrote).")
 @timeout_option("Stop when one stage (opening a recording, reading, SLAM or detection of one frame, the final "
                 "write) runs longer than this; the comparison fails naming the stage and leaves no output folder. "
                 "Default: no limit.")

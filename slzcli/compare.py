@@ -43,7 +43,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
-from slzcli.outputs import files
+from slzcli.outputs import output_dir, run_lock
 from slzcli.pipeline import (Detection, Detector, commit_site, ground_truth_of, open_inputs, posed_maps,
                              tracked_frames)
 from slzcli.scoring import SCORERS
@@ -452,7 +452,10 @@ def compare(paths: list[Path], config: Config, out_dir: Path, methods: tuple[str
             raise DatasetError(p, "no such file or folder")
         if variants and not sidecar_paths(p)[1].is_file():  # fail before the long work, not after it
             raise DatasetError(p, f"--variants needs a `slz synth` recording ({sidecar_paths(p)[1].name} not found)")
-    with files.atomic_dir(out_dir, replace=force) as tmp:
+    output_dir.refuse_inputs(out_dir, [Path(p) for p in paths])
+    existing = output_dir.inspect(out_dir, output_dir.COMPARE)  # refuses a path that is not a compare folder
+    output_dir.check_names(existing, [recording_name(Path(p)) for p in paths])  # before the long work
+    with run_lock.claim(out_dir), output_dir.build(out_dir, output_dir.COMPARE, replace=force) as tmp:
         results = [compare_recording(Path(p), config, methods, progress, timeout_s) for p in paths]
         _unique_names(results)
         variant_results: list[dict[str, Any]] = []

@@ -2,8 +2,12 @@
 
 Compute first, write after: every frame's stages are timed on their own (maps, score, mask,
 slam, select), writing is timed separately and kept out of the per-frame figure. The run
-folder is built under a temporary name and renamed at the end, so a failed run leaves
-nothing a rerun would trust; a rerun with the same inputs and config is skipped.
+folder is built under a temporary name and put in place at the end, so a failed run leaves
+nothing a rerun would trust. Output safety (``outputs/output_dir.py``): ``-o`` must be missing,
+empty or a run folder of ``slz detect``, and neither the recording nor a folder holding it; a
+rerun with the same key (config values, method, versions, the bytes of every file read:
+``fingerprint.py``) is skipped, one with another key replaces a finished run only with
+``--force``, and then only the files a run writes.
 
 World frame. Recorded poses are taken as given (REP 103, z up). A SLAM backend's world is
 its first camera frame; it is turned into a gravity-aligned frame (z up from the camera
@@ -36,11 +40,11 @@ import numpy as np
 
 from slzcli import __version__
 from slzcli.config import Config
-from slzcli.errors import DatasetError
+from slzcli.errors import DatasetError, OutputError
 from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
 from slzcli.landing.select import Selection, SelectParams, select_site
-from slzcli.outputs import files, results_mcap
+from slzcli.outputs import results_mcap
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
@@ -308,7 +312,8 @@ def commit_site(sites: list[dict[str, Any]], side_m: float) -> dict[str, Any] | 
 class RunOptions:
     """How to run a recording, beside its config; not in the config hash (they do not change results).
 
-    force: redo a run done before for the same config and input. method: fuzzy | bayes (None:
+    force: replace a finished run in the run folder (redo it for the same key, replace one of
+    another key; only the files a run writes are replaced). method: fuzzy | bayes (None:
     scoring.method). timeout_s: bound on each stage in wall time (``--timeout``; None: none).
     """
 
@@ -325,18 +330,29 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     keyframes, candidate rows and site points go to a spool in the temporary run folder; what
     stays per frame is its stamp, pose and stage times (~0.2 KB), per site its summary.
     """
-    from slzcli.outputs import run_folder
+    from slzcli import fingerprint
+    from slzcli.outputs import output_dir, run_folder
 
     method = options.method or config.scoring.method
     check_readable(path)  # a missing, looping or unreadable input is named before anything else reads it
-    fingerprint = run_folder.input_fingerprint(path)
-    previous = run_folder.previous_summary(out_dir, config.hash(), fingerprint)
-    if previous is not None and not options.force:
-        log.info("%s: already done for this config (%s); use --force to redo", out_dir, config.hash())
-        return {**previous, "skipped": True}
+    output_dir.refuse_inputs(out_dir, [path])
+    existing = output_dir.inspect(out_dir, output_dir.DETECT)  # refuses a path that is not a detect run folder
+    previous = existing.marker if existing.finished else None
     limit = StageLimit(options.timeout_s, str(path))
+    with limit.stage("hashing the inputs"):
+        inputs = fingerprint.run_inputs(path, config, fingerprint.cache_of(existing.marker))
+    vers = fingerprint.versions(config)
+    key = {"sha256": fingerprint.run_key(config, method, inputs, vers), "method": method, "versions": vers,
+           "inputs": inputs}
+    if previous is not None and not options.force:
+        if (previous.get("key") or {}).get("sha256") == key["sha256"] and "summary" in previous:
+            log.info("%s: already done for these inputs and config (%s); use --force to redo", out_dir, config.hash())
+            return {**previous["summary"], "skipped": True}
+        raise OutputError(out_dir, "holds a finished run of other inputs or config ("
+                                   f"{fingerprint.what_changed(previous, config, method, inputs, vers)}); "
+                                   "use --force to replace it (files slz did not write stay) or another -o")
     t_start = time.perf_counter()
-    with files.atomic_dir(out_dir, replace=True) as tmp, ExitStack() as stack:
+    with output_dir.build(out_dir, output_dir.DETECT, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
             truth = ground_truth_of(path)
             rec, info, clouds = open_inputs(path, config, stack)
@@ -363,7 +379,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             committed = commit_site(det.state.sites.sites, 2 * config.uav.footprint_m[0])
             results.write_run(committed)
             summary = run_folder.write_run(tmp, path, config, method, info, rec.report, det, committed, truth,
-                                           time.perf_counter() - t_start, fingerprint)
+                                           time.perf_counter() - t_start, key)
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
             shutil.rmtree(tmp / SPOOL_DIR)
     return summary

@@ -2,7 +2,7 @@
 
 A stage is one step of the per-frame loop (reading the next frame, SLAM, detection, writing)
 or of the run around it (opening the recording, the final write). When one overruns,
-``StageTimeout`` is raised inside it and unwinds through the run folder's ``atomic_dir``, so
+``StageTimeout`` is raised inside it and unwinds through the run folder's ``output_dir.build``, so
 the recording fails with nothing partial left, and a batch goes on with the next one:
 
 - in the main thread (``slz detect`` on one recording, a local pool worker) by SIGALRM from

@@ -8,8 +8,8 @@ helpers for the odd cases) and returns the path to hand to ``slz info`` / ``slz 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -515,3 +515,33 @@ def landing_deep(folder: Path) -> Path:
 
 LANDINGS: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
     landing_collinear, landing_tiny, landing_identical, landing_deep)}
+
+
+# ----------------------------------------------------------------------------- output folders slz must not write into
+# Each returns (recording, -o): `slz detect` must refuse the -o with one line and change nothing.
+def out_users_folder(folder: Path) -> tuple[Path, Path]:
+    out = folder / "thesis"
+    out.mkdir()
+    (out / "thesis.tex").write_text("\\chapter{Landing}\n")
+    return good(folder, n=2), out
+
+
+def out_holds_the_recording(folder: Path) -> tuple[Path, Path]:
+    return good(folder, n=2), folder
+
+
+def out_is_the_input_bag(folder: Path) -> tuple[Path, Path]:
+    bag = _write(folder / "bag_ros2", [textured_frame(i) for i in range(2)], "ros2-mcap")
+    return bag, bag
+
+
+def out_is_a_compare_folder(folder: Path) -> tuple[Path, Path]:
+    out = folder / "cmp"
+    out.mkdir()
+    (out / "compare.json").write_text('{"slz_output": {"kind": "compare", "state": "finished", "files": '
+                                      '["compare.json"]}}\n')
+    return good(folder, n=2), out
+
+
+OUTPUTS: dict[str, Callable[[Path], tuple[Path, Path]]] = {f.__name__: f for f in (
+    out_users_folder, out_holds_the_recording, out_is_the_input_bag, out_is_a_compare_folder)}

@@ -14,10 +14,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+
+import bad_inputs as B
 import pytest
 from click.testing import CliRunner
 
-import bad_inputs as B
 from slzcli.cli import main
 
 # case -> (cause in the `slz info` error or None when info succeeds, cause in the `slz detect` error)
@@ -558,3 +560,18 @@ def test_an_interrupt_while_an_npz_is_written_stays_an_interrupt(tmp_path: Path,
             files.write_npz_streamed(tmp_path / "a.npz", arrays)
     gc.collect()
     assert unraisable == [] and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("case,cause", [
+    ("out_users_folder", "is not an slz detect run folder"),
+    ("out_holds_the_recording", "holds the input"),
+    ("out_is_the_input_bag", "is the input recording"),
+    ("out_is_a_compare_folder", "is an slz compare folder, not an slz detect run folder"),
+])
+def test_output_folder_slz_did_not_make_is_refused_and_left_as_it_was(runner: CliRunner, tmp_path: Path, case: str,
+                                                                       cause: str) -> None:
+    rec, out = B.OUTPUTS[case](tmp_path)
+    before = sorted((str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in tmp_path.rglob("*"))
+    res = invoke(runner, "detect", str(rec), "-o", str(out), "--set", "slam.backend=odometry")
+    error_line(res, out, cause)
+    assert sorted((str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in tmp_path.rglob("*")) == before

@@ -231,8 +231,10 @@ def test_existing_output_needs_force(runner, clear_field, tmp_path) -> None:
     out = tmp_path / "out"
     out.mkdir()
     (out / "keep.txt").write_text("x")
-    _one_line_error(runner.invoke(main, ["compare", str(clear_field), "-o", str(out)]), "--force")
-    assert (out / "keep.txt").read_text() == "x"
+    _one_line_error(runner.invoke(main, ["compare", str(clear_field), "-o", str(out)]), "not an slz compare folder")
+    _one_line_error(runner.invoke(main, ["compare", str(clear_field), "-o", str(out), "--force"]),
+                    "not an slz compare folder")  # --force replaces a compare folder, never a user's folder
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"] and (out / "keep.txt").read_text() == "x"
 
 
 # ----------------------------------------------------------------------------- units

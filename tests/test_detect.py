@@ -77,7 +77,10 @@ def test_run_folder_contents_and_rerun_skip(runner, recordings, tmp_path) -> Non
     assert len(poses) == FRAMES
     again = detect(runner, recordings["clear_field"], out)
     assert again.get("skipped") is True and again["site_world"] == first["site_world"]
-    changed = detect(runner, recordings["clear_field"], out, "--set", "mask.threshold=0.6")
+    refused = runner.invoke(main, ["detect", str(recordings["clear_field"]), "-o", str(out), "--set",
+                                   "mask.threshold=0.6"])
+    assert refused.exit_code == 1 and "--force" in refused.stderr and "mask.threshold" in refused.stderr
+    changed = detect(runner, recordings["clear_field"], out, "--set", "mask.threshold=0.6", "--force")
     assert not changed.get("skipped")
     assert json.loads((out / "run.json").read_text())["config"]["mask"]["threshold"] == 0.6
 

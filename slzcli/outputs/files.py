@@ -1,6 +1,6 @@
-"""Atomic file and folder writes: a reader never sees a half-written result.
+"""Atomic file writes (whole output folders: ``output_dir.py``): a reader never sees a half-written result.
 
-Every output goes to a temporary name in the same folder and is renamed into place
+Every file goes to a temporary name in the same folder and is renamed into place
 (``os.replace`` is atomic on one filesystem), so a crash or Ctrl-C leaves either the old
 file, the new file, or a ``.tmp`` file that nothing trusts.
 """
@@ -22,8 +22,8 @@ import numpy as np
 
 from slzcli.errors import OutputError
 
-_UMASK = os.umask(0)
-os.umask(_UMASK)  # read once: mkstemp makes 0600 files, outputs get the user's usual mode
+UMASK = os.umask(0)
+os.umask(UMASK)  # read once: mkstemp makes 0600 files, outputs get the user's usual mode
 
 
 def _json_default(obj: Any) -> Any:
@@ -65,7 +65,7 @@ def atomic_path(path: Path) -> Iterator[Path]:
     try:
         with naming_write_errors(path):
             yield tmp
-            os.chmod(tmp, 0o666 & ~_UMASK)
+            os.chmod(tmp, 0o666 & ~UMASK)
             os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -194,43 +194,3 @@ class ArraySpool:
                 with open(raw, "rb") as src:
                     shutil.copyfileobj(src, dst, _COPY_BUFFER_BYTES)
         return out
-
-
-@contextmanager
-def atomic_dir(path: Path, *, replace: bool = False) -> Iterator[Path]:
-    """Build a whole output folder under a temporary name, then rename it to ``path``.
-
-    On any exception the temporary folder is removed, so a failed run leaves nothing behind.
-    ``replace`` allows an existing ``path`` to be swapped out (a rerun with ``--force``).
-    """
-    path = Path(path)
-    if path.exists() and not replace:
-        raise OutputError(path, "already exists (use --force to replace it)")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
-    except OSError as err:
-        raise OutputError(path, f"cannot create output folder ({err.strerror})") from err
-    try:
-        try:
-            yield tmp
-        except OutputError as err:  # name the folder's own path, not its temporary name
-            raise OutputError(err.path.replace(str(tmp), str(path), 1), err.reason) from err
-        except OSError as err:
-            if err.errno not in WRITE_ERRNOS:
-                raise
-            where = err.filename.replace(str(tmp), str(path), 1) if isinstance(err.filename, str) else path
-            raise OutputError(where, f"cannot write ({err.strerror or err})") from err
-        with naming_write_errors(path):
-            os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes 0700; a finished run gets the user's usual mode
-            if path.exists():
-                old = path.with_name(f".{path.name}.old")
-                shutil.rmtree(old, ignore_errors=True)
-                os.replace(path, old)
-                os.replace(tmp, path)
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise

@@ -4,7 +4,8 @@ Files: run.json, landing.json, sites.csv, points.ply, trajectory.tum (and trajec
 after a SLAM map reset), keyframes.npz,
 frames/NNNNNN/{depth_variance,flatness,inclination,steepness,score,mask,overlay}.png + maps.npz.
 Everything here writes into the temporary run folder the pipeline hands it; the folder is
-renamed into place only when all of it is written.
+put in place only when all of it is written (``output_dir.build``: only the names a run
+writes, ``output_dir.DETECT_NAMES``, are ever replaced; ``ibvs/`` and a user's files stay).
 
 SLAM map segments (``slzcli.slam.segments``): landing.json, trajectory.tum and the map points
 of points.ply are in the world frame of one segment, the run's (``map_segment`` in
@@ -14,7 +15,6 @@ segment with its frames, keyframes, TUM file and results.mcap frame id.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -27,25 +27,6 @@ from slzcli.outputs.points import write_points_ply
 from slzcli.outputs.results_mcap import frame_ids
 from slzcli.outputs.trajectory import write_trajectories
 from slzcli.slam.segments import Segment, primary_segment, segment_table
-
-
-def input_fingerprint(path: Path) -> dict[str, Any]:
-    """Identity of an input for skipping reruns: resolved path, size and mtime (of a folder's files)."""
-    p = Path(path).resolve()
-    entries = sorted(p.rglob("*")) if p.is_dir() else [p]
-    stats = [(e.stat().st_size, e.stat().st_mtime_ns) for e in entries if e.is_file()]
-    return {"path": str(p), "bytes": sum(s for s, _ in stats), "mtime_ns": max((m for _, m in stats), default=0)}
-
-
-def previous_summary(out_dir: Path, config_hash: str, fingerprint: dict[str, Any]) -> dict[str, Any] | None:
-    """The summary of a finished run in ``out_dir`` for the same config and input, else None."""
-    try:
-        run = json.loads((Path(out_dir) / "run.json").read_text())
-    except (OSError, ValueError):
-        return None
-    if run.get("config_hash") == config_hash and run.get("input") == fingerprint:
-        return run.get("summary")
-    return None
 
 
 def write_detection(run_dir: Path, det: Any, config: Config) -> None:
@@ -121,8 +102,11 @@ def _site_truth(truth: Any, frame: Any, center_camera: tuple[float, float, float
 
 def write_run(run_dir: Path, source: Path, config: Config, method: str, info: Any, report: Any, det: Any,
               committed: dict[str, Any] | None, truth: Any | None, wall_s: float,
-              fingerprint: dict[str, Any]) -> dict[str, Any]:
-    """Everything but the per-frame folders; returns the summary that run.json holds."""
+              key: dict[str, Any]) -> dict[str, Any]:
+    """Everything but the per-frame folders; returns the summary that run.json holds.
+
+    ``key``: the rerun key and the digests of the files it covers (``fingerprint``), kept in run.json.
+    """
     from slzcli.pipeline import versions
 
     st = det.state
@@ -158,7 +142,7 @@ def write_run(run_dir: Path, source: Path, config: Config, method: str, info: An
     if truth is not None:
         summary["ground_truth"] = _truth_summary(st, landing)
     files.write_json(run_dir / "run.json", {
-        "summary": summary, "config_hash": config.hash(), "input": fingerprint, "versions": versions(),
+        "summary": summary, "config_hash": config.hash(), "key": key, "versions": versions(),
         "config": config.to_dict(), "recording": info.to_dict(), "timings": timing})
     return summary
 

@@ -1,9 +1,10 @@
 """Scene + flight -> RGB-D recording + ground-truth sidecar + preview: what ``slz synth`` runs.
 
 Frames are rendered one at a time and streamed to the ``RecordingWriter``; their per-frame
-truth (masks, object ids) is streamed to ``.npy`` spool files in a temporary folder beside the
-output, so memory holds one frame, not N. The spools then go into the sidecar next to the
-recording (``<out>.gt.npz`` + ``<out>.gt.json``, see datasets/GROUND_TRUTH.md), then a contact sheet.
+truth (masks, object ids) is streamed to ``.npy`` spool files, so memory holds one frame, not
+N. The spools then go into the sidecar (``<out>.gt.npz`` + ``<out>.gt.json``, see
+datasets/GROUND_TRUTH.md). All of it is written into a staging folder beside the output and
+moved into place at the end (``synthesize``), then a contact sheet.
 Everything is seeded: the same scene, options and seed give the same bytes.
 """
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError, OutputError
-from slzcli.outputs import files
+from slzcli.outputs import files, run_lock
 from slzcli.outputs.recording import FORMATS, RecordingWriter
 from slzcli.synth.flight import Flight, make_flight
 from slzcli.synth.geometry import SceneMeshes, build_meshes
@@ -127,7 +128,14 @@ def render_frames(world: World, flight: Flight, config: Config, sensor_rng: np.r
 
 def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path | None = None,
                progress: Callable[[int, int], None] | None = None, force: bool = False) -> dict[str, object]:
-    """Render ``options.frames`` frames to a recording at ``out``; write the truth sidecar and preview."""
+    """Render ``options.frames`` frames to a recording at ``out``; write the truth sidecar and preview.
+
+    Everything is written into a staging folder beside ``out`` (``.OUT.<random>.tmp``) and moved into
+    place at the end, the ground truth's header last: the old header goes first, so at no moment is
+    a recording paired with another recording's truth. ``force`` replaces an existing recording (a
+    file, or a rosbag2 folder holding nothing but the bag), never a folder with other files in it.
+    One writer per output (``run_lock``); the temporaries of a killed synth are removed by the next.
+    """
     if options.fmt not in FORMATS:
         raise ConfigError("--format", f"must be one of {', '.join(FORMATS)}; got {options.fmt!r}")
     out = Path(out)
@@ -136,56 +144,64 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
         raise OutputError(out, f"--format {options.fmt} needs "
                                f"{'a name ending in ' + want if want else 'a folder name without .mcap/.bag'} "
                                "(readers guess the format from the path)")
-    if out.exists() and not force:
-        raise OutputError(out, "already exists (use --force to replace it)")
+    check_replaceable(out, options.fmt, force)
     scene = load_scene(options.scene, options.variants)
     if options.start_m is None:
         options = dataclasses.replace(options, start_m=scenario_start(config, scene.scenario))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(out.parent, f"cannot create folder ({err.strerror})") from err
+    with run_lock.claim(out, leftovers=run_lock.SYNTH_LEFTOVERS):
+        check_replaceable(out, options.fmt, force)  # again, now that no other synth writes it
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+        try:
+            summary, sheet = _render_into(stage, out, options, scene, config, progress)
+            _install(stage, out)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
+        preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
+        _write_png(preview_path, sheet)
+    log.info("synth: %s (%d frames of %s), ground truth %s, preview %s", out, options.frames, scene.name,
+             summary["ground_truth"], preview_path)
+    return {**summary, "preview": str(preview_path)}
+
+
+def check_replaceable(out: Path, fmt: str, force: bool) -> None:
+    """OutputError unless ``out`` is free, or ``force`` and it is a recording slz may replace."""
+    if not os.path.lexists(out):
+        return
+    if not force:
+        raise OutputError(out, "already exists (use --force to replace it)")
+    if fmt.startswith("ros2"):
+        if not out.is_dir():
+            raise OutputError(out, f"exists and is not a folder; --format {fmt} writes a rosbag2 folder here")
+        other = sorted(p.name for p in out.iterdir() if p.name != "metadata.yaml" and not p.name.endswith(BAG_SUFFIXES))
+        if other or not (out / "metadata.yaml").is_file():
+            why = f"holds {other[0]}" if other else "has no metadata.yaml"
+            raise OutputError(out, f"is not a rosbag2 bag folder ({why}); --force replaces only a recording: "
+                                   "move it away or choose another -o")
+    elif out.is_dir():
+        raise OutputError(out, f"is a folder; --format {fmt} writes a file: choose another -o")
+
+
+BAG_SUFFIXES = (".db3", ".db3-shm", ".db3-wal", ".mcap")  # what a rosbag2 folder holds besides metadata.yaml
+
+
+def _render_into(stage: Path, out: Path, options: SynthOptions, scene: Scene, config: Config,
+                 progress: Callable[[int, int], None] | None) -> tuple[dict[str, object], np.ndarray]:
+    """Render the recording and its sidecar into ``stage`` under their final names; the summary and preview."""
     world = build_world(scene, config)
     flight_seed, sensor_rng = seeds(options.seed)
     flight = make_flight(options.start_m, options.frames, options.rate_hz, options.path,  # type: ignore[arg-type]
                          config.synth.flight, flight_seed, config.synth.start_stamp_ns)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise OutputError(out.parent, f"cannot create folder ({err.strerror or err})") from err
-    preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
-    outputs = [out, *sidecar_paths(out), preview_path]
-    before = {p: _identity(p) for p in outputs}
-    try:
-        return _synthesize(out, options, config, scene, world, flight, sensor_rng, preview_path, progress)
-    except BaseException:
-        # All or nothing: what this run wrote goes (an older recording it did not yet replace stays).
-        for p in outputs:
-            if _identity(p) not in (None, before[p]):
-                _remove_output(p)
-        raise
-
-
-def _identity(path: Path) -> tuple[int, int, int] | None:
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return st.st_dev, st.st_ino, st.st_mtime_ns
-
-
-def _remove_output(path: Path) -> None:
-    if path.is_dir():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        path.unlink(missing_ok=True)
-
-
-def _synthesize(out: Path, options: SynthOptions, config: Config, scene: Scene, world: World, flight: Flight,
-                sensor_rng: np.random.Generator, preview_path: Path,
-                progress: Callable[[int, int], None] | None) -> dict[str, object]:
     sheet_rows: list[dict[str, object]] = []
     keep = {0, options.frames // 2}
     safe_first = float("nan")
     intr = world.intrinsics
-    with TruthSpool(out.parent, options.frames, intr.height, intr.width) as spool:
-        with RecordingWriter(out, options.fmt, color_encoding=options.color_encoding,
+    staged = stage / out.name
+    with TruthSpool(stage, options.frames, intr.height, intr.width) as spool:
+        with RecordingWriter(staged, options.fmt, color_encoding=options.color_encoding,
                              depth_encoding=options.depth_encoding) as writer:
             for sf in render_frames(world, flight, config, sensor_rng, source=str(out)):
                 writer.write_frame(sf.frame)
@@ -202,20 +218,37 @@ def _synthesize(out: Path, options: SynthOptions, config: Config, scene: Scene, 
         objects = tuple({"id": o.id, "name": o.name, "kind": o.kind, "landable": o.landable}
                         for o in world.meshes.objects)
         header = _header(out, options, scene, world, len(flight.stamps_ns), objects, config)
-        npz_path, json_path = sidecar_paths(out)
         members: dict[str, np.ndarray | Path] = {
             "stamps_ns": np.asarray(flight.stamps_ns, np.int64),
             "T_world_camera": np.asarray(flight.T_world_camera, np.float64),
             **spool.members(), **raster_arrays(world.raster)}
-        write_sidecar(npz_path, json_path, members, header)
-    _write_png(preview_path, contact_sheet(sheet_rows, world.raster.safe, world.raster.usable))
-    log.info("synth: %s (%d frames of %s), ground truth %s, preview %s", out, options.frames, scene.name,
-             npz_path, preview_path)
-    return {"recording": str(out), "format": options.fmt, "scene": scene.name, "variants": list(scene.variants),
-            "frames": options.frames, "rate_hz": options.rate_hz, "path": options.path, "seed": options.seed,
-            "start_m": list(options.start_m), "ground_truth": str(npz_path), "preview": str(preview_path),
-            "safe_fraction_first_frame": safe_first,
-            "raster_safe_fraction": float(world.raster.safe.mean()), "objects": len(world.meshes.objects)}
+        write_sidecar(*sidecar_paths(staged), members, header)
+    summary: dict[str, object] = {
+        "recording": str(out), "format": options.fmt, "scene": scene.name, "variants": list(scene.variants),
+        "frames": options.frames, "rate_hz": options.rate_hz, "path": options.path, "seed": options.seed,
+        "start_m": list(options.start_m or ()), "ground_truth": str(sidecar_paths(out)[0]),
+        "safe_fraction_first_frame": safe_first,
+        "raster_safe_fraction": float(world.raster.safe.mean()), "objects": len(world.meshes.objects)}
+    return summary, contact_sheet(sheet_rows, world.raster.safe, world.raster.usable)
+
+
+def _install(stage: Path, out: Path) -> None:
+    """Move the staged recording and sidecar to ``out``: old header out first, new header in last."""
+    npz, header = sidecar_paths(out)
+    staged_npz, staged_header = sidecar_paths(stage / out.name)
+    try:
+        header.unlink(missing_ok=True)  # the old truth is no longer paired with anything
+        if out.is_dir() and not out.is_symlink():  # a rosbag2 folder (check_replaceable let it through)
+            old = out.parent / f".{out.name}.{os.getpid()}.old"
+            os.replace(out, old)
+            os.replace(stage / out.name, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(stage / out.name, out)
+        os.replace(staged_npz, npz)
+        os.replace(staged_header, header)
+    except OSError as err:
+        raise OutputError(out, f"cannot put the recording in place ({err})") from err
 
 
 class TruthSpool:
@@ -233,7 +266,7 @@ class TruthSpool:
 
     def __enter__(self) -> "TruthSpool":
         try:
-            self._dir = Path(tempfile.mkdtemp(prefix=".gt-spool-", dir=self._parent))
+            self._dir = Path(tempfile.mkdtemp(prefix=".gt-spool-", dir=self._parent))  # the caller's staging folder
             shapes = {"safe_masks": ((self._n, self._h, (self._w + 7) // 8), np.uint8),
                       "object_ids": ((self._n, self._h, self._w), np.uint16)}
             for name, (shape, dtype) in shapes.items():

@@ -1,0 +1,194 @@
+"""What a ``slz detect`` run depends on, by content: the key that decides whether a rerun is skipped.
+
+The key is a sha256 over the resolved config's values, the fusion method, slz's version (and
+pyorbslam3's when ORB-SLAM3 may run: installing it changes what ``slam.backend: auto`` picks), and
+the bytes of every file the run reads: the recording (for a rosbag2 folder ``metadata.yaml`` and
+the storage files it lists, for a TUM folder its lists, ``camera.yaml`` and the images the lists
+name: not the run folders or notes a user keeps beside them), its ``slz synth`` ground-truth
+sidecars when both are there, the fuzzy rules file, and the ORB vocabulary when ORB-SLAM3 may run.
+
+Every file is hashed whole (sha256, streamed in ``HASH_BLOCK`` pieces: memory does not grow with
+the file). The digests are kept in run.json with each file's identity (resolved path, size,
+mtime_ns, ctime_ns, inode), and a rerun re-hashes only a file whose identity changed: a 5 GB bag
+is read once, not on every rerun. ctime is set by the kernel on every write and no user tool sets
+it back (``touch -d``, ``cp -p`` and ``rsync -t`` set mtime only), so an edit that keeps the size
+and mtime still invalidates the cached digest.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from slzcli import __version__
+from slzcli.config import Config
+
+HASH_BLOCK = 1 << 20  # bytes read per step while hashing; I/O housekeeping, not tuning
+Entry = dict[str, Any]  # {"path", "size", "mtime_ns", "ctime_ns", "inode", "sha256"}
+_IDENTITY = ("size", "mtime_ns", "ctime_ns", "inode")
+
+
+def sha256_of(path: Path) -> str:
+    """The sha256 of a file, read in blocks into one reused buffer."""
+    h = hashlib.sha256()
+    buf = bytearray(HASH_BLOCK)
+    view = memoryview(buf)
+    with open(path, "rb", buffering=0) as fh:
+        while n := fh.readinto(buf):
+            h.update(view[:n])
+    return h.hexdigest()
+
+
+def digest(path: Path, cache: dict[str, Entry]) -> Entry:
+    """A file's identity and sha256; the cached sha256 when the identity is the one recorded."""
+    p = Path(path).resolve()
+    st = p.stat()
+    entry: Entry = {"path": str(p), "size": st.st_size, "mtime_ns": st.st_mtime_ns, "ctime_ns": st.st_ctime_ns,
+                    "inode": st.st_ino}
+    old = cache.get(str(p))
+    if old is not None and all(old.get(k) == entry[k] for k in _IDENTITY) and isinstance(old.get("sha256"), str):
+        return {**entry, "sha256": old["sha256"]}
+    return {**entry, "sha256": sha256_of(p)}
+
+
+def recording_files(path: Path) -> list[Path]:
+    """The files a recording's reader reads (see the module docstring); [] when there is nothing to read."""
+    from slzcli.errors import DatasetError
+    from slzcli.sources import guess_format
+
+    p = Path(path)
+    try:
+        fmt = guess_format(p)
+    except DatasetError:  # the reader says what is wrong; hash what is there
+        return [p] if p.is_file() else []
+    if fmt == "ros2":
+        return _rosbag2_files(p if p.is_dir() else p.parent)
+    if fmt == "tum":
+        return _tum_files(p)
+    return [p]
+
+
+def _rosbag2_files(folder: Path) -> list[Path]:
+    import yaml
+
+    meta = folder / "metadata.yaml"
+    try:
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        listed = [folder / str(n) for n in info["relative_file_paths"]]
+    except (OSError, yaml.YAMLError, KeyError, TypeError):  # a broken bag: the reader reports it
+        listed = sorted(q for q in folder.iterdir() if q.suffix in (".db3", ".mcap"))
+    return [meta, *(q for q in listed if q.is_file())]
+
+
+def _tum_files(folder: Path) -> list[Path]:
+    from slzcli.errors import SlzError
+    from slzcli.sources.tum import read_list
+
+    out = [folder / n for n in ("rgb.txt", "depth.txt", "groundtruth.txt", "camera.yaml") if (folder / n).is_file()]
+    images: set[Path] = set()
+    for name in ("rgb.txt", "depth.txt"):
+        try:
+            images.update(folder / row[1] for row in read_list(folder / name, 2))
+        except (OSError, SlzError):  # a missing or malformed list: the reader reports it
+            continue
+    return out + sorted(q for q in images if q.is_file())
+
+
+def run_inputs(recording: Path, config: Config, cache: dict[str, Entry]) -> dict[str, list[Entry]]:
+    """Every file the run reads, by role, with its identity and sha256."""
+    from slzcli.scoring.rules import resolve_rules_path
+    from slzcli.synth.groundtruth import sidecar_paths
+
+    sidecars = sidecar_paths(recording)
+    roles: dict[str, list[Path]] = {
+        "recording": recording_files(recording),
+        "ground_truth": list(sidecars) if all(q.is_file() for q in sidecars) else [],
+        "rules": [q for q in [resolve_rules_path(config.scoring.fuzzy.rules)] if q.is_file()],
+        "vocabulary": [q for q in [_vocabulary(config)] if q is not None and q.is_file()],
+    }
+    return {role: [digest(q, cache) for q in paths] for role, paths in roles.items()}
+
+
+def _may_use_orbslam3(config: Config) -> bool:
+    return config.slam.backend in ("auto", "orbslam3")
+
+
+def _vocabulary(config: Config) -> Path | None:
+    if not _may_use_orbslam3(config):
+        return None
+    from slzcli.slam.vocabulary import DEFAULT_VOCABULARY
+
+    return Path(config.slam.vocabulary or DEFAULT_VOCABULARY).expanduser()
+
+
+def versions(config: Config) -> dict[str, str | None]:
+    """The versions in the key: slz's, and pyorbslam3's when the backend may be ORB-SLAM3."""
+    out: dict[str, str | None] = {"slz": __version__}
+    if _may_use_orbslam3(config):
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            out["pyorbslam3"] = version("pyorbslam3")
+        except PackageNotFoundError:
+            out["pyorbslam3"] = None
+    return out
+
+
+def run_key(config: Config, method: str, inputs: dict[str, list[Entry]], vers: dict[str, str | None]) -> str:
+    """The skip key: equal keys mean the same config values, method, versions and file contents."""
+    content = {role: [(e["path"], e["sha256"]) for e in entries] for role, entries in inputs.items()}
+    doc = {"config": config.to_dict(), "method": method, "versions": vers, "inputs": content}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+
+
+def cache_of(run: dict[str, Any] | None) -> dict[str, Entry]:
+    """The digests a previous run.json recorded, by resolved path (empty when there are none)."""
+    inputs = ((run or {}).get("key") or {}).get("inputs") or {}
+    if not isinstance(inputs, dict):
+        return {}
+    return {e["path"]: e for entries in inputs.values() if isinstance(entries, list)
+            for e in entries if isinstance(e, dict) and isinstance(e.get("path"), str)}
+
+
+def what_changed(run: dict[str, Any], config: Config, method: str, inputs: dict[str, list[Entry]],
+                 vers: dict[str, str | None]) -> str:
+    """Why a previous run's key differs from this one, in a few words (for the refusal message)."""
+    key = run.get("key")
+    if not isinstance(key, dict):
+        return "it was made by an older slz"
+    old_cfg = run.get("config")
+    if isinstance(old_cfg, dict):
+        diff = _first_difference(old_cfg, json.loads(json.dumps(config.to_dict())))  # tuples as JSON lists
+        if diff:
+            return f"config {diff}"
+    if run.get("summary", {}).get("method") not in (None, method):
+        return f"method {run['summary']['method']} -> {method}"
+    if key.get("versions") != vers:
+        return f"versions {key.get('versions')} -> {vers}"
+    old_inputs = key.get("inputs") or {}
+    for role, entries in inputs.items():
+        before = [(e.get("path"), e.get("sha256")) for e in old_inputs.get(role, []) if isinstance(e, dict)]
+        now = [(e["path"], e["sha256"]) for e in entries]
+        if before != now:
+            changed = _changed_paths(before, now)
+            return f"{role.replace('_', ' ')} {changed} changed" if changed else f"{role.replace('_', ' ')} changed"
+    return "its key differs"
+
+
+def _changed_paths(before: Sequence[tuple[Any, Any]], now: Sequence[tuple[Any, Any]]) -> str:
+    old = dict(before)
+    diff = [p for p, h in now if old.get(p) != h] + [p for p in old if p not in dict(now)]
+    return "" if not diff else (Path(str(diff[0])).name + (f" (+{len(diff) - 1} more)" if len(diff) > 1 else ""))
+
+
+def _first_difference(a: Any, b: Any, prefix: str = "") -> str:
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            d = _first_difference(a.get(k), b.get(k), f"{prefix}.{k}" if prefix else str(k))
+            if d:
+                return d
+        return ""
+    return "" if a == b else f"{prefix} {a!r} -> {b!r}"
