@@ -99,12 +99,20 @@ def inspect(path: Path, kind: Kind) -> Existing:
 
 def refuse_inputs(out: Path, inputs: Sequence[Path]) -> None:
     """OutputError when ``out`` is one of the inputs or holds one (writing there could remove it)."""
-    target = Path(out).resolve()
+    target = _resolved(Path(out))
     for inp in inputs:
-        p = Path(inp).resolve()
+        p = _resolved(Path(inp))
         if p == target or target in p.parents:
             what = "is the input recording" if p == target else f"holds the input {inp}"
             raise OutputError(out, f"{what}; write the results elsewhere (another -o)")
+
+
+def _resolved(path: Path) -> Path:
+    """``path`` with links resolved; a link loop stays as given (the reader names it, not this check)."""
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError):
+        return path.absolute()
 
 
 def check_names(existing: Existing, new: Sequence[str]) -> None:

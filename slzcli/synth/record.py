@@ -155,13 +155,17 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
     with run_lock.claim(out, leftovers=run_lock.SYNTH_LEFTOVERS):
         check_replaceable(out, options.fmt, force)  # again, now that no other synth writes it
         stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+        preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
         try:
             summary, sheet = _render_into(stage, out, options, scene, config, progress)
-            _install(stage, out)
+            _write_png(preview_path, sheet)  # before the install: a failed preview leaves no new recording
+            try:
+                _install(stage, out)
+            except BaseException:
+                preview_path.unlink(missing_ok=True)
+                raise
         finally:
             shutil.rmtree(stage, ignore_errors=True)
-        preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
-        _write_png(preview_path, sheet)
     log.info("synth: %s (%d frames of %s), ground truth %s, preview %s", out, options.frames, scene.name,
              summary["ground_truth"], preview_path)
     return {**summary, "preview": str(preview_path)}
