@@ -23,7 +23,7 @@ from slzcli.synth import record
 from slzcli.synth.flight import make_flight
 from slzcli.synth.groundtruth import pixel_safe_mask
 from slzcli.synth.scenes import load_scene
-from slzcli.synth.sensor import apply_color_model, apply_depth_model
+from slzcli.synth.sensor import apply_color_model
 
 HERE = Path(__file__).resolve().parent
 
@@ -47,7 +47,7 @@ def stage_times(scene: str, frames: int) -> dict[str, float]:
         a = time.perf_counter()
         r = world.renderer.render(T, world.intrinsics)
         b = time.perf_counter()
-        apply_depth_model(r.depth_m, cfg.synth.sensor, rng)
+        world.depth_sensor.measure(r.depth_m, T, rng)
         apply_color_model(r.rgb, cfg.synth.sensor, rng)
         c = time.perf_counter()
         pixel_safe_mask(world.raster, r.point_world, r.hit)
