@@ -117,14 +117,18 @@ def make_rig(cfg: SensorCfg) -> StereoRig:
 
 
 def dot_irradiance(points_world: np.ndarray, normals_world: np.ndarray, hit: np.ndarray,
-                   T_world_projector: np.ndarray, pattern: DotPattern, renderer: Renderer) -> np.ndarray:
-    """Irradiance (W/m^2) of the emitter's dots on each surface point; zero where the scene hides the projector."""
+                   T_world_projector: np.ndarray, pattern: DotPattern, renderer: Renderer,
+                   reach_m: float = np.inf) -> np.ndarray:
+    """Irradiance (W/m^2) of the emitter's dots on each surface point; zero where the scene hides the projector
+    and beyond ``reach_m`` from it (where the caller has found them too faint to matter)."""
     out = np.zeros(len(points_world))
     R, c = T_world_projector[:3, :3], T_world_projector[:3, 3]
-    idx = np.flatnonzero(hit)
+    v = points_world - c
+    with np.errstate(invalid="ignore"):
+        idx = np.flatnonzero(hit & (np.einsum("nj,nj->n", v, v) < reach_m * reach_m))
     if len(idx) == 0:
         return out
-    p = _rows_times(points_world[idx] - c, R)             # projector frame (R^T v per row)
+    p = _rows_times(v[idx], R)                            # projector frame (R^T v per row)
     ahead = p[:, 2] > 0
     idx, p = idx[ahead], p[ahead]
     ny, nx = pattern.dirs.shape[:2]
@@ -217,7 +221,8 @@ def refine_subpixel(left: np.ndarray, right: np.ndarray, disp: np.ndarray, block
     for _ in range(iterations):
         map_x = xs - d
         Rw = cv2.remap(R, map_x, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        gx = 0.5 * (cv2.Sobel(Rw, cv2.CV_32F, 1, 0, ksize=1) + cv2.Sobel(L, cv2.CV_32F, 1, 0, ksize=1)) * 0.5
+        # ksize=1 Sobel is [-1, 0, 1], twice the derivative; the mean of both images' derivatives
+        gx = 0.25 * (cv2.Sobel(Rw, cv2.CV_32F, 1, 0, ksize=1) + cv2.Sobel(L, cv2.CV_32F, 1, 0, ksize=1))
         res = L - Rw
         num = cv2.boxFilter(gx * res, -1, win, normalize=False)
         den = cv2.boxFilter(gx * gx, -1, win, normalize=False)
@@ -293,24 +298,26 @@ class StereoDepth:
         ir = rig.ir
         fine = Intrinsics(ir.fx * k, ir.fy, (ir.cx + 0.5) * k - 0.5, ir.cy, ir.width * k, ir.height)
         images = []
+        reach = self.dot_reach_m()
         for T in (T_left, T_right):
             s = self.renderer.surface(T, fine)
-            dots = (dot_irradiance(s.point_world, s.normal_world, s.hit, T_proj, rig.dots, self.renderer)
-                    if self._dots_visible(s) else np.zeros(len(s.hit)))
+            dots = dot_irradiance(s.point_world, s.normal_world, s.hit, T_proj, rig.dots, self.renderer, reach)
             signal = ir_signal_e(s, dots, gain, rig).reshape(ir.height, ir.width, k).mean(axis=2)
             images.append(ir_image(signal.ravel(), (ir.height, ir.width), rig.camera, rng))
         return images[0], images[1]
 
-    def _dots_visible(self, s: Surface) -> bool:
-        """Whether the emitter is on and its brightest dot, on a white surface at the nearest hit, adds
-        at least ``_DOT_MIN_GREY`` grey levels (outdoors at altitude it adds far less: skip the work)."""
+    def dot_reach_m(self) -> float:
+        """Range beyond which the brightest dot, on a white surface, adds less than ``_DOT_MIN_GREY`` grey levels.
+
+        Outdoors the dots are far fainter than sunlight (a fifth of a grey level at 4 m in full
+        sun), so most frames need no dot lookup at all; 0 when the emitter is off.
+        """
         rig = self.rig
-        if not rig.cfg.emitter or not s.hit.any():
-            return False
-        z_min = float(np.min(s.depth_m[s.hit]))          # z <= range: an upper bound of the dot irradiance
-        peak_w_m2 = rig.dots.power_w / (2 * np.pi * rig.dots.sigma_rad ** 2) / max(z_min, 1e-6) ** 2
-        grey = rig.cfg.exposure_fill * _GREY_LEVELS * peak_w_m2 / rig.cfg.sun_irradiance_w_m2
-        return grey >= _DOT_MIN_GREY
+        if not rig.cfg.emitter:
+            return 0.0
+        peak_w_sr = rig.dots.power_w / (2 * np.pi * rig.dots.sigma_rad ** 2)      # W/sr at a dot's centre
+        grey_at_1m = rig.cfg.exposure_fill * _GREY_LEVELS * peak_w_sr / rig.cfg.sun_irradiance_w_m2
+        return float(np.sqrt(grey_at_1m / _DOT_MIN_GREY))
 
     def depth_ir(self, T_world_color: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Depth (m, float32, NaN = none) in the left infrared imager's own pixels."""
