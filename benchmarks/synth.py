@@ -87,14 +87,16 @@ def main() -> None:
                 recording(args.scene, args.frames, "jpeg", "16UC1", Path(tmp))]
     print(f"slz synth benchmark: {args.scene}, 640x480, scenario 1 start; {os.cpu_count()} CPUs "
           f"(shared machine: wall times are upper bounds)")
-    print(f"world build (meshes, raycaster, safety raster {stages['raster_cells']} cells): {stages['world_build_s']:.2f} s")
+    print(f"world build (meshes, raycaster, safety raster {stages['raster_cells']} cells): "
+          f"{stages['world_build_s']:.2f} s")
     print(f"per frame: render {stages['render_ms']:.0f} ms, sensor {stages['sensor_ms']:.0f} ms, "
           f"truth {stages['truth_ms']:.0f} ms -> {stages['frames_per_s']:.2f} frames/s")
     print(f"{'recording (MCAP)':<18} {'frames':>6} {'s':>7} {'fps':>6} {'MB':>8} {'MB/frame':>9} {'GT MB':>7}")
     for r in recs:
         print(f"{r['encoding']:<18} {r['frames']:>6} {r['seconds']:>7.1f} {r['frames_per_s']:>6.2f} "
               f"{r['recording_mb']:>8.1f} {r['mb_per_frame']:>9.2f} {r['ground_truth_mb']:>7.1f}")
-    result = {"scene": args.scene, "resolution": [640, 480], "cpus": os.cpu_count(), "python": platform.python_version(),
+    result = {"scene": args.scene, "resolution": [640, 480], "cpus": os.cpu_count(),
+              "python": platform.python_version(),
               "numpy": np.__version__, "stages": stages, "recordings": recs,
               "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     (HERE / "results").mkdir(exist_ok=True)
