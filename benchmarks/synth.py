@@ -23,7 +23,7 @@ from slzcli.synth import record
 from slzcli.synth.flight import make_flight
 from slzcli.synth.groundtruth import pixel_safe_mask
 from slzcli.synth.scenes import load_scene
-from slzcli.synth.sensor import apply_color_model, apply_depth_model
+from slzcli.synth.sensor import apply_color_model
 
 HERE = Path(__file__).resolve().parent
 
@@ -47,7 +47,7 @@ def stage_times(scene: str, frames: int) -> dict[str, float]:
         a = time.perf_counter()
         r = world.renderer.render(T, world.intrinsics)
         b = time.perf_counter()
-        apply_depth_model(r.depth_m, cfg.synth.sensor, rng)
+        world.depth_sensor.measure(r.depth_m, T, rng)
         apply_color_model(r.rgb, cfg.synth.sensor, rng)
         c = time.perf_counter()
         pixel_safe_mask(world.raster, r.point_world, r.hit)
@@ -87,14 +87,16 @@ def main() -> None:
                 recording(args.scene, args.frames, "jpeg", "16UC1", Path(tmp))]
     print(f"slz synth benchmark: {args.scene}, 640x480, scenario 1 start; {os.cpu_count()} CPUs "
           f"(shared machine: wall times are upper bounds)")
-    print(f"world build (meshes, raycaster, safety raster {stages['raster_cells']} cells): {stages['world_build_s']:.2f} s")
+    print(f"world build (meshes, raycaster, safety raster {stages['raster_cells']} cells): "
+          f"{stages['world_build_s']:.2f} s")
     print(f"per frame: render {stages['render_ms']:.0f} ms, sensor {stages['sensor_ms']:.0f} ms, "
           f"truth {stages['truth_ms']:.0f} ms -> {stages['frames_per_s']:.2f} frames/s")
     print(f"{'recording (MCAP)':<18} {'frames':>6} {'s':>7} {'fps':>6} {'MB':>8} {'MB/frame':>9} {'GT MB':>7}")
     for r in recs:
         print(f"{r['encoding']:<18} {r['frames']:>6} {r['seconds']:>7.1f} {r['frames_per_s']:>6.2f} "
               f"{r['recording_mb']:>8.1f} {r['mb_per_frame']:>9.2f} {r['ground_truth_mb']:>7.1f}")
-    result = {"scene": args.scene, "resolution": [640, 480], "cpus": os.cpu_count(), "python": platform.python_version(),
+    result = {"scene": args.scene, "resolution": [640, 480], "cpus": os.cpu_count(),
+              "python": platform.python_version(),
               "numpy": np.__version__, "stages": stages, "recordings": recs,
               "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     (HERE / "results").mkdir(exist_ok=True)

@@ -15,14 +15,15 @@ import json
 import re
 import types
 import typing
-from importlib import resources
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
 
 from slzcli.errors import ConfigError
+
 
 def package_dir(*parts: str) -> Path:
     """A data folder shipped inside the installed package (wheels unpack to real files).
@@ -318,13 +319,75 @@ class LightCfg:
 
 
 @dataclass(frozen=True)
+class SgbmCfg:
+    mode: Literal["sgbm", "sgbm_3way", "hh", "hh4"]
+    block_px: int = rng(1, 11, odd=True)
+    p1_per_px2: float = rng(0)
+    p2_per_px2: float = rng(0)
+    uniqueness_pct: int = rng(0, 100)
+    lr_max_diff_px: int = rng(-1, 64)
+    speckle_window_px: int = rng(0)
+    speckle_range_px: int = rng(0, 64)
+    prefilter_cap: int = rng(1, 63)
+
+
+@dataclass(frozen=True)
+class StereoCfg:
+    emitter: bool
+    subpixel: Literal["sgbm", "refine"]
+    sgbm: SgbmCfg
+    ir_width_px: int = rng(32, 4096)
+    ir_height_px: int = rng(16, 4096)
+    exposure_fill: float = rng(0, 1, lo_open=True)
+    sun_irradiance_w_m2: float = rng(0, lo_open=True)
+    pattern_seed: int = rng(0)
+    supersample_x: int = rng(1, 8)
+    refine_block_px: int = rng(3, 31, odd=True)
+    refine_iterations: int = rng(1, 10)
+
+
+@dataclass(frozen=True)
+class StereoPresetCfg:
+    baseline_m: float = rng(0, lo_open=True)
+    focal_length_mm: float = rng(0, lo_open=True)
+    pixel_um: float = rng(0, lo_open=True)
+    sensor_width_px: int = rng(1)
+    min_z_m: float = rng(0, lo_open=True)
+    color_offset_m: tuple[float, ...] = rng(n=3)
+    projector_offset_m: tuple[float, ...] = rng(n=3)
+    projector_hfov_deg: float = rng(0, 170, lo_open=True)
+    projector_vfov_deg: float = rng(0, 170, lo_open=True)
+    projector_power_w: float = rng(0)
+    projector_dots: int = rng(1, 10_000_000)
+    dot_sigma_mrad: float = rng(0, lo_open=True)
+    full_well_e: float = rng(1)
+    read_noise_e: float = rng(0)
+
+
+@dataclass(frozen=True)
+class StereoPresetsCfg:
+    d435: StereoPresetCfg
+    d455: StereoPresetCfg
+
+
+@dataclass(frozen=True)
 class SensorCfg:
+    model: Literal["ideal", "gaussian", "stereo"]
+    preset: Literal["d435", "d455"]
+    stereo: StereoCfg
+    presets: StereoPresetsCfg
     depth_sigma_a: float = rng(0)
     edge_jump_m: float = rng(0, lo_open=True)
     edge_hole_prob: float = rng(0, 1)
     min_range_m: float = rng(0)
     max_range_m: float = rng(0, lo_open=True)
     color_noise: float = rng(0, 64)
+
+    @property
+    def camera(self) -> StereoPresetCfg:
+        """The preset camera the stereo model renders."""
+        preset: StereoPresetCfg = getattr(self.presets, self.preset)
+        return preset
 
 
 @dataclass(frozen=True)

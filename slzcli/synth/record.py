@@ -15,10 +15,11 @@ import logging
 import os
 import shutil
 import tempfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import BinaryIO, Callable, Iterator
+from typing import BinaryIO
 
 import cv2
 import numpy as np
@@ -29,12 +30,20 @@ from slzcli.outputs import files, run_lock
 from slzcli.outputs.recording import FORMATS, RecordingWriter
 from slzcli.synth.flight import Flight, make_flight
 from slzcli.synth.geometry import SceneMeshes, build_meshes
-from slzcli.synth.groundtruth import (GT_FORMAT, GT_VERSION, STORED_MEMBERS, SafetyRaster, compute_raster,
-                                      pixel_safe_mask, raster_arrays, sidecar_paths)
+from slzcli.synth.groundtruth import (
+    GT_FORMAT,
+    GT_VERSION,
+    STORED_MEMBERS,
+    SafetyRaster,
+    compute_raster,
+    pixel_safe_mask,
+    raster_arrays,
+    sidecar_paths,
+)
 from slzcli.synth.preview import contact_sheet
 from slzcli.synth.render import Renderer
 from slzcli.synth.scenes import Scene, load_scene
-from slzcli.synth.sensor import apply_color_model, apply_depth_model
+from slzcli.synth.sensor import DepthSensor, apply_color_model, get_depth_sensor
 from slzcli.types import Frame, Intrinsics
 
 log = logging.getLogger(__name__)
@@ -64,13 +73,14 @@ class SynthOptions:
 
 @dataclass(frozen=True, eq=False)
 class World:
-    """A loaded scene ready to render: meshes, raycaster and the safety raster."""
+    """A loaded scene ready to render: meshes, raycaster, the safety raster and the depth sensor."""
 
     scene: Scene
     meshes: SceneMeshes
     renderer: Renderer
     raster: SafetyRaster
     intrinsics: Intrinsics
+    depth_sensor: DepthSensor
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,7 +114,8 @@ def build_world(scene: Scene, config: Config) -> World:
     objects = np.array([p.object_id for p in meshes.parts], dtype=np.uint16)
     raster = compute_raster(renderer.cast, meshes.extent_xy, top, landable, objects, config.uav,
                             config.synth.ground_truth)
-    return World(scene, meshes, renderer, raster, intrinsics_of(config))
+    intr = intrinsics_of(config)
+    return World(scene, meshes, renderer, raster, intr, get_depth_sensor(config.synth.sensor, renderer, intr))
 
 
 def seeds(seed: int) -> tuple[int, np.random.Generator]:
@@ -116,9 +127,9 @@ def seeds(seed: int) -> tuple[int, np.random.Generator]:
 def render_frames(world: World, flight: Flight, config: Config, sensor_rng: np.random.Generator,
                   source: str = "") -> Iterator[SynthFrame]:
     """Render, apply the sensor model and attach the truth, one frame at a time."""
-    for i, (stamp, T) in enumerate(zip(flight.stamps_ns, flight.T_world_camera)):
+    for i, (stamp, T) in enumerate(zip(flight.stamps_ns, flight.T_world_camera, strict=True)):
         r = world.renderer.render(T, world.intrinsics)
-        depth = apply_depth_model(r.depth_m, config.synth.sensor, sensor_rng)
+        depth = world.depth_sensor.measure(r.depth_m, T, sensor_rng)
         rgb = apply_color_model(r.rgb, config.synth.sensor, sensor_rng)
         frame = Frame(index=i, stamp_ns=int(stamp), rgb=rgb, depth_m=depth, intrinsics=world.intrinsics,
                       T_world_camera=T.copy(), source=source)
@@ -268,7 +279,7 @@ class TruthSpool:
         self._files: dict[str, BinaryIO] = {}
         self.written = 0
 
-    def __enter__(self) -> "TruthSpool":
+    def __enter__(self) -> TruthSpool:
         try:
             self._dir = Path(tempfile.mkdtemp(prefix=".gt-spool-", dir=self._parent))  # the caller's staging folder
             shapes = {"safe_masks": ((self._n, self._h, (self._w + 7) // 8), np.uint8),
@@ -324,13 +335,14 @@ def _header(out: Path, options: SynthOptions, scene: Scene, world: World, frames
         "seed": options.seed, "frames": frames, "rate_hz": options.rate_hz, "path": options.path,
         "start_m": list(options.start_m), "pose_topic": GT_POSE_TOPIC, "world_frame": f"{WORLD_FRAME} (ENU, z up)",
         "camera_frame": f"{CAMERA_FRAME} (optical: x right, y down, z forward)",
-        "image": {"width": intr.width, "height": intr.height, "fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy},
+        "image": {"width": intr.width, "height": intr.height, "fx": intr.fx, "fy": intr.fy, "cx": intr.cx,
+                  "cy": intr.cy},
         "raster": {"origin_xy": list(r.origin_xy), "resolution_m": r.resolution_m, "shape": list(r.safe.shape),
                    "row_axis": "world +y", "col_axis": "world +x"},
         "rules": {"max_slope_deg": config.uav.max_slope_deg, "footprint_m": list(config.uav.footprint_m),
                   "margin_m": config.synth.ground_truth.margin_m, "step_m": config.synth.ground_truth.step_m,
                   "slope_tolerance_deg": config.synth.ground_truth.slope_tolerance_deg},
-        "sensor": dict(vars(config.synth.sensor)),
+        "sensor": config.to_dict()["synth"]["sensor"],
         "objects": list(objects), "config_hash": config.hash(), "config": config.to_dict(),
     }
 

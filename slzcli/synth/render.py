@@ -36,6 +36,19 @@ class Rendered:
     hit: np.ndarray              # bool HxW
 
 
+@dataclass(frozen=True, eq=False)
+class Surface:
+    """Flat (H*W) per-pixel lookup of one camera: geometry, material albedo and light, before any sensor."""
+
+    depth_m: np.ndarray          # float64 (N,), z in the optical frame, NaN where nothing hit
+    point_world: np.ndarray      # float64 (N, 3), NaN where nothing hit
+    normal_world: np.ndarray     # float64 (N, 3), facing the camera, NaN where nothing hit
+    hit: np.ndarray              # bool (N,)
+    object_id: np.ndarray        # uint16 (N,), 0 = nothing
+    albedo: np.ndarray           # float64 (N, 3) linear albedo; the sky colour where nothing hit
+    light: np.ndarray            # float64 (N,) ambient + direct sun x Lambert x unshadowed (1 = full sun); 1 on sky
+
+
 class Renderer:
     """Holds the raycasting scene of one ``Scene`` so many frames reuse it."""
 
@@ -50,8 +63,7 @@ class Renderer:
         self.part_material = np.array([names.index(p.material) for p in meshes.parts], dtype=np.int64)
         sun = np.asarray(light.sun_dir, dtype=np.float64)
         self.sun = sun / np.linalg.norm(sun)
-        self._rays_key: tuple[float, ...] | None = None
-        self._rays = np.zeros((0, 3))
+        self._rays: dict[tuple[float, ...], np.ndarray] = {}
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> dict[str, np.ndarray]:
         """Cast rays (N, 3) + (N, 3); returns t, part index (-1 = none), triangle normals."""
@@ -67,6 +79,25 @@ class Renderer:
     def render(self, T_world_camera: np.ndarray, intr: Intrinsics) -> Rendered:
         """Render one exact frame from pose ``T_world_camera`` with pinhole ``intr``."""
         H, W = intr.height, intr.width
+        s = self.surface(T_world_camera, intr)
+        col = s.albedo.copy()
+        col[s.hit] *= s.light[s.hit][:, None]
+        lin = np.clip(col, 0.0, 1.0)
+        ill = self.scene.illumination
+        out = np.clip(ill.gain * (0.5 + ill.contrast * (lin - 0.5)), 0.0, 1.0)
+        return Rendered(rgb_linear=lin.reshape(H, W, 3).astype(np.float32),
+                        rgb=out.reshape(H, W, 3).astype(np.float32),
+                        depth_m=s.depth_m.reshape(H, W).astype(np.float32),
+                        object_id=s.object_id.reshape(H, W),
+                        normal_world=s.normal_world.reshape(H, W, 3).astype(np.float32),
+                        point_world=s.point_world.reshape(H, W, 3), hit=s.hit.reshape(H, W))
+
+    def surface(self, T_world_camera: np.ndarray, intr: Intrinsics) -> Surface:
+        """What each pixel ray of a camera hits, with the material albedo and the sun/ambient light there.
+
+        Shared by the colour render and the infrared pair of the stereo sensor model, so both
+        see the same geometry, textures and shadows.
+        """
         d_cam = self._camera_rays(intr)
         R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
         d_world = np.einsum("ij,nj->ni", R, d_cam)   # not BLAS: avoids thread fights with Open3D
@@ -96,26 +127,19 @@ class Renderer:
                 col[order[a:b]] = albedo(p_sorted[a:b], self.scene.materials[name],
                                          zlib.crc32(name.encode()) % 1000, n_sorted[a:b])
         lit = self._direct_light(points, n, hit)
-        col[hit] *= (self.light.ambient + (1.0 - self.light.ambient) * lit[hit])[:, None]
-        lin = np.clip(col, 0.0, 1.0)
-        ill = self.scene.illumination
-        out = np.clip(ill.gain * (0.5 + ill.contrast * (lin - 0.5)), 0.0, 1.0)
-        return Rendered(rgb_linear=lin.reshape(H, W, 3).astype(np.float32),
-                        rgb=out.reshape(H, W, 3).astype(np.float32),
-                        depth_m=depth.reshape(H, W).astype(np.float32),
-                        object_id=obj.reshape(H, W),
-                        normal_world=n.reshape(H, W, 3).astype(np.float32),
-                        point_world=points.reshape(H, W, 3), hit=hit.reshape(H, W))
+        light = np.ones(len(depth))
+        light[hit] = self.light.ambient + (1.0 - self.light.ambient) * lit[hit]
+        return Surface(depth_m=depth, point_world=points, normal_world=n, hit=hit, object_id=obj,
+                       albedo=col, light=light)
 
     def _camera_rays(self, intr: Intrinsics) -> np.ndarray:
-        """Optical-frame ray directions (H*W, 3) with z = 1, cached per camera model."""
+        """Optical-frame ray directions (H*W, 3) with z = 1, cached per camera model (colour, infrared)."""
         key = (intr.fx, intr.fy, intr.cx, intr.cy, intr.width, intr.height)
-        if self._rays_key != key:
+        if key not in self._rays:
             u, v = np.meshgrid(np.arange(intr.width, dtype=np.float64), np.arange(intr.height, dtype=np.float64))
-            self._rays = np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones_like(u)],
-                                  -1).reshape(-1, 3)
-            self._rays_key = key
-        return self._rays
+            self._rays[key] = np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones_like(u)],
+                                       -1).reshape(-1, 3)
+        return self._rays[key]
 
     def _direct_light(self, points: np.ndarray, normals: np.ndarray, hit: np.ndarray) -> np.ndarray:
         """Lambert term of the sun, zero in shadow (one occlusion ray per lit pixel)."""
