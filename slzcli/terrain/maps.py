@@ -142,16 +142,22 @@ def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None 
     edges: a real stereo sensor drops isolated pixels everywhere, and a speck of no data cannot
     hide what a landing cares about. Their pixels still have no depth (they score 0).
     """
-    img = d.filled
-    if cfg.blur_px > 1:   # normalised blur: holes do not pull their neighbours' depth to 0
-        ksize = (cfg.blur_px, cfg.blur_px)
-        num = cv2.GaussianBlur(img, ksize, 0)
-        den = cv2.GaussianBlur(d.valid.astype(np.float32), ksize, 0)
-        img = np.divide(num, den, out=num, where=d.valid)
+    # Normalised blur: holes do not pull their neighbours' depth to 0, and a hole is filled with
+    # its neighbourhood's depth so the derivatives see no dip there (a real sensor's scattered
+    # dropouts would otherwise ring every one with Canny edges); a wide hole is an edge below.
+    ksize = (max(cfg.blur_px, 3), max(cfg.blur_px, 3))
+    num = cv2.GaussianBlur(d.filled, ksize, 0)
+    den = cv2.GaussianBlur(d.valid.astype(np.float32), ksize, 0)
+    filled = den > 1e-6
+    smooth = np.divide(num, den, out=np.zeros_like(num), where=filled)
+    img = smooth if cfg.blur_px > 1 else np.where(d.valid, d.filled, smooth)
+    # no derivative across the inside of a wide hole (it has no depth to differ from)
+    blind = cv2.erode(filled.view(np.uint8), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE) == 0
     scale = float(1.0 / (metres_per_level or cfg.metres_per_level))
     derivs = []
     for dx, dy in ((1, 0), (0, 1)):
         g = cv2.Sobel(img, cv2.CV_32F, dx, dy, ksize=3, scale=scale, borderType=cv2.BORDER_REPLICATE)
+        g[blind] = 0.0
         # Canny takes 16-bit derivatives: round and saturate (a saturated gradient is an edge anyway)
         derivs.append(cv2.add(g, 0.0, dtype=cv2.CV_16S))
     edges = cv2.Canny(derivs[0], derivs[1], cfg.canny_low, cfg.canny_high)   # 255 on edges
