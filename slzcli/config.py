@@ -145,6 +145,7 @@ class NoiseEstimateCfg:
 class LimitsCfg:
     confidence_sigma: float = rng(0, lo_open=True)
     blocks_per_footprint: float = rng(1)
+    target_margin: float = rng(1)
 
 
 @dataclass(frozen=True)

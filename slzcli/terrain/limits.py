@@ -10,7 +10,9 @@ it tolerates, its slope limit). One frame, one set of windows (like the mask's m
   deviation of sqrt(2/6) sigma_b^2. b never exceeds the size that leaves
   ``blocks_per_footprint`` blocks across the footprint (coarser could not place a landing square).
 - **Slope window.** The steepness plane fit covers K x K blocks, at least ``normal_size_m`` and
-  at most the footprint, the smallest K for which both limits below hold.
+  at most the footprint, the smallest K for which both limits below are ``target_margin`` times
+  within the UAV's tolerances (a window that only just meets them leaves a slope map too noisy to
+  call level ground level).
 - **Limits** (what the issue calls the smallest step and slope detectable): a step is
   detectable when the difference of the two half-window means exceeds k times its noise,
   ``h_min = 2 k sigma / K`` (K x K samples, half on each side), and a slope when the fitted
@@ -141,9 +143,10 @@ def working_scale(noise: DepthNoise, depth_m: float, focal_px: float, cfg: Terra
     free_px = min(max(st.normal_px, st.normal_size_m * px_per_m), st.normal_max_px)
     k_min = min(k_max, max(3, _odd_at_least(free_px / block - 1e-9)))
     blocks, (step, slope) = k_max, _limits(noise, depth_m, focal_px, block, k_max, k)
+    m = lim.target_margin
     for kk in range(k_min, k_max + 1, 2):
         s, p = _limits(noise, depth_m, focal_px, block, kk, k)
-        if s <= uav.max_step_m and p <= uav.max_slope_deg:
+        if s * m <= uav.max_step_m and p * m <= uav.max_slope_deg:
             blocks, step, slope = kk, s, p
             break
     vouched = step <= uav.max_step_m and slope <= uav.max_slope_deg
