@@ -12,6 +12,7 @@ distortion]) is read, else the config camera section is used.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 from typing import Iterator
 
@@ -19,9 +20,10 @@ import cv2
 import numpy as np
 import yaml
 
-from slzcli.config import Config
+from slzcli.config import Config, read_yaml_text, safe_yaml_load
 from slzcli.errors import DatasetError, DecodeError
 from slzcli.sources import decode
+from slzcli.sources.image_limits import FrameTooLarge, check_file
 from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import PoseTrack, pair_stamps
 from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
@@ -96,7 +98,7 @@ class TumRecording(Recording):
         cam_file = self.path / "camera.yaml"
         if cam_file.is_file():
             try:
-                c = yaml.safe_load(cam_file.read_text())
+                c = safe_yaml_load(read_yaml_text(cam_file))
                 return Intrinsics(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]), int(c["width"]),
                                   int(c["height"]), str(c.get("distortion_model", "")),
                                   tuple(float(v) for v in c.get("distortion", ()))), str(cam_file)
@@ -123,6 +125,24 @@ class TumRecording(Recording):
         n = len(self._pairs)
         return PairingReport(n, len(self._rgb) - n, len(self._depth) - n, without_pose, undecodable)
 
+    def _within_pixel_bound(self, rgb_name: str, depth_name: str, too_large: list[str]) -> bool:
+        """Check both images' declared sizes (file headers) before reading them; warn once, then count."""
+        try:
+            for name, what in ((rgb_name, "colour"), (depth_name, "depth")):
+                check_file(self.path / name, self.cfg.max_image_px, f"{name}: {what} image")
+        except FrameTooLarge as err:
+            if not too_large:
+                log.warning("%s: %s; skipped (further frames over the bound are counted, not shown)", self.path, err)
+            too_large.append(str(err))
+            return False
+        except DecodeError:   # neither PNG nor JPEG: not read (OpenCV would decode any size of TIFF, BMP, ...)
+            log.warning("%s: %s / %s: missing or not an 8-bit colour / 16-bit depth PNG", self.path, rgb_name,
+                        depth_name)
+            return False
+        except OSError:
+            return True   # missing: cv2.imread below says so as before
+        return True
+
     def info(self) -> RecordingInfo:
         def stream(name: str, rows: list) -> StreamInfo:
             stamps = [r[0] for r in rows]
@@ -142,9 +162,13 @@ class TumRecording(Recording):
             for stamp, T in self._gt:
                 track.add(stamp, T)
         without_pose = undecodable = index = 0
+        too_large: list[str] = []   # the files skipped for their size (one warning, then counted)
         assert self._intr is not None
         for i, j in self._pairs:
             stamp, rgb_name = self._rgb[i]
+            if not self._within_pixel_bound(rgb_name, self._depth[j][1], too_large):
+                undecodable += 1
+                continue
             bgr = cv2.imread(str(self.path / rgb_name), cv2.IMREAD_COLOR)
             raw = cv2.imread(str(self.path / self._depth[j][1]), cv2.IMREAD_UNCHANGED)
             if bgr is None or raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
@@ -163,5 +187,10 @@ class TumRecording(Recording):
             yield Frame(index, stamp, rgb, depth, intr, T, str(self.path))
             index += 1
         self.report = self._report(without_pose, undecodable)
+        if too_large:
+            note = f"{len(too_large)} frame(s) over sources.max_image_px {self.cfg.max_image_px} px were skipped"
+            self.report = replace(self.report, notes=(*self.report.notes, note))
+        if index == 0 and too_large:
+            raise DatasetError(self.path, f"no frame could be read: {too_large[0]}")
         if index == 0 and self._pairs:
             raise DatasetError(self.path, "no frame could be read (images missing or of the wrong kind)")
