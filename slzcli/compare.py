@@ -42,6 +42,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
+from slzcli.interrupt import call_interruptibly
 from slzcli.outputs import files
 from slzcli.pipeline import (Detection, Detector, commit_site, ground_truth_of, open_inputs, posed_maps,
                              tracked_frames)
@@ -190,7 +191,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
                 slam_ms = tracker.state.timer.samples_ms["slam"][-1]
                 if due:
                     with limit.stage(f"detection on frame {frame.index}"):
-                        maps, maps_ms = posed_maps(frame, T, config)
+                        maps, maps_ms = call_interruptibly(posed_maps, frame, T, config)
                         gt_mask = truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000) if truth is not None else None
                         dets = {m: _fuse(run, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
                                 for m, run in runs.items()}
@@ -211,7 +212,7 @@ def _fuse(run: MethodRun, tracker: Detector, frame: Any, T: np.ndarray | None, m
           slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
     det = run.det
     det.last_points = tracker.last_points
-    d = det.fuse(frame, T, maps, maps_ms)
+    d = call_interruptibly(det.fuse, frame, T, maps, maps_ms)
     det.record(d)
     det.state.timer.add("slam", slam_ms)
     pts = d.points

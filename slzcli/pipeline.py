@@ -35,6 +35,7 @@ from slzcli.config import Config
 from slzcli.errors import DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
+from slzcli.interrupt import call_interruptibly
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.outputs import files, results_mcap
 from slzcli.outputs.site_log import SiteLog
@@ -302,7 +303,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             results.write_pose(frame.stamp_ns, T)
             if due:
                 with limit.stage(f"detection on frame {frame.index}"):
-                    d = det.detect(frame, T)
+                    d = call_interruptibly(det.detect, frame, T)   # seconds of native work on large frames
                     det.record(d)
                 with limit.stage(f"writing frame {frame.index}"), det.state.timer.stage("write"):
                     run_folder.write_detection(tmp, d, config)
