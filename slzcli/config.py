@@ -189,6 +189,7 @@ class LandingCfg:
     depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
     max_tilt_deg: float = rng(0, 90)
+    max_normal_pairs: int = rng(1)
 
 
 @dataclass(frozen=True)

@@ -237,6 +237,17 @@ def test_bad_set_value_is_one_short_line(runner: CliRunner, tmp_path: Path, valu
     assert len(res.stderr.splitlines()) == 1 and len(res.stderr) < 300
 
 
+def test_a_normal_radius_joining_too_many_pairs_is_one_line_naming_the_key(runner: CliRunner,
+                                                                          tmp_path: Path) -> None:
+    rec = B.good(tmp_path, n=2)
+    before = set(tmp_path.iterdir())
+    res = invoke(runner, "detect", str(rec), "-o", str(tmp_path / "run"), "--set", "landing.normal_radius_m=1000",
+                 "--set", "landing.max_normal_pairs=100", "--set", "landing.detect_on=every_nth")
+    assert res.exit_code == 1 and res.stderr.startswith("slz: error: landing.normal_radius_m: 1000 m joins")
+    assert len(res.stderr.splitlines()) == 1
+    assert set(tmp_path.iterdir()) == before
+
+
 @pytest.mark.parametrize("footprint", ["[1000, 1000]", "[1.0e6, 1.0e6]", "[1e6, 1e6]"])
 def test_a_footprint_larger_than_the_view_is_no_site_without_a_huge_kernel(runner: CliRunner, tmp_path: Path,
                                                                           footprint: str) -> None:

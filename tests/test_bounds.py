@@ -173,6 +173,17 @@ def test_ground_truth_footprint_larger_than_the_scene_is_unsafe_without_a_kernel
     assert raster.usable.all() and not raster.safe.any()
 
 
+def test_normals_refuse_a_radius_that_joins_every_pair() -> None:
+    from slzcli.landing.select import point_normals
+
+    xyz = np.random.default_rng(0).random((300, 3))
+    up = np.array([0.0, 0.0, 1.0])
+    with pytest.raises(ConfigError, match=r"joins 4\.48e\+04 pairs of the 300 map points") as err:
+        point_normals(xyz, 1000.0, up, max_pairs=10_000)   # 300 x 299 / 2 = 44,850 pairs
+    assert err.value.key == "landing.normal_radius_m"
+    assert np.array_equal(point_normals(xyz, 0.2, up, max_pairs=10_000), point_normals(xyz, 0.2, up), equal_nan=True)
+
+
 # ----------------------------------------------------------------------------- sizes a config implies
 @pytest.mark.parametrize("overrides,runs,key,what", [
     (["control.sim.dynamics_dt_s=1e-9"], 1, "control.sim.dynamics_dt_s", "dynamics steps of one landing"),
