@@ -6,14 +6,17 @@ config or a failure with a one-line reason naming the file or key, 2 usage.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import math
+import signal
 import sys
 import threading
 import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import click
 
@@ -39,14 +42,19 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
                 **kwargs: Any) -> None:
         warned = _setup_logging(verbose)
         try:
-            config = load_config(config_file, overrides)
-            result = fn(config=config, **kwargs)
+            with _sigterm_interrupts():
+                config = load_config(config_file, overrides)
+                result = fn(config=config, **kwargs)
         except SlzError as err:
             warned.flush()
             _fail(str(err))
         except KeyboardInterrupt:
             warned.flush()
             click.echo("slz: interrupted", err=True)
+            from slzcli import interrupt
+
+            if interrupt.abandoned():
+                interrupt.exit_now(130)
             sys.exit(130)
         except Exception as err:  # a bug: still one line by default, the traceback with -vv
             warned.flush()
@@ -63,8 +71,46 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+# The longest line slz prints for one error or warning: messages bound the values they quote
+# (errors.short_repr); this is the net under any that does not (a third-party error's text).
+MAX_LINE_CHARS = 2000
+
+
+def one_line(message: str, limit: int = MAX_LINE_CHARS) -> str:
+    """Whitespace collapsed to single spaces, then cut in the middle when longer than ``limit``.
+
+    The start names the file or key and the end usually holds the cause, so both are kept.
+    """
+    if len(message) > 4 * limit:  # split() of a many-megabyte text would copy it several times
+        message = message[: 2 * limit] + " " + message[-2 * limit:]
+    text = " ".join(message.split())
+    if len(text) <= limit:
+        return text
+    head = (2 * limit) // 3
+    return f"{text[:head]} [...] {text[-(limit - head - 7):]}"
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM stops every command the way Ctrl-C does: the exception unwinds through the atomic
+    writers (temporary files and folders are removed) and slz exits with 130, as a batch does.
+    Long native calls run where the signal can still be acted on (``slzcli/interrupt.py``)."""
+    def stop(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, stop)
+    except ValueError:  # not the main thread (slz called from a thread): leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def _fail(message: str) -> None:
-    click.echo(f"slz: error: {' '.join(message.split())}", err=True)
+    click.echo(f"slz: error: {one_line(message)}", err=True)
     sys.exit(1)
 
 
@@ -95,9 +141,22 @@ class _WarningLines:
         self.seen.clear()
 
 
+class _OneLineRecords(logging.Filter):
+    """Every log record on stderr is one bounded line (a warning quoting a recording's text included)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        short = one_line(text)
+        if short != text:
+            record.msg, record.args = short, None
+        return True
+
+
 def _setup_logging(verbose: int) -> _WarningLines:
     level = logging.WARNING if verbose == 0 else logging.INFO if verbose == 1 else logging.DEBUG
     logging.basicConfig(level=level, format="slz: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
+    for log_handler in logging.getLogger().handlers:
+        log_handler.addFilter(_OneLineRecords())
     handler = _WarningLines()
     warnings.showwarning = handler
     warnings.filterwarnings("always", category=RuntimeWarning)  # numpy: each occurrence reaches the handler
@@ -241,6 +300,9 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
 
     if scenario is not None and start is not None:  # when --start came first on the command line
         raise ConfigError("--start", "give --scenario or --start, not both")
+    from slzcli import limits
+
+    limits.check(limits.simulation_sizes(config, runs))
     target, _ = ibvs_out.read_target(run, config.uav.footprint_m, config.control.sim.target_tolerance)
     out = output or ibvs_out.landing_path(run).parent / "ibvs"
     start_world = resolve_start(target, config, scenario, start)
@@ -259,9 +321,11 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
                 f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg -> {out}")
         return summary, text
     mc_seed = config.control.noise.seed if seed is None else seed
-    result = montecarlo.run(target, start_world, runs, mc_seed, config)
+    with _remove_if_left_empty(out), ibvs_out.montecarlo_rows(out) as add_rows, \
+            _RunsProgress(runs, config.control.montecarlo.chunk_runs) as tick:
+        result = montecarlo.run_chunked(target, start_world, runs, mc_seed, config, on_chunk=add_rows, progress=tick)
     summary = {**montecarlo.summarise(result), "seed": mc_seed, "start_world": start_world.tolist()}
-    files = ibvs_out.write_montecarlo(out, result, summary)
+    files = ibvs_out.write_montecarlo(out, result, summary, rows_written=True)
     files.append(ibvs_plots.montecarlo_histograms(out / "montecarlo_hist.png", result))
     return {**summary, "output": str(out), "files": [p.name for p in files]}, f"{montecarlo.table(summary)}\n-> {out}"
 
@@ -298,7 +362,8 @@ def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scene
               variants: tuple[str, ...], sheet: Path | None, force: bool) -> tuple[dict[str, Any], str]:
     """Render a ground-truthed RGB-D recording of SCENE (datasets/scenes), with a .gt.npz sidecar."""
     from slzcli.synth import record
-    from slzcli.synth.scenes import list_scenes as scene_list, split_spec
+    from slzcli.synth.scenes import list_scenes as scene_list
+    from slzcli.synth.scenes import split_spec
 
     if list_scenes:
         rows = scene_list()
@@ -349,6 +414,49 @@ class _progress:
             if self.bar is not None:
                 self.bar.update(self.task, completed=done, total=total)
         return tick
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+@contextlib.contextmanager
+def _remove_if_left_empty(folder: Path) -> Iterator[None]:
+    """A folder this command creates is removed again when the command stops before writing into it."""
+    existed = folder.exists()
+    try:
+        yield
+    except BaseException:
+        if not existed:
+            with contextlib.suppress(OSError):
+                folder.rmdir()   # only if empty: nothing of the user's, nothing written
+        raise
+
+
+class _RunsProgress:
+    """Monte Carlo progress on stderr: a rich bar on a terminal, else one line per finished chunk of runs
+    (none for a batch of one chunk); yields tick(done, total, successes)."""
+
+    def __init__(self, runs: int, chunk: int) -> None:
+        self.lines = runs > chunk
+        self.bar: Any = None
+
+    def __enter__(self) -> Callable[[int, int, int], None]:
+        if sys.stderr.isatty():
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+            self.bar = Progress(TextColumn("monte carlo"), BarColumn(), MofNCompleteColumn(), TextColumn("runs"),
+                                TimeRemainingColumn(), console=Console(stderr=True), transient=True)
+            self.bar.start()
+            self.task = self.bar.add_task("runs", total=None)
+        return self.tick
+
+    def tick(self, done: int, total: int, successes: int) -> None:
+        if self.bar is not None:
+            self.bar.update(self.task, completed=done, total=total)
+        elif self.lines:
+            click.echo(f"slz: monte carlo: {done}/{total} runs ({100 * done / total:.0f} %), {successes} landed",
+                       err=True)
 
     def __exit__(self, *exc: Any) -> None:
         if self.bar is not None:

@@ -43,6 +43,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
+from slzcli.interrupt import call_interruptibly
 from slzcli.outputs import output_dir, run_lock
 from slzcli.pipeline import (Detection, Detector, commit_site, ground_truth_of, open_inputs, posed_maps,
                              tracked_frames)
@@ -192,7 +193,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
                 slam_ms = tracker.state.timer.samples_ms["slam"][-1]
                 if due:
                     with limit.stage(f"detection on frame {frame.index}"):
-                        maps, maps_ms = posed_maps(frame, T, config, tracker.noise_for(frame))
+                        maps, maps_ms = call_interruptibly(posed_maps, frame, T, config, tracker.noise_for(frame))
                         gt_mask = truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000) if truth is not None else None
                         dets = {m: _fuse(run, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
                                 for m, run in runs.items()}
@@ -213,7 +214,7 @@ def _fuse(run: MethodRun, tracker: Detector, frame: Any, T: np.ndarray | None, m
           slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
     det = run.det
     det.last_points, det.segment = tracker.last_points, tracker.segment
-    d = det.fuse(frame, T, maps, maps_ms)
+    d = call_interruptibly(det.fuse, frame, T, maps, maps_ms)
     det.record(d)
     det.state.timer.add("slam", slam_ms)
     pts = d.points

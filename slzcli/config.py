@@ -22,7 +22,7 @@ from typing import Any, Literal
 
 import yaml
 
-from slzcli.errors import ConfigError
+from slzcli.errors import ConfigError, short_repr
 
 
 def package_dir(*parts: str) -> Path:
@@ -93,6 +93,7 @@ class SourcesCfg:
     tum_depth_scale: float = rng(0, lo_open=True)
     max_depth_m: float = rng(0)
     min_image_px: tuple[int, ...] = rng(1, n=2)
+    max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
 
 
 @dataclass(frozen=True)
@@ -215,6 +216,7 @@ class LandingCfg:
     depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
     max_tilt_deg: float = rng(0, 90)
+    max_normal_pairs: int = rng(1)
 
 
 @dataclass(frozen=True)
@@ -234,6 +236,7 @@ class SimCfg:
     success_radius_m: float = rng(0, lo_open=True)
     start_m: tuple[float, ...] = rng(n=3)
     target_tolerance: float = rng(0, 0.5, lo_open=True)
+    max_steps_per_run: int = rng(1)
 
 
 @dataclass(frozen=True)
@@ -266,6 +269,9 @@ class MonteCarloCfg:
     yaw_drift_deg_sqrt_s: float = rng(0)
     gust_m_s: float = rng(0)
     switch_error_px: float = rng(0, lo_open=True)
+    chunk_runs: int = rng(1, 1_000_000)
+    max_runs: int = rng(1)
+    max_total_steps: int = rng(1)
 
 
 @dataclass(frozen=True)
@@ -397,6 +403,7 @@ class GroundTruthCfg:
     margin_m: float = rng(0)
     step_m: float = rng(0, lo_open=True)
     slope_tolerance_deg: float = rng(0, 1)
+    max_cells: int = rng(1)
 
 
 @dataclass(frozen=True)
@@ -534,6 +541,106 @@ def load_config(config_file: str | Path | None = None, overrides: typing.Sequenc
     return config
 
 
+# ----------------------------------------------------------------------------- bounded YAML
+# Limits of the reader itself (a config cannot set them: they guard reading the config). Configs
+# are small: default.yaml is ~21 KB, ~330 values, 4 levels deep, no aliases; a scene file ~6 KB.
+MAX_YAML_BYTES = 1 << 20     # 1 MiB
+MAX_YAML_ALIASES = 100       # anchors may be reused, but not a billion times
+MAX_YAML_VALUES = 100_000    # values once every alias is expanded (what a loop over the data visits)
+MAX_YAML_DEPTH = 32          # nesting of mappings and lists
+
+
+class YamlLimitError(yaml.YAMLError):
+    """A YAML text over one of the reader's bounds (size, aliases, expanded values, depth)."""
+
+    def __init__(self, reason: str, mark: Any = None) -> None:
+        self.reason, self.problem_mark = reason, mark
+        super().__init__(reason)
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that counts aliases, expanded values and depth while composing.
+
+    PyYAML shares an aliased node instead of copying it, so a 300-byte "billion laughs" loads
+    in microseconds; what explodes is any code that walks the result (validation, ``str()``,
+    an error message): 9 levels of 9 aliases are 387 million values. The expanded size of each
+    node is summed bottom-up as it is composed, so the bound costs one pass over the text.
+    """
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+        self._aliases = 0
+        self._sizes: dict[int, int] = {}
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > MAX_YAML_ALIASES:
+                raise YamlLimitError(f"more than {MAX_YAML_ALIASES} aliases", self.peek_event().start_mark)
+            return super().compose_node(parent, index)
+        self._depth += 1
+        if self._depth > MAX_YAML_DEPTH:
+            raise YamlLimitError(f"nested more than {MAX_YAML_DEPTH} levels deep", self.peek_event().start_mark)
+        try:
+            node = super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+        if node is None:
+            return node
+        if isinstance(node, yaml.SequenceNode):
+            children = list(node.value)
+        elif isinstance(node, yaml.MappingNode):
+            children = [n for pair in node.value for n in pair]
+        else:
+            children = []
+        size = 1 + sum(self._sizes.get(id(c), 1) for c in children)
+        if size > MAX_YAML_VALUES:
+            raise YamlLimitError(f"more than {MAX_YAML_VALUES} values once its aliases are expanded",
+                                 node.start_mark)
+        self._sizes[id(node)] = size
+        return node
+
+
+# YAML 1.2 floats: PyYAML (YAML 1.1) reads `1e-9` and `1e6` as strings, so `--set a.b=1e-9` was
+# refused as "a string"; with a dot (`1.0e-9`) both agree. Strings that look like numbers are not
+# config values anywhere (topics start with '/', methods are words).
+_FLOAT_WITH_EXPONENT = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$")
+_BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_WITH_EXPONENT, list("-+0123456789."))
+
+
+def safe_yaml_load(text: str) -> Any:
+    """``yaml.safe_load`` within the bounds above; ``YamlLimitError`` (a ``yaml.YAMLError``) past them."""
+    if len(text) > MAX_YAML_BYTES:
+        raise YamlLimitError(f"{len(text)} characters, more than {MAX_YAML_BYTES} (a config is a few KB)")
+    loader = _BoundedLoader(text)
+    try:
+        return loader.get_single_data()
+    except (ValueError, OverflowError) as err:  # e.g. int() of 5,000 digits, a date like 2024-13-45
+        raise YamlLimitError(f"a value cannot be read ({short_repr(str(err), 60)})", loader.get_mark()) from err
+    finally:
+        loader.dispose()
+
+
+def read_yaml_text(path: Path) -> str:
+    """A YAML file's text, refused unread when larger than ``MAX_YAML_BYTES`` (reads at most that much)."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_YAML_BYTES + 1)
+    except OSError as err:
+        raise ConfigError("", f"cannot read ({err.strerror or err})", source=str(path)) from err
+    if len(raw) > MAX_YAML_BYTES:
+        raise ConfigError("", f"file is larger than {MAX_YAML_BYTES // 1024} KiB; a config is a few KB "
+                              "(is this the right file?)", source=str(path))
+    try:
+        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):   # UTF-16 with its byte-order mark (YAML 1.1 allows it)
+            return raw.decode("utf-16")
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise ConfigError("", f"not UTF-8 text (nor UTF-16 with a byte-order mark): {err.reason} at position "
+                              f"{err.start}; save it as UTF-8", source=str(path)) from err
+
+
 def read_yaml_mapping(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError("", "config file not found", source=str(path))
@@ -546,20 +653,15 @@ def read_yaml_mapping(path: Path) -> dict[str, Any]:
 
 
 def _load_yaml_file(path: Path) -> Any:
-    """A YAML file's content; ConfigError naming the file when it cannot be read or parsed.
-
-    Bytes go to the parser, which reads UTF-8 and, after a byte-order mark, UTF-16 (YAML 1.1);
-    anything else (Latin-1, a binary file) is a ReaderError, i.e. "not valid YAML" with the place.
-    """
+    """A YAML file's content within the loader's bounds; ConfigError naming the file otherwise."""
+    text = read_yaml_text(path)
     try:
-        raw = path.read_bytes()
-    except OSError as err:
-        raise ConfigError("", f"cannot read ({err.strerror or err})", source=str(path)) from err
-    try:
-        return yaml.safe_load(raw)
-    except yaml.reader.ReaderError as err:
-        raise ConfigError("", f"not UTF-8 text (nor UTF-16 with a byte-order mark): {err.reason} at position "
-                              f"{err.position}; save it as UTF-8", source=str(path)) from err
+        return safe_yaml_load(text)
+    except YamlLimitError as err:
+        if "levels deep" in err.reason:
+            raise ConfigError("", f"not a usable config: nested too deeply for the YAML parser ({err.reason})",
+                              source=str(path)) from err
+        raise ConfigError("", f"YAML refused: {err.reason} ({_yaml_where(err)})", source=str(path)) from err
     except yaml.YAMLError as err:
         raise ConfigError("", f"not valid YAML ({_yaml_where(err)})", source=str(path)) from err
     except RecursionError as err:
@@ -575,9 +677,15 @@ def parse_override(item: str) -> tuple[str, Any]:
     if not re.fullmatch(r"[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*", key):
         raise ConfigError(key or item, "not a dotted key path")  # name what was typed, even an empty key
     try:
-        value = yaml.safe_load(text) if text.strip() else ""
+        value = safe_yaml_load(text) if text.strip() else ""
+    except YamlLimitError as err:
+        raise ConfigError(key, f"value refused: {err.reason}", source="--set") from err
+    except YamlLimitError as err:
+        if "levels deep" in err.reason:
+            raise ConfigError(key, f"value is nested too deeply for the YAML parser ({err.reason})") from err
+        raise ConfigError(key, f"value refused: {err.reason}") from err
     except yaml.YAMLError as err:
-        raise ConfigError(key, f"value {text!r} is not valid YAML") from err
+        raise ConfigError(key, f"value {short_repr(text)} is not valid YAML") from err
     except RecursionError as err:
         raise ConfigError(key, "value is nested too deeply for the YAML parser") from err
     return key, value
@@ -630,8 +738,9 @@ def _check(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> Any
     if origin is Literal:
         choices = typing.get_args(tp)
         if value not in choices:
-            raise ConfigError(path, f"must be one of {', '.join(map(str, choices))}; got {value!r}"
-                              f"{_did_you_mean(str(value), choices)}", source)
+            hint = _did_you_mean(short_repr(value, 200), choices) if isinstance(value, str) else ""
+            raise ConfigError(path, f"must be one of {', '.join(map(str, choices))}; got {short_repr(value)}{hint}",
+                              source)
         return value
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
@@ -660,14 +769,14 @@ def _check(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> Any
 def _scalar(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> Any:
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(path, f"expected true or false, got {_kind(value)} {value!r}", source)
+            raise ConfigError(path, f"expected true or false, got {_kind(value)} {short_repr(value)}", source)
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(path, f"expected an integer, got {_kind(value)} {value!r}", source)
+            raise ConfigError(path, f"expected an integer, got {_kind(value)} {short_repr(value)}", source)
     elif tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(path, f"expected a number, got {_kind(value)} {value!r}", source)
+            raise ConfigError(path, f"expected a number, got {_kind(value)} {short_repr(value)}", source)
         value = float(value)
         if value != value:
             raise ConfigError(path, "NaN is not allowed", source)
@@ -675,15 +784,16 @@ def _scalar(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> An
             raise ConfigError(path, f"must be finite, got {value}", source)
     elif tp is str:
         if not isinstance(value, str):
-            raise ConfigError(path, f"expected a string, got {_kind(value)} {value!r}", source)
+            raise ConfigError(path, f"expected a string, got {_kind(value)} {short_repr(value)}", source)
         return value
     lo, hi = meta.get("lo"), meta.get("hi")
     if lo is not None and (value <= lo if meta.get("lo_open") else value < lo):
-        raise ConfigError(path, f"must be {'>' if meta.get('lo_open') else '>='} {lo}, got {value}", source)
+        raise ConfigError(path, f"must be {'>' if meta.get('lo_open') else '>='} {lo}, got {short_repr(value)}", source)
     if hi is not None and value > hi:
-        raise ConfigError(path, f"must be <= {hi if isinstance(hi, int) else format(hi, 'g')}, got {value}", source)
+        raise ConfigError(path, f"must be <= {hi if isinstance(hi, int) else format(hi, 'g')}, got {short_repr(value)}",
+                          source)
     if meta.get("odd") and int(value) % 2 != 1:
-        raise ConfigError(path, f"must be odd, got {value}", source)
+        raise ConfigError(path, f"must be odd, got {short_repr(value)}", source)
     return value
 
 

@@ -7,6 +7,7 @@ Third-party errors are wrapped once, at the boundary where they happen
 
 from __future__ import annotations
 
+import reprlib
 from pathlib import Path
 
 
@@ -64,3 +65,24 @@ class StageTimeout(SlzError):
         prefix = f"{where}: " if where else ""
         super().__init__(f"{prefix}{stage} took longer than --timeout{limit}; the run was stopped and left no "
                          "output (raise --timeout, or see the README's failure modes)")
+
+
+# ----------------------------------------------------------------------------- bounded values in messages
+def _bounded_repr() -> reprlib.Repr:
+    r = reprlib.Repr()
+    r.maxlevel, r.maxlist, r.maxtuple, r.maxdict, r.maxset = 3, 6, 6, 4, 6
+    r.maxstring, r.maxother, r.maxlong = 200, 200, 40
+    return r
+
+
+_REPR = _bounded_repr()
+
+
+def short_repr(value: object, limit: int = 80) -> str:
+    """``repr(value)`` cut to ``limit`` characters, built without ever making the whole repr.
+
+    A value from a config or a recording can be huge (a YAML alias bomb expands to gigabytes
+    when printed; a crafted topic or format string to megabytes): an error line stays one short line.
+    """
+    text = _REPR.repr(value)
+    return text if len(text) <= limit else text[: max(limit - 3, 1)] + "..."

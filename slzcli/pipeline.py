@@ -43,6 +43,7 @@ from slzcli.config import Config
 from slzcli.errors import DatasetError, OutputError
 from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
+from slzcli.interrupt import call_interruptibly
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.outputs import results_mcap
 from slzcli.outputs.site_log import SiteLog
@@ -109,7 +110,8 @@ def select_params(config: Config, method: str) -> SelectParams:
         footprint_m=(uav.footprint_m[0], uav.footprint_m[1]),
         min_extent_factor=lc.bayes_min_extent_factor if bayes else lc.min_extent_factor,
         rule="largest" if bayes else "min_normal_variance", seed=lc.seed,
-        edge_clearance_m=lc.edge_clearance_factor * max(uav.size_m[:2]), max_tilt_deg=lc.max_tilt_deg)
+        edge_clearance_m=lc.edge_clearance_factor * max(uav.size_m[:2]), max_tilt_deg=lc.max_tilt_deg,
+        max_normal_pairs=lc.max_normal_pairs)
 
 
 def gravity_alignment(first_camera_up: np.ndarray) -> np.ndarray:
@@ -364,7 +366,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             results.write_pose(frame.stamp_ns, T, det.segment)
             if due:
                 with limit.stage(f"detection on frame {frame.index}"):
-                    d = det.detect(frame, T)
+                    d = call_interruptibly(det.detect, frame, T)   # seconds of native work on large frames
                     det.record(d)
                 with limit.stage(f"writing frame {frame.index}"), det.state.timer.stage("write"):
                     run_folder.write_detection(tmp, d, config)

@@ -234,6 +234,46 @@ def config_deep(folder: Path) -> Path:
 def config_contradictory(folder: Path) -> Path:
     p = folder / "contradictory.yaml"
     p.write_text("terrain:\n  flatness:\n    canny_low: 230\n")
+
+
+def alias_bomb(levels: int) -> str:
+    """A YAML flow list of ``levels`` nested levels, each 9 references to the one below: 9**(levels+1) values."""
+    value = "&a0 [1, 1, 1, 1, 1, 1, 1, 1, 1]"
+    for i in range(1, levels):
+        value = f"&a{i} [{value}, " + ", ".join([f"*a{i - 1}"] * 8) + "]"
+    return value
+
+
+def config_alias_bomb(folder: Path) -> Path:
+    """A ~350-byte "billion laughs" under landing.kmeans_k (the tester's: 372 bytes): 387 M values."""
+    p = folder / "alias_bomb.yaml"
+    p.write_text(f"landing:\n  kmeans_k: {alias_bomb(9)}\n")
+    return p
+
+
+def config_alias_small_bomb(folder: Path) -> Path:
+    """A smaller bomb (59,049 values: under the loader's bound) whose error message once was megabytes."""
+    p = folder / "alias_small_bomb.yaml"
+    p.write_text(f"landing:\n  kmeans_k: {alias_bomb(5)}\n")
+    return p
+
+
+def config_too_deep(folder: Path) -> Path:
+    p = folder / "deep.yaml"
+    p.write_text("landing:\n  kmeans_k: " + "[" * 5000 + "]" * 5000 + "\n")
+    return p
+
+
+def config_too_large(folder: Path) -> Path:
+    """A 2 MB config file (a log or a recording given as --config by mistake)."""
+    p = folder / "huge.yaml"
+    p.write_text("mask:\n  threshold: 0.5\n" + "# padding\n" * 200_000)
+    return p
+
+
+def config_long_value(folder: Path) -> Path:
+    p = folder / "long_value.yaml"
+    p.write_text("scoring:\n  method: " + "x" * 200_000 + "\n")
     return p
 
 
@@ -243,7 +283,8 @@ RECORDINGS: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
     stamps_backwards, duplicated_messages, one_pixel, very_large, no_texture)}
 CONFIGS: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
     config_wrong_type, config_unknown_key, config_not_a_mapping, config_bad_yaml, config_latin1, config_utf16_no_bom,
-    config_binary, config_deep, config_contradictory)}
+    config_binary, config_deep, config_contradictory, config_alias_bomb, config_alias_small_bomb, config_too_deep,
+    config_too_large, config_long_value)}
 
 
 # ----------------------------------------------------------------------------- damaged messages
@@ -386,6 +427,45 @@ def two_depth_topics(folder: Path) -> Path:
             w.write_raw("/camera/depth/colorized", "sensor_msgs/msg/Image", w._image(f.stamp_ns, f.rgb, "rgb8"),
                         f.stamp_ns)
             w.write_raw("/camera/depth/image_rect_raw", *w.depth_message(f.depth_m, f.stamp_ns), f.stamp_ns)
+
+
+# ----------------------------------------------------------------------------- frames over sources.max_image_px
+def png_header(width: int, height: int) -> bytes:
+    """A PNG that declares width x height (a valid IHDR, CRC and all) and holds almost no pixel data.
+
+    cv2.imdecode allocates the declared size before it finds the data missing: the tester's
+    12000x9000 frame (1.2 MB on disk) cost 3.4 GB this way.
+    """
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)   # 8-bit RGB
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64))
+            + chunk(b"IEND", b""))
+
+
+def jpeg_header(width: int, height: int) -> bytes:
+    """A JPEG whose frame header (SOF0) declares width x height, followed by no scan at all."""
+    import struct
+
+    sof = struct.pack(">BHHB", 8, height, width, 3) + b"".join(bytes([c, 0x11, 0]) for c in (1, 2, 3))
+    return b"\xff\xd8" + b"\xff\xc0" + struct.pack(">H", len(sof) + 2) + sof + b"\xff\xd9"
+
+
+def _with_colour_payload(folder: Path, name: str, encoding: str, payload: bytes, frames: int,
+                         oversized: Callable[[int], bool]) -> Path:
+    p = folder / name
+    with RecordingWriter(p, "mcap", color_encoding=encoding) as w:
+        for i in range(frames):
+            f = textured_frame(i)
+            _, msg = w.color_message(f.rgb, f.stamp_ns)
+            if oversized(i):
+                msg.data = np.frombuffer(payload, dtype=np.uint8)
+            w.write_raw(w.color_topic, "sensor_msgs/msg/CompressedImage", msg, f.stamp_ns)
+            w.write_raw(w.depth_topic, *w.depth_message(f.depth_m, f.stamp_ns), f.stamp_ns)
             w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, f.stamp_ns),
                         f.stamp_ns)
     return p
@@ -545,3 +625,38 @@ def out_is_a_compare_folder(folder: Path) -> tuple[Path, Path]:
 
 OUTPUTS: dict[str, Callable[[Path], tuple[Path, Path]]] = {f.__name__: f for f in (
     out_users_folder, out_holds_the_recording, out_is_the_input_bag, out_is_a_compare_folder)}
+
+
+def huge_png_frame(folder: Path) -> Path:
+    """Four PNG colour frames; the second declares 12000x9000 px (108 MP): that frame is skipped."""
+    return _with_colour_payload(folder, "huge_png.mcap", "png", png_header(12000, 9000), 4, lambda i: i == 1)
+
+
+def huge_jpeg_frames(folder: Path) -> Path:
+    """Every JPEG colour frame declares 30000x30000 px: no frame is left, the run fails naming the bound."""
+    return _with_colour_payload(folder, "huge_jpeg.mcap", "jpeg", jpeg_header(30000, 30000), 3, lambda i: True)
+
+
+def over_opencv_limit_frame(folder: Path) -> Path:
+    """One PNG declares 40000x30000 px, over OpenCV's own 2^30-pixel limit (cv2.imdecode throws, not None)."""
+    return _with_colour_payload(folder, "over_opencv.mcap", "png", png_header(40000, 30000), 4, lambda i: i == 2)
+
+
+def huge_raw_depth_frame(folder: Path) -> Path:
+    """A raw depth Image declaring 30000x30000 (step and data too short): skipped before any copy."""
+    p = folder / "huge_raw_depth.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(4):
+            f = textured_frame(i)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            _, msg = w.depth_message(f.depth_m, f.stamp_ns)
+            if i == 3:
+                msg.width, msg.height = 30000, 30000
+            w.write_raw(w.depth_topic, "sensor_msgs/msg/Image", msg, f.stamp_ns)
+            w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, f.stamp_ns),
+                        f.stamp_ns)
+    return p
+
+
+RECORDINGS.update({f.__name__: f for f in (huge_png_frame, huge_jpeg_frames, over_opencv_limit_frame,
+                                           huge_raw_depth_frame)})

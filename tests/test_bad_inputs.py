@@ -47,13 +47,17 @@ FAILS: dict[str, tuple[str | None, str]] = {
     "tum_camera_fx_negative": ("camera.yaml: fx = -128 px must be > 0",) * 2,
     "tum_camera_fx_nan": ("camera.yaml: fx = nan is not a finite number",) * 2,
     "tum_camera_fx_huge": ("camera.yaml: fx = 1e+300 px gives a horizontal field of view",) * 2,
+    "huge_jpeg_frames": (None, "30000x30000 px (900.0 MP) is over sources.max_image_px"),  # info reads no pixels
 }
+# one frame of four over sources.max_image_px: skipped with one warning, counted, the run goes on
+OVERSIZED = {"huge_png_frame": "12000x9000 px", "over_opencv_limit_frame": "40000x30000 px",
+             "huge_raw_depth_frame": "Image 16UC1 of 30000x30000 px"}
 RESULTS = ("cut_middle", "cut_before_footer", "mismatched_sizes", "camera_info_zeros", "depth_all_nan",
            "depth_constant", "stamps_backwards", "duplicated_messages", "no_texture", "short_image_data",
            "camera_info_nan", "stamps_all_zero", "stamps_all_zero_log_zero", "stamps_duplicated", "two_depth_topics",
            "pose_nan", "tum_missing_images")
 OTHER = {"very_large", "log_time_near_2_64"}  # tests of their own below
-assert set(FAILS) | set(RESULTS) | OTHER == set(B.RECORDINGS)
+assert set(FAILS) | set(RESULTS) | set(OVERSIZED) | OTHER == set(B.RECORDINGS)
 
 
 def invoke(runner: CliRunner, *args: str):
@@ -191,6 +195,30 @@ def test_very_large_frame_finishes_in_a_subprocess(tmp_path: Path) -> None:
     assert json.loads((out / "landing.json").read_text())["status"] in ("site", "no_safe_site")
 
 
+@pytest.mark.parametrize("case", list(OVERSIZED))
+def test_a_frame_over_the_pixel_bound_is_skipped_with_one_warning(runner: CliRunner, tmp_path: Path,
+                                                                  case: str) -> None:
+    """Read from the header before decoding (the tester's 12000x9000 PNG cost 3.4 GB; over OpenCV's own
+    limit, cv2.imdecode threw and the whole recording ended as an internal error)."""
+    path = B.RECORDINGS[case](tmp_path)
+    summary, stderr = detect_json(runner, path, tmp_path / "run")
+    assert summary["frames"] == 3 and summary["pairing"]["undecodable"] == 1
+    warnings = [ln for ln in stderr.splitlines() if "max_image_px" in ln]
+    assert len(warnings) == 1 and OVERSIZED[case] in warnings[0] and path.name in warnings[0], stderr
+    assert "frame at stamp" in warnings[0] and "skipped" in warnings[0]
+    assert "1 frame(s) over sources.max_image_px 16777216 px were skipped" in summary["pairing"]["notes"]
+    assert not [ln for ln in stderr.splitlines() if not ln.startswith("slz: WARNING:")], stderr  # no libpng lines
+
+
+def test_every_frame_over_the_bound_warns_once_and_counts(runner: CliRunner, tmp_path: Path) -> None:
+    path = B.huge_jpeg_frames(tmp_path)
+    res = invoke(runner, "detect", str(path), "-o", str(tmp_path / "run"))
+    assert res.stderr.count("slz: WARNING:") == 1, res.stderr  # three frames: one warning, then counted
+    # raising the bound lets the header through, and the (empty) JPEG is then just undecodable
+    res = invoke(runner, "detect", str(path), "-o", str(tmp_path / "run"), "--set", f"sources.max_image_px={2**30}")
+    error_line(res, path, "not a decodable jpeg/png")
+
+
 @pytest.mark.parametrize("case,key,cause", [
     ("config_wrong_type", "mask.threshold", "expected a number"),
     ("config_unknown_key", "mask.treshold", "unknown key"),
@@ -201,6 +229,11 @@ def test_very_large_frame_finishes_in_a_subprocess(tmp_path: Path) -> None:
     ("config_binary", "", "not UTF-8 text"),
     ("config_deep", "", "nested too deeply for the YAML parser"),
     ("config_contradictory", "terrain.flatness.canny_low", "must be <= terrain.flatness.canny_high"),
+    ("config_alias_bomb", "", "more than 100000 values once its aliases are expanded"),
+    ("config_alias_small_bomb", "landing.kmeans_k", "expected an integer, got a list [[[[...]"),
+    ("config_too_deep", "", "nested more than 32 levels deep"),
+    ("config_too_large", "", "file is larger than 1024 KiB"),
+    ("config_long_value", "scoring.method", "must be one of fuzzy, bayes; got 'xxxxx"),
 ])
 def test_bad_config_file_is_one_line_naming_file_and_key(runner: CliRunner, tmp_path: Path, case: str, key: str,
                                                          cause: str) -> None:
@@ -211,7 +244,54 @@ def test_bad_config_file_is_one_line_naming_file_and_key(runner: CliRunner, tmp_
         res = invoke(runner, *cmd, "--config", str(cfg))
         error_line(res, cfg, cause)
         assert key in res.stderr
+        assert len(res.stderr) < 400, f"{len(res.stderr)} characters"  # values are quoted short, never whole
     assert set(tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("value,cause", [
+    (B.alias_bomb(5), "expected an integer, got a list [[[[...]"),                # 59,049 values when printed
+    (B.alias_bomb(9), "value refused: more than 100000 values once its aliases are expanded"),
+    ("1" + "0" * 5000, "value refused: a value cannot be read"),          # int() of 5,000 digits
+    ("[" * 100 + "]" * 100, "value refused: nested more than 32 levels deep"),
+])
+def test_bad_set_value_is_one_short_line(runner: CliRunner, tmp_path: Path, value: str, cause: str) -> None:
+    res = invoke(runner, "config", "dump", "--set", f"landing.kmeans_k={value}")
+    assert res.exit_code == 1 and "landing.kmeans_k" in res.stderr and cause in res.stderr, res.stderr
+    assert len(res.stderr.splitlines()) == 1 and len(res.stderr) < 300
+
+
+def test_a_normal_radius_joining_too_many_pairs_is_one_line_naming_the_key(runner: CliRunner,
+                                                                          tmp_path: Path) -> None:
+    rec = B.good(tmp_path, n=2)
+    before = set(tmp_path.iterdir())
+    res = invoke(runner, "detect", str(rec), "-o", str(tmp_path / "run"), "--set", "landing.normal_radius_m=1000",
+                 "--set", "landing.max_normal_pairs=100", "--set", "landing.detect_on=every_nth")
+    assert res.exit_code == 1 and res.stderr.startswith("slz: error: landing.normal_radius_m: 1000 m joins")
+    assert len(res.stderr.splitlines()) == 1
+    assert set(tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("footprint", ["[1000, 1000]", "[1.0e6, 1.0e6]", "[1e6, 1e6]"])
+def test_a_footprint_larger_than_the_view_is_no_site_without_a_huge_kernel(runner: CliRunner, tmp_path: Path,
+                                                                          footprint: str) -> None:
+    """2.4 GB and 414 TiB before: the landing mask's minimum filter built its kernel first."""
+    import tracemalloc
+
+    rec = B.good(tmp_path, n=2)
+    out = tmp_path / "run"
+    tracemalloc.start()   # numpy reports its array allocations to tracemalloc: the kernel would be counted
+    try:
+        res = invoke(runner, "detect", str(rec), "-o", str(out), "--json", "--set", f"uav.footprint_m={footprint}",
+                     "--set", "landing.detect_on=every_nth")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["status"] == "no_safe_site" and summary["detections"] == 2
+    # Measured: 12.6 MB traced at [1000, 1000] (31 MB with the real footprint, which finds a site);
+    # the kernel alone was 455 MB. A bound of 100 MB leaves 3x over the larger of the two.
+    assert peak < 100e6, f"{peak / 1e6:.0f} MB traced"
 
 
 @pytest.mark.parametrize("backend,cause", [("orbslam3", "ORB-SLAM3 cannot track frame 0 (1x1 px)"),

@@ -5,12 +5,11 @@ Example counts are kept moderate (the whole file runs in well under a minute).
 
 from __future__ import annotations
 
-import math
 import os
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from slzcli.config import load_config

@@ -22,6 +22,7 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 from scipy.spatial import cKDTree
 
+from slzcli.errors import ConfigError
 from slzcli.landing.corners import square_corners
 
 
@@ -38,6 +39,7 @@ class SelectParams:
     seed: int
     edge_clearance_m: float  # acceptance test: clearance to the nearest depth edge must exceed this
     max_tilt_deg: float      # acceptance test: surface tilt at most this
+    max_normal_pairs: int = 0  # neighbour pairs point_normals may build (0 = no bound; landing.max_normal_pairs)
 
 
 @dataclass(frozen=True)
@@ -96,16 +98,27 @@ def project(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray,
     return np.stack([u, v], axis=1), inside
 
 
-def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray) -> np.ndarray:
+def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray, max_pairs: int = 0) -> np.ndarray:
     """Per-point normals from the PCA of all points within ``radius_m``, oriented along ``up``.
 
     Vectorised: neighbour pairs from a k-d tree, covariance sums by ``np.add.at``, batched
-    ``eigh``. Points with fewer than 3 neighbours (themselves included) get NaN.
+    ``eigh``. Points with fewer than 3 neighbours (themselves included) get NaN. The pairs cost
+    ~180 B each; ``max_pairs`` > 0 counts them first (the tree counts whole nodes, nothing is
+    built) and refuses more, naming ``landing.normal_radius_m``: a radius as large as the view
+    makes every pair of points one (n^2 / 2).
     """
     n = xyz.shape[0]
     if n == 0:
         return np.zeros((0, 3))
-    pairs = cKDTree(xyz).query_pairs(radius_m, output_type="ndarray")
+    tree = cKDTree(xyz)
+    if max_pairs > 0:
+        count = (int(tree.count_neighbors(tree, radius_m)) - n) // 2
+        if count > max_pairs:
+            raise ConfigError("landing.normal_radius_m",
+                              f"{radius_m:g} m joins {count:.3g} pairs of the {n} map points under the mask, "
+                              f"more than landing.max_normal_pairs {max_pairs:.3g} (~180 B a pair); "
+                              "use a smaller radius (or raise the bound)")
+    pairs = tree.query_pairs(radius_m, output_type="ndarray")
     i = np.concatenate([np.arange(n), pairs[:, 0], pairs[:, 1]])
     j = np.concatenate([np.arange(n), pairs[:, 1], pairs[:, 0]])
     counts = np.bincount(i, minlength=n).astype(np.float64)
@@ -146,7 +159,7 @@ def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray
     _, lab = kmeans2(pts, k, minit="++", seed=params.seed)
     labels[kept] = lab
     up = up_world / np.linalg.norm(up_world)
-    normals = point_normals(pts, params.normal_radius_m, up)
+    normals = point_normals(pts, params.normal_radius_m, up, params.max_normal_pairs)
     min_extent = np.asarray(params.footprint_m) * params.min_extent_factor
 
     candidates = []

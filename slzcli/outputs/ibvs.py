@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import io
 import json
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +20,7 @@ import numpy as np
 from slzcli.control.simulate import SimResult, Target
 from slzcli.errors import DatasetError, NoSiteFound
 from slzcli.landing.corners import corners_problem
-from slzcli.outputs.files import write_json, write_text
+from slzcli.outputs.files import atomic_path, write_json, write_text
 
 
 def landing_path(path: Path) -> Path:
@@ -117,17 +119,41 @@ def write_run(out_dir: Path, result: SimResult, metrics: dict[str, Any], cx: flo
     return paths
 
 
-def write_montecarlo(out_dir: Path, result: SimResult, summary: dict[str, Any]) -> list[Path]:
-    """montecarlo.json (the aggregate) and montecarlo_runs.csv (one row per run)."""
-    cols = ["stabilisation_time_s", "settling_time_s", "switch_time_s", "final_feature_error_px", "touchdown_error_m",
-            "landing_time_s", "max_tilt_deg"]
-    header = ["run", "success", "x0_m", "y0_m", "z0_m", "yaw0_deg", *cols, "reason"]
-    lines = [",".join(header)]
+MC_COLUMNS = ("stabilisation_time_s", "settling_time_s", "switch_time_s", "final_feature_error_px",
+              "touchdown_error_m", "landing_time_s", "max_tilt_deg")
+MC_HEADER = ("run", "success", "x0_m", "y0_m", "z0_m", "yaw0_deg", *MC_COLUMNS, "reason")
+
+
+def montecarlo_lines(result: SimResult, first_run: int = 0) -> list[str]:
+    """One CSV line per run of a (chunk) result; run numbers start at ``first_run``."""
+    lines = []
     for i in range(len(result.reason)):
-        vals = [str(i), str(int(result.success[i])), *(f"{v:.4f}" for v in result.starts_world[i]),
-                *(f"{getattr(result, c)[i]:.6g}" for c in cols), str(result.reason[i])]
+        vals = [str(first_run + i), str(int(result.success[i])), *(f"{v:.4f}" for v in result.starts_world[i]),
+                *(f"{getattr(result, c)[i]:.6g}" for c in MC_COLUMNS), str(result.reason[i])]
         lines.append(",".join(vals))
+    return lines
+
+
+@contextmanager
+def montecarlo_rows(out_dir: Path) -> Iterator[Callable[[SimResult, int], None]]:
+    """``montecarlo_runs.csv`` written chunk by chunk as the batch runs (``add(result, first_run)``).
+
+    It is built under a temporary name and renamed when the batch ends: a stopped batch leaves no
+    half table behind, and no run's result waits in memory to be written.
+    """
+    with atomic_path(out_dir / "montecarlo_runs.csv") as tmp, open(tmp, "w") as fh:
+        fh.write(",".join(MC_HEADER) + "\n")
+
+        def add(result: SimResult, first_run: int) -> None:
+            fh.write("".join(line + "\n" for line in montecarlo_lines(result, first_run)))
+        yield add
+
+
+def write_montecarlo(out_dir: Path, result: SimResult, summary: dict[str, Any],
+                     rows_written: bool = False) -> list[Path]:
+    """montecarlo.json (the aggregate) and montecarlo_runs.csv (one row per run, unless already streamed)."""
     paths = [out_dir / "montecarlo.json", out_dir / "montecarlo_runs.csv"]
+    if not rows_written:
+        write_text(paths[1], "\n".join([",".join(MC_HEADER), *montecarlo_lines(result)]) + "\n")
     write_json(paths[0], summary)
-    write_text(paths[1], "\n".join(lines) + "\n")
     return paths

@@ -11,7 +11,6 @@ unsafe): a site must fit inside the view.
 
 from __future__ import annotations
 
-import math
 
 import cv2
 import numpy as np
@@ -21,11 +20,36 @@ from slzcli.types import ScoreMap
 
 
 def min_filter(score: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
-    """Minimum of the score over a width x height window (cv2.erode; outside the image = 0)."""
+    """Minimum of the score over a width x height window (cv2.erode; outside the image = 0).
+
+    A window wider or taller than the image reaches outside it from every pixel, so the result
+    is 0 everywhere: returned without building the kernel (``uav.footprint_m=[1000, 1000]`` made
+    a 5 GB one, ``[1e6, 1e6]`` asked for 414 TiB).
+    """
     if width_px <= 1 and height_px <= 1:
         return score.copy()
+    if width_px > score.shape[1] or height_px > score.shape[0]:
+        return np.zeros_like(score)
     kernel = np.ones((height_px, width_px), np.uint8)
     return cv2.erode(score, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def smooth(score: np.ndarray, sigma_x_px: float, sigma_y_px: float) -> np.ndarray:
+    """Gaussian blur whose kernel is cut at the image's own size.
+
+    OpenCV sizes a float kernel at 8 sigma + 1: ``mask.smooth_m=1000`` made a 616,000-tap
+    kernel and minutes of work per frame. A tap further away than the image is wide only sees
+    the border's reflection, so the kernel stops at 2 x the image side + 1 (the same result up
+    to those reflected taps, and always when the blur is narrower than the image).
+    """
+    h, w = score.shape[:2]
+
+    def ksize(sigma: float, side: int) -> int:
+        full = round(sigma * 8 + 1) | 1
+        return min(full, 2 * side + 1)
+
+    return cv2.GaussianBlur(score, (ksize(sigma_x_px, w), ksize(sigma_y_px, h)), sigmaX=sigma_x_px,
+                            sigmaY=sigma_y_px)
 
 
 def landing_mask(method: str, score: np.ndarray, depth_m: np.ndarray, fx: float, fy: float,
@@ -42,7 +66,7 @@ def landing_mask(method: str, score: np.ndarray, depth_m: np.ndarray, fx: float,
     if depth is None:
         return ScoreMap(method, score, np.zeros(score.shape, bool))
     if smooth_m > 0:
-        score_in = cv2.GaussianBlur(score, (0, 0), sigmaX=smooth_m * fx / depth, sigmaY=smooth_m * fy / depth)
+        score_in = smooth(score, smooth_m * fx / depth, smooth_m * fy / depth)
     else:
         score_in = score
     side_m = margin_factor * max(footprint_m)

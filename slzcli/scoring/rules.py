@@ -18,7 +18,7 @@ from typing import Any, Iterable, Union
 import numpy as np
 import yaml
 
-from slzcli.config import CONFIG_DIR
+from slzcli.config import CONFIG_DIR, YamlLimitError, read_yaml_text, safe_yaml_load
 from slzcli.errors import ConfigError
 
 MF_KINDS = {"triangle": 3, "trapezoid": 4}
@@ -138,13 +138,14 @@ def load_rules(name: str) -> RuleBase:
     key = "scoring.fuzzy.rules"
     if not path.is_file():
         raise ConfigError(key, f"rules file not found: {path}")
-    text = path.read_text()
+    text = read_yaml_text(path)
     try:
-        data = yaml.safe_load(text)
+        data = safe_yaml_load(text)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark else str(err).splitlines()[0]
-        raise ConfigError("", f"not valid YAML ({where})", source=str(path)) from err
+        what = f"YAML refused: {err.reason}" if isinstance(err, YamlLimitError) else "not valid YAML"
+        raise ConfigError("", f"{what} ({where})", source=str(path)) from err
     return parse_rule_base(data, source=str(path), digest=hashlib.sha256(text.encode()).hexdigest()[:16])
 
 

@@ -14,7 +14,8 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from slzcli.errors import DecodeError
+from slzcli.errors import DecodeError, short_repr
+from slzcli.sources.image_limits import FrameTooLarge, check_compressed, check_pixels
 from slzcli.types import Intrinsics
 
 # A damaged jpeg/png makes OpenCV's decoder print its own warnings and errors on stderr, around
@@ -68,14 +69,18 @@ def header_stamp(data: bytes | memoryview, ros1: bool) -> tuple[int, str]:
 
 
 # ----------------------------------------------------------------------------- images
-def _raw_array(msg: Any, dtype: str, channels: int) -> np.ndarray:
-    """HxW[xC] view of an Image's data honouring ``step`` (row padding) and ``is_bigendian``."""
+def _raw_array(msg: Any, dtype: str, channels: int, max_px: int = 0) -> np.ndarray:
+    """HxW[xC] view of an Image's data honouring ``step`` (row padding) and ``is_bigendian``.
+
+    ``max_px`` > 0: a declared width x height over it is ``FrameTooLarge`` before any copy.
+    """
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     itemsize = np.dtype(dtype).itemsize
     row = w * channels * itemsize
     data = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
     if h <= 0 or w <= 0:
         raise DecodeError(f"Image {msg.encoding} is empty ({w}x{h} px)")
+    check_pixels(w, h, max_px, f"Image {msg.encoding}")
     if step < row or data.size < step * h:
         raise DecodeError(f"Image {msg.encoding} {w}x{h}: data has {data.size} bytes, step {step}; "
                           f"expected at least {row} bytes per row and {step * h} in all")
@@ -86,18 +91,36 @@ def _raw_array(msg: Any, dtype: str, channels: int) -> np.ndarray:
     return arr.astype(arr.dtype.newbyteorder("=")) if itemsize > 1 else arr
 
 
-def decode_color(msg: Any) -> np.ndarray:
-    """``sensor_msgs/Image`` or ``CompressedImage`` (jpeg/png) -> uint8 HxWx3 RGB."""
+def imdecode_bounded(buf: np.ndarray, flags: int, max_px: int, what: str) -> np.ndarray | None:
+    """``cv2.imdecode`` after the header's size passed ``max_px``; OpenCV's own refusals become None.
+
+    OpenCV throws (rather than returning None) on images over its ``CV_IO_MAX_IMAGE_PIXELS``
+    and on some malformed headers: one such frame must not end the whole recording.
+    """
+    check_compressed(buf, max_px, what)
+    try:
+        return cv2.imdecode(buf, flags)
+    except cv2.error:
+        return None
+
+
+def decode_color(msg: Any, max_px: int = 0) -> np.ndarray:
+    """``sensor_msgs/Image`` or ``CompressedImage`` (jpeg/png) -> uint8 HxWx3 RGB.
+
+    ``max_px`` > 0 bounds the declared pixels (``sources.max_image_px``), checked before decoding.
+    """
     if _is(msg, "CompressedImage"):
         buf = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
-        img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
+        what = f"CompressedImage format {short_repr(str(msg.format), 40)}"
+        img = imdecode_bounded(buf, cv2.IMREAD_COLOR, max_px, what) if buf.size else None
         if img is None:
-            raise DecodeError(f"CompressedImage format {msg.format!r}: not a decodable jpeg/png")
+            raise DecodeError(f"{what}: not a decodable jpeg/png")
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     enc = str(msg.encoding)
     if enc not in COLOR_ENCODINGS:
-        raise DecodeError(f"unsupported colour encoding {enc!r} (supported: {', '.join(COLOR_ENCODINGS)})")
-    arr = _raw_array(msg, *COLOR_ENCODINGS[enc])
+        raise DecodeError(f"unsupported colour encoding {short_repr(enc, 40)} "
+                          f"(supported: {', '.join(COLOR_ENCODINGS)})")
+    arr = _raw_array(msg, *COLOR_ENCODINGS[enc], max_px=max_px)
     convert = {"bgr8": cv2.COLOR_BGR2RGB, "rgba8": cv2.COLOR_RGBA2RGB, "bgra8": cv2.COLOR_BGRA2RGB,
                "mono8": cv2.COLOR_GRAY2RGB, "8UC1": cv2.COLOR_GRAY2RGB}.get(enc)
     return cv2.cvtColor(arr, convert) if convert is not None else np.ascontiguousarray(arr)
@@ -117,17 +140,19 @@ def depth_to_metres(raw: np.ndarray, depth_unit_16u_m: float, max_depth_m: float
     return depth
 
 
-def decode_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: float = 0.0) -> np.ndarray:
+def decode_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: float = 0.0, max_px: int = 0) -> np.ndarray:
     """Depth ``Image`` (16UC1, mono16, 32FC1) or ``compressedDepth`` -> float32 metres, NaN = no data."""
     if _is(msg, "CompressedImage"):
-        return decode_compressed_depth(msg, depth_unit_16u_m, max_depth_m)
+        return decode_compressed_depth(msg, depth_unit_16u_m, max_depth_m, max_px)
     enc = str(msg.encoding)
     if enc not in DEPTH_ENCODINGS:
-        raise DecodeError(f"unsupported depth encoding {enc!r} (supported: {', '.join(DEPTH_ENCODINGS)})")
-    return depth_to_metres(_raw_array(msg, *DEPTH_ENCODINGS[enc]), depth_unit_16u_m, max_depth_m)
+        raise DecodeError(f"unsupported depth encoding {short_repr(enc, 40)} "
+                          f"(supported: {', '.join(DEPTH_ENCODINGS)})")
+    return depth_to_metres(_raw_array(msg, *DEPTH_ENCODINGS[enc], max_px=max_px), depth_unit_16u_m, max_depth_m)
 
 
-def decode_compressed_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: float = 0.0) -> np.ndarray:
+def decode_compressed_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: float = 0.0,
+                            max_px: int = 0) -> np.ndarray:
     """image_transport ``compressedDepth``: 12-byte ConfigHeader then a 16-bit PNG.
 
     16UC1: the PNG holds the raw counts. 32FC1: it holds inverse-depth codes q with
@@ -135,17 +160,24 @@ def decode_compressed_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: floa
     """
     fmt = str(msg.format)
     encoding = fmt.split(";")[0].strip()
+    shown = short_repr(fmt, 60)
     if "compresseddepth" not in fmt.lower().replace(" ", ""):
-        raise DecodeError(f"CompressedImage format {fmt!r} is not compressedDepth")
+        raise DecodeError(f"CompressedImage format {shown} is not compressedDepth")
     if "rvl" in fmt.lower():
-        raise DecodeError(f"unsupported compressedDepth codec in format {fmt!r} (only png)")
+        raise DecodeError(f"unsupported compressedDepth codec in format {shown} (only png)")
     data = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
     if data.size <= COMPRESSED_DEPTH_HEADER.size:
         raise DecodeError(f"compressedDepth message of {data.size} bytes has no image after its header")
     _, quant_a, quant_b = COMPRESSED_DEPTH_HEADER.unpack(data[: COMPRESSED_DEPTH_HEADER.size].tobytes())
-    img = cv2.imdecode(data[COMPRESSED_DEPTH_HEADER.size:], cv2.IMREAD_UNCHANGED)
+    payload = data[COMPRESSED_DEPTH_HEADER.size:]
+    try:
+        img = imdecode_bounded(payload, cv2.IMREAD_UNCHANGED, max_px, f"compressedDepth format {shown}")
+    except DecodeError as err:
+        if isinstance(err, FrameTooLarge):
+            raise
+        img = None
     if img is None or img.dtype != np.uint16 or img.ndim != 2:
-        raise DecodeError(f"compressedDepth format {fmt!r}: payload is not a 16-bit single-channel PNG")
+        raise DecodeError(f"compressedDepth format {shown}: payload is not a 16-bit single-channel PNG")
     if encoding in ("16UC1", "mono16"):
         return depth_to_metres(img, depth_unit_16u_m, max_depth_m)
     if encoding == "32FC1":
@@ -154,7 +186,7 @@ def decode_compressed_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: floa
             depth = np.float32(quant_a) / (q - np.float32(quant_b))
         depth[img == 0] = np.nan
         return depth_to_metres(depth.astype(np.float32), depth_unit_16u_m, max_depth_m)
-    raise DecodeError(f"unsupported compressedDepth encoding {encoding!r} in format {fmt!r}")
+    raise DecodeError(f"unsupported compressedDepth encoding {short_repr(encoding, 40)} in format {shown}")
 
 
 def match_depth_to_color(depth_m: np.ndarray, color_shape: tuple[int, int]) -> np.ndarray:

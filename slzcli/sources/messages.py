@@ -23,6 +23,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources import decode
+from slzcli.sources.image_limits import FrameTooLarge
 from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import Pair, PoseTrack, Stream, StreamPairer
 from slzcli.sources.topics import (
@@ -294,6 +295,7 @@ class MessageRecording(Recording):
             if frame is not None:
                 yield frame
         state.pose_summary()
+        state.note_too_large(cfg.max_image_px)
         notes = tuple(state.notes) + tuple(self._stamp_report(ch, stamps, pairer))
         self.report = self._report(pairer, state.without_pose, state.n_undecodable, notes)
         if self.log.warnings:
@@ -317,11 +319,15 @@ class MessageRecording(Recording):
     def _decode(self, pair: Pair, state: _FrameState, poses: _PoseSource) -> Frame | None:
         ch = self._need_choices()
         try:
-            rgb = decode.decode_color(self.log.deserialize(pair.color.topic, pair.color.data))
+            max_px = self.cfg.max_image_px
+            rgb = decode.decode_color(self.log.deserialize(pair.color.topic, pair.color.data), max_px)
             depth = decode.decode_depth(self.log.deserialize(pair.depth.topic, pair.depth.data),
-                                        self.cfg.depth_unit_16u_m, self.cfg.max_depth_m)
+                                        self.cfg.depth_unit_16u_m, self.cfg.max_depth_m, max_px)
         except DecodeError as err:
-            state.undecodable(self.path, f"{ch.color.topic} / {ch.depth.topic}", err)
+            where = f"{ch.color.topic} / {ch.depth.topic}"
+            if isinstance(err, FrameTooLarge):
+                where += f", frame at stamp {pair.stamp_ns // 10**9}.{pair.stamp_ns % 10**9:09d}"
+            state.undecodable(self.path, where, err)
             return None
         h, w = rgb.shape[:2]
         if depth.shape != (h, w):
@@ -358,6 +364,7 @@ class _FrameState:
         self.first_bad_pose = ""
         self.without_pose = 0
         self.n_undecodable = 0
+        self.n_too_large = 0
         self.first_error: str | None = None
         self.notes: list[str] = []
 
@@ -382,7 +389,18 @@ class _FrameState:
         self.n_undecodable += 1
         if self.first_error is None:
             self.first_error = f"{topic}: {err}"
+        if isinstance(err, FrameTooLarge):  # its own one warning: an oversized frame is not a torn message
+            self.n_too_large += 1
+            if self.n_too_large == 1:
+                log.warning("%s: %s: %s; skipped (further frames over the bound are counted, not shown)", path, topic,
+                            err)
+        elif self.n_undecodable - self.n_too_large == 1:
             log.warning("%s: %s: %s (further decode errors are counted, not shown)", path, topic, err)
+
+    def note_too_large(self, max_px: int) -> None:
+        """The count of frames skipped for their size, in the run's notes (run.json summary.pairing)."""
+        if self.n_too_large:
+            self.note(f"{self.n_too_large} frame(s) over sources.max_image_px {max_px} px were skipped")
 
 
 class _PoseSource:

@@ -13,15 +13,17 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 import yaml
 
-from slzcli.config import Config
+from slzcli.config import Config, read_yaml_text, safe_yaml_load
 from slzcli.errors import DatasetError, DecodeError
 from slzcli.sources import decode
+from slzcli.sources.image_limits import FrameTooLarge, check_file
 from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import PoseTrack, pair_stamps
 from slzcli.sources.validate import intrinsics_problem, pose_problem, size_problem, stamp_problem
@@ -133,12 +135,10 @@ class TumRecording(Recording):
         cam_file = self.path / "camera.yaml"
         if cam_file.is_file():
             try:
-                c = yaml.safe_load(cam_file.read_bytes())
+                c = safe_yaml_load(read_yaml_text(cam_file))
                 k = Intrinsics(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]), int(c["width"]),
                                int(c["height"]), str(c.get("distortion_model", "")),
                                tuple(float(v) for v in c.get("distortion", ())))
-            except OSError as err:
-                raise DatasetError(cam_file, f"cannot read ({err.strerror or err})") from err
             except (yaml.YAMLError, KeyError, TypeError, ValueError, OverflowError, RecursionError) as err:
                 raise DatasetError(cam_file, f"needs fx, fy, cx, cy, width, height ({err})") from err
             lim = self.cfg.intrinsics
@@ -168,6 +168,24 @@ class TumRecording(Recording):
         return PairingReport(n, len(self._rgb) - n, len(self._depth) - n, without_pose, undecodable,
                              tuple(self._notes) + notes)
 
+    def _within_pixel_bound(self, rgb_name: str, depth_name: str, too_large: list[str]) -> bool:
+        """Check both images' declared sizes (file headers) before reading them; warn once, then count."""
+        try:
+            for name, what in ((rgb_name, "colour"), (depth_name, "depth")):
+                check_file(self.path / name, self.cfg.max_image_px, f"{name}: {what} image")
+        except FrameTooLarge as err:
+            if not too_large:
+                log.warning("%s: %s; skipped (further frames over the bound are counted, not shown)", self.path, err)
+            too_large.append(str(err))
+            return False
+        except DecodeError:   # neither PNG nor JPEG: not read (OpenCV would decode any size of TIFF, BMP, ...)
+            log.warning("%s: %s / %s: missing or not an 8-bit colour / 16-bit depth PNG", self.path, rgb_name,
+                        depth_name)
+            return False
+        except OSError:
+            return True   # missing: cv2.imread below says so as before
+        return True
+
     def info(self) -> RecordingInfo:
         def stream(name: str, rows: list) -> StreamInfo:
             stamps = [r[0] for r in rows]
@@ -188,9 +206,13 @@ class TumRecording(Recording):
                 track.add(stamp, T)
         without_pose = undecodable = index = 0
         first_error = ""
+        too_large: list[str] = []   # the files skipped for their size (one warning, then counted)
         assert self._intr is not None
         for i, j in self._pairs:
             stamp, rgb_name = self._rgb[i]
+            if not self._within_pixel_bound(rgb_name, self._depth[j][1], too_large):
+                undecodable += 1
+                continue
             bgr = cv2.imread(str(self.path / rgb_name), cv2.IMREAD_COLOR)
             raw = cv2.imread(str(self.path / self._depth[j][1]), cv2.IMREAD_UNCHANGED)
             if bgr is None or raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
@@ -212,8 +234,13 @@ class TumRecording(Recording):
                 without_pose += 1
             yield Frame(index, stamp, rgb, depth, intr, pose, str(self.path))
             index += 1
-        notes = (f"{undecodable} of {len(self._pairs)} frame(s) not readable (first: {first_error})",) \
-            if undecodable else ()
+        notes = (f"{undecodable - len(too_large)} of {len(self._pairs)} frame(s) not readable (first: {first_error})",) \
+            if undecodable > len(too_large) else ()
         self.report = self._report(without_pose, undecodable, notes)
+        if too_large:
+            note = f"{len(too_large)} frame(s) over sources.max_image_px {self.cfg.max_image_px} px were skipped"
+            self.report = replace(self.report, notes=(*self.report.notes, note))
+        if index == 0 and too_large:
+            raise DatasetError(self.path, f"no frame could be read: {too_large[0]}")
         if index == 0 and self._pairs:
             raise DatasetError(self.path, "no frame could be read (images missing or of the wrong kind)")

@@ -110,8 +110,11 @@ def compute_raster(cast: Any, extent_xy: tuple[float, float, float, float], top_
     usable = landable & level & ~step & np.isfinite(height)
 
     half = [int(np.floor((L / 2 + cfg.margin_m) / res)) for L in uav.footprint_m]
-    k = np.ones((2 * half[1] + 1, 2 * half[0] + 1), np.uint8)   # rows along y (L2), cols along x (L1)
-    safe = cv2.erode(usable.astype(np.uint8), k, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    if 2 * half[0] + 1 > cols or 2 * half[1] + 1 > rows:   # the UAV is larger than the scene: nowhere is safe
+        safe = np.zeros((rows, cols), bool)                 # (and the kernel is never built: 1e6 m asked TiB)
+    else:
+        k = np.ones((2 * half[1] + 1, 2 * half[0] + 1), np.uint8)   # rows along y (L2), cols along x (L1)
+        safe = cv2.erode(usable.astype(np.uint8), k, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
     return SafetyRaster((float(xmin), float(ymin)), float(res), safe, usable, height.astype(np.float32),
                         slope.astype(np.float32), obj.reshape(rows, cols))
 

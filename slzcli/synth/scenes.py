@@ -21,7 +21,7 @@ from typing import Any, Literal
 import numpy as np
 import yaml
 
-from slzcli.config import package_dir
+from slzcli.config import package_dir, read_yaml_text, safe_yaml_load
 from slzcli.errors import ConfigError
 
 SCENES_DIR = package_dir("synth", "scenes")
@@ -268,8 +268,8 @@ def _check_primitive(p: Primitive, where: str, materials: dict[str, Material], s
 
 def _read(path: Path) -> dict[str, Any]:
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as err:
+        data = safe_yaml_load(read_yaml_text(path))
+    except yaml.YAMLError as err:
         raise SceneError("", f"cannot read scene file ({str(err).splitlines()[0]})", source=str(path)) from err
     if not isinstance(data, dict):
         raise SceneError("", "a scene file must be a mapping", source=str(path))
