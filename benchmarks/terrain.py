@@ -93,7 +93,7 @@ def stages(depth: np.ndarray, intr: Intrinsics, up: np.ndarray, runs: int) -> di
         "patch_pca": timed(lambda: geo.patch_pca(depth, intr, cfg.inclination.radius_m, cfg.inclination.work_px,
                                                  cfg.inclination.min_points, up), runs),
         "depth_variance_map": timed(lambda: tm.depth_variance_map(depth, cfg.depth_variance), runs),
-        "flatness_map": timed(lambda: tm.flatness_map(depth, intr, cfg.flatness), runs),
+        "flatness_map": timed(lambda: tm.flatness_map(depth, intr, cfg.flatness, 0.01), runs),
         "inclination_map": timed(lambda: tm.inclination_map(pca.curvature, cfg.inclination), runs),
         "steepness_map": timed(lambda: tm.steepness_map(tm.slope_rad(field, up), cfg.steepness), runs),
         "slope_only": timed(lambda: tm.slope_rad(field, up), runs),

@@ -108,8 +108,8 @@ class DepthVarianceCfg:
 class FlatnessCfg:
     canny_low: float = rng(0, 255)
     canny_high: float = rng(0, 255)
-    metres_per_level: float = rng(0, lo_open=True)
     blur_px: int = rng(1, 31, odd=True)
+    detrend_px: int = rng(0, 255)
     distance_mask: int = rng(3, 5, odd=True)
     clearance_m: float = rng(0, lo_open=True)
     hole_min_m: float = rng(0)
@@ -662,6 +662,9 @@ def _load_yaml_file(path: Path) -> Any:
             raise ConfigError("", f"not a usable config: nested too deeply for the YAML parser ({err.reason})",
                               source=str(path)) from err
         raise ConfigError("", f"YAML refused: {err.reason} ({_yaml_where(err)})", source=str(path)) from err
+    except yaml.reader.ReaderError as err:   # e.g. UTF-16 without its byte-order mark: NULs between letters
+        raise ConfigError("", f"not UTF-8 text (nor UTF-16 with a byte-order mark): {err.reason} at position "
+                              f"{err.position}; save it as UTF-8", source=str(path)) from err
     except yaml.YAMLError as err:
         raise ConfigError("", f"not valid YAML ({_yaml_where(err)})", source=str(path)) from err
     except RecursionError as err:
@@ -679,11 +682,10 @@ def parse_override(item: str) -> tuple[str, Any]:
     try:
         value = safe_yaml_load(text) if text.strip() else ""
     except YamlLimitError as err:
-        raise ConfigError(key, f"value refused: {err.reason}", source="--set") from err
-    except YamlLimitError as err:
         if "levels deep" in err.reason:
-            raise ConfigError(key, f"value is nested too deeply for the YAML parser ({err.reason})") from err
-        raise ConfigError(key, f"value refused: {err.reason}") from err
+            raise ConfigError(key, f"value is nested too deeply for the YAML parser ({err.reason})",
+                              source="--set") from err
+        raise ConfigError(key, f"value refused: {err.reason}", source="--set") from err
     except yaml.YAMLError as err:
         raise ConfigError(key, f"value {short_repr(text)} is not valid YAML") from err
     except RecursionError as err:

@@ -234,6 +234,7 @@ def config_deep(folder: Path) -> Path:
 def config_contradictory(folder: Path) -> Path:
     p = folder / "contradictory.yaml"
     p.write_text("terrain:\n  flatness:\n    canny_low: 230\n")
+    return p
 
 
 def alias_bomb(levels: int) -> str:
@@ -427,6 +428,9 @@ def two_depth_topics(folder: Path) -> Path:
             w.write_raw("/camera/depth/colorized", "sensor_msgs/msg/Image", w._image(f.stamp_ns, f.rgb, "rgb8"),
                         f.stamp_ns)
             w.write_raw("/camera/depth/image_rect_raw", *w.depth_message(f.depth_m, f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, f.stamp_ns),
+                        f.stamp_ns)
+    return p
 
 
 # ----------------------------------------------------------------------------- frames over sources.max_image_px

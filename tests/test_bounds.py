@@ -203,7 +203,8 @@ def test_simulation_sizes_are_refused_naming_the_key(overrides: list[str], runs:
 def test_synth_sizes_are_refused_naming_the_key() -> None:
     from slzcli import limits
 
-    big = load_config(overrides=["camera.width=100000", "camera.height=100000"])
+    big = load_config(overrides=["camera.width=100000", "camera.height=100000", "camera.fx=72000", "camera.fy=72000",
+                                 "camera.cx=50000", "camera.cy=50000"])   # the paper's field of view, 100k px wide
     with pytest.raises(ConfigError, match="pixels of each rendered frame") as err:
         limits.check(limits.synth_sizes(big))
     assert err.value.key == "camera.width"

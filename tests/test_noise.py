@@ -15,7 +15,7 @@ import pytest
 
 from slzcli.config import load_config
 from slzcli.terrain import maps as tm
-from slzcli.terrain.limits import limit_reason, vouchable_altitude_m, working_scale
+from slzcli.terrain.limits import edge_scaling_m, limit_reason, vouchable_altitude_m, working_scale
 from slzcli.terrain.noise import SCALES_PX, DepthNoise, NoiseTracker, estimate_noise
 from slzcli.types import Intrinsics
 
@@ -113,7 +113,15 @@ def test_exact_depth_keeps_the_paper_windows() -> None:
     assert w.block_px == 1 and w.vouched and w.step_min_m == 0.0
     assert w.slope_window_blocks == tm.normal_window_px(np.full((48, 64), 10.0, np.float32), K,
                                                         CONFIG.terrain.steepness)
-    assert w.metres_per_level == CONFIG.terrain.flatness.metres_per_level
+    flat = CONFIG.terrain.flatness
+    # exact depth: a step the UAV cannot tolerate (uav.max_step_m) is exactly a strong Canny edge
+    assert w.metres_per_level == edge_scaling_m(CONFIG.uav.max_step_m, 0.0, 3.0, flat.canny_low, flat.canny_high,
+                                                flat.blur_px)
+    step = plane(10.0).astype(np.float32)
+    step[:, 320:] -= CONFIG.uav.max_step_m * 1.05
+    assert tm.depth_edges(step, flat, w.metres_per_level)[100:380, 318:322].any()
+    step[:, 320:] += CONFIG.uav.max_step_m * 0.1      # a step of 0.55 max_step is at most a weak edge
+    assert not tm.depth_edges(step, flat, w.metres_per_level)[100:380].any()
 
 
 def test_windows_grow_with_the_noise_and_the_limits_follow_it() -> None:

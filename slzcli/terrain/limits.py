@@ -19,6 +19,10 @@ it tolerates, its slope limit). One frame, one set of windows (like the mask's m
   gradient exceeds k times its noise, ``tan(psi_min) = k sigma sqrt(12) / (spacing K sqrt(K^2 - 1))``.
   Correlated noise is handled by evaluating both with the noise measured at every coarser block
   scale that still gives 2 samples across the window, and keeping the worst.
+- **Edge scaling.** Canny's depth scaling makes a step of ``uav.max_step_m`` a strong edge, unless
+  the noise's derivatives would then cross the low threshold at k sigma: then the noise sets it
+  (``edge_scaling_m``), as does the depth's quantum (16UC1 millimetre terraces on an oblique floor
+  line up into contours), and only larger steps are edges (the slope and patch maps still see them).
 - **Vouching.** The frame can vouch for a site when ``h_min <= uav.max_step_m`` and
   ``psi_min <= uav.max_slope_deg``. With fixed pixel windows, h_min grows as z^2 and psi_min as z
   (sigma ~ z^2, spacing ~ z), so the same windows vouch up to ``vouch_depth_m``; nothing beyond
@@ -54,7 +58,7 @@ class Working:
     block_px: int              # the maps run on block_px x block_px block means
     block_m: float             # a block's side on the ground at altitude_m
     slope_window_blocks: int   # odd; the steepness plane fit's window, in blocks
-    metres_per_level: float    # flatness: Canny's depth scaling (config floor, or the noise's)
+    metres_per_level: float    # flatness: Canny's depth scaling (``edge_scaling_m``)
     step_min_m: float          # smallest step distinguishable from the noise
     slope_min_deg: float       # smallest slope distinguishable from the noise
     vouch_depth_m: float       # the limits hold up to this depth (inf: everywhere)
@@ -87,14 +91,32 @@ class Working:
 
 
 @functools.lru_cache(maxsize=16)
-def _gradient_noise_gain(blur_px: int) -> float:
-    """L2 norm of the Sobel-x kernel after the flatness map's Gaussian blur: noise std of one derivative."""
+def _edge_kernel_gains(blur_px: int) -> tuple[float, float]:
+    """(noise gain, step gain) of the flatness map's derivative (its Gaussian blur, then Sobel-x):
+    the std of one derivative of unit white noise, and the peak derivative of a unit step."""
     size = 4 * blur_px + 9
     delta = np.zeros((size, size), np.float32)
     delta[size // 2, size // 2] = 1.0
-    img = cv2.GaussianBlur(delta, (blur_px, blur_px), 0) if blur_px > 1 else delta
-    g = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_CONSTANT)
-    return float(np.sqrt(np.sum(g.astype(np.float64) ** 2)))
+    step = np.zeros((size, size), np.float32)
+    step[:, size // 2:] = 1.0
+
+    def deriv(img: np.ndarray) -> np.ndarray:
+        img = cv2.GaussianBlur(img, (blur_px, blur_px), 0) if blur_px > 1 else img
+        return cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
+
+    noise = float(np.sqrt(np.sum(deriv(delta).astype(np.float64) ** 2)))
+    return noise, float(np.abs(deriv(step)).max())
+
+
+def edge_scaling_m(step_m: float, sigma_m: float, k: float, canny_low: float, canny_high: float,
+                   blur_px: int, quantum_m: float = 0.0) -> float:
+    """Canny's depth scaling (metres per level): a step of ``step_m`` is a strong edge (its derivative
+    reaches ``canny_high``), unless the noise needs a coarser scaling to stay below ``canny_low`` at
+    k sigma, or the depth's quantum (one unit of 16UC1 depth) would reach canny_low / k. Then only
+    larger steps are strong edges."""
+    noise_gain, step_gain = _edge_kernel_gains(blur_px)
+    return max(step_gain * step_m / canny_high, k * sigma_m * noise_gain / canny_low,
+               k * quantum_m * step_gain / canny_low)
 
 
 def _odd_at_least(x: float) -> int:
@@ -153,9 +175,10 @@ def working_scale(noise: DepthNoise, depth_m: float, focal_px: float, cfg: Terra
     ratio = min(math.sqrt(uav.max_step_m / step) if step > 0 else math.inf,
                 uav.max_slope_deg / slope if slope > 0 else math.inf)
     flat = cfg.flatness
-    noise_mpl = k * noise.sigma_m(depth_m, block) * _gradient_noise_gain(flat.blur_px) / flat.canny_low
+    mpl = edge_scaling_m(uav.max_step_m, noise.sigma_m(depth_m, block), k, flat.canny_low, flat.canny_high,
+                         flat.blur_px, noise.quantum_m)
     return Working(altitude_m=depth_m, sigma_m=noise.sigma_m(depth_m), block_px=block, block_m=block_m,
-                   slope_window_blocks=blocks, metres_per_level=max(flat.metres_per_level, noise_mpl),
+                   slope_window_blocks=blocks, metres_per_level=mpl,
                    step_min_m=step, slope_min_deg=slope, vouch_depth_m=depth_m * ratio, vouched=vouched,
                    max_step_m=uav.max_step_m, max_slope_deg=uav.max_slope_deg, focal_px=focal_px, noise=noise)
 

@@ -21,6 +21,7 @@ Absolute ranges (all from config):
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -36,6 +37,9 @@ from slzcli.terrain.limits import Working, working_scale
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.types import Frame, Intrinsics, TerrainMaps
 
+# The flanks of a step's derivative (blur + Sobel spread it over ~2 px each side) are left out of
+# the local trend with the step itself.
+_SHOULDERS = np.ones((5, 5), np.uint8)
 # cv2.distanceTransform mask sizes by the config value (3 or 5 px).
 _DIST_MASKS = {3: cv2.DIST_MASK_3, 5: cv2.DIST_MASK_5}
 
@@ -122,7 +126,7 @@ def _roughness_map(s: np.ndarray, ok: np.ndarray, cfg: DepthVarianceCfg) -> np.n
     return _finish(np.exp(x, out=x), ok, cfg.normalise)
 
 
-def depth_edges(depth_m: np.ndarray, cfg: FlatnessCfg, metres_per_level: float | None = None) -> np.ndarray:
+def depth_edges(depth_m: np.ndarray, cfg: FlatnessCfg, metres_per_level: float) -> np.ndarray:
     """Alg. 2 edges: Canny(canny_low, canny_high) of depth at metres_per_level, plus every hole.
 
     Canny is fed the Sobel derivatives of ``depth / metres_per_level`` directly: the same
@@ -132,32 +136,52 @@ def depth_edges(depth_m: np.ndarray, cfg: FlatnessCfg, metres_per_level: float |
     return _clear_of_edges(_prepare(depth_m), cfg, metres_per_level) == 0
 
 
-def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None = None,
-                    hole_px: float = 0.0) -> np.ndarray:
+def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float, hole_px: float = 0.0) -> np.ndarray:
     """uint8: 1 where a pixel is neither a depth edge nor a hole (the distance-transform input).
 
-    ``metres_per_level``: the depth scaling (default ``cfg.metres_per_level``); on noisy depth the
-    working scale raises it so the noise's derivatives stay below Canny's low threshold.
+    ``metres_per_level``: the depth scaling (``Working.metres_per_level``: a step the UAV cannot
+    tolerate is a strong edge, unless the noise needs a coarser scaling).
     ``hole_px``: holes narrower than this (``flatness.hole_min_m`` on the ground) do not count as
     edges: a real stereo sensor drops isolated pixels everywhere, and a speck of no data cannot
     hide what a landing cares about. Their pixels still have no depth (they score 0).
     """
+    # Detrended (detrend_px > 0): Canny sees inverse depth in metres at the median depth,
+    # z_ref^2 / z, less each derivative's local trend: its mean over detrend_px, taken without
+    # the pixels that already stand out (so a step's own response does not leak into its
+    # neighbours' trend and ring). A plane is linear in inverse depth, so its derivatives are
+    # constant and vanish however oblique the view; a step h stays a step of ~h. Without it a
+    # tilted floor's gradient reads as edges once the scaling is fine enough to see a step the UAV
+    # cannot tolerate.
+    if cfg.detrend_px > 0:
+        z_ref = median_depth_m(d.depth) or 1.0
+        source = np.zeros(d.depth.shape, np.float32)
+        np.divide(np.float32(z_ref * z_ref), d.depth, out=source, where=d.valid)
+    else:
+        source = d.filled
     # Normalised blur: holes do not pull their neighbours' depth to 0, and a hole is filled with
     # its neighbourhood's depth so the derivatives see no dip there (a real sensor's scattered
     # dropouts would otherwise ring every one with Canny edges); a wide hole is an edge below.
     ksize = (max(cfg.blur_px, 3), max(cfg.blur_px, 3))
-    num = cv2.GaussianBlur(d.filled, ksize, 0)
+    num = cv2.GaussianBlur(source, ksize, 0)
     den = cv2.GaussianBlur(d.valid.astype(np.float32), ksize, 0)
     filled = den > 1e-6
     smooth = np.divide(num, den, out=np.zeros_like(num), where=filled)
-    img = smooth if cfg.blur_px > 1 else np.where(d.valid, d.filled, smooth)
+    img = smooth if cfg.blur_px > 1 else np.where(d.valid, source, smooth)
     # no derivative across the inside of a wide hole (it has no depth to differ from)
     blind = cv2.erode(filled.view(np.uint8), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE) == 0
-    scale = float(1.0 / (metres_per_level or cfg.metres_per_level))
+    scale = float(1.0 / metres_per_level)
     derivs = []
     for dx, dy in ((1, 0), (0, 1)):
         g = cv2.Sobel(img, cv2.CV_32F, dx, dy, ksize=3, scale=scale, borderType=cv2.BORDER_REPLICATE)
         g[blind] = 0.0
+        if cfg.detrend_px > 0:
+            side = (cfg.detrend_px, cfg.detrend_px)
+            first = g - cv2.blur(g, side, borderType=cv2.BORDER_REPLICATE)
+            calm = (~blind & (np.abs(first) < np.float32(cfg.canny_low))).view(np.uint8)
+            calm = cv2.erode(calm, _SHOULDERS, borderType=cv2.BORDER_REPLICATE).astype(np.float32)  # a step's flanks too
+            num = cv2.boxFilter(g * calm, -1, side, normalize=False, borderType=cv2.BORDER_REPLICATE)
+            den = cv2.boxFilter(calm, -1, side, normalize=False, borderType=cv2.BORDER_REPLICATE)
+            g -= np.divide(num, den, out=np.zeros_like(num), where=den > 0)
         # Canny takes 16-bit derivatives: round and saturate (a saturated gradient is an edge anyway)
         derivs.append(cv2.add(g, 0.0, dtype=cv2.CV_16S))
     edges = cv2.Canny(derivs[0], derivs[1], cfg.canny_low, cfg.canny_high)   # 255 on edges
@@ -171,14 +195,14 @@ def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None 
     return cv2.bitwise_and(clear, known)                                      # holes are edges
 
 
-def flatness_map(depth_m: np.ndarray, intrinsics: Intrinsics, cfg: FlatnessCfg) -> np.ndarray:
+def flatness_map(depth_m: np.ndarray, intrinsics: Intrinsics, cfg: FlatnessCfg, metres_per_level: float) -> np.ndarray:
     """Alg. 2 / Eq. 6: distance to the nearest depth edge or hole.
 
     absolute: pixel distance x depth / f = metres on the ground, map = min(d / clearance_m, 1);
     frame: the pixel distance min-maxed over the frame (the paper).
     """
     d = _prepare(depth_m)
-    dist_px = _edge_distance_px(d, cfg)
+    dist_px = _edge_distance_px(d, cfg, metres_per_level)
     return _flatness(dist_px, _ground_m(dist_px, d, fit_intrinsics(intrinsics, d.depth.shape)), d.valid, cfg)
 
 
@@ -188,8 +212,7 @@ def _flatness(dist_px: np.ndarray, edge_m: np.ndarray, valid: np.ndarray, cfg: F
     return _finish(edge_m / np.float32(cfg.clearance_m), valid, "absolute")
 
 
-def _edge_distance_px(d: _Depth, cfg: FlatnessCfg, metres_per_level: float | None = None,
-                      hole_px: float = 0.0) -> np.ndarray:
+def _edge_distance_px(d: _Depth, cfg: FlatnessCfg, metres_per_level: float, hole_px: float = 0.0) -> np.ndarray:
     """Pixel distance of every pixel to the nearest depth edge or wide hole (float32)."""
     clear = _clear_of_edges(d, cfg, metres_per_level, hole_px)
     if cv2.countNonZero(clear) == clear.size:   # no edge and no hole anywhere: all as far as can be
@@ -204,10 +227,10 @@ def _ground_m(dist_px: np.ndarray, d: _Depth, intr: Intrinsics) -> np.ndarray:
     return metres
 
 
-def edge_distance_m(depth_m: np.ndarray, intrinsics: Intrinsics, cfg: FlatnessCfg) -> np.ndarray:
+def edge_distance_m(depth_m: np.ndarray, intrinsics: Intrinsics, cfg: FlatnessCfg, metres_per_level: float) -> np.ndarray:
     """Metres from each pixel to the nearest depth edge or hole: the clearance of the acceptance test."""
     d = _prepare(depth_m)
-    return _ground_m(_edge_distance_px(d, cfg), d, fit_intrinsics(intrinsics, d.depth.shape))
+    return _ground_m(_edge_distance_px(d, cfg, metres_per_level), d, fit_intrinsics(intrinsics, d.depth.shape))
 
 
 def inclination_map(curvature: np.ndarray, cfg: InclinationCfg) -> np.ndarray:
@@ -319,6 +342,14 @@ def mount_from_up(up_camera: np.ndarray) -> tuple[float, float]:
 
 
 # ----------------------------------------------------------------------------- all four
+@functools.lru_cache(maxsize=1)
+def _default_uav() -> UavCfg:
+    """The default config's UAV: the limits a bare depth image is mapped for (no config given)."""
+    from slzcli.config import load_config
+
+    return load_config().uav
+
+
 def noise_free_working(depth_m: np.ndarray, intr: Intrinsics, cfg: TerrainCfg, uav: UavCfg) -> Working | None:
     """The working scale of a depth image known to be exact (None without depth)."""
     return frame_working(depth_m, intr, DepthNoise.white(0.0, "none"), cfg, uav)
@@ -372,7 +403,7 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
     ``intrinsics`` may be None for a Frame (its own are used); ``gravity_camera`` is world up
     in the camera frame (see ``gravity_up_in_camera``). ``work`` (``frame_working``) sets the
     block size and windows and ``noise`` the noise removed; without them the depth is taken as
-    exact: full resolution, the configured windows, nothing removed.
+    exact (full resolution, the noise-free windows of the default UAV, nothing removed).
     """
     if isinstance(frame_or_depth, Frame):
         depth = frame_or_depth.depth_m
@@ -387,15 +418,16 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
         raise DatasetError("gravity", f"gravity_camera must be a finite non-zero 3-vector, got {gravity_camera!r}")
     up = up / np.linalg.norm(up)
     intr = fit_intrinsics(intrinsics, d.depth.shape)
-    block = work.block_px if work is not None else 1
-    win = work.slope_window_blocks if work is not None else normal_window_px(d.depth, intr, cfg.steepness)
-    mpl = work.metres_per_level if work is not None else None
+    if work is None:
+        work = noise_free_working(d.depth, intr, cfg, _default_uav())
+    if work is None:  # no depth at all: every map is 0
+        work = working_scale(DepthNoise.white(0.0, "none"), 1.0, 0.5 * (intr.fx + intr.fy), cfg, _default_uav())
+    block, win, mpl = work.block_px, work.slope_window_blocks, work.metres_per_level
     db, intr_b = (d, intr) if block == 1 else _blocks(d, intr, block)
     noise_a = noise.a_at(block) if noise is not None else 0.0
 
     rough, rough_ok = _roughness_m(db, cfg.depth_variance, noise_a)
-    z_med = work.altitude_m if work is not None else median_depth_m(d.depth)
-    hole_px = cfg.flatness.hole_min_m * 0.5 * (intr_b.fx + intr_b.fy) / z_med if z_med else 0.0
+    hole_px = cfg.flatness.hole_min_m * 0.5 * (intr_b.fx + intr_b.fy) / work.altitude_m
     edge_px = _edge_distance_px(db, cfg.flatness, mpl, hole_px)
     edge_m = _ground_m(edge_px, db, intr_b)
     psi = _slope(db, intr_b, up, win, cfg.steepness)

@@ -47,6 +47,7 @@ class DepthNoise:
     a_per_m: tuple[float, ...]
     source: str
     residuals: int = 0
+    quantum_m: float = 0.0   # the depth's smallest step (16UC1 millimetres: 0.001); 0 for continuous depth
 
     @property
     def a1_per_m(self) -> float:
@@ -78,7 +79,7 @@ class DepthNoise:
     def as_dict(self) -> dict[str, object]:
         return {"model": "sigma_z = a_b z^2 (b x b pixel blocks)", "source": self.source,
                 "a_per_m": {str(b): round(a, 7) for b, a in zip(SCALES_PX, self.a_per_m, strict=False)},
-                "residuals": self.residuals}
+                "residuals": self.residuals, "quantum_m": self.quantum_m}
 
 
 def _residual_mad(w: np.ndarray, ok: np.ndarray, min_count: int) -> tuple[float, int]:
@@ -92,6 +93,16 @@ def _residual_mad(w: np.ndarray, ok: np.ndarray, min_count: int) -> tuple[float,
     return _MAD_TO_SIGMA * float(np.median(np.abs(r))) / _RESIDUAL_SCALE, int(r.size)
 
 
+def depth_quantum_m(depth_m: np.ndarray, valid: np.ndarray) -> float:
+    """The smallest step between horizontal neighbours: the unit of quantised depth (1 mm for 16UC1
+    millimetres), ~0 for continuous depth. Sparse steps of exactly one unit are invisible to the
+    MAD above, but on an oblique floor they line up into contour terraces an edge detector sees."""
+    both = valid[:, 1:] & valid[:, :-1]
+    dz = np.abs(depth_m[:, 1:] - depth_m[:, :-1])[both]
+    pos = dz[dz > 0]
+    return float(pos.min()) if pos.size else 0.0
+
+
 def estimate_noise(depth_m: np.ndarray, cfg: NoiseEstimateCfg) -> DepthNoise | None:
     """a_b at every scale of ``SCALES_PX`` from one depth image; None when it has too little depth.
 
@@ -101,6 +112,7 @@ def estimate_noise(depth_m: np.ndarray, cfg: NoiseEstimateCfg) -> DepthNoise | N
     """
     depth = np.asarray(depth_m, dtype=np.float32)
     valid = np.isfinite(depth) & (depth > 0)
+    quantum = depth_quantum_m(depth, valid)
     w = np.zeros(depth.shape, np.float32)
     np.divide(np.float32(1.0), depth, out=w, where=valid)
     count = valid.astype(np.float32)
@@ -125,7 +137,7 @@ def estimate_noise(depth_m: np.ndarray, cfg: NoiseEstimateCfg) -> DepthNoise | N
     # Each level is a band-pass of the noise (wavelengths ~2-6 blocks): what a map working at
     # that scale sees. A coarser level may read higher than white noise would (correlated error,
     # or terrain the median did not reject): both make the maps more careful, never less.
-    return DepthNoise(tuple(out), "estimated", first_n)
+    return DepthNoise(tuple(out), "estimated", first_n, quantum)
 
 
 class NoiseTracker:
@@ -140,6 +152,7 @@ class NoiseTracker:
         self.fixed = None if noise == "auto" else DepthNoise.white(float(noise), "config")
         self.cfg = cfg
         self._recent: deque[tuple[float, ...]] = deque(maxlen=cfg.frames)
+        self._quanta: deque[float] = deque(maxlen=cfg.frames)
         self.estimates: list[float] = []      # pixel-scale a of every frame estimated (for the report)
         self.prior_frames = 0
 
@@ -149,12 +162,14 @@ class NoiseTracker:
         est = estimate_noise(depth_m, self.cfg)
         if est is not None:
             self._recent.append(est.a_per_m)
+            self._quanta.append(est.quantum_m)
             self.estimates.append(est.a1_per_m)
         if not self._recent:
             self.prior_frames += 1
             return DepthNoise.flat(self.cfg.prior_a_per_m, "prior")
         med = np.median(np.asarray(self._recent, dtype=np.float64), axis=0)
-        return DepthNoise(tuple(float(x) for x in med), "estimated", est.residuals if est else 0)
+        return DepthNoise(tuple(float(x) for x in med), "estimated", est.residuals if est else 0,
+                          float(np.median(np.asarray(self._quanta))))
 
     def summary(self) -> dict[str, object]:
         """What run.json reports: the source and the spread of the per-frame estimates."""
