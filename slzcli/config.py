@@ -186,6 +186,8 @@ class MaskCfg:
     threshold: float = rng(0, 1)
     margin_factor: float = rng(0)
     smooth_m: float = rng(0)
+    clearance: Literal["plan", "image"]
+    plan_cells_per_footprint: float = rng(1, 64)
 
 
 @dataclass(frozen=True)
@@ -196,6 +198,7 @@ class UavCfg:
     footprint_m: tuple[float, ...] = rng(0, lo_open=True, n=2)
     max_slope_deg: float = rng(0, 90, lo_open=True)
     max_step_m: float = rng(0, lo_open=True)
+    margin_m: float = rng(0)
     thrust_min_n: float = rng(0)
     thrust_max_n: float = rng(0, lo_open=True)
     torque_max_n_m: tuple[float, ...] = rng(0, lo_open=True, n=3)
@@ -400,7 +403,6 @@ class SensorCfg:
 @dataclass(frozen=True)
 class GroundTruthCfg:
     raster_m: float = rng(0.005, 1.0)
-    margin_m: float = rng(0)
     step_m: float = rng(0, lo_open=True)
     slope_tolerance_deg: float = rng(0, 1)
     max_cells: int = rng(1)

@@ -25,6 +25,9 @@ class ConfigError(SlzError):
         where = f"{source}: " if source else ""
         super().__init__(f"{where}{key}: {reason}" if key else f"{where}{reason}")
 
+    def __reduce__(self) -> tuple[type, tuple[str, str, str | None]]:  # picklable: crosses process pools
+        return type(self), (self.key, self.reason, self.source)
+
 
 class DatasetError(SlzError):
     """A recording cannot be read or does not hold what slz needs; names the path."""
@@ -33,6 +36,9 @@ class DatasetError(SlzError):
         self.path = str(path)
         self.reason = reason
         super().__init__(f"{self.path}: {reason}")
+
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:
+        return type(self), (self.path, self.reason)
 
 
 class DecodeError(SlzError):
@@ -51,6 +57,9 @@ class OutputError(SlzError):
         self.reason = reason
         super().__init__(f"{self.path}: {reason}")
 
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:
+        return type(self), (self.path, self.reason)
+
 
 class StageTimeout(SlzError):
     """One stage of a run took longer than ``--timeout``; names the recording and the stage.
@@ -65,6 +74,9 @@ class StageTimeout(SlzError):
         prefix = f"{where}: " if where else ""
         super().__init__(f"{prefix}{stage} took longer than --timeout{limit}; the run was stopped and left no "
                          "output (raise --timeout, or see the README's failure modes)")
+
+    def __reduce__(self) -> tuple[type, tuple[str, str, float | None]]:
+        return type(self), (self.where, self.stage, self.limit_s)
 
 
 # ----------------------------------------------------------------------------- bounded values in messages

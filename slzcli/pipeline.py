@@ -207,7 +207,7 @@ class Detector:
         raw = self.scorer(maps)
         t["score"] = _lap(t0)
         t0 = time.perf_counter()
-        score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config, maps.work)
+        score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config, maps.work, maps.up_camera)
         t["mask"] = _lap(t0)
         edge = maps.edge_distance_m
         selection = None

@@ -141,6 +141,7 @@ class TerrainMaps:
     slope_deg: np.ndarray
     edge_distance_m: np.ndarray | None = None  # metres to the nearest depth edge or hole (acceptance test)
     work: Working | None = None  # block size, windows and detection limits the maps were made with
+    up_camera: np.ndarray | None = None  # world up in the camera frame the maps were made with (unit 3-vector)
 
     NAMES = ("depth_variance", "flatness", "inclination", "steepness")
 

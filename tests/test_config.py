@@ -151,3 +151,15 @@ def test_a_utf16_config_with_a_byte_order_mark_is_read(tmp_path: Path) -> None:
 def test_a_deep_set_value_is_a_config_error(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="nested too deeply"):
         load_config(overrides=["mask.threshold=" + "[" * 20000 + "]" * 20000])
+
+
+def test_errors_survive_a_process_pool() -> None:
+    """A worker's error is pickled to the parent: a custom __init__ without __reduce__ failed there."""
+    import pickle
+
+    from slzcli.errors import DatasetError, OutputError, StageTimeout
+
+    for err in (ConfigError("a.b", "bad", "f.yaml"), DatasetError("x.mcap", "cut"), OutputError("run", "full"),
+                StageTimeout("x.mcap", "SLAM on frame 3", 2.0)):
+        back = pickle.loads(pickle.dumps(err))
+        assert type(back) is type(err) and str(back) == str(err)

@@ -421,7 +421,8 @@ def test_scorers_registry_range_and_invalid(method, evaluator):
 
 
 def test_score_frame_uses_method_threshold():
-    config = load_config(overrides=["mask.threshold=0.99", "scoring.bayes.threshold=0.0", "mask.margin_factor=0"])
+    config = load_config(overrides=["mask.threshold=0.99", "scoring.bayes.threshold=0.0", "mask.margin_factor=0",
+                                    "uav.margin_m=0"])
     maps = _maps()
     depth = np.full((40, 50), 5.0, np.float32)
     K = Intrinsics(46.0, 46.0, 25.0, 20.0, 50, 40)

@@ -137,7 +137,7 @@ def test_pixels_on_cars_are_unsafe_and_open_lane_is_safe(parking_world):
 
 def test_footprint_and_margin_are_cleared_around_a_box(tmp_path, small_config):
     world = record.build_world(load_scene(write_scene(tmp_path, "box", BOX_SCENE)), small_config)
-    half = 0.656 / 2 + small_config.synth.ground_truth.margin_m     # metres beyond the box face
+    half = 0.656 / 2 + small_config.uav.margin_m     # metres beyond the box face
     ys = np.zeros(3)
     xs = np.array([1.0 + half - 0.1, 1.0 + half + 0.1, 5.0])         # the box face is at x = 1
     assert world.raster.safe_at(xs, ys).tolist() == [False, True, True]

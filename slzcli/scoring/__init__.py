@@ -15,8 +15,9 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.errors import ConfigError
 from slzcli.scoring import bayes, closed_form, fuzzy, lut
-from slzcli.scoring.mask import landing_mask
+from slzcli.scoring.mask import column_in_view, landing_mask
 from slzcli.scoring.rules import RuleBase, did_you_mean, load_rules
+from slzcli.terrain.geometry import fit_intrinsics
 from slzcli.terrain.limits import Working
 from slzcli.types import Intrinsics, ScoreMap, TerrainMaps
 
@@ -112,18 +113,26 @@ def get_scorer(config: Config, method: str | None = None) -> Scorer:
 def score_frame(scorer: Scorer, maps: TerrainMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
                 config: Config) -> ScoreMap:
     """Score the maps and make the landing mask (min filter of the UAV footprint, then threshold)."""
-    return mask_score(scorer, scorer(maps), depth_m, intrinsics, config, maps.work)
+    return mask_score(scorer, scorer(maps), depth_m, intrinsics, config, maps.work, maps.up_camera)
 
 
 def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics,
-               config: Config, work: Working | None = None) -> ScoreMap:
+               config: Config, work: Working | None = None, up_camera: np.ndarray | None = None) -> ScoreMap:
     """The landing mask of a score already computed (so the pipeline can time the two apart).
 
     ``work``: the maps' working scale; nothing is called safe where its noise limits fail (the
     whole frame when it cannot vouch, else the pixels beyond its ``vouch_depth_m``).
+    ``up_camera``: world up in the camera frame, for ``mask.clearance: plan`` (without it: image).
     """
+    mc = config.mask
+    plan = None
+    if mc.clearance == "plan" and up_camera is not None:
+        plan = (fit_intrinsics(intrinsics, np.asarray(depth_m).shape), up_camera, mc.plan_cells_per_footprint)
     sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
-                      config.mask.margin_factor, scorer.threshold(config), config.mask.smooth_m)
+                      mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan, margin_m=config.uav.margin_m)
+    if plan is not None:   # the final descent's column must have been in view (control.desired_depth_m hover)
+        np.logical_and(sm.mask, column_in_view(depth_m, plan[0], up_camera, config.control.desired_depth_m),
+                       out=sm.mask)
     if work is None:
         return sm
     if not work.vouched:

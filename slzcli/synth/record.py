@@ -342,7 +342,7 @@ def _header(out: Path, options: SynthOptions, scene: Scene, world: World, frames
         "raster": {"origin_xy": list(r.origin_xy), "resolution_m": r.resolution_m, "shape": list(r.safe.shape),
                    "row_axis": "world +y", "col_axis": "world +x"},
         "rules": {"max_slope_deg": config.uav.max_slope_deg, "footprint_m": list(config.uav.footprint_m),
-                  "margin_m": config.synth.ground_truth.margin_m, "step_m": config.synth.ground_truth.step_m,
+                  "margin_m": config.uav.margin_m, "step_m": config.synth.ground_truth.step_m,
                   "slope_tolerance_deg": config.synth.ground_truth.slope_tolerance_deg},
         "sensor": config.to_dict()["synth"]["sensor"],
         "objects": list(objects), "config_hash": config.hash(), "config": config.to_dict(),

@@ -457,6 +457,7 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
         valid=valid,
         slope_deg=slope_deg,
         work=work,
+        up_camera=up,
     )
 
 
