@@ -61,9 +61,11 @@ constraints:
 	@git --no-pager diff --stat -- $(CONSTRAINTS) 2>/dev/null || true
 
 # Render a ground-truthed flight, read it, detect the landing site, simulate the IBVS descent.
+# The flight descends from 8 m to 3 m under the default D435-like stereo depth: the high frames
+# cannot vouch for a site (their noise hides steps the UAV cannot take), the low ones can.
 demo: $(STAMP)
 	@mkdir -p $(DEMO)
-	$(BIN)/slz synth parking_lot -o $(DEMO)/parking_lot.mcap --frames 40 --force
+	$(BIN)/slz synth parking_lot -o $(DEMO)/parking_lot.mcap --frames 40 --rate 4 --path descent --start 0,0,8 --force
 	$(BIN)/slz info $(DEMO)/parking_lot.mcap
 	$(BIN)/slz detect $(DEMO)/parking_lot.mcap -o $(DEMO)/run --force
 	$(BIN)/slz land simulate $(DEMO)/run --start 2,-1.5,8

@@ -10,6 +10,11 @@ from click.testing import CliRunner
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared"
 REALSENSE = SHARED / "data" / "realsense_floor"
+# Tests of the pipeline, not of the depth sensor, render with the gaussian model: the default stereo
+# model (an infrared pair matched with SGBM) costs ~3x more per frame; the sensor models have their
+# own tests (test_synth_sensor.py) and the default sensor runs end to end in test_sensor_cells.py and
+# test_packaging.py.
+GAUSSIAN = ("--set", "synth.sensor.model=gaussian")
 
 
 @pytest.fixture

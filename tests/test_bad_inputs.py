@@ -20,6 +20,7 @@ import bad_inputs as B
 import pytest
 from click.testing import CliRunner
 
+from conftest import GAUSSIAN
 from slzcli.cli import main
 
 # case -> (cause in the `slz info` error or None when info succeeds, cause in the `slz detect` error)
@@ -561,7 +562,7 @@ def test_disk_full_during_synth_names_the_file_and_leaves_nothing(runner: CliRun
         real = Path.write_bytes
         monkeypatch.setattr(Path, "write_bytes", lambda p, data: full() if "preview" in p.name else real(p, data))
         named = "f.mcap.preview.png: cannot write"
-    res = invoke(runner, "synth", "clear_field", "-o", str(out), "--frames", "2")
+    res = invoke(runner, "synth", "clear_field", "-o", str(out), "--frames", "2", *GAUSSIAN)
     error_line(res, out, named)
     assert list(tmp_path.iterdir()) == []  # all or nothing: no recording without its ground truth
 

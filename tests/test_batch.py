@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from conftest import GAUSSIAN
 from slzcli import batch
 from slzcli.cli import main
 from slzcli.errors import ConfigError, OutputError
@@ -30,7 +31,7 @@ def flights(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("flights")
     runner = CliRunner()
     for scene in SCENES:
-        res = runner.invoke(main, ["synth", scene, "-o", str(folder / f"{scene}.mcap"), "--frames", str(FRAMES)])
+        res = runner.invoke(main, ["synth", scene, "-o", str(folder / f"{scene}.mcap"), "--frames", str(FRAMES), *GAUSSIAN])
         assert res.exit_code == 0, res.output
     return folder
 

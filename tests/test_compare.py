@@ -14,12 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import GAUSSIAN
 from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.compare import CurveCounts, check_same_inputs, resolve_methods
 from slzcli.errors import ConfigError
 
-SMALL = ("--set", "camera.width=320", "--set", "camera.height=240", "--set", "camera.fx=231.0685",
+SMALL = (*GAUSSIAN, "--set", "camera.width=320", "--set", "camera.height=240", "--set", "camera.fx=231.0685",
          "--set", "camera.fy=231.0685", "--set", "camera.cx=160", "--set", "camera.cy=120")
 FRAMES = 6
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from conftest import GAUSSIAN
 from slzcli.cli import main
 
 FRAMES = 6
@@ -24,7 +25,7 @@ def recordings(tmp_path_factory) -> dict[str, Path]:
     runner = CliRunner()
     for scene in (*SCENES_WITH_SITE, "no_site"):
         path = folder / f"{scene}.mcap"
-        res = runner.invoke(main, ["synth", scene, "-o", str(path), "--frames", str(FRAMES)])
+        res = runner.invoke(main, ["synth", scene, "-o", str(path), "--frames", str(FRAMES), *GAUSSIAN])
         assert res.exit_code == 0, res.output
         out[scene] = path
     return out

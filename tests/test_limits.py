@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from long_recording import write_ping_pong
+from conftest import GAUSSIAN
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.pipeline import RunOptions, detect_recording
@@ -32,7 +33,7 @@ def long_flight(tmp_path_factory) -> Path:
 
     folder = tmp_path_factory.mktemp("long")
     seed = folder / "seed.mcap"
-    args = ["synth", "parking_lot", "-o", str(seed), "--frames", "16"]
+    args = ["synth", "parking_lot", "-o", str(seed), "--frames", "16", *GAUSSIAN]
     for s in SIZE:
         args += ["--set", s]
     res = CliRunner().invoke(main, args)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from conftest import GAUSSIAN
 from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.config import load_config
@@ -91,7 +92,7 @@ def flight(tmp_path_factory) -> Path:
     from click.testing import CliRunner
 
     path = tmp_path_factory.mktemp("seg") / "clear_field.mcap"
-    res = CliRunner().invoke(main, ["synth", "clear_field", "-o", str(path), "--frames", str(FRAMES)])
+    res = CliRunner().invoke(main, ["synth", "clear_field", "-o", str(path), "--frames", str(FRAMES), *GAUSSIAN])
     assert res.exit_code == 0, res.output
     return path
 

@@ -24,8 +24,9 @@ from slzcli.synth.sensor import apply_depth_model, depth_edges
 SMALL = ["camera.width=320", "camera.height=240", "camera.cx=160.0", "camera.cy=120.0",
          "camera.fx=231.0685", "camera.fy=231.0685"]
 TINY = ["camera.width=160", "camera.height=120", "camera.cx=80.0", "camera.cy=60.0",
-        "camera.fx=115.534", "camera.fy=115.534"]
-NOISE_OFF = ["synth.sensor.depth_sigma_a=0", "synth.sensor.edge_hole_prob=0", "synth.sensor.color_noise=0"]
+        "camera.fx=115.534", "camera.fy=115.534", "synth.sensor.model=gaussian"]   # gaussian: quick to render
+NOISE_OFF = ["synth.sensor.model=ideal", "synth.sensor.depth_sigma_a=0", "synth.sensor.edge_hole_prob=0",
+             "synth.sensor.color_noise=0"]
 
 
 def down_pose(x: float, y: float, z: float) -> np.ndarray:

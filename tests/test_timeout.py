@@ -18,6 +18,7 @@ from typing import Iterator
 
 import pytest
 
+from conftest import GAUSSIAN
 from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.errors import StageTimeout
@@ -107,7 +108,7 @@ def flights(tmp_path_factory) -> dict[str, Path]:
     out = {}
     for name in ("calm", "stuck"):
         path = folder / f"{name}.mcap"
-        res = CliRunner().invoke(main, ["synth", "parking_lot", "-o", str(path), "--frames", "4"])
+        res = CliRunner().invoke(main, ["synth", "parking_lot", "-o", str(path), "--frames", "4", *GAUSSIAN])
         assert res.exit_code == 0, res.output
         out[name] = path
     return out

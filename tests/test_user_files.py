@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from conftest import GAUSSIAN
 from slzcli import fingerprint
 from slzcli.cli import main
 from slzcli.outputs import run_lock
@@ -53,7 +54,7 @@ def refused(res, path_part: str, cause: str) -> str:
     return errors[0]
 
 
-SYNTH = ("--frames", "2", "--set", "camera.width=160", "--set", "camera.height=120", "--set", "camera.fx=115.5",
+SYNTH = ("--frames", "2", *GAUSSIAN, "--set", "camera.width=160", "--set", "camera.height=120", "--set", "camera.fx=115.5",
          "--set", "camera.fy=115.5", "--set", "camera.cx=80", "--set", "camera.cy=60")  # small and quick to render
 
 
