@@ -54,7 +54,7 @@ class Working:
     """How one frame's maps are computed, and what they can and cannot see (see the module doc)."""
 
     altitude_m: float          # the frame's median depth: the windows are sized there
-    sigma_m: float             # pixel-scale depth noise at that depth
+    sigma_m: float             # depth noise there, in the noisiest band of the pyramid (pixel scale for white noise)
     block_px: int              # the maps run on block_px x block_px block means
     block_m: float             # a block's side on the ground at altitude_m
     slope_window_blocks: int   # odd; the steepness plane fit's window, in blocks
@@ -177,7 +177,8 @@ def working_scale(noise: DepthNoise, depth_m: float, focal_px: float, cfg: Terra
     flat = cfg.flatness
     mpl = edge_scaling_m(uav.max_step_m, noise.sigma_m(depth_m, block), k, flat.canny_low, flat.canny_high,
                          flat.blur_px, noise.quantum_m)
-    return Working(altitude_m=depth_m, sigma_m=noise.sigma_m(depth_m), block_px=block, block_m=block_m,
+    sigma = max(a for a in noise.a_per_m) * depth_m * depth_m   # the worst band: correlated error lives coarse
+    return Working(altitude_m=depth_m, sigma_m=sigma, block_px=block, block_m=block_m,
                    slope_window_blocks=blocks, metres_per_level=mpl,
                    step_min_m=step, slope_min_deg=slope, vouch_depth_m=depth_m * ratio, vouched=vouched,
                    max_step_m=uav.max_step_m, max_slope_deg=uav.max_slope_deg, focal_px=focal_px, noise=noise)
