@@ -17,6 +17,7 @@ import tempfile
 from pathlib import Path
 
 from flights import render  # benchmarks/flights.py (the script's folder is on sys.path)
+
 from slzcli.config import load_config
 from slzcli.pipeline import RunOptions, detect_recording
 
@@ -51,7 +52,7 @@ def main() -> None:
             print(f"{path.stem:<14} {s['frames']:>6} {s['detections']:>4} {t['maps']:>6.1f} {t[args.method]:>6.1f} "
                   f"{t['mask']:>5.1f} {t['slam']:>6.1f} {t['select']:>6.1f} {write:>6.1f}  "
                   f"{f(mask.get('precision'), 2):>5} {f(mask.get('recall'), 2):>5}  {s['status']:<12} "
-                  f"{str(site.get('safe', '-')):>5} {f(site.get('clearance_m'), 2):>7} {f(site.get('to_best_centre_m'), 2):>9}")
+                  f"{site.get('safe', '-')!s:>5} {f(site.get('clearance_m'), 2):>7} {f(site.get('to_best_centre_m'), 2):>9}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"method": args.method, "overrides": args.overrides, "runs": rows},
                                    indent=2, default=str) + "\n")

@@ -151,7 +151,7 @@ def main() -> None:
     for r in rows:
         def f(v, p=2):  # type: ignore[no-untyped-def]
             return "-" if v is None else f"{v:.{p}f}"
-        print(f"{r['scenario']:>3} {str(tuple(r['site_world'])):>18} {r['reason']:>17} {f(r['stabilisation_time_s']):>7} {f(r['settling_time_s']):>6} "
+        print(f"{r['scenario']:>3} {tuple(r['site_world'])!s:>18} {r['reason']:>17} {f(r['stabilisation_time_s']):>7} {f(r['settling_time_s']):>6} "
               f"{f(r['switch_time_s']):>8} {f(r['landing_time_s']):>7} {f(r['final_feature_error_px']):>7} "
               f"{f(r['touchdown_error_m'], 4):>9} {f(r['max_tilt_deg'], 1):>8} "
               f"{r['real_camera_visible_fraction']:>7.2f} {f(r['lyapunov_max_increase'], 4):>9} "

@@ -156,7 +156,7 @@ def main() -> None:
           f"{'rss 10/50/90 %':>20} {'run MB':>7}")
     for r in rows:
         print(f"{r['frames']:>7} {r['mode']:>10} {r['detections']:>10} {r['ms_per_frame']:>9} {r['peak_rss_mb']:>9} "
-              f"{r['peak_orbslam3_rss_mb']:>8} {str(r['rss_mb_at_10_50_90_pct']):>20} {r['run_folder_mb']:>7}")
+              f"{r['peak_orbslam3_rss_mb']:>8} {r['rss_mb_at_10_50_90_pct']!s:>20} {r['run_folder_mb']:>7}")
     ratios = {}
     for mode in modes:
         by_n = {r["length"]: r for r in rows if r["mode"] == mode}

@@ -17,8 +17,8 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-
 from flights import render  # benchmarks/flights.py (the script's folder is on sys.path)
+
 from slzcli.config import load_config
 from slzcli.evaluate.safety import mask_counts, total
 from slzcli.scoring import get_scorer, score_frame

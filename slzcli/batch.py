@@ -35,10 +35,11 @@ import socket
 import threading
 import time
 import uuid
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError, SlzError
@@ -281,7 +282,7 @@ def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, schedu
     return result
 
 
-def _collect(engine: "_Engine", tasks: Sequence[Task], config: Config, options: RunOptions,
+def _collect(engine: _Engine, tasks: Sequence[Task], config: Config, options: RunOptions,
              rows: list[dict[str, Any] | None], t0: float, emit: Callable[[BatchProgress], None]) -> None:
     """Submit everything, then record rows as tasks finish (in this thread) and refresh the frame count."""
     def progress(row: dict[str, Any] | None = None) -> BatchProgress:
@@ -292,7 +293,7 @@ def _collect(engine: "_Engine", tasks: Sequence[Task], config: Config, options: 
         rows[i] = _row_of(tasks[i], outcome)
         emit(progress(rows[i]))
 
-    done_q: "queue.Queue[tuple[int, Any]]" = queue.Queue()
+    done_q: queue.Queue[tuple[int, Any]] = queue.Queue()
     if engine.threaded:  # done callbacks run in the engine's threads: hand them over to this one
         engine.submit_all(tasks, config, options, lambda i, outcome: done_q.put((i, outcome)), lambda: None)
     else:

@@ -33,10 +33,11 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -45,8 +46,7 @@ from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
 from slzcli.interrupt import call_interruptibly
 from slzcli.outputs import output_dir, run_lock
-from slzcli.pipeline import (Detection, Detector, commit_site, ground_truth_of, open_inputs, posed_maps,
-                             tracked_frames)
+from slzcli.pipeline import Detection, Detector, commit_site, ground_truth_of, open_inputs, posed_maps, tracked_frames
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
@@ -69,7 +69,7 @@ class CurveCounts:
     positives: int = 0
 
     @classmethod
-    def empty(cls, levels: int) -> "CurveCounts":
+    def empty(cls, levels: int) -> CurveCounts:
         return cls(np.linspace(0.0, 1.0, levels), np.zeros(levels, np.int64), np.zeros(levels, np.int64))
 
     def add(self, values: np.ndarray, truth: np.ndarray) -> None:

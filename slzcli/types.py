@@ -33,7 +33,7 @@ class Intrinsics:
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
-    def scaled(self, width: int, height: int) -> "Intrinsics":
+    def scaled(self, width: int, height: int) -> Intrinsics:
         """The same camera at another resolution (used when colour and depth sizes differ)."""
         sx, sy = width / self.width, height / self.height
         return Intrinsics(self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height,
@@ -64,7 +64,7 @@ class Frame:
     def shape(self) -> tuple[int, int]:
         return self.depth_m.shape[0], self.depth_m.shape[1]
 
-    def ref(self) -> "FrameRef":
+    def ref(self) -> FrameRef:
         return FrameRef(self.index, self.stamp_ns, self.intrinsics, self.shape)
 
 

@@ -13,14 +13,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
-
-
 import bad_inputs as B
+import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from conftest import GAUSSIAN
+
 from slzcli.cli import main
 
 # case -> (cause in the `slz info` error or None when info succeeds, cause in the `slz detect` error)

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from conftest import GAUSSIAN
+
 from slzcli import batch
 from slzcli.cli import main
 from slzcli.errors import ConfigError, OutputError
@@ -259,9 +259,8 @@ def test_run_lock_refuses_a_second_writer_and_removes_stale_partials(tmp_path) -
     other.mkdir()
     with run_lock.claim(run) as removed:
         assert removed == [stale] and not stale.exists() and other.exists()
-        with pytest.raises(OutputError, match="another slz process"):
-            with run_lock.claim(run):
-                pass
+        with pytest.raises(OutputError, match="another slz process"), run_lock.claim(run):
+            pass
     assert leftovers(tmp_path) == [".flight2.xyz.partial"]  # the lock file is gone, the other run untouched
     with run_lock.claim(run) as removed:  # free again
         assert removed == []

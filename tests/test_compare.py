@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import GAUSSIAN
+
 from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.compare import CurveCounts, check_same_inputs, resolve_methods

@@ -12,9 +12,9 @@ import tracemalloc
 from pathlib import Path
 
 import pytest
-
-from long_recording import write_ping_pong
 from conftest import GAUSSIAN
+from long_recording import write_ping_pong
+
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.pipeline import RunOptions, detect_recording

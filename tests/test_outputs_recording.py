@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from sources_util import known_frame, pose, write_frames
 
 from slzcli.config import load_config
 from slzcli.outputs.recording import RecordingWriter
 from slzcli.sources import open_recording
-from sources_util import known_frame, pose, write_frames
 
 
 def folder_bytes(folder: Path) -> dict[str, bytes]:
@@ -51,8 +51,7 @@ def test_metadata_names_the_files_in_the_folder(tmp_path: Path, fmt: str) -> Non
 
 
 def test_failed_bag_leaves_nothing(tmp_path: Path) -> None:
-    with pytest.raises(RuntimeError):
-        with RecordingWriter(tmp_path / "bag", "ros2-mcap") as w:
-            w.write_frame(known_frame(0))
-            raise RuntimeError("boom")
+    with pytest.raises(RuntimeError), RecordingWriter(tmp_path / "bag", "ros2-mcap") as w:
+        w.write_frame(known_frame(0))
+        raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []

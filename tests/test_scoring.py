@@ -8,15 +8,25 @@ import itertools
 import numpy as np
 import pytest
 import yaml
+from skfuzzy_oracle import skfuzzy_simulation
 
 from slzcli.config import load_config
 from slzcli.errors import ConfigError
-from slzcli.scoring import (SCORERS, BayesScorer, FuzzyScorer, bayes, closed_form, compile_fuzzy, fuzzy, get_scorer,
-                            lut, score_frame)
+from slzcli.scoring import (
+    SCORERS,
+    BayesScorer,
+    FuzzyScorer,
+    bayes,
+    closed_form,
+    compile_fuzzy,
+    fuzzy,
+    get_scorer,
+    lut,
+    score_frame,
+)
 from slzcli.scoring.mask import landing_mask, median_depth_m, window_px
 from slzcli.scoring.rules import And, Not, Or, load_rules, parse_rule_base, resolve_rules_path
 from slzcli.types import Intrinsics, TerrainMaps
-from skfuzzy_oracle import skfuzzy_simulation
 
 
 @pytest.fixture(scope="module")

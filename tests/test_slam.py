@@ -5,16 +5,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from slam_flight import render_flight
+
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.errors import DatasetError, SlzError
 from slzcli.evaluate.slam import ate
 from slzcli.slam import BACKENDS, TrackingState, choose_backend, get_backend
 from slzcli.slam.orbslam3 import available as orbslam3_available
-from slzcli.slam.vocabulary import (DEFAULT_VOCABULARY, parse_vocabulary, read_vocabulary, train_vocabulary,
-                                    vocabulary_text)
+from slzcli.slam.vocabulary import (
+    DEFAULT_VOCABULARY,
+    parse_vocabulary,
+    read_vocabulary,
+    train_vocabulary,
+    vocabulary_text,
+)
 
 needs_orbslam3 = pytest.mark.skipif(not orbslam3_available(), reason="optional pyorbslam3 (slz[orbslam3]) not installed")
 ATE_LIMIT_M = 0.05

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import GAUSSIAN
 from scipy.spatial.transform import Rotation
 
-from conftest import GAUSSIAN
 from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.config import load_config

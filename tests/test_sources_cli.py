@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from sources_util import SUFFIX, known_frame, write_frames
 
 from slzcli.cli import main
 from slzcli.outputs.recording import RecordingWriter, TopicLayout
-from sources_util import SUFFIX, known_frame, write_frames
 
 
 def run(runner: CliRunner, *args: str):

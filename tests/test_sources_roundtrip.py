@@ -8,13 +8,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from sources_util import PERIOD_NS, SUFFIX, T0_NS, known_frame, pose, write_frames
 
 from slzcli.config import load_config
-from slzcli.outputs.recording import (COMPRESSED_DEPTH_MAX_M, COMPRESSED_DEPTH_QUANTIZATION, RecordingWriter,
-                                      TopicLayout)
+from slzcli.outputs.recording import COMPRESSED_DEPTH_MAX_M, COMPRESSED_DEPTH_QUANTIZATION, RecordingWriter, TopicLayout
 from slzcli.sources import open_recording
 from slzcli.types import Frame, Intrinsics
-from sources_util import PERIOD_NS, SUFFIX, T0_NS, known_frame, pose, write_frames
 
 FORMATS = list(SUFFIX)
 CFG = load_config()
@@ -249,10 +248,9 @@ def test_shuffled_log_order_still_pairs(tmp_path: Path) -> None:
 
 def test_writer_is_atomic(tmp_path: Path) -> None:
     path = tmp_path / "a.mcap"
-    with pytest.raises(RuntimeError):
-        with RecordingWriter(path, "mcap") as w:
-            w.write_frame(known_frame(0))
-            raise RuntimeError("boom")
+    with pytest.raises(RuntimeError), RecordingWriter(path, "mcap") as w:
+        w.write_frame(known_frame(0))
+        raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
     write_frames(path, "mcap", n=1)
     write_frames(path, "mcap", n=2)  # replaces the older recording

@@ -9,12 +9,12 @@ import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from sources_util import known_frame, pose
 
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.sources import open_recording
 from slzcli.sources.tum import parse_stamp
-from sources_util import known_frame, pose
 
 
 def make_tum(root: Path, n: int = 4, camera_yaml: bool = False) -> list:

@@ -323,7 +323,7 @@ def test_invalid_pixels_score_zero_and_frame_mode_is_min_max() -> None:
         maps = tm.compute_maps(depth, K, DOWN, c)
         for name, m in maps.as_dict().items():
             assert (m[~maps.valid] == 0).all(), name
-            assert 0 <= m.min() and m.max() <= 1, name
+            assert m.min() >= 0 and m.max() <= 1, name
     maps = tm.compute_maps(depth, K, DOWN, cfg)
     for name in ("depth_variance", "flatness", "steepness"):
         assert maps.as_dict()[name].max() == pytest.approx(1.0), name

@@ -12,13 +12,13 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import pytest
-
 from conftest import GAUSSIAN
+
 from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.errors import StageTimeout
@@ -35,9 +35,8 @@ def stuck() -> None:
 # ----------------------------------------------------------------------------- StageLimit
 def test_a_blocking_wait_in_the_main_thread_is_interrupted() -> None:
     limit = StageLimit(0.2, "flight.mcap")
-    with pytest.raises(StageTimeout) as err:
-        with limit.stage("reading frame 7"):
-            stuck()
+    with pytest.raises(StageTimeout) as err, limit.stage("reading frame 7"):
+        stuck()
     assert str(err.value).startswith("flight.mcap: reading frame 7 took longer than --timeout 0.2 s")
 
 
@@ -73,7 +72,7 @@ def test_a_stage_that_finishes_in_time_leaves_no_alarm_behind(in_thread: bool) -
                 with limit.stage(f"stage {i}"):
                     pass  # an empty stage: no machine is slow enough to spend 0.3 s here
             time.sleep(0.6)  # past the bound, outside any stage
-        except BaseException as e:  # noqa: BLE001 - anything leaking out is the failure
+        except BaseException as e:
             errors.append(e)
 
     if in_thread:
@@ -93,10 +92,8 @@ def test_no_limit_costs_nothing_and_bounds_nothing() -> None:
 
 def test_stages_do_not_nest() -> None:
     limit = StageLimit(0.2, "flight.mcap")
-    with pytest.raises(StageTimeout, match="outer"):
-        with limit.stage("outer"):
-            with limit.stage("inner"):
-                stuck()
+    with pytest.raises(StageTimeout, match="outer"), limit.stage("outer"), limit.stage("inner"):
+        stuck()
 
 
 # ----------------------------------------------------------------------------- slz detect --timeout
@@ -136,7 +133,7 @@ def bound_only(monkeypatch, stage_name: str, recording: str = "") -> None:
 def _stuck_detection(monkeypatch, only: str = "") -> None:
     real = pipeline.Detector.detect
 
-    def detect(self, frame, T):  # noqa: ANN001
+    def detect(self, frame, T):
         if not only or only in frame.source:
             stuck()
         return real(self, frame, T)
@@ -161,26 +158,26 @@ def test_a_stuck_read_is_bounded_too(runner, flights, tmp_path, monkeypatch) -> 
     real = pipeline.open_recording
 
     class Hanging:
-        def __init__(self, rec) -> None:  # noqa: ANN001
+        def __init__(self, rec) -> None:
             self.rec = rec
 
-        def __getattr__(self, name: str):  # noqa: ANN204
+        def __getattr__(self, name: str):
             return getattr(self.rec, name)
 
-        def frames(self):  # noqa: ANN201
+        def frames(self):
             for frame in self.rec.frames():
                 if frame.index == 2:
                     stuck()
                 yield frame
 
     class Opener:
-        def __init__(self, path, config) -> None:  # noqa: ANN001
+        def __init__(self, path, config) -> None:
             self.cm = real(path, config)
 
-        def __enter__(self):  # noqa: ANN204
+        def __enter__(self):
             return Hanging(self.cm.__enter__())
 
-        def __exit__(self, *exc):  # noqa: ANN002, ANN204
+        def __exit__(self, *exc):
             return self.cm.__exit__(*exc)
 
     monkeypatch.setattr(pipeline, "open_recording", Opener)
@@ -227,7 +224,7 @@ def test_compare_takes_the_same_bound(runner, flights, tmp_path, monkeypatch) ->
 
     real = compare.posed_maps
 
-    def slow_maps(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+    def slow_maps(*args, **kwargs):
         stuck()
         return real(*args, **kwargs)
 

@@ -21,8 +21,8 @@ import bad_inputs as B
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from conftest import GAUSSIAN
+
 from slzcli import fingerprint
 from slzcli.cli import main
 from slzcli.outputs import run_lock

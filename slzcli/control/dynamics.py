@@ -48,7 +48,7 @@ class Params:
     torque_max: np.ndarray       # (3,) N m
 
     @classmethod
-    def from_config(cls, config: Config) -> "Params":
+    def from_config(cls, config: Config) -> Params:
         u = config.uav
         return cls(u.mass_kg, np.array(u.inertia_kg_m2, float), config.control.gravity_m_s2,
                    u.thrust_min_n, u.thrust_max_n, np.array(u.torque_max_n_m, float))
@@ -67,11 +67,11 @@ class State:
         return np.concatenate([self.p, self.v, self.quat, self.w], axis=1)
 
     @classmethod
-    def from_vector(cls, x: np.ndarray) -> "State":
+    def from_vector(cls, x: np.ndarray) -> State:
         return cls(x[:, 0:3], x[:, 3:6], x[:, 6:10], x[:, 10:13])
 
     @classmethod
-    def at_rest(cls, p_ned: np.ndarray, yaw_ned: np.ndarray) -> "State":
+    def at_rest(cls, p_ned: np.ndarray, yaw_ned: np.ndarray) -> State:
         """Hovering start: level, still, at the given positions and headings."""
         p = np.atleast_2d(np.asarray(p_ned, float))
         n = p.shape[0]
@@ -187,7 +187,7 @@ class Wind:
     drag_kg_s: float
 
     @classmethod
-    def from_config(cls, config: Config) -> "Wind":
+    def from_config(cls, config: Config) -> Wind:
         w = config.control.wind
         return cls(enu_to_ned(np.array(w.mean_m_s, float)), w.gust_m_s, w.gust_tau_s, w.drag_kg_s)
 

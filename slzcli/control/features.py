@@ -39,7 +39,7 @@ class CameraModel:
     yaw_on_body: float           # gamma, rad
 
     @classmethod
-    def from_config(cls, config: Config) -> "CameraModel":
+    def from_config(cls, config: Config) -> CameraModel:
         c, u = config.camera, config.uav
         gamma = np.deg2rad(u.camera_yaw_deg)
         # Optical frame looking along body z (down): x_C = Rz(gamma) x_B, z_C = z_B.

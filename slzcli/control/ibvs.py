@@ -56,7 +56,7 @@ class Gains:
     max_tilt_rad: float
 
     @classmethod
-    def from_config(cls, config: Config) -> "Gains":
+    def from_config(cls, config: Config) -> Gains:
         c = config.control
         return cls(np.array(c.K_e, float), np.array(c.K_i, float), np.array(c.K_p, float), c.k_psi, c.k_psi_d,
                    (c.beta[0], c.beta[1]), (c.mu[0], c.mu[1]), c.desired_depth_m, np.deg2rad(c.max_tilt_cmd_deg))

@@ -8,8 +8,9 @@ of ratios.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -21,7 +22,7 @@ class MaskCounts:
     fn: int
     tn: int
 
-    def __add__(self, other: "MaskCounts") -> "MaskCounts":
+    def __add__(self, other: MaskCounts) -> MaskCounts:
         return MaskCounts(self.tp + other.tp, self.fp + other.fp, self.fn + other.fn, self.tn + other.tn)
 
     @property

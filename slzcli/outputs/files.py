@@ -14,9 +14,10 @@ import os
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -113,7 +114,7 @@ ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)  # fixed member time: the same arrays give the
 _COPY_BUFFER_BYTES = 1 << 20
 
 
-def write_npz_streamed(path: Path, members: dict[str, "np.ndarray | Path"], stored: frozenset[str] = frozenset()) -> None:
+def write_npz_streamed(path: Path, members: dict[str, np.ndarray | Path], stored: frozenset[str] = frozenset()) -> None:
     """An ``.npz`` (readable by ``np.load``) from arrays and from ``.npy`` files copied in chunks.
 
     Members named in ``stored`` are not compressed (a reader can memory-map them); the rest are

@@ -7,11 +7,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from slzcli.control.simulate import SimResult, Target  # noqa: E402
-from slzcli.outputs.files import atomic_path  # noqa: E402
+from slzcli.control.simulate import SimResult, Target
+from slzcli.outputs.files import atomic_path
 
 COLOURS = ("tab:red", "tab:green", "tab:blue", "tab:orange")
 

@@ -13,10 +13,10 @@ from typing import Any
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from slzcli.outputs.files import atomic_path  # noqa: E402
+from slzcli.outputs.files import atomic_path
 
 METHOD_COLOURS = {"fuzzy": "tab:red", "bayes": "tab:blue"}
 MAP_COLOURS = {"depth_variance": "tab:olive", "flatness": "tab:green", "inclination": "tab:purple",

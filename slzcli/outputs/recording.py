@@ -99,7 +99,7 @@ class RecordingWriter:
         return self.layout.depth + ("/compressedDepth" if self.depth_encoding.startswith("compressedDepth") else "")
 
     # ------------------------------------------------------------------ context
-    def __enter__(self) -> "RecordingWriter":
+    def __enter__(self) -> RecordingWriter:
         self.open()
         return self
 
@@ -149,7 +149,7 @@ class RecordingWriter:
         if backend is not None:
             try:
                 backend.close()
-            except Exception:  # noqa: BLE001 - the temporary is removed anyway
+            except Exception:
                 pass
         _remove(self._staging)
 
@@ -356,7 +356,8 @@ class _RosbagBackend(_Backend):
 
             self.bag: Any = Writer1(tmp)
         else:
-            from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+            from rosbags.rosbag2 import StoragePlugin
+            from rosbags.rosbag2 import Writer as Writer2
 
             plugin = StoragePlugin.MCAP if w.fmt == "ros2-mcap" else StoragePlugin.SQLITE3
             self.bag = Writer2(tmp, version=8, storage_plugin=plugin)

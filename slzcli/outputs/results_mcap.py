@@ -80,7 +80,7 @@ class ResultsMcap:
         self.stride_px = config.output.mask_cloud_stride_px
         self.writer = RecordingWriter(self.path, "mcap", layout=TopicLayout(frame_id=CAMERA_FRAME))
 
-    def __enter__(self) -> "ResultsMcap":
+    def __enter__(self) -> ResultsMcap:
         self.writer.open()
         return self
 
@@ -167,7 +167,7 @@ class ResultsMcap:
 class NoResults:
     """Stands in for ``ResultsMcap`` when ``output.results_mcap`` is off: writes nothing."""
 
-    def __enter__(self) -> "NoResults":
+    def __enter__(self) -> NoResults:
         return self
 
     def __exit__(self, *exc: object) -> None:

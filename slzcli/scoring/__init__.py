@@ -48,7 +48,7 @@ class FuzzyScorer:
     name: str = "fuzzy"
 
     @classmethod
-    def from_config(cls, config: Config) -> "FuzzyScorer":
+    def from_config(cls, config: Config) -> FuzzyScorer:
         cfg = config.scoring.fuzzy
         rules = load_rules(cfg.rules)
         unknown = [name for name in rules.input_names if name not in TerrainMaps.NAMES]
@@ -86,7 +86,7 @@ class BayesScorer:
     name: str = "bayes"
 
     @classmethod
-    def from_config(cls, config: Config) -> "BayesScorer":
+    def from_config(cls, config: Config) -> BayesScorer:
         return cls(config.scoring.bayes.prior, config.scoring.bayes.eps)
 
     def threshold(self, config: Config) -> float:

@@ -40,8 +40,8 @@ that input or by a step membership (a vertical edge inside the universe).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import cv2
 import numpy as np

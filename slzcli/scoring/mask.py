@@ -28,7 +28,7 @@ import math
 import cv2
 import numpy as np
 
-from slzcli.terrain.geometry import back_project, median_depth_m, window_px  # noqa: F401 (re-exported for tests)
+from slzcli.terrain.geometry import back_project, median_depth_m, window_px
 from slzcli.types import Intrinsics, ScoreMap
 
 _GAP_NEIGHBOURS = 5        # an unobserved cell with at least this many observed 8-neighbours is a sampling gap

@@ -11,9 +11,10 @@ from __future__ import annotations
 import difflib
 import hashlib
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Union
+from typing import Any, Union
 
 import numpy as np
 import yaml
@@ -83,17 +84,17 @@ class Is:
 
 @dataclass(frozen=True)
 class Not:
-    arg: "Node"
+    arg: Node
 
 
 @dataclass(frozen=True)
 class And:
-    args: tuple["Node", ...]
+    args: tuple[Node, ...]
 
 
 @dataclass(frozen=True)
 class Or:
-    args: tuple["Node", ...]
+    args: tuple[Node, ...]
 
 
 Node = Union[Is, Not, And, Or]

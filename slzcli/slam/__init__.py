@@ -6,7 +6,8 @@ ORB-SLAM3 when the optional pyorbslam3 wheel is installed, else the built-in odo
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from slzcli.errors import ConfigError
 from slzcli.slam.base import Keyframe, MapPoints, SlamBackend, TrackingState, TrackResult

@@ -45,7 +45,7 @@ class MapPoints:
         return int(self.xyz_world.shape[0])
 
     @staticmethod
-    def empty(keyframe_index: int, stamp_ns: int, T_world_camera: np.ndarray) -> "MapPoints":
+    def empty(keyframe_index: int, stamp_ns: int, T_world_camera: np.ndarray) -> MapPoints:
         return MapPoints(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2)), keyframe_index,
                          stamp_ns, T_world_camera)
 
@@ -95,7 +95,7 @@ class SlamBackend(Protocol):
         """Free native resources (threads, worker processes); idempotent."""
         ...
 
-    def __enter__(self) -> "SlamBackend": ...
+    def __enter__(self) -> SlamBackend: ...
 
     def __exit__(self, *exc: object) -> None: ...
 
@@ -108,7 +108,7 @@ class BackendBase:
     def close(self) -> None:  # pragma: no cover - overridden where there is something to free
         return None
 
-    def __enter__(self):  # noqa: ANN204 - returns the concrete backend
+    def __enter__(self):
         return self
 
     def abort(self) -> None:

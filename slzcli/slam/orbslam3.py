@@ -90,7 +90,7 @@ def _worker(conn: Any, vocab_path: str, settings_text: str) -> None:
             f.write(settings_text)
         try:
             system = pos.Slam(vocab_path, settings, pos.Sensor.RGBD)
-        except Exception as err:  # noqa: BLE001 - reported to the parent as text
+        except Exception as err:
             conn.send(("error", f"{type(err).__name__}: {err}"))
             return
         conn.send(("ready", None))
@@ -102,7 +102,7 @@ def _worker(conn: Any, vocab_path: str, settings_text: str) -> None:
                 _, rgb, depth, t = msg
                 try:
                     r = system.track_rgbd(rgb, depth, t)
-                except Exception as err:  # noqa: BLE001 - e.g. an image too small for the ORB pyramid
+                except Exception as err:
                     conn.send(("error", f"{type(err).__name__}: {err}"))
                     continue
                 pts = np.asarray(system.tracked_map_points(), np.float64).reshape(-1, 3)

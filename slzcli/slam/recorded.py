@@ -138,7 +138,7 @@ class CloudStream:
         self._messages.close()  # a generator: closes the file it reads
         self._log.close()
 
-    def __enter__(self) -> "CloudStream":
+    def __enter__(self) -> CloudStream:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -20,7 +20,7 @@ from slzcli.config import Config
 from slzcli.errors import DatasetError
 from slzcli.sources.recording import Recording, RecordingInfo
 
-__all__ = ["Recording", "RecordingInfo", "open_recording", "guess_format", "check_readable"]
+__all__ = ["Recording", "RecordingInfo", "check_readable", "guess_format", "open_recording"]
 
 
 def check_readable(path: Path) -> None:

@@ -9,7 +9,8 @@ straight from the serialised bytes so that pairing never has to deserialise an i
 from __future__ import annotations
 
 import struct
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import cv2
 import numpy as np

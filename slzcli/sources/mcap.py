@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import logging
 import struct
+from collections.abc import Collection, Iterator
 from pathlib import Path
-from typing import Any, BinaryIO, Collection, Iterator
+from typing import Any, BinaryIO
 
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.reader import SeekingReader

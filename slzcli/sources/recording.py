@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import abc
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Iterator
+from typing import Any
 
 from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
 
@@ -58,7 +59,7 @@ class Recording(abc.ABC):
         self.path = path
         self.report = PairingReport()
 
-    def __enter__(self) -> "Recording":
+    def __enter__(self) -> Recording:
         self.open()
         return self
 

@@ -28,11 +28,18 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from slzcli.config import (Config, DepthVarianceCfg, FlatnessCfg, InclinationCfg, Mount,
-                           SteepnessCfg, TerrainCfg, UavCfg)
+from slzcli.config import Config, DepthVarianceCfg, FlatnessCfg, InclinationCfg, Mount, SteepnessCfg, TerrainCfg, UavCfg
 from slzcli.errors import DatasetError
-from slzcli.terrain.geometry import (NormalField, fit_intrinsics, median_depth_m, normal_field, patch_pca,
-                                     plane_residual_var, valid_depth, window_px)
+from slzcli.terrain.geometry import (
+    NormalField,
+    fit_intrinsics,
+    median_depth_m,
+    normal_field,
+    patch_pca,
+    plane_residual_var,
+    valid_depth,
+    window_px,
+)
 from slzcli.terrain.limits import Working, working_scale
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.types import Frame, Intrinsics, TerrainMaps
