@@ -141,8 +141,15 @@ def main() -> None:
     f = lambda v, p=3: "   -  " if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{p}f}"  # noqa: E731
     print(f"{'scene':<12} {'z m':>4} {'sensor':<12} {'seed':>4} {'prec':>6} {'recall':>6} {'AUC':>6} {'site':<12} "
           f"{'safe':>5} {'a est':>7} {'a true':>7} {'holes':>5} {'novch':>5} {'slope err':>9}  verdict")
-    rows = []
-    with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(args.workers) as pool:
+    rows: list[dict[str, Any]] = []
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+
+    def save() -> None:  # after every cell: a matrix of hours is not lost to one late failure
+        args.out.write_text(json.dumps({"frames": args.frames, "detect": DETECT, "sensors": SENSORS, "rows": rows},
+                                       indent=1) + "\n")
+
+    # one cell per worker process: a cell's memory (stereo matching at 848x480) goes back when it ends
+    with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(args.workers, max_tasks_per_child=1) as pool:
         futures = [pool.submit(run_cell, s, z, sensor, args.frames, seed, tmp) for s, z, sensor, seed in cells]
         for cell, fut in zip(cells, futures, strict=True):
             try:
@@ -151,16 +158,15 @@ def main() -> None:
                 print(f"{cell}: failed: {type(err).__name__}: {err}", flush=True)
                 rows.append({"scene": cell[0], "altitude_m": cell[1], "sensor": cell[2], "seed": cell[3],
                              "error": f"{type(err).__name__}: {err}"})
+                save()
                 continue
             rows.append(r)
+            save()
             print(f"{r['scene']:<12} {r['altitude_m']:>4g} {r['sensor']:<12} {r['seed']:>4} {f(r['precision'])} "
                   f"{f(r['recall'])} {f(r['pr_auc'])} {r['status']:<12} {r['site_safe'] if r['site_safe'] is not None else '-'!s:>5} "
                   f"{f(r['estimated_a_per_m'], 4):>7} {f(r['true_a_per_m'], 4):>7} {f(r['hole_fraction'], 2):>5} "
                   f"{r['not_vouched'] if r['not_vouched'] is not None else '-':>5} {f(r.get('slope_rms_err_deg'), 1):>9}  "
                   f"{verdict(r)}", flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"frames": args.frames, "detect": DETECT, "sensors": SENSORS, "rows": rows},
-                                   indent=1) + "\n")
     print(f"wrote {args.out}")
 
 
