@@ -101,6 +101,7 @@ class RunState:
     unvouched: int = 0                 # detection frames whose noise hides what the UAV cannot tolerate
     worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
     unvouched_reason: str = ""         # limits.limit_reason of that frame
+    column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
 
 
 def select_params(config: Config, method: str) -> SelectParams:
@@ -210,6 +211,9 @@ class Detector:
         t0 = time.perf_counter()
         score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config, maps.work, maps.up_camera)
         t["mask"] = _lap(t0)
+        if score.column_cut > 0 or score.mask.any():
+            st_cut = self.state.column_cut
+            self.state.column_cut = score.column_cut if st_cut is None else min(st_cut, score.column_cut)
         edge = maps.edge_distance_m
         selection = None
         vouched = maps.work is None or maps.work.vouched

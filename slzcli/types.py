@@ -156,3 +156,4 @@ class ScoreMap:
     method: str
     score: np.ndarray
     mask: np.ndarray
+    column_cut: float = 0.0  # fraction of the otherwise-safe pixels whose descent column was out of view

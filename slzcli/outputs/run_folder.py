@@ -169,6 +169,9 @@ def slam_summary(slam_name: str, table: list[Segment], primary: int | None,
          "mcap_frame": frame_ids(s.segment)[0]} for s in table]}
 
 
+_COLUMN_CUT_NOTED = 0.5  # the column rule is named in a no-site reason when it removed at least this share
+
+
 def no_site_reason(st: Any, slam_name: str, keyframes: int) -> str:
     """Why a run found no site, from its RunState (``slz detect`` and ``slz compare``)."""
     if st.detections == 0:
@@ -184,6 +187,11 @@ def no_site_reason(st: Any, slam_name: str, keyframes: int) -> str:
         reason = "no SLAM map point of any keyframe fell on the landing mask"
     else:
         reason = "no cluster of mask-filtered map points met the footprint in any detection frame"
+    cut = st.column_cut
+    if keyframes and cut is not None and cut >= _COLUMN_CUT_NOTED:
+        reason += (f"; the final descent's column (control.desired_depth_m above the ground) was out of view "
+                   f"over {cut:.0%} or more of the ground the maps called safe: close to the ground the view is "
+                   "too narrow to see what may overhang a site, a higher frame sees more")
     if st.unvouched:
         reason += (f"; {st.unvouched} of {st.detections} detection frames could not vouch for any site: "
                    f"{st.unvouched_reason}")

@@ -131,12 +131,15 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
                       mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan, margin_m=config.uav.margin_m)
     if plan is not None:   # the final descent's column must have been in view (control.desired_depth_m hover)
+        before = int(sm.mask.sum())
         np.logical_and(sm.mask, column_in_view(depth_m, plan[0], up_camera, config.control.desired_depth_m),
                        out=sm.mask)
+        if before:
+            sm = ScoreMap(sm.method, sm.score, sm.mask, 1.0 - int(sm.mask.sum()) / before)
     if work is None:
         return sm
     if not work.vouched:
-        return ScoreMap(sm.method, sm.score, np.zeros_like(sm.mask))
+        return ScoreMap(sm.method, sm.score, np.zeros_like(sm.mask), sm.column_cut)
     if math.isfinite(work.vouch_depth_m):
         with np.errstate(invalid="ignore"):
             np.logical_and(sm.mask, np.asarray(depth_m) <= work.vouch_depth_m, out=sm.mask)
