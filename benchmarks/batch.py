@@ -121,7 +121,8 @@ def main() -> None:
         print(f"{r['label']:<10}{r['workers']:>8}{r['recordings_per_min']:>9.1f}{r['frames_per_s']:>10.2f}"
               f"{r['batch_wall_s']:>8.1f}{r['process_wall_s']:>9.1f}{r.get('speedup', float('nan')):>9.2f}"
               f"{r.get('parallel_efficiency', float('nan')):>8.2f}"
-              f"{'n/a' if r['cores_busy'] is None else format(r['cores_busy'], '.2f'):>11}{rss:>18}{r['peak_orbslam3_rss_mb']:>10.0f}")
+              f"{'n/a' if r['cores_busy'] is None else format(r['cores_busy'], '.2f'):>11}{rss:>18}"
+              f"{r['peak_orbslam3_rss_mb']:>10.0f}")
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps({
         "what": "slz detect over a batch of synthetic recordings (benchmarks/batch.py)",

@@ -36,7 +36,10 @@ def main() -> None:
         frames, _ = slam_flight.render_flight(15, seed=seed, width=640, height=480)
         docs += [detect(orb, f.rgb)[1] for f in frames]
     for p in sorted(REALSENSE.glob("*.png")):
-        docs.append(detect(orb, cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB))[1])
+        bgr = cv2.imread(str(p))
+        if bgr is None:
+            raise FileNotFoundError(f"{p}: not an image OpenCV reads")
+        docs.append(detect(orb, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))[1])
     t1 = time.perf_counter()
     vocab = train_vocabulary(docs, cfg.vocab.k, cfg.vocab.levels, cfg.vocab.iterations, cfg.vocab.seed)
     t2 = time.perf_counter()

@@ -37,7 +37,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         recordings = args.recordings or render(Path(tmp), args.frames)
         head = (f"{'scene':<14} {'frames':>6} {'det':>4} {'maps':>6} {'score':>6} {'mask':>5} {'slam':>6} "
-                f"{'select':>6} {'write':>6}  {'prec':>5} {'rec':>5}  {'site':<12} {'safe':>5} {'clear m':>7} {'to best m':>9}")
+                f"{'select':>6} {'write':>6}  {'prec':>5} {'rec':>5}  {'site':<12} {'safe':>5} {'clear m':>7} "
+                f"{'to best m':>9}")
         print(head)
         for path in recordings:
             run = Path(tmp) / f"run_{path.stem}"
@@ -52,7 +53,8 @@ def main() -> None:
             print(f"{path.stem:<14} {s['frames']:>6} {s['detections']:>4} {t['maps']:>6.1f} {t[args.method]:>6.1f} "
                   f"{t['mask']:>5.1f} {t['slam']:>6.1f} {t['select']:>6.1f} {write:>6.1f}  "
                   f"{f(mask.get('precision'), 2):>5} {f(mask.get('recall'), 2):>5}  {s['status']:<12} "
-                  f"{site.get('safe', '-')!s:>5} {f(site.get('clearance_m'), 2):>7} {f(site.get('to_best_centre_m'), 2):>9}")
+                  f"{site.get('safe', '-')!s:>5} {f(site.get('clearance_m'), 2):>7} "
+                  f"{f(site.get('to_best_centre_m'), 2):>9}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"method": args.method, "overrides": args.overrides, "runs": rows},
                                    indent=2, default=str) + "\n")

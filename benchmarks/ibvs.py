@@ -19,12 +19,14 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from dataclasses import fields, replace  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any, TypeVar  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from slzcli.config import load_config  # noqa: E402
+from slzcli.config import Config, load_config  # noqa: E402
 from slzcli.control import features as ft  # noqa: E402
 from slzcli.control import montecarlo  # noqa: E402
 from slzcli.control.simulate import SCENARIOS, SimResult, Target, simulate  # noqa: E402
@@ -36,20 +38,29 @@ RESULTS = Path(__file__).resolve().parent / "results" / "ibvs.json"
 # (3.24, 3.32, 0.4); the others are chosen in view of each start (project choice).
 SITES = {1: (2.0, 1.5, 0.3), 2: (-1.5, 10.0, 0.0), 3: (1.5, -1.0, 0.0), 4: (-1.0, 2.0, 0.0)}
 PAPER_SITE_1 = (3.24, 3.32, 0.4)
+T = TypeVar("T")
 
 
 def target_at(center: tuple[float, ...], footprint: tuple[float, ...]) -> Target:
     c = np.array(center, float)
-    return Target(c, square_corners(c, footprint))
+    l1, l2 = footprint  # the config's (L1, L2)
+    return Target(c, square_corners(c, (l1, l2)))
 
 
-def timed(fn, *args, **kwargs):  # type: ignore[no-untyped-def]
+def sim_log(r: SimResult) -> dict[str, np.ndarray]:
+    """The per-step log of a run simulated with ``log=True``."""
+    if r.log is None:
+        raise ValueError("the run was simulated without log=True")
+    return r.log
+
+
+def timed(fn: Callable[..., T], *args: Any, **kwargs: Any) -> tuple[T, float, float]:
     w0, c0 = time.perf_counter(), time.process_time()
     out = fn(*args, **kwargs)
     return out, time.perf_counter() - w0, time.process_time() - c0
 
 
-def real_camera_visibility(result: SimResult, config, target: Target) -> float:  # type: ignore[no-untyped-def]
+def real_camera_visibility(result: SimResult, config: Config, target: Target) -> float:
     """Fraction of IBVS control steps with all four corners inside the REAL (tilting) camera image."""
     cam = ft.CameraModel.from_config(config)
     log = result.log or {}
@@ -60,7 +71,7 @@ def real_camera_visibility(result: SimResult, config, target: Target) -> float: 
 
 
 def concat(results: list[SimResult]) -> SimResult:
-    kw = {}
+    kw: dict[str, Any] = {}
     for f in fields(SimResult):
         vals = [getattr(r, f.name) for r in results]
         if f.name == "log":
@@ -72,7 +83,7 @@ def concat(results: list[SimResult]) -> SimResult:
     return SimResult(**kw)
 
 
-def scenarios(config) -> list[dict]:  # type: ignore[no-untyped-def]
+def scenarios(config: Config) -> list[dict[str, Any]]:
     rows = []
     cases = [(s, SITES[s]) for s in sorted(SCENARIOS)] + [(1, PAPER_SITE_1)]
     for s, site in cases:
@@ -80,7 +91,8 @@ def scenarios(config) -> list[dict]:  # type: ignore[no-untyped-def]
         start = np.array([[*SCENARIOS[s], 0.0]])
         r, wall, cpu = timed(simulate, target, start, config, log=True)
         m = r.metrics(0)
-        dv = np.diff(r.log["lyapunov"][r.log["phase"][:, 0] == 0, 0])
+        log = sim_log(r)
+        dv = np.diff(log["lyapunov"][log["phase"][:, 0] == 0, 0])
         rows.append({"scenario": s, "site_world": list(site), **m,
                      "real_camera_visible_fraction": real_camera_visibility(r, config, target),
                      "lyapunov_max_increase": float(dv.max()) if dv.size else None,
@@ -89,16 +101,17 @@ def scenarios(config) -> list[dict]:  # type: ignore[no-untyped-def]
     return rows
 
 
-def lyapunov_ideal(config) -> dict:  # type: ignore[no-untyped-def]
+def lyapunov_ideal(config: Config) -> dict[str, dict[str, Any]]:
     """The law's own claim: with the force delivered (ideal attitude, no drag) V never increases."""
     cfg = replace(config, control=replace(config.control, integral_zone_px=1e9,
                                           sim=replace(config.control.sim, attitude="ideal"),
                                           wind=replace(config.control.wind, drag_kg_s=0.0)))
-    out = {}
+    out: dict[str, dict[str, Any]] = {}
     for s in sorted(SCENARIOS):
         target = target_at(SITES[s], cfg.uav.footprint_m)
         r = simulate(target, np.array([[*SCENARIOS[s], 0.0]]), cfg, log=True)
-        v = r.log["lyapunov"][r.log["phase"][:, 0] == 0, 0]
+        log = sim_log(r)
+        v = log["lyapunov"][log["phase"][:, 0] == 0, 0]
         sat_free = np.diff(v)
         out[str(s)] = {"V0": float(v[0]), "V_end": float(v[-1]), "max_increase": float(sat_free.max()),
                        "steps_increasing": int((sat_free > 1e-9 * v[:-1]).sum()), "steps": int(sat_free.size),
@@ -106,18 +119,19 @@ def lyapunov_ideal(config) -> dict:  # type: ignore[no-untyped-def]
     return out
 
 
-def batch_speed(config, n: int) -> dict:  # type: ignore[no-untyped-def]
+def batch_speed(config: Config, n: int) -> dict[str, Any]:
     target = target_at((0.0, 0.0, 0.0), config.uav.footprint_m)
     r, wall, cpu = timed(montecarlo.run, target, np.array([0.0, 0.0, 10.0, 0.0]), n, 99, config)
     return {"runs": n, "wall_s": wall, "cpu_s": cpu, "sim_s_each": r.sim_time_s,
             "run_sim_s_per_wall_s": n * r.sim_time_s / wall}
 
 
-def monte_carlo(config, runs: int, budget_s: float, chunk: int) -> tuple[dict, float, int]:  # type: ignore[no-untyped-def]
+def monte_carlo(config: Config, runs: int, budget_s: float, chunk: int) -> tuple[dict[str, Any], float, int]:
     target = target_at((0.0, 0.0, 0.0), config.uav.footprint_m)
     base = np.array([0.0, 0.0, 10.0, 0.0])
-    results, spent, batches = [], 0.0, 0
-    per_batch = None
+    results: list[SimResult] = []
+    spent, batches = 0.0, 0
+    per_batch: float | None = None
     while sum(len(r.reason) for r in results) < runs:
         n = min(chunk, runs - sum(len(r.reason) for r in results))
         if per_batch is not None and spent + per_batch * n / chunk > budget_s:
@@ -141,18 +155,20 @@ def main() -> None:
     args = ap.parse_args()
     config = load_config()
     load = os.getloadavg()
-    report: dict = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "loadavg_start": load}}
+    report: dict[str, Any] = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
+                                          "loadavg_start": load}}
 
     rows = scenarios(config)
     report["scenarios"] = rows
     print("Scenarios (noise-free, no wind; sites in SITES; last row = the paper's scenario-1 site)")
-    print(f"{'sc':>3} {'site':>18} {'reason':>17} {'stab s':>7} {'2% s':>6} {'switch s':>8} {'land s':>7} {'px end':>7} "
-          f"{'td err m':>9} {'tilt deg':>8} {'realvis':>7} {'dV max':>9} {'sim/wall':>8}")
+    print(f"{'sc':>3} {'site':>18} {'reason':>17} {'stab s':>7} {'2% s':>6} {'switch s':>8} {'land s':>7} "
+          f"{'px end':>7} {'td err m':>9} {'tilt deg':>8} {'realvis':>7} {'dV max':>9} {'sim/wall':>8}")
     for r in rows:
-        def f(v, p=2):  # type: ignore[no-untyped-def]
+        def f(v: float | None, p: int = 2) -> str:
             return "-" if v is None else f"{v:.{p}f}"
-        print(f"{r['scenario']:>3} {tuple(r['site_world'])!s:>18} {r['reason']:>17} {f(r['stabilisation_time_s']):>7} {f(r['settling_time_s']):>6} "
-              f"{f(r['switch_time_s']):>8} {f(r['landing_time_s']):>7} {f(r['final_feature_error_px']):>7} "
+        print(f"{r['scenario']:>3} {tuple(r['site_world'])!s:>18} {r['reason']:>17} {f(r['stabilisation_time_s']):>7} "
+              f"{f(r['settling_time_s']):>6} {f(r['switch_time_s']):>8} {f(r['landing_time_s']):>7} "
+              f"{f(r['final_feature_error_px']):>7} "
               f"{f(r['touchdown_error_m'], 4):>9} {f(r['max_tilt_deg'], 1):>8} "
               f"{r['real_camera_visible_fraction']:>7.2f} {f(r['lyapunov_max_increase'], 4):>9} "
               f"{r['sim_s_per_wall_s']:>8.1f}")

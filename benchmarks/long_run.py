@@ -18,6 +18,7 @@ fractions of the run's wall time: flat means memory does not grow with the frame
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -84,10 +85,8 @@ def _rss_kib(pid: int) -> int:
 def _children(pid: int) -> list[int]:
     kids: list[int] = []
     for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
+        with contextlib.suppress(OSError):  # the task ended while we looked
             kids += [int(k) for k in (task / "children").read_text().split()]
-        except OSError:
-            pass
     return kids
 
 
@@ -117,7 +116,8 @@ def detect(recording: Path, out: Path, *sets: str) -> dict:
     return {"frames": summary["frames"], "detections": summary["detections"], "keyframes": summary["keyframes"],
             "status": summary["status"], "wall_s": round(wall, 1),
             "ms_per_frame": round(1e3 * wall / max(summary["frames"], 1), 2),
-            "peak_rss_mb": round(max(main) / 1024, 1), "peak_orbslam3_rss_mb": round(max(s[2] for s in samples) / 1024, 1),
+            "peak_rss_mb": round(max(main) / 1024, 1),
+            "peak_orbslam3_rss_mb": round(max(s[2] for s in samples) / 1024, 1),
             "rss_mb_at_10_50_90_pct": [at(0.1), at(0.5), at(0.9)],
             "run_folder_mb": round(sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 1e6, 1)}
 
@@ -164,9 +164,11 @@ def main() -> None:
             lo, hi = by_n[min(by_n)], by_n[max(by_n)]
             ratios[mode] = {"peak_rss_ratio": round(hi["peak_rss_mb"] / lo["peak_rss_mb"], 3),
                             "peak_rss_delta_mb": round(hi["peak_rss_mb"] - lo["peak_rss_mb"], 1),
-                            "orbslam3_rss_ratio": round(hi["peak_orbslam3_rss_mb"] / max(lo["peak_orbslam3_rss_mb"], 1e-9), 3)}
+                            "orbslam3_rss_ratio": round(hi["peak_orbslam3_rss_mb"]
+                                                        / max(lo["peak_orbslam3_rss_mb"], 1e-9), 3)}
             print(f"{mode}: peak RSS {max(by_n)} vs {min(by_n)} frames = x{ratios[mode]['peak_rss_ratio']} "
-                  f"({ratios[mode]['peak_rss_delta_mb']:+} MiB); ORB-SLAM3 worker x{ratios[mode]['orbslam3_rss_ratio']}")
+                  f"({ratios[mode]['peak_rss_delta_mb']:+} MiB); "
+                  f"ORB-SLAM3 worker x{ratios[mode]['orbslam3_rss_ratio']}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({
         "size": [width, height], "seed_frames": args.seed_frames, "rows": rows, "ratios": ratios,

@@ -118,10 +118,12 @@ def main() -> None:
             shutil.rmtree(path, ignore_errors=True) if path.is_dir() else path.unlink()
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print("\nformat        colour depth              frames   MB on disk   frames/s (median of %d)" % args.runs)
+    print(f"\nformat        colour depth              frames   MB on disk   frames/s (median of {args.runs:d})")
     for r in rows:
-        print(f"{r['format']:13s} {r['color']:6s} {r['depth']:18s} {r['frames']:6d} {r['size_mb']:12.1f} {r['fps']:10.1f}")
-    print("\npeak RSS of a reader process: " + ", ".join(f"{m['frames']} frames {m['peak_rss_mib']} MiB" for m in memory))
+        print(f"{r['format']:13s} {r['color']:6s} {r['depth']:18s} {r['frames']:6d} {r['size_mb']:12.1f} "
+              f"{r['fps']:10.1f}")
+    print("\npeak RSS of a reader process: "
+          + ", ".join(f"{m['frames']} frames {m['peak_rss_mib']} MiB" for m in memory))
     result = {"benchmark": "read", "resolution": [W, H], "runs": args.runs, "read": rows, "memory": memory,
               "machine": {"python": platform.python_version(), "cpu_count": __import__("os").cpu_count(),
                           "note": "shared machine (2 cores, other jobs running): numbers are indicative"},

@@ -77,7 +77,7 @@ def skfuzzy_ms_per_pixel(rb, n: int) -> float:
     sim = skfuzzy_simulation(rb)
     x = np.random.default_rng(1).random((len(rb.inputs), n))
     t0 = time.perf_counter()
-    for v, row in zip(rb.inputs, x):
+    for v, row in zip(rb.inputs, x, strict=True):
         sim.input[v.name] = row
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

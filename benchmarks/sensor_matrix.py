@@ -163,9 +163,11 @@ def main() -> None:
             rows.append(r)
             save()
             print(f"{r['scene']:<12} {r['altitude_m']:>4g} {r['sensor']:<12} {r['seed']:>4} {f(r['precision'])} "
-                  f"{f(r['recall'])} {f(r['pr_auc'])} {r['status']:<12} {r['site_safe'] if r['site_safe'] is not None else '-'!s:>5} "
+                  f"{f(r['recall'])} {f(r['pr_auc'])} {r['status']:<12} "
+                  f"{r['site_safe'] if r['site_safe'] is not None else '-'!s:>5} "
                   f"{f(r['estimated_a_per_m'], 4):>7} {f(r['true_a_per_m'], 4):>7} {f(r['hole_fraction'], 2):>5} "
-                  f"{r['not_vouched'] if r['not_vouched'] is not None else '-':>5} {f(r.get('slope_rms_err_deg'), 1):>9}  "
+                  f"{r['not_vouched'] if r['not_vouched'] is not None else '-':>5} "
+                  f"{f(r.get('slope_rms_err_deg'), 1):>9}  "
                   f"{verdict(r)}", flush=True)
     print(f"wrote {args.out}")
 

@@ -15,7 +15,9 @@ import json
 import platform
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -28,12 +30,19 @@ import slam_flight  # noqa: E402
 
 from slzcli.config import load_config  # noqa: E402
 from slzcli.evaluate.slam import ate, rpe  # noqa: E402
-from slzcli.slam import TrackingState, get_backend  # noqa: E402
+from slzcli.slam import TrackingState, TrackResult, get_backend  # noqa: E402
 from slzcli.slam.orbslam3 import available  # noqa: E402
 from slzcli.slam.vocabulary import DEFAULT_VOCABULARY, frame_descriptors, train_vocabulary, vocabulary_text  # noqa: E402
 from slzcli.types import Frame, Intrinsics  # noqa: E402
 
 REALSENSE = REPO.parent / "shared" / "data" / "realsense_floor"
+
+
+def imread(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        raise FileNotFoundError(f"{path}: missing or not an image OpenCV reads")
+    return img
 
 
 def realsense_frames() -> list[Frame]:
@@ -42,29 +51,31 @@ def realsense_frames() -> list[Frame]:
     intr = Intrinsics(k[0], k[4], k[6], k[7], cam["width"], cam["height"])
     out = []
     for i, p in enumerate(sorted((REALSENSE / "color").glob("*.png"))):
-        rgb = cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB)
-        d = cv2.imread(str(REALSENSE / "depth" / p.name), cv2.IMREAD_UNCHANGED).astype(np.float32) * 0.001
+        rgb = cv2.cvtColor(imread(p), cv2.COLOR_BGR2RGB)
+        d = imread(REALSENSE / "depth" / p.name, cv2.IMREAD_UNCHANGED).astype(np.float32) * 0.001
         d[d == 0] = np.nan
         out.append(Frame(i, 1_700_000_000_000_000_000 + i * 100_000_000, rgb, d, intr))
     return out
 
 
-def synth_frames(path: str) -> tuple[list[Frame], list[np.ndarray]]:
+def synth_frames(path: str) -> tuple[list[Frame], list[np.ndarray | None]]:
     """Frames of a `slz synth` recording with their true poses (from the ground-truth topic)."""
     from slzcli.sources import open_recording
 
-    config = load_config(overrides=["sources.use_ground_truth_pose=true", "sources.topics.pose=/ground_truth/camera_pose"])
+    config = load_config(overrides=["sources.use_ground_truth_pose=true",
+                                    "sources.topics.pose=/ground_truth/camera_pose"])
     with open_recording(path, config) as rec:
         frames = list(rec.frames())
     truth = [f.T_world_camera for f in frames]
     return frames, truth
 
 
-def run(backend: str, frames: list[Frame], truth: list[np.ndarray] | None) -> dict:
+def run(backend: str, frames: list[Frame], truth: Sequence[np.ndarray | None] | None) -> dict[str, Any]:
     config = load_config(overrides=[f"slam.backend={backend}"])
-    results, kf_points = [], []
+    results: list[TrackResult] = []
+    kf_points: list[int] = []
     with get_backend(config) as b:
-        t_first = None
+        t_first: float | None = None
         t0 = time.perf_counter()
         for f in frames:
             results.append(b.track(f))
@@ -74,8 +85,10 @@ def run(backend: str, frames: list[Frame], truth: list[np.ndarray] | None) -> di
             if kf is not None:
                 kf_points.append(len(kf))
         total = time.perf_counter() - t0
+    if t_first is None:
+        raise ValueError(f"{backend}: no frames to track")
     rest = total - t_first
-    row = {
+    row: dict[str, Any] = {
         "backend": backend, "frames": len(frames),
         "ok": sum(r.state is TrackingState.OK for r in results),
         "lost": sum(r.state is TrackingState.LOST for r in results),
@@ -96,7 +109,7 @@ def run(backend: str, frames: list[Frame], truth: list[np.ndarray] | None) -> di
 
 
 def main() -> None:
-    flights = {
+    flights: dict[str, tuple[list[Frame], Sequence[np.ndarray | None] | None]] = {
         "line_480x360": slam_flight.render_flight(100, "line", width=480, height=360, supersample=1),
         "out_back_320x240": slam_flight.render_flight(100, "out_back", width=320, height=240, supersample=1),
         "realsense_floor": (realsense_frames(), None),

@@ -32,7 +32,7 @@ import statistics  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Any
+from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -67,6 +67,8 @@ def realsense_frame() -> tuple[np.ndarray, Intrinsics] | None:
     k = np.array(cam["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T
     intr = Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], int(cam["width"]), int(cam["height"]))
     raw = cv2.imread(str(REALSENSE / "depth" / "000000.png"), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        return None
     return np.where(raw > 0, raw.astype(np.float32) * np.float32(0.001), np.nan).astype(np.float32), intr
 
 
@@ -191,20 +193,20 @@ def main() -> None:
         "runs": args.runs, "frames": {},
     }
     for name, (depth, k, up) in frames.items():
-        res = {"stages": stages(depth, k, up, args.runs), "open3d": open3d_normals(depth, k, args.o3d_runs),
-               "total_fresh_process": allocator_comparison(name, args.runs)}
-        results["frames"][name] = res
+        by_stage = stages(depth, k, up, args.runs)
+        o = open3d_normals(depth, k, args.o3d_runs)
+        fresh = allocator_comparison(name, args.runs)
+        results["frames"][name] = {"stages": by_stage, "open3d": o, "total_fresh_process": fresh}
         print(f"\n{name}  ({depth.shape[1]}x{depth.shape[0]}, one core)")
         print(f"  {'stage':<24} {'median ms':>10} {'min ms':>8}")
-        for stage, t in res["stages"].items():
+        for stage, t in by_stage.items():
             print(f"  {stage:<24} {t['median_ms']:>10.2f} {t['min_ms']:>8.2f}")
-        o = res["open3d"]
         print(f"  open3d estimate_normals over {int(o['points'])} points: knn25 {o['knn25_ms']:.0f} ms, "
               f"hybrid r=0.5 m nn30 {o['hybrid_r0.5_nn30_ms']:.0f} ms")
-        for alloc, t in res["total_fresh_process"].items():
+        for alloc, t in fresh.items():
             print(f"  compute_maps, fresh process, {alloc:<22} median {t['median_ms']:6.2f} ms, "
                   f"min {t['min_ms']:6.2f} ms, {t['page_faults_per_call']:.0f} page faults/call")
-        total = res["stages"]["total_compute_maps"]["median_ms"]
+        total = by_stage["total_compute_maps"]["median_ms"]
         print(f"  four maps together: {total:.1f} ms; Open3D normals alone (knn25) take "
               f"{o['knn25_ms'] / total:.0f}x that")
     out = HERE / "results" / "terrain.json"

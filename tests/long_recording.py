@@ -24,5 +24,5 @@ def write_ping_pong(seed: Path, out: Path, length: int, config: Config, *, rate_
     t0 = frames[0].stamp_ns
     with RecordingWriter(out, "mcap", color_encoding=color_encoding, depth_encoding=depth_encoding) as w:
         for i in range(length):
-            w.write_frame(replace(cycle[i % len(cycle)], index=i, stamp_ns=t0 + int(round(i * 1e9 / rate_hz))))
+            w.write_frame(replace(cycle[i % len(cycle)], index=i, stamp_ns=t0 + round(i * 1e9 / rate_hz)))
     return out

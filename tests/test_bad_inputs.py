@@ -12,6 +12,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import bad_inputs as B
 import numpy as np
@@ -518,7 +519,7 @@ def test_disk_full_during_detect_names_the_file_and_leaves_nothing(runner: CliRu
     elif where == "spool":
         real_open = builtins.open
 
-        def open_full(file: object, mode: str = "r", *a: object, **kw: object) -> object:
+        def open_full(file: Any, mode: str = "r", *a: Any, **kw: Any) -> Any:  # builtins.open's many overloads
             if "a" in mode and str(file).startswith(str(out.parent)):
                 raise OSError(errno.ENOSPC, "No space left on device")
             return real_open(file, mode, *a, **kw)
@@ -621,22 +622,23 @@ def test_an_interrupt_while_an_npz_is_written_stays_an_interrupt(tmp_path: Path,
 
     unraisable: list[str] = []
     monkeypatch.setattr(sys, "unraisablehook", lambda u: unraisable.append(f"{u.exc_type.__name__} in {u.object}"))
-    real = zipfile._ZipWriteFile.close
+    zip_write_file: Any = zipfile._ZipWriteFile  # type: ignore[attr-defined]  # private, not in typeshed
+    real = zip_write_file.close
     calls = {"n": 0}
 
     def close(self: object) -> None:
         calls["n"] += 1
         if calls["n"] == nth_close:
             raise KeyboardInterrupt  # what the SIGTERM handler raises, at the worst moment
-        real(self)  # type: ignore[arg-type]
+        real(self)
 
-    monkeypatch.setattr(zipfile._ZipWriteFile, "close", close)
+    monkeypatch.setattr(zip_write_file, "close", close)
     arrays = {"x": np.arange(10), "y": np.ones(3)}
     with pytest.raises(KeyboardInterrupt):
         if writer == "write_npz":
             files.write_npz(tmp_path / "a.npz", **arrays)
         else:
-            files.write_npz_streamed(tmp_path / "a.npz", arrays)
+            files.write_npz_streamed(tmp_path / "a.npz", dict(arrays))
     gc.collect()
     assert unraisable == [] and list(tmp_path.iterdir()) == []
 

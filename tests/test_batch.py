@@ -31,7 +31,8 @@ def flights(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("flights")
     runner = CliRunner()
     for scene in SCENES:
-        res = runner.invoke(main, ["synth", scene, "-o", str(folder / f"{scene}.mcap"), "--frames", str(FRAMES), *GAUSSIAN])
+        res = runner.invoke(main, ["synth", scene, "-o", str(folder / f"{scene}.mcap"), "--frames", str(FRAMES),
+                                   *GAUSSIAN])
         assert res.exit_code == 0, res.output
     return folder
 
@@ -166,19 +167,24 @@ def test_results_mcap_reads_back_with_expected_topics_and_the_score_image(local_
     with (run / "results.mcap").open("rb") as fh:
         reader = make_reader(fh)
         info = reader.get_summary()
-        schemas = {info.channels[c].topic: info.schemas[info.channels[c].schema_id].name for c in info.channels}
+        assert info is not None
+        schemas = {ch.topic: info.schemas[ch.schema_id].name for ch in info.channels.values()}
         for schema, channel, message in reader.iter_messages():
+            assert schema is not None
             msgs.setdefault(channel.topic, []).append(store.deserialize_cdr(message.data, schema.name))
-        in_file = [m.log_time for _, c, m in reader.iter_messages(log_time_order=False) if c.topic != "/slz/landing_site"]
-    assert in_file == sorted(in_file)  # written as tracked; only the committed site (on its frame's stamp) comes last
-    images = ["/slz/color", "/slz/score", "/slz/overlay", *(f"/slz/maps/{n}" for n in
-                                                             ("depth_variance", "flatness", "inclination", "steepness"))]
+        in_file = [m.log_time for _, c, m in reader.iter_messages(log_time_order=False)
+                   if c.topic != "/slz/landing_site"]
+    # written as tracked; only the committed site (on its frame's stamp) comes last
+    assert in_file == sorted(in_file)
+    map_names = ("depth_variance", "flatness", "inclination", "steepness")
+    images = ["/slz/color", "/slz/score", "/slz/overlay", *(f"/slz/maps/{n}" for n in map_names)]
     for topic in images:
         assert schemas[topic] == "sensor_msgs/msg/Image" and len(msgs[topic]) == detections, topic
     for topic in ("/slz/mask", "/slz/map_points", "/slz/candidates"):
         assert schemas[topic] == "sensor_msgs/msg/PointCloud2", topic
     assert schemas["/slz/site"] == schemas["/slz/landing_site"] == "visualization_msgs/msg/MarkerArray"
-    assert schemas["/slz/camera_pose"] == "geometry_msgs/msg/PoseStamped" and schemas["/tf"] == "tf2_msgs/msg/TFMessage"
+    assert schemas["/slz/camera_pose"] == "geometry_msgs/msg/PoseStamped"
+    assert schemas["/tf"] == "tf2_msgs/msg/TFMessage"
     assert len(msgs["/slz/camera_pose"]) == len(msgs["/tf"]) == tracked == FRAMES
 
     # Every score image is round(255 * score) of that detection's maps.npz, on the frame's own stamp.
@@ -186,7 +192,7 @@ def test_results_mcap_reads_back_with_expected_topics_and_the_score_image(local_
                 if ln and not ln.startswith("#")]
     folders = sorted((run / "frames").iterdir())
     assert len(folders) == detections
-    for folder, img in zip(folders, msgs["/slz/score"]):
+    for folder, img in zip(folders, msgs["/slz/score"], strict=True):
         score = np.load(folder / "maps.npz")["score"]
         assert img.encoding == "mono8" and (img.height, img.width) == score.shape
         decoded = img.data.reshape(img.height, img.width)

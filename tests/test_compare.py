@@ -81,18 +81,18 @@ def test_report_numbers_equal_a_recomputation_against_ground_truth(compared, cle
     for m in ("fuzzy", "bayes"):
         entry = rec["methods"][m]["ground_truth"]
         truths = [gt.safe_mask(d.frame.stamp_ns, tolerance_ns=1_000_000) for d in dets[m]]
-        counts = total(mask_counts(d.score.mask, t) for d, t in zip(dets[m], truths))
+        counts = total(mask_counts(d.score.mask, t) for d, t in zip(dets[m], truths, strict=True))
         for key in ("precision", "recall", "iou"):
             assert entry["mask"][key] == pytest.approx(getattr(counts, key), abs=1e-12), (m, key)
         # The sweep: precision_recall_curve on every pixel of every detection frame at once.
         scores = np.concatenate([d.score.score.ravel() for d in dets[m]])
         truth = np.concatenate([t.ravel() for t in truths])
         precision, recall = precision_recall_curve(scores, truth, levels)
-        best = {}
-        for r, p in zip(recall, precision):
+        best: dict[float, float] = {}
+        for r, p in zip(recall, precision, strict=True):
             best[r] = max(best.get(r, 0.0), p)
         rs = sorted(best)
-        ap = sum((r1 - r0) * best[r1] for r0, r1 in zip([0.0, *rs[:-1]], rs))
+        ap = sum((r1 - r0) * best[r1] for r0, r1 in zip([0.0, *rs[:-1]], rs, strict=True))
         assert entry["pr_auc"] == pytest.approx(ap, abs=1e-9), m
         # The committed site: truly safe, clearance through the TRUE pose of its frame (the right answer is clear).
         site = rec["methods"][m]["site"]
@@ -103,9 +103,10 @@ def test_report_numbers_equal_a_recomputation_against_ground_truth(compared, cle
         assert entry["site"]["safe"] is st.safe is True, m
         assert entry["site"]["clearance_m"] == pytest.approx(st.clearance_m), m
         assert st.clearance_m > 0.5 * 0.656
-        assert counts.precision >= 0.9, m  # open grass: both masks must be nearly all truly safe
+        # open grass: both masks must be nearly all truly safe
+        assert counts.precision is not None and counts.precision >= 0.9, m
     pair = rec["pairs"][0]
-    agree = total(mask_counts(a.score.mask, b.score.mask) for a, b in zip(dets["fuzzy"], dets["bayes"]))
+    agree = total(mask_counts(a.score.mask, b.score.mask) for a, b in zip(dets["fuzzy"], dets["bayes"], strict=True))
     assert pair["mask_iou"] == pytest.approx(agree.iou)
     sites = {m: np.asarray(rec["methods"][m]["site"]["center_world"]) for m in ("fuzzy", "bayes")}
     assert pair["site_distance_m"] == pytest.approx(float(np.linalg.norm(sites["fuzzy"] - sites["bayes"])))
@@ -127,7 +128,7 @@ def test_both_methods_get_the_same_frames_points_and_maps(compared) -> None:
     dets = _by_method(seen)
     assert [d.frame.index for d in dets["fuzzy"]] == [d.frame.index for d in dets["bayes"]]
     with_points = 0
-    for a, b in zip(dets["fuzzy"], dets["bayes"]):
+    for a, b in zip(dets["fuzzy"], dets["bayes"], strict=True):
         assert a.frame is b.frame and a.maps is b.maps          # computed once, handed to both
         assert a.points is b.points
         if a.points is not None:

@@ -59,8 +59,8 @@ def test_euler_rotation_round_trip() -> None:
     assert np.allclose(back, (roll, pitch, yaw))
     expected = dyn.rot_z(yaw) @ np.stack([np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
                                           for p in pitch])
-    assert np.allclose(r[:, :, 2], (expected @ np.stack([np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)],
-                                                                    [0, np.sin(a), np.cos(a)]]) for a in roll]))[:, :, 2])
+    rot_x = np.stack([np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]) for a in roll])
+    assert np.allclose(r[:, :, 2], (expected @ rot_x)[:, :, 2])
 
 
 def test_thrust_attitude_extraction_inverts_the_force(params: dyn.Params) -> None:
@@ -92,6 +92,6 @@ def test_control_law_closes_ef_dynamics() -> None:
     m = 0.4
     force, e_f = ibvs.control_force(e, e_dot, e_i, psi_rate, psi_acc, m, gains)
     s_edot = ibvs.skew_z(psi_rate, e_dot)
-    ef_dot = gains.K_e * e_dot - 2 * s_edot - ibvs.skew_z(psi_acc, e) - ibvs.skew_z(psi_rate, ibvs.skew_z(psi_rate, e)) \
-        - force / (m * gains.depth_m)
+    ef_dot = (gains.K_e * e_dot - 2 * s_edot - ibvs.skew_z(psi_acc, e) - ibvs.skew_z(psi_rate, ibvs.skew_z(psi_rate, e))
+              - force / (m * gains.depth_m))
     assert np.allclose(ef_dot, -gains.K_p * e_f - gains.K_i * e_i)

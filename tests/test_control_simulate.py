@@ -25,6 +25,7 @@ def test_hover_with_zero_feature_error_holds_position_and_thrust_is_mg() -> None
     target = target_at((0.5, -0.5, 0.2))
     start = np.array([[0.5, -0.5, 2.2, 0.0]])  # exactly the hover: 2 m above the site, square aligned
     r = simulate(target, start, cfg, log=True)
+    assert r.log is not None
     assert r.reason[0] == "timeout" and r.sim_time_s == pytest.approx(10.0)
     p = r.log["p_world"][:, 0]
     assert np.abs(p - p[0]).max() < 0.01
@@ -53,6 +54,7 @@ def test_lyapunov_function_does_not_increase_during_ibvs() -> None:
                              "control.integral_zone_px=1000000", "control.sim.timeout_s=8"])
     target = target_at((0.0, 0.0, 0.0))
     r = simulate(target, np.array([[0.3, -0.2, 3.0, 0.0]]), cfg, log=True)
+    assert r.log is not None
     ibvs_phase = r.log["phase"][:, 0] == 0
     v = r.log["lyapunov"][ibvs_phase, 0]
     assert v[0] > 0.01 and v[-1] < 0.05 * v[0]
@@ -64,6 +66,7 @@ def test_yaw_turns_to_the_nearest_square_alignment() -> None:
     cfg = load_config(None, ["control.sim.timeout_s=6", "control.sim.switch_hold_s=1000"])
     target = target_at((0.0, 0.0, 0.0))
     r = simulate(target, np.array([[0.0, 0.0, 2.5, 30.0]]), cfg, log=True)
+    assert r.log is not None
     yaw_err = np.degrees(r.log["yaw_err_true"][:, 0])
     assert abs(yaw_err[0]) == pytest.approx(30.0, abs=0.5)
     assert abs(yaw_err[-1]) < 0.5

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -16,12 +19,11 @@ T_WC[:3, :3] = np.diag([1.0, -1.0, -1.0])
 T_WC[:3, 3] = [0.0, 0.0, 10.0]
 
 
-def params(**kw) -> SelectParams:
-    base = dict(kmeans_k=2, normal_radius_m=0.5, min_cluster_points=5, footprint_m=(0.656, 0.656),
-                min_extent_factor=1.0, rule="min_normal_variance", seed=0, edge_clearance_m=0.43,
-                max_tilt_deg=15.0)
-    base.update(kw)
-    return SelectParams(**base)
+def params(**kw: Any) -> SelectParams:
+    base = SelectParams(kmeans_k=2, normal_radius_m=0.5, min_cluster_points=5, footprint_m=(0.656, 0.656),
+                        min_extent_factor=1.0, rule="min_normal_variance", seed=0, edge_clearance_m=0.43,
+                        max_tilt_deg=15.0)
+    return dataclasses.replace(base, **kw)
 
 
 def patch(center_xy, size_m, n, rng, z_sigma=0.0) -> np.ndarray:
@@ -52,7 +54,7 @@ def test_flatter_of_two_blobs_wins() -> None:
     assert sel.site.center_world[0] == pytest.approx(-2.5, abs=0.3)
     assert sel.kept.sum() == 300 and not sel.kept[300:].any()
     u, v = sel.site.pixel
-    assert mask[int(round(v)), int(round(u))]
+    assert mask[round(v), round(u)]
     variances = sorted(c.normal_variance for c in sel.candidates)
     assert sel.site.normal_variance == pytest.approx(variances[0])
     assert sel.site.tilt_deg < 5 and sel.site.accepted is True

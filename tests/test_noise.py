@@ -38,7 +38,7 @@ def noisy(depth: np.ndarray, a: float, seed: int, corr_px: float = 0.0) -> np.nd
     """sigma_z = a z^2 per pixel; ``corr_px`` > 0 correlates it (Gaussian-filtered, rescaled)."""
     n = np.random.default_rng(seed).standard_normal(depth.shape).astype(np.float32)
     if corr_px > 0:
-        n = cv2.GaussianBlur(n, (0, 0), corr_px)
+        n = cv2.GaussianBlur(n, (0, 0), corr_px).astype(np.float32, copy=False)
         n /= n.std()
     return (depth + a * depth * depth * n).astype(np.float32)
 
@@ -103,7 +103,7 @@ def test_tracker_smooths_with_a_running_median_and_a_number_overrides() -> None:
 def test_terrain_noise_is_auto_or_a_number() -> None:
     assert load_config(overrides=["terrain.noise=0.002"]).terrain.noise == 0.002
     from slzcli.errors import ConfigError
-    with pytest.raises(ConfigError, match="terrain.noise.*'auto' or a number"):
+    with pytest.raises(ConfigError, match=r"terrain\.noise.*'auto' or a number"):
         load_config(overrides=["terrain.noise=high"])
 
 

@@ -11,7 +11,7 @@ from slzcli.outputs.points import ROLE_COLOURS, write_points_ply
 def test_roles_read_back_with_their_colours(tmp_path) -> None:
     xyz = {"map": np.random.default_rng(0).random((10, 3)), "kept": np.zeros((0, 3)), "corner": np.ones((4, 3))}
     write_points_ply(tmp_path / "p.ply", xyz)
-    cloud = o3d.io.read_point_cloud(str(tmp_path / "p.ply"))
+    cloud = o3d.io.read_point_cloud(tmp_path / "p.ply")
     pts, colours = np.asarray(cloud.points), np.asarray(cloud.colors)
     assert pts.shape == (14, 3)
     np.testing.assert_allclose(pts[:10], xyz["map"], atol=1e-6)

@@ -137,7 +137,8 @@ def test_decoders_on_damaged_messages_give_an_image_or_a_decode_error(msg) -> No
     counted) or returns a well-formed image: never another exception, never a wrong dtype."""
     from slzcli.errors import DecodeError
 
-    for fn, dtype, ndim in ((decode.decode_color, np.uint8, 3), (lambda m: decode.decode_depth(m, 0.001), np.float32, 2)):
+    for fn, dtype, ndim in ((decode.decode_color, np.uint8, 3),
+                            (lambda m: decode.decode_depth(m, 0.001), np.float32, 2)):
         try:
             out = fn(msg)
         except DecodeError:
@@ -280,5 +281,6 @@ def test_site_never_lies_on_a_pixel_the_mask_rejects(seed, n) -> None:
         assert sel.reason
         return
     u, v = sel.site.pixel
-    assert mask[int(round(v)), int(round(u))], (u, v)
-    assert np.all(mask[np.round(sel.projected[sel.kept, 1]).astype(int), np.round(sel.projected[sel.kept, 0]).astype(int)])
+    assert mask[round(v), round(u)], (u, v)
+    kept_px = np.round(sel.projected[sel.kept]).astype(int)
+    assert np.all(mask[kept_px[:, 1], kept_px[:, 0]])

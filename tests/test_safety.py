@@ -37,6 +37,6 @@ def test_pr_curve_matches_direct_counts() -> None:
     truth = score + rng.normal(0, 0.2, score.shape) > 0.5
     taus = np.array([0.9, 0.1, 0.5, 0.3])
     precision, recall = precision_recall_curve(score, truth, taus)
-    for tau, p, r in zip(taus, precision, recall):
+    for tau, p, r in zip(taus, precision, recall, strict=True):
         c = mask_counts(score > tau, truth)
         assert p == pytest.approx(c.precision) and r == pytest.approx(c.recall)

@@ -4,6 +4,8 @@ properties, rule parse errors, the Bayes baseline and the landing mask."""
 from __future__ import annotations
 
 import itertools
+import re
+from typing import Any
 
 import numpy as np
 import pytest
@@ -25,17 +27,17 @@ from slzcli.scoring import (
     score_frame,
 )
 from slzcli.scoring.mask import landing_mask, median_depth_m, window_px
-from slzcli.scoring.rules import And, Not, Or, load_rules, parse_rule_base, resolve_rules_path
-from slzcli.types import Intrinsics, TerrainMaps
+from slzcli.scoring.rules import And, Not, Or, RuleBase, load_rules, parse_rule_base, resolve_rules_path
+from slzcli.types import Intrinsics, ScoreMap, TerrainMaps
 
 
 @pytest.fixture(scope="module")
-def rb():
+def rb() -> RuleBase:
     return load_rules("fuzzy_rules.yaml")
 
 
 @pytest.fixture(scope="module")
-def rules_data():
+def rules_data() -> Any:
     return yaml.safe_load(resolve_rules_path("fuzzy_rules.yaml").read_text())
 
 
@@ -58,7 +60,7 @@ def test_exact_equals_scikit_fuzzy(rb):
     rng = np.random.default_rng(7)
     x = np.concatenate([rng.random((4, 2000)), _breakpoint_points(4)[:, ::7]], axis=1)
     sim = skfuzzy_simulation(rb)
-    for v, row in zip(rb.inputs, x):
+    for v, row in zip(rb.inputs, x, strict=True):
         sim.input[v.name] = row
     sim.compute()
     ours = fuzzy.evaluate_exact(rb, x)
@@ -76,7 +78,7 @@ def test_exact_centroid_matches_fine_numeric_integration(rb):
     act = fuzzy.activations(rb2, x)
     y = np.linspace(0, 1, 200001)
     agg = np.zeros((x.shape[1], y.size))
-    for a, fn in zip(act, rb2.output.terms):
+    for a, fn in zip(act, rb2.output.terms, strict=True):
         np.maximum(agg, np.minimum(a[:, None], fn(y)[None, :]), out=agg)
     numeric = np.trapezoid(agg * y, y, axis=1) / np.trapezoid(agg, y, axis=1)
     assert np.max(np.abs(fuzzy.evaluate_exact(rb2, x) - numeric)) < 1e-8
@@ -92,6 +94,7 @@ def test_compiled_default_is_the_exact_closed_form(rb):
     """The scorer's compiled evaluator for the shipped rules is the closed form: max |compiled -
     exact| <= 1e-5 on 100k random inputs plus the kink grid (measured 1.3e-7: float32 rounding)."""
     scorer = get_scorer(load_config())
+    assert isinstance(scorer, FuzzyScorer)
     assert isinstance(scorer.compiled, closed_form.ClosedFormFuzzy)
     x = _random_and_kinks(4)
     exact = fuzzy.evaluate_exact(rb, x.astype(np.float64))
@@ -118,7 +121,7 @@ def test_simplex_table_within_stated_bound(rb):
 def test_compiled_on_an_image_and_cached(rb, kind):
     table = closed_form.compile_rules(rb) if kind == "closed_form" else lut.compile_rules(rb, 13)
     again = closed_form.compile_rules(rb) if kind == "closed_form" else lut.compile_rules(rb, 13)
-    assert again is table  # in-memory cache by rules digest (and levels)
+    assert table is not None and again is table  # in-memory cache by rules digest (and levels)
     rng = np.random.default_rng(4)
     imgs = [rng.random((48, 64)).astype(np.float32) for _ in range(4)]
     out = table(imgs)
@@ -129,6 +132,7 @@ def test_compiled_on_an_image_and_cached(rb, kind):
 
 def test_closed_form_chunks_join_seamlessly(rb, monkeypatch):
     prog = closed_form.compile_rules(rb)
+    assert prog is not None
     rng = np.random.default_rng(6)
     imgs = [rng.random((50, 51)).astype(np.float32) for _ in range(4)]  # 2550 px
     whole = prog(imgs)
@@ -141,6 +145,7 @@ def test_closed_form_program_shares_work(rb):
     membership in 2 ops from the raw input: the shipped rules need 51 array ops (29 up to the
     activations) in 8 buffers; evaluated as written they need ~75."""
     prog = closed_form.compile_rules(rb)
+    assert prog is not None
     ops = [ins[0] for ins in prog.program]
     assert len(ops) <= 51 and prog.n_registers <= 8
     assert ops.count("not") <= 3  # 8 distinct NOT leaves in the text
@@ -182,6 +187,7 @@ def test_closed_form_is_general():
     overlaps, _ = closed_form.output_plan(rb2)
     assert overlaps is not None and len(overlaps) == 3
     prog = closed_form.build(rb2)
+    assert prog is not None
     rng = np.random.default_rng(0)
     lo, hi = np.array([-0.2, -2.5, -1, 0, 0])[:, None], np.array([1.2, 3.5, 11, 1, 1])[:, None]
     x = lo + rng.random((5, 100_000)) * (hi - lo)
@@ -213,7 +219,9 @@ def test_closed_form_degenerate_memberships(rules):
                                                           "hi": {"trapezoid": [0.5, 0.6, 0.9, 1.0]}}}},
         "rules": rules})
     x = np.linspace(-0.5, 1.5, 2001)
-    got = closed_form.build(rb2)([x.astype(np.float32)])
+    prog = closed_form.build(rb2)
+    assert prog is not None
+    got = prog([x.astype(np.float32)])
     assert np.max(np.abs(got - fuzzy.evaluate_exact(rb2, x[None]))) <= 1e-6
 
 
@@ -350,7 +358,7 @@ def test_bad_rules_file_errors(tmp_path, rules_data):
         load_rules(str(tmp_path / "missing.yaml"))
     bad = tmp_path / "bad.yaml"
     bad.write_text("inputs: [\n")
-    with pytest.raises(ConfigError, match="bad.yaml.*not valid YAML"):
+    with pytest.raises(ConfigError, match=r"bad\.yaml.*not valid YAML"):
         load_rules(str(bad))
     data = dict(rules_data)
     data["inputs"] = dict(data["inputs"])
@@ -358,7 +366,7 @@ def test_bad_rules_file_errors(tmp_path, rules_data):
     with pytest.raises(ConfigError, match="did you mean 'triangle'"):
         parse_rule_base(data)
     data["inputs"]["flatness"] = {"universe": [0.0, 1.0], "terms": {"low": {"triangle": [0.5, 0.0, 1.0]}}}
-    with pytest.raises(ConfigError, match="inputs.flatness.terms.low"):
+    with pytest.raises(ConfigError, match=re.escape("inputs.flatness.terms.low")):
         parse_rule_base(data)
 
 
@@ -369,7 +377,7 @@ def test_rules_with_unknown_input_map_rejected_by_scorer(tmp_path, rules_data):
     path = tmp_path / "r.yaml"
     path.write_text(yaml.safe_dump(data))
     config = load_config(overrides=[f"scoring.fuzzy.rules={path}"])
-    with pytest.raises(ConfigError, match="r.yaml.*'flatnes'.*did you mean 'flatness'"):
+    with pytest.raises(ConfigError, match=r"r\.yaml.*'flatnes'.*did you mean 'flatness'"):
         get_scorer(config)
 
 
@@ -403,7 +411,8 @@ def test_bayes_clipping_at_0_and_1():
     one, zero = np.array([1.0]), np.array([0.0])
     assert np.isfinite(bayes.fuse([one] * 4, 0.5, eps)).all()
     assert bayes.fuse([one] * 4, 0.5, eps)[0] == pytest.approx((1 - eps) ** 4 / ((1 - eps) ** 4 + eps ** 4), abs=1e-6)
-    assert bayes.fuse([zero, one, one, one], 0.5, eps)[0] == pytest.approx((1 - eps) ** 2 / ((1 - eps) ** 2 + eps ** 2), abs=1e-6)
+    assert bayes.fuse([zero, one, one, one], 0.5, eps)[0] == pytest.approx(
+        (1 - eps) ** 2 / ((1 - eps) ** 2 + eps ** 2), abs=1e-6)
     assert bayes.fuse([zero, one], 0.5, eps)[0] == pytest.approx(0.5, abs=1e-6)
     assert bayes.fuse([one, one], 0.5, 1e-9)[0] == pytest.approx(1.0)  # float64 path, no inf/nan
 
@@ -457,12 +466,17 @@ def test_window_size_from_footprint_and_depth():
     assert window_px(0.656, 462.137, 1.0) % 2 == 1
 
 
+def _mask_5m(method: str, score: np.ndarray, depth: np.ndarray) -> ScoreMap:
+    """The landing mask with the footprint and focal length of the window-size test above."""
+    return landing_mask(method, score, depth, fx=462.137, fy=462.137, footprint_m=(0.656, 0.656), margin_factor=1.0,
+                        threshold=0.5)
+
+
 def test_small_blob_gives_empty_mask_large_one_survives_minus_margin():
     depth = np.full((240, 320), 5.0, np.float32)
-    args = dict(fx=462.137, fy=462.137, footprint_m=(0.656, 0.656), margin_factor=1.0, threshold=0.5)
-    small = landing_mask("fuzzy", _blob_score(40), depth, **args)  # 40 px < 61 px footprint
+    small = _mask_5m("fuzzy", _blob_score(40), depth)  # 40 px < 61 px footprint
     assert not small.mask.any()
-    big = landing_mask("fuzzy", _blob_score(150), depth, **args)
+    big = _mask_5m("fuzzy", _blob_score(150), depth)
     assert big.mask.sum() == (150 - 60) ** 2  # eroded by (61 - 1) / 2 px on every side
     rows, cols = np.nonzero(big.mask)
     assert rows.min() == (240 - 150) // 2 + 30 and cols.min() == (320 - 150) // 2 + 30
@@ -471,10 +485,9 @@ def test_small_blob_gives_empty_mask_large_one_survives_minus_margin():
 
 def test_mask_border_counts_as_unsafe_and_no_depth_is_empty():
     depth = np.full((100, 100), 5.0, np.float32)
-    args = dict(fx=462.137, fy=462.137, footprint_m=(0.656, 0.656), margin_factor=1.0, threshold=0.5)
-    full = landing_mask("bayes", np.full((100, 100), 0.9, np.float32), depth, **args)
+    full = _mask_5m("bayes", np.full((100, 100), 0.9, np.float32), depth)
     assert full.mask.sum() == (100 - 60) ** 2
-    none = landing_mask("bayes", np.full((100, 100), 0.9, np.float32), np.full((100, 100), np.nan), **args)
+    none = _mask_5m("bayes", np.full((100, 100), 0.9, np.float32), np.full((100, 100), np.nan))
     assert not none.mask.any()
 
 
@@ -500,7 +513,7 @@ def test_cli_rejects_bad_scoring_keys_in_one_line(runner, override, key):
 
 
 def test_too_many_levels_is_a_config_error(rb):
-    with pytest.raises(ConfigError, match="scoring.fuzzy.lut_levels"):
+    with pytest.raises(ConfigError, match=re.escape("scoring.fuzzy.lut_levels")):
         lut.build(rb, 20)
 
 

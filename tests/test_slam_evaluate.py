@@ -17,7 +17,7 @@ def _trajectory(n: int = 40, seed: int = 0) -> list[np.ndarray]:
     for i in range(n):
         T = np.eye(4)
         T[:3, :3] = Rotation.from_euler("xyz", [0.1 * np.sin(i / 5), 0.05 * i / n, 0.3 * i / n]).as_matrix()
-        T[:3, 3] = [0.1 * i, np.sin(i / 7), 2 + 0.01 * i] + rng.normal(0, 1e-3, 3)
+        T[:3, 3] = np.array([0.1 * i, np.sin(i / 7), 2 + 0.01 * i]) + rng.normal(0, 1e-3, 3)
         out.append(T)
     return out
 
@@ -80,7 +80,7 @@ def test_umeyama_rejects_too_few_points() -> None:
 def test_tum_round_trip(tmp_path) -> None:
     poses = _trajectory(25)
     stamps = [1_700_000_000_123_456_789 + i * 33_333_333 for i in range(25)]
-    poses_with_gap = list(poses)
+    poses_with_gap: list[np.ndarray | None] = list(poses)
     poses_with_gap[3] = None
     write_tum(tmp_path / "trajectory.tum", stamps, poses_with_gap)
     text = (tmp_path / "trajectory.tum").read_text()
@@ -127,7 +127,8 @@ def _cloud(xyz: np.ndarray, *, big: bool = False, f64: bool = False, pad: int = 
         r, c = divmod(i, width)
         off = r * (step * width + row_pad) + c * step
         buf[off:off + 3 * size] = np.asarray(p, kind).tobytes()
-    fields = [NS(name=nm, offset=i * size, datatype=8 if f64 else 7, count=1) for i, nm in enumerate("xyz") if nm != drop]
+    fields = [NS(name=nm, offset=i * size, datatype=8 if f64 else 7, count=1)
+              for i, nm in enumerate("xyz") if nm != drop]
     fields.append(NS(name="intensity", offset=3 * size, datatype=7, count=1))
     return NS(fields=fields, is_bigendian=big, point_step=step, width=width, height=height,
               row_step=step * width + row_pad, data=np.frombuffer(bytes(buf), np.uint8))
@@ -163,7 +164,7 @@ def test_pose_log_grows_past_its_capacity_and_keeps_missing_poses_missing() -> N
     for i, T in enumerate(poses):
         log.append(1000 + i, T)
     assert len(log) == 7 and log.stamps == list(range(1000, 1007))
-    for got, want in zip(log.poses(), poses):
+    for got, want in zip(log.poses(), poses, strict=True):
         assert (got is None) == (want is None)
         if want is not None:
             np.testing.assert_array_equal(got, want)
@@ -184,7 +185,7 @@ def test_site_log_gives_back_the_points_of_any_site(tmp_path, on_disk) -> None:
         log.add_site(f"frame {i}", f"site {i}", kept, chosen)
         stored.append((kept, chosen))
     assert log.rows == 8 and [s["site"] for s in log.sites] == [f"site {i}" for i in range(4)]
-    for entry, (kept, chosen) in zip(log.sites, stored):
+    for entry, (kept, chosen) in zip(log.sites, stored, strict=True):
         got_kept, got_chosen = log.points(entry)
         np.testing.assert_array_equal(got_kept, kept)
         np.testing.assert_array_equal(got_chosen, chosen)

@@ -10,7 +10,9 @@ CLI count the maps. The real case: the realsense_floor frames, where ORB-SLAM3 r
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -105,13 +107,17 @@ def two_maps(monkeypatch, flight):
 
 
 # ----------------------------------------------------------------------------- pure functions
-def _site(x: float, y: float, normal_variance: float, accepted: bool = True):
-    class Site:  # the fields commit_site reads
-        pass
+@dataclass(frozen=True)
+class _Site:
+    """The fields commit_site reads."""
 
-    s = Site()
-    s.center_world, s.normal_variance, s.accepted = (x, y, 0.0), normal_variance, accepted
-    return s
+    center_world: tuple[float, float, float]
+    normal_variance: float
+    accepted: bool
+
+
+def _site(x: float, y: float, normal_variance: float, accepted: bool = True) -> _Site:
+    return _Site((x, y, 0.0), normal_variance, accepted)
 
 
 class _Frame:
@@ -127,6 +133,7 @@ def test_commit_site_counts_support_only_within_a_segment() -> None:
              {"frame": _Frame(6), "site": _site(9.0, 9.0, 0.01), "segment": 1},
              {"frame": _Frame(7), "site": _site(9.1, 9.0, 0.01), "segment": 1}]
     best = commit_site(sites, side_m=1.0)
+    assert best is not None
     # Four sites confirmed by two detections each: the lower normal variance (map 1's pair at (9, 9))
     # wins, the later frame of the pair. Counting across maps, frame 5's site would have support 3.
     assert (best["frame"].index, best["segment"], best["support"]) == (7, 1, 2)
@@ -267,7 +274,8 @@ def _mcap_frames(path: Path) -> dict[str, list[tuple[str, str]]]:
     out: dict[str, list[tuple[str, str]]] = {}
     with path.open("rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
-            msg = store.deserialize_cdr(message.data, schema.name)
+            assert schema is not None
+            msg: Any = store.deserialize_cdr(message.data, schema.name)  # a message class of the typestore
             if channel.topic == "/tf":
                 ids = [(t.header.frame_id, t.child_frame_id) for t in msg.transforms]
             elif hasattr(msg, "markers"):
@@ -296,6 +304,7 @@ def floor_recording(realsense_dir: Path, tmp_path: Path) -> Path:
         for i, name in enumerate(sorted((realsense_dir / "color").glob("*.png"))):
             bgr = cv2.imread(str(name), cv2.IMREAD_COLOR)
             raw = cv2.imread(str(realsense_dir / "depth" / name.name), cv2.IMREAD_UNCHANGED)
+            assert bgr is not None and raw is not None
             depth = np.where(raw > 0, raw * unit_m, np.nan).astype(np.float32)
             w.write_frame(Frame(i, 1_700_000_000_000_000_000 + i * 33_333_333, bgr[:, :, ::-1].copy(), depth, intr))
     return path
@@ -321,7 +330,7 @@ def test_real_frames_where_slam_resets_give_one_trajectory_per_map(floor_recordi
     assert len(warnings) == 1 and f"started {slam['maps']} maps" in warnings[0]
     out = tmp_path / "run"
     G = gravity_alignment(gravity_up_in_camera(None, load_config().camera.mount))
-    seen = []
+    seen: list[float] = []
     for s in slam["segments"]:
         stamps, T = read_tum(out / s["trajectory"])
         assert len(stamps) == s["frames_tracked"]

@@ -97,7 +97,7 @@ def test_short_image_data_is_a_decode_error() -> None:
 def test_compressed_depth_32fc1_follows_image_transport_formula() -> None:
     A, B = 10100.0, 1.0 - 10100.0 / 10.0
     q = np.array([[0, 3000, 65535]], np.uint16)
-    ok, png = cv2.imencode(".png", q)
+    _, png = cv2.imencode(".png", q)
     msg = compressed(struct.pack("<iff", 0, A, B) + png.tobytes(), "32FC1; compressedDepth png")
     d = decode.decode_depth(msg, 0.001)
     assert np.isnan(d[0, 0])
@@ -106,7 +106,7 @@ def test_compressed_depth_32fc1_follows_image_transport_formula() -> None:
 
 def test_compressed_depth_16uc1_png_is_millimetres() -> None:
     q = np.array([[0, 1234]], np.uint16)
-    ok, png = cv2.imencode(".png", q)
+    _, png = cv2.imencode(".png", q)
     d = decode.decode_depth(compressed(b"\0" * 12 + png.tobytes(), "16UC1; compressedDepth"), 0.001)
     assert np.isnan(d[0, 0]) and d[0, 1] == np.float32(1.234)
 
@@ -125,7 +125,7 @@ def test_camera_info_ros1_and_ros2_fields(ts) -> None:
     msg = t["sensor_msgs/msg/CameraInfo"](header=header(ts), height=480, width=640, distortion_model="plumb_bob",
                                           binning_x=0, binning_y=0, roi=roi,
                                           **dict(zip(keys, (np.array([0.1, -0.2, 0, 0, 0]), K, np.eye(3).ravel(),
-                                                            np.zeros(12)))))
+                                                            np.zeros(12)), strict=True)))
     k = decode.decode_camera_info(msg)
     assert (k.fx, k.fy, k.cx, k.cy, k.width, k.height) == (500.0, 501.0, 320.5, 240.25, 640, 480)
     assert k.distortion_model == "plumb_bob" and k.distortion[:2] == (0.1, -0.2)
@@ -160,10 +160,14 @@ def test_compose_chain_and_cycles() -> None:
     b = np.eye(4)
     b[:3, 3] = (0, 2, 0)
     tree = {"body": ("world", a), "cam": ("body", b)}
-    top, T = decode.compose_chain(tree, "cam")
+    chain = decode.compose_chain(tree, "cam")
+    assert chain is not None
+    top, T = chain
     assert top == "world"
     np.testing.assert_allclose(T[:3, 3], (1, 2, 0))
-    top, T = decode.compose_chain(tree, "cam", stop_at="body")
+    chain = decode.compose_chain(tree, "cam", stop_at="body")
+    assert chain is not None
+    top, T = chain
     np.testing.assert_allclose(T, b)
     assert decode.compose_chain(tree, "cam", stop_at="map") is None
     with pytest.raises(DecodeError, match="cycle"):

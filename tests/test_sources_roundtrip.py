@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Collection, Iterator
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -13,10 +15,12 @@ from sources_util import PERIOD_NS, SUFFIX, T0_NS, known_frame, pose, write_fram
 from slzcli.config import load_config
 from slzcli.outputs.recording import COMPRESSED_DEPTH_MAX_M, COMPRESSED_DEPTH_QUANTIZATION, RecordingWriter, TopicLayout
 from slzcli.sources import open_recording
+from slzcli.sources.messages import MessageRecording, RawMessage
 from slzcli.types import Frame, Intrinsics
 
 FORMATS = list(SUFFIX)
 CFG = load_config()
+PoseKind = Literal["PoseStamped", "Odometry", "tf"]
 
 
 def read_all(path: Path, overrides: tuple[str, ...] = ()):
@@ -46,7 +50,7 @@ def test_color_encodings_round_trip(tmp_path: Path, fmt: str, color_encoding: st
     written = write_frames(path, fmt, color_encoding=color_encoding)
     frames, report, _ = read_all(path)
     assert len(frames) == len(written) and report.paired == len(written)
-    for got, want in zip(frames, written):
+    for got, want in zip(frames, written, strict=True):
         assert got.rgb.dtype == np.uint8 and got.rgb.shape == want.rgb.shape
         exp = expected_rgb(want.rgb, color_encoding)
         if color_encoding == "jpeg":  # lossy: close on a smooth image, channel order still right
@@ -67,7 +71,7 @@ def test_depth_encodings_round_trip(tmp_path: Path, fmt: str, depth_encoding: st
     written = write_frames(path, fmt, depth_encoding=depth_encoding, big_endian=big_endian)
     frames, report, _ = read_all(path)
     assert report.paired == len(written)
-    for got, want in zip(frames, written):
+    for got, want in zip(frames, written, strict=True):
         assert_depth_equal(got.depth_m, want.depth_m)  # 16UC1: mm -> m and 0 -> NaN; 32FC1 exact
         np.testing.assert_array_equal(got.rgb, want.rgb)
 
@@ -89,7 +93,7 @@ def test_compressed_depth_32fc1_inverse_quantisation(tmp_path: Path, fmt: str) -
     written = write_frames(path, fmt, n=2, depth_encoding="compressedDepth-32FC1")
     frames, _, _ = read_all(path)
     quant_a = COMPRESSED_DEPTH_QUANTIZATION * (COMPRESSED_DEPTH_QUANTIZATION + 1)
-    for got, want in zip(frames, written):
+    for got, want in zip(frames, written, strict=True):
         ok = ~np.isnan(want.depth_m) & (want.depth_m < COMPRESSED_DEPTH_MAX_M)
         np.testing.assert_array_equal(np.isnan(got.depth_m[ok]), False)
         # One code step is d^2 / A metres: the error stays within a step (plus float rounding).
@@ -109,9 +113,10 @@ def test_realsense_frames_round_trip(tmp_path: Path, realsense_dir: Path, fmt: s
     path = tmp_path / f"rs{SUFFIX[fmt]}"
     with RecordingWriter(path, fmt, depth_encoding="16UC1") as w:
         for i, name in enumerate(names):
-            rgb = cv2.cvtColor(cv2.imread(str(realsense_dir / "color" / name), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+            bgr = cv2.imread(str(realsense_dir / "color" / name), cv2.IMREAD_COLOR)
             raw = cv2.imread(str(realsense_dir / "depth" / name), cv2.IMREAD_UNCHANGED)
-            assert raw.dtype == np.uint16
+            assert bgr is not None and raw is not None and raw.dtype == np.uint16
+            rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
             depth = raw.astype(np.float32) * np.float32(0.001)
             depth[raw == 0] = np.nan
             f = Frame(i, T0_NS + i * PERIOD_NS, rgb, depth, intr)
@@ -119,7 +124,7 @@ def test_realsense_frames_round_trip(tmp_path: Path, realsense_dir: Path, fmt: s
             written.append((f, raw))
     frames, report, info = read_all(path)
     assert report.paired == len(names) and info.intrinsics == frames[0].intrinsics
-    for got, (want, raw) in zip(frames, written):
+    for got, (want, raw) in zip(frames, written, strict=True):
         np.testing.assert_array_equal(got.rgb, want.rgb)
         np.testing.assert_array_equal(np.isnan(got.depth_m), raw == 0)
         assert np.isnan(got.depth_m).any()  # real holes survive
@@ -129,7 +134,7 @@ def test_realsense_frames_round_trip(tmp_path: Path, realsense_dir: Path, fmt: s
         assert (got.intrinsics.width, got.intrinsics.height) == (640, 480)
 
 
-def _write_with_poses(path: Path, fmt: str, kind: str, n: int = 5, static_link: np.ndarray | None = None,
+def _write_with_poses(path: Path, fmt: str, kind: PoseKind, n: int = 5, static_link: np.ndarray | None = None,
                       child: str = "camera_color_optical_frame") -> list[Frame]:
     frames = [known_frame(i) for i in range(n)]
     with RecordingWriter(path, fmt) as w:
@@ -145,7 +150,7 @@ def _write_with_poses(path: Path, fmt: str, kind: str, n: int = 5, static_link: 
 
 @pytest.mark.parametrize("fmt", ["mcap", "ros1", "ros2-mcap"])
 @pytest.mark.parametrize("kind", ["PoseStamped", "Odometry", "tf"])
-def test_poses_read_back(tmp_path: Path, fmt: str, kind: str) -> None:
+def test_poses_read_back(tmp_path: Path, fmt: str, kind: PoseKind) -> None:
     path = tmp_path / f"p{SUFFIX[fmt]}"
     _write_with_poses(path, fmt, kind)
     frames, report, info = read_all(path)
@@ -156,7 +161,7 @@ def test_poses_read_back(tmp_path: Path, fmt: str, kind: str) -> None:
 
 
 @pytest.mark.parametrize("kind", ["tf", "Odometry"])
-def test_body_pose_plus_static_body_to_camera_link(tmp_path: Path, kind: str) -> None:
+def test_body_pose_plus_static_body_to_camera_link(tmp_path: Path, kind: PoseKind) -> None:
     link = np.eye(4)
     link[:3, 3] = (0.1, 0.0, -0.05)
     link[:3, :3] = np.array([[0, -1, 0], [-1, 0, 0], [0, 0, -1]])  # body FLU-ish -> optical, downward camera
@@ -270,13 +275,13 @@ def test_cut_short_mcap_yields_frames_before_the_cut(tmp_path: Path, caplog: pyt
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) // 2])
     with caplog.at_level("WARNING"):
-        got, report, info = read_all(cut)
+        got, _, info = read_all(cut)
     assert 3 < len(got) < 30
     assert [g.index for g in got] == list(range(len(got)))
     assert any("recovered" in r.getMessage() and f"{len(got)} frames" in r.getMessage() for r in caplog.records)
     assert info.warnings and "recovered" in info.warnings[0]
     full = read_all(path)[0]
-    for g, f in zip(got, full):
+    for g, f in zip(got, full, strict=False):  # got is a prefix of full
         np.testing.assert_array_equal(g.rgb, f.rgb)
 
 
@@ -291,10 +296,11 @@ def test_frames_stream_without_reading_everything_first(tmp_path: Path, fmt: str
             w.write_frame(Frame(i, T0_NS + i * PERIOD_NS, f.rgb, f.depth_m, f.intrinsics))
             w.write_pose("/pose", T0_NS + i * PERIOD_NS, pose(i))
     with open_recording(path, CFG) as rec:
-        consumed = []
+        assert isinstance(rec, MessageRecording)
+        consumed: list[str] = []
         inner = rec.log.messages
 
-        def counting(topics):
+        def counting(topics: Collection[str]) -> Iterator[RawMessage]:
             for m in inner(topics):
                 consumed.append(m.topic)
                 yield m
@@ -306,4 +312,5 @@ def test_frames_stream_without_reading_everything_first(tmp_path: Path, fmt: str
         rest = list(it)
     assert first.index == 0 and len(rest) == n - 1
     assert at_first < len(consumed) / 2, (at_first, len(consumed))
+    assert rest[-1].T_world_camera is not None
     np.testing.assert_allclose(rest[-1].T_world_camera, pose(n - 1), atol=1e-9)

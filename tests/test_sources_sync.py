@@ -9,15 +9,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from slzcli.sources.sync import PoseTrack, StreamPairer, pair_stamps
+from slzcli.sources.sync import PoseTrack, Stream, StreamPairer, pair_stamps
 
 MS = 1_000_000
 TOL = 20 * MS
 WINDOW = 500 * MS
+Items = list[tuple[Stream, int]]  # (stream, stamp) in arrival order
 
 
-def stream(pairer: StreamPairer, items: list[tuple[str, int]]) -> list[tuple[int, int]]:
-    out = []
+def stream(pairer: StreamPairer, items: Items) -> list[tuple[int, int]]:
+    out: list[tuple[int, int]] = []
     for s, t in items:
         out += [(p.stamp_ns, p.depth_stamp_ns) for p in pairer.push(s, t, (s, t))]
     out += [(p.stamp_ns, p.depth_stamp_ns) for p in pairer.flush()]
@@ -46,7 +47,7 @@ def test_tolerance_is_inclusive_and_respected() -> None:
 
 
 def test_stream_pairer_counts_missing_and_unpaired() -> None:
-    items = []
+    items: Items = []
     for k in range(100):
         t = k * 33 * MS
         if k % 10 != 3:
@@ -65,11 +66,11 @@ def test_stream_pairer_counts_missing_and_unpaired() -> None:
 
 
 def test_stream_pairer_shuffled_within_window_equals_sorted() -> None:
-    items = [("color", k * 33 * MS) for k in range(60)] + [("depth", k * 33 * MS + 7 * MS) for k in range(60)]
+    items: Items = [("color", k * 33 * MS) for k in range(60)] + [("depth", k * 33 * MS + 7 * MS) for k in range(60)]
     rng = random.Random(1)
     # Shuffle inside blocks of 8 messages (~130 ms of data, inside the 500 ms window).
     items.sort(key=lambda it: it[1])
-    shuffled = []
+    shuffled: Items = []
     for i in range(0, len(items), 8):
         block = items[i:i + 8]
         rng.shuffle(block)
@@ -82,7 +83,7 @@ def test_stream_pairer_shuffled_within_window_equals_sorted() -> None:
 
 def test_message_later_than_window_is_counted_late_not_lost() -> None:
     p = StreamPairer(TOL, 100 * MS)
-    items = [("color", k * 33 * MS) for k in range(30)] + [("depth", k * 33 * MS) for k in range(30)]
+    items: Items = [("color", k * 33 * MS) for k in range(30)] + [("depth", k * 33 * MS) for k in range(30)]
     items.sort(key=lambda it: it[1])
     items.remove(("depth", 0))
     items.append(("depth", 0))  # arrives ~1 s late
@@ -115,7 +116,7 @@ def test_incremental_equals_batch_for_any_stamps_and_order(c_ms, d_ms, rnd) -> N
     depth = sorted(set(d_ms))
     want = sorted((color[i] * MS, depth[j] * MS) for i, j in pair_stamps(
         [c * MS for c in color], [d * MS for d in depth], TOL))
-    items = [("color", c * MS) for c in color] + [("depth", d * MS) for d in depth]
+    items: Items = [("color", c * MS) for c in color] + [("depth", d * MS) for d in depth]
     rnd.shuffle(items)
     p = StreamPairer(TOL, 10_000 * MS)  # window longer than the data: any order is in time
     got = sorted(stream(p, items))
@@ -133,6 +134,7 @@ def test_pose_track_interpolates_and_respects_tolerance() -> None:
     tr.add(0, A)
     tr.add(40 * MS, B)
     mid = tr.at(20 * MS)
+    assert mid is not None
     np.testing.assert_allclose(mid[:3, 3], (1.0, 0.0, 0.0))
     ang = np.degrees(np.arctan2(mid[1, 0], mid[0, 0]))
     assert ang == pytest.approx(45.0)

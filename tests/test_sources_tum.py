@@ -54,7 +54,7 @@ def test_tum_folder_reads_back(tmp_path: Path) -> None:
         frames = list(rec.frames())
         info = rec.info()
     assert len(frames) == 4 and rec.report.paired == 4 and rec.report.unpaired_depth == 1
-    for got, (want, counts) in zip(frames, written):
+    for got, (want, counts) in zip(frames, written, strict=True):
         np.testing.assert_array_equal(got.rgb, want.rgb)
         np.testing.assert_array_equal(np.isnan(got.depth_m), counts == 0)
         ok = counts > 0
@@ -70,6 +70,7 @@ def test_tum_ground_truth_pose_on_request_and_camera_yaml(tmp_path: Path) -> Non
     with open_recording(tmp_path / "seq", cfg) as rec:
         frames = list(rec.frames())
     for i, f in enumerate(frames):
+        assert f.T_world_camera is not None
         np.testing.assert_allclose(f.T_world_camera, pose(i), atol=1e-6)
     # camera.yaml is for 640x480; the images are 32x24, so K is scaled to them.
     assert f.intrinsics.width == 32 and f.intrinsics.fx == pytest.approx(525.0 * 32 / 640)

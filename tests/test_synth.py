@@ -231,11 +231,11 @@ def test_every_format_reads_back(tmp_path, fmt):
 def test_encodings_and_ground_truth_pose_topic(tmp_path):
     out = tmp_path / "j.mcap"
     _synth(out, color_encoding="jpeg", depth_encoding="32FC1")
-    cfg = load_config(overrides=TINY + ["sources.use_ground_truth_pose=true"])
+    cfg = load_config(overrides=[*TINY, "sources.use_ground_truth_pose=true"])
     gt = load_ground_truth(out)
     with open_recording(out, cfg) as rec:
         frames = list(rec.frames())
-    assert len(frames) == 3
+    assert len(frames) == 3 and frames[1].T_world_camera is not None
     assert np.allclose(frames[1].T_world_camera, gt.T_world_camera[1], atol=1e-9)
     header = json.loads(Path(str(out) + ".gt.json").read_text())
     assert header["pose_topic"] == "/ground_truth/camera_pose" and header["image"]["width"] == 160
@@ -329,7 +329,7 @@ def test_cli_list():
 def test_cli_small_run(tmp_path):
     out = tmp_path / "run.mcap"
     res = CliRunner().invoke(main, ["synth", "clear_field:sand", "-o", str(out), "--frames", "2", "--scenario", "3",
-                                    "--json", *sum((["--set", s] for s in TINY), [])])
+                                    "--json", *[a for s in TINY for a in ("--set", s)]])
     assert res.exit_code == 0, res.output
     summary = json.loads(res.output)
     assert summary["frames"] == 2 and summary["variants"] == ["sand"] and summary["start_m"] == [0.0, 0.0, 7.0]

@@ -54,8 +54,9 @@ def refused(res, path_part: str, cause: str) -> str:
     return errors[0]
 
 
-SYNTH = ("--frames", "2", *GAUSSIAN, "--set", "camera.width=160", "--set", "camera.height=120", "--set", "camera.fx=115.5",
-         "--set", "camera.fy=115.5", "--set", "camera.cx=80", "--set", "camera.cy=60")  # small and quick to render
+SYNTH = ("--frames", "2", *GAUSSIAN, "--set", "camera.width=160", "--set", "camera.height=120",
+         "--set", "camera.fx=115.5", "--set", "camera.fy=115.5", "--set", "camera.cx=80",
+         "--set", "camera.cy=60")  # small and quick to render
 
 
 @pytest.fixture(scope="module")
