@@ -131,7 +131,7 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
                       mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan, margin_m=config.uav.margin_m)
     if plan is not None:   # the final descent's column must have been in view (control.desired_depth_m hover)
-        np.logical_and(sm.mask, column_in_view(depth_m, plan[0], up_camera, config.control.desired_depth_m),
+        np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], config.control.desired_depth_m),
                        out=sm.mask)
     if work is None:
         return sm
