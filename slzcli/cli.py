@@ -16,13 +16,16 @@ import threading
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from slzcli import __version__
 from slzcli.config import Config, dump, load_config
 from slzcli.errors import SlzError
+
+if TYPE_CHECKING:
+    from slzcli.synth.flight import PathKind
 
 log = logging.getLogger("slzcli")
 
@@ -358,7 +361,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
 @common_options
 def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scenes: bool, frames: int | None,
               scenario: int | None, start: tuple[float, ...] | None, seed: int | None, fmt: str,
-              depth_encoding: str, color_encoding: str, rate_hz: float | None, path_kind: str | None,
+              depth_encoding: str, color_encoding: str, rate_hz: float | None, path_kind: PathKind | None,
               variants: tuple[str, ...], sheet: Path | None, force: bool) -> tuple[dict[str, Any], str]:
     """Render a ground-truthed RGB-D recording of SCENE (datasets/scenes), with a .gt.npz sidecar."""
     from slzcli.synth import record
