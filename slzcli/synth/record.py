@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
@@ -140,7 +140,7 @@ def render_frames(world: World, flight: Flight, config: Config, sensor_rng: np.r
 
 
 def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path | None = None,
-               progress: Callable[[int, int], None] | None = None, force: bool = False) -> dict[str, object]:
+               progress: Callable[[int, int], None] | None = None, force: bool = False) -> dict[str, Any]:
     """Render ``options.frames`` frames to a recording at ``out``; write the truth sidecar and preview.
 
     Everything is written into a staging folder beside ``out`` (``.OUT.<random>.tmp``) and moved into
@@ -206,7 +206,7 @@ BAG_SUFFIXES = (".db3", ".db3-shm", ".db3-wal", ".mcap")  # what a rosbag2 folde
 
 
 def _render_into(stage: Path, out: Path, options: SynthOptions, scene: Scene, config: Config,
-                 progress: Callable[[int, int], None] | None) -> tuple[dict[str, object], np.ndarray]:
+                 progress: Callable[[int, int], None] | None) -> tuple[dict[str, Any], np.ndarray]:
     """Render the recording and its sidecar into ``stage`` under their final names; the summary and preview."""
     world = build_world(scene, config)
     flight_seed, sensor_rng = seeds(options.seed)
@@ -242,7 +242,7 @@ def _render_into(stage: Path, out: Path, options: SynthOptions, scene: Scene, co
             "T_world_camera": np.asarray(flight.T_world_camera, np.float64),
             **spool.members(), **raster_arrays(world.raster)}
         write_sidecar(*sidecar_paths(staged), members, header)
-    summary: dict[str, object] = {
+    summary: dict[str, Any] = {  # JSON values, for `slz synth --json` and the text
         "recording": str(out), "format": options.fmt, "scene": scene.name, "variants": list(scene.variants),
         "frames": options.frames, "rate_hz": options.rate_hz, "path": options.path, "seed": options.seed,
         "start_m": list(options.start_m or ()), "ground_truth": str(sidecar_paths(out)[0]),
