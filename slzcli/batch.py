@@ -18,13 +18,16 @@ skipping it as done) and first removes the ``.RUN.*.partial`` folders a killed p
 (missing, empty, or a ``slz detect`` run folder; never a recording or a folder holding one).
 Ctrl-C or SIGTERM stop the batch: the local workers' running recordings are interrupted and
 remove their temporary folders, queued ones are cancelled, the summary records what was done,
-then ``KeyboardInterrupt`` goes on to the caller. Pool workers watch their parent: if it is killed outright they stop too.
+then ``KeyboardInterrupt`` goes on to the caller. Pool workers watch their parent: if it is killed outright
+they stop too.
 A task already running on a Dask worker cannot be interrupted; it finishes its (atomic) run.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
+import functools
 import glob
 import logging
 import multiprocessing as mp
@@ -121,12 +124,12 @@ def plan(recordings: Sequence[Path], output: Path | None, *, batch: bool) -> lis
     base = (output or Path("runs")).absolute()
     names = [run_name(p) for p in recordings]
     clash = {n for n in names if names.count(n) > 1}
-    names = [f"{p.absolute().parent.name}_{n}" if n in clash else n for p, n in zip(recordings, names)]
+    names = [f"{p.absolute().parent.name}_{n}" if n in clash else n for p, n in zip(recordings, names, strict=True)]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise ConfigError("recordings", f"several recordings would share the run folder {base / twice[0]}; "
                                         "run them into different -o folders")
-    tasks = [Task(p.absolute(), base / n) for p, n in zip(recordings, names)]
+    tasks = [Task(p.absolute(), base / n) for p, n in zip(recordings, names, strict=True)]
     for t in tasks:
         output_dir.refuse_inputs(t.run_dir, [r.recording for r in tasks])
     batch_summary.check_folder(base)
@@ -238,8 +241,11 @@ class BatchResult:
                 "batch_interrupted": self.interrupted}
 
 
+DEFAULT_OPTIONS = RunOptions()  # frozen: one instance serves every call
+
+
 def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, scheduler: str | None = None,
-              options: RunOptions = RunOptions(), summary_dir: Path | None = None,
+              options: RunOptions = DEFAULT_OPTIONS, summary_dir: Path | None = None,
               on_progress: Callable[[BatchProgress], None] | None = None) -> BatchResult:
     """Run every task; rows come back in task order. With ``summary_dir``, writes summary.json/csv there.
 
@@ -268,7 +274,7 @@ def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, schedu
             engine.close()
     filled = [r if r is not None else {"recording": str(t.recording), "run": str(t.run_dir),
                                        "status": "interrupted", "skipped": False, "error": "the batch was stopped"}
-              for r, t in zip(rows, tasks)]
+              for r, t in zip(rows, tasks, strict=True)]
     result = BatchResult(filled, engine.name, engine.workers, time.perf_counter() - t0, interrupted)
     if summary_dir is not None:
         from slzcli.outputs.batch_summary import write_summary
@@ -465,7 +471,7 @@ class _LocalEngine(_Engine):
                    tick: Callable[[], None]) -> None:
         for i, task in enumerate(tasks):
             fut = self._pool.submit(_pool_task, task, config, options)
-            fut.add_done_callback(lambda f, i=i: done(i, f))
+            fut.add_done_callback(functools.partial(done, i))
 
     def frames(self) -> int:
         return int(self._counter.value)
@@ -477,10 +483,8 @@ class _LocalEngine(_Engine):
         self._pool.shutdown(wait=False, cancel_futures=True)
         for p in procs:
             if p.is_alive():
-                try:
+                with contextlib.suppress(ProcessLookupError):
                     os.kill(p.pid, signal.SIGINT)
-                except ProcessLookupError:
-                    pass
         deadline = time.monotonic() + STOP_GRACE_S
         for p in procs:
             p.join(max(0.0, deadline - time.monotonic()))

@@ -16,13 +16,16 @@ import threading
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from slzcli import __version__
 from slzcli.config import Config, dump, load_config
 from slzcli.errors import SlzError
+
+if TYPE_CHECKING:
+    from slzcli.synth.flight import PathKind
 
 log = logging.getLogger("slzcli")
 
@@ -338,7 +341,8 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
 @click.option("--frames", type=click.IntRange(1), help="Number of frames (default synth.frames).")
 @click.option("--scenario", type=click.IntRange(1, 4), help="Paper start position (world ENU): 1 (0,0,10), "
               "2 (-3,12,9), 3 (0,0,7), 4 (0,0,10) m. Default: the scene's own (playground 3, office 4, else 1).")
-@click.option("--start", callback=_start_floats, metavar="X,Y,Z", help="Start position (m, world ENU) instead of --scenario.")
+@click.option("--start", callback=_start_floats, metavar="X,Y,Z",
+              help="Start position (m, world ENU) instead of --scenario.")
 @click.option("--seed", type=click.IntRange(0), help="Seed of the flight wobble and sensor noise (default synth.seed).")
 @click.option("--format", "fmt", default="mcap", show_default=True,
               type=click.Choice(["mcap", "ros1", "ros2-sqlite", "ros2-mcap", "mcap-ros1"]),
@@ -358,7 +362,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
 @common_options
 def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scenes: bool, frames: int | None,
               scenario: int | None, start: tuple[float, ...] | None, seed: int | None, fmt: str,
-              depth_encoding: str, color_encoding: str, rate_hz: float | None, path_kind: str | None,
+              depth_encoding: str, color_encoding: str, rate_hz: float | None, path_kind: PathKind | None,
               variants: tuple[str, ...], sheet: Path | None, force: bool) -> tuple[dict[str, Any], str]:
     """Render a ground-truthed RGB-D recording of SCENE (datasets/scenes), with a .gt.npz sidecar."""
     from slzcli.synth import record
@@ -401,7 +405,7 @@ class _progress:
         self.label = label
         self.bar: Any = None
 
-    def __enter__(self) -> Callable[[int, int], None]:
+    def __enter__(self) -> Callable[[int, int | None], None]:
         if sys.stderr.isatty():
             from rich.console import Console
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -410,7 +414,7 @@ class _progress:
             self.bar.start()
             self.task = self.bar.add_task(self.label, total=None)
 
-        def tick(done: int, total: int) -> None:
+        def tick(done: int, total: int | None) -> None:   # None: a total not known (yet)
             if self.bar is not None:
                 self.bar.update(self.task, completed=done, total=total)
         return tick
@@ -498,7 +502,8 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     paths = batch.expand(recordings)
     is_batch = len(recordings) > 1 or any(batch.is_pattern(r) for r in recordings)
     tasks = batch.plan(paths, output, batch=is_batch)
-    summary_dir = (output or Path("runs")) if is_batch else None
+    batch_dir = output or Path("runs")
+    summary_dir = batch_dir if is_batch else None
     with _BatchDisplay(is_batch) as show:
         result = batch.run_batch(tasks, config, workers=workers or batch.default_workers(), scheduler=scheduler,
                                  options=RunOptions(force, method, timeout_s), summary_dir=summary_dir,
@@ -514,7 +519,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     failed = [r for r in rows if r["status"] == "failed"]
     if failed:
         raise SlzError(f"{len(failed)} of {len(rows)} recordings failed (first: {failed[0]['error']}); "
-                       f"status of each in {summary_dir / 'summary.csv'}")
+                       f"status of each in {batch_dir / 'summary.csv'}")
     totals = {**result.totals(), "summary_files": [str(p) for p in result.summary_files]}
     runs = [{k: v for k, v in r.items() if k != "summary"} for r in rows]
     return {"batch": totals, "runs": runs}, _batch_text(totals, rows)
@@ -623,8 +628,8 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
                      f"{lim['slope_min_deg']:.1f} deg detectable"
                      + ("" if noise.get("detections_not_vouched", 0) == 0 else
                         f"; {noise['detections_not_vouched']} detection frame(s) could not vouch"))
-    lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, mask {t['mask']:.1f} ms, "
-                 f"slam {t['slam']:.1f} ms, select {t['select']:.1f} ms (medians)")
+    lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, "
+                 f"mask {t['mask']:.1f} ms, slam {t['slam']:.1f} ms, select {t['select']:.1f} ms (medians)")
     gt = s.get("ground_truth")
     if gt and gt.get("mask"):
         m = gt["mask"]

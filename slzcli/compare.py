@@ -33,7 +33,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -272,7 +272,7 @@ def _map_truth(maps: TerrainMaps, gt_mask: np.ndarray, curves: dict[str, CurveCo
                 means[f"{n}_{cls}"].append(float(values[sel].mean()))
 
 
-def _stats(values: list[float]) -> dict[str, float | None]:
+def _stats(values: Sequence[float]) -> dict[str, float | None]:
     if not values:
         return {"median_ms": None, "p90_ms": None}
     a = np.asarray(values)
@@ -324,7 +324,8 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
     out: dict[str, Any] = {
         "source": str(path), "name": recording_name(path), "frames": tracker.state.frames,
         "detections": runs[methods[0]].det.state.detections,
-        "slam_backend": tracker.slam_name, "tracking": tracker.state.tracking, "keyframes": len(tracker.state.keyframes),
+        "slam_backend": tracker.slam_name, "tracking": tracker.state.tracking,
+        "keyframes": len(tracker.state.keyframes),
         "slam": {"maps": len(segment_table(tracker.state.trajectory.segments(), tracker.state.trajectory.has_pose(),
                                            tracker.state.keyframes.per_segment))},
         "inputs_identical": True,
@@ -360,12 +361,14 @@ def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[
     sites_a = {s["frame"].index: s["site"] for s in runs[a].det.state.sites.sites}
     sites_b = {s["frame"].index: s["site"] for s in runs[b].det.state.sites.sites}
     for k in sorted(set(sites_a) & set(sites_b)):
-        per_frame.append(float(np.linalg.norm(np.asarray(sites_a[k].center_world) - np.asarray(sites_b[k].center_world))))
+        gap = np.asarray(sites_a[k].center_world) - np.asarray(sites_b[k].center_world)
+        per_frame.append(float(np.linalg.norm(gap)))
     agree = total(counts)
     return {"methods": [a, b], "site_distance_m": dist,
             "per_frame_site_distance_m": {"mean": float(np.mean(per_frame)) if per_frame else None,
                                           "frames": len(per_frame)},
-            "mask_iou": agree.iou, "mask_agreement": (agree.tp + agree.tn) / max(agree.tp + agree.fp + agree.fn + agree.tn, 1)}
+            "mask_iou": agree.iou,
+            "mask_agreement": (agree.tp + agree.tn) / max(agree.tp + agree.fp + agree.fn + agree.tn, 1)}
 
 
 def _arrays(runs: dict[str, MethodRun], committed: dict[str, dict[str, Any] | None],
@@ -418,7 +421,7 @@ def render_variants(path: Path, config: Config, out_dir: Path, variants: tuple[s
     out = []
     for v in variants:
         target = Path(out_dir) / f"{options['scene']}_{v}.mcap"
-        opts = record.SynthOptions(**options, variants=tuple(x for x in base if x != v) + (v,))  # type: ignore[arg-type]
+        opts = record.SynthOptions(**options, variants=(*(x for x in base if x != v), v))  # type: ignore[arg-type]
         record.synthesize(target, opts, config, progress=None, force=True)
         out.append(target)
         if progress is not None:
@@ -461,7 +464,7 @@ def compare(paths: list[Path], config: Config, out_dir: Path, methods: tuple[str
         _unique_names(results)
         variant_results: list[dict[str, Any]] = []
         if variants:
-            for p, base in zip(paths, results):
+            for p, base in zip(paths, results, strict=True):
                 folder = tmp / "variants" / base["name"]
                 for rec_path in render_variants(Path(p), config, folder, config.compare.variants):
                     r = compare_recording(rec_path, config, methods, progress, timeout_s)

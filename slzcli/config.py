@@ -15,6 +15,7 @@ import json
 import re
 import types
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -47,14 +48,32 @@ def rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fal
     return field(metadata={"lo": lo, "hi": hi, "lo_open": lo_open, "odd": odd, "n": n})
 
 
+_C = typing.TypeVar("_C")
+_D = typing.TypeVar("_D", bound="DataclassInstance")
+
+if typing.TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+    from typing_extensions import dataclass_transform
+else:
+    def dataclass_transform(**_kwargs: Any) -> Any:
+        """At run time a no-op: the marker only tells type checkers what ``schema`` does."""
+        return lambda decorator: decorator
+
+
+@dataclass_transform(frozen_default=True, field_specifiers=(field, rng))
+def schema(cls: type[_C]) -> type[_C]:
+    """``@dataclass(frozen=True)``, declared so that type checkers read ``rng(...)`` as a field without a default."""
+    return dataclass(frozen=True)(cls)
+
+
 # ----------------------------------------------------------------------------- schema
-@dataclass(frozen=True)
+@schema
 class Mount:
     pitch_deg: float = rng(-90, 90)
     roll_deg: float = rng(-90, 90)
 
 
-@dataclass(frozen=True)
+@schema
 class CameraCfg:
     fx: float = rng(0, lo_open=True)
     fy: float = rng(0, lo_open=True)
@@ -65,7 +84,7 @@ class CameraCfg:
     mount: Mount
 
 
-@dataclass(frozen=True)
+@schema
 class Topics:
     color: str
     depth: str
@@ -73,14 +92,14 @@ class Topics:
     pose: str
 
 
-@dataclass(frozen=True)
+@schema
 class IntrinsicsCheckCfg:
     min_fov_deg: float = rng(0, 180, lo_open=True)
     max_fov_deg: float = rng(0, 180, lo_open=True)
     aspect_tolerance: float = rng(0, 1)
 
 
-@dataclass(frozen=True)
+@schema
 class SourcesCfg:
     topics: Topics
     intrinsics: IntrinsicsCheckCfg
@@ -96,7 +115,7 @@ class SourcesCfg:
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
 
 
-@dataclass(frozen=True)
+@schema
 class DepthVarianceCfg:
     kernel_px: int = rng(3, 99, odd=True)
     s0_m: float = rng(0, lo_open=True)
@@ -104,7 +123,7 @@ class DepthVarianceCfg:
     normalise: Normalise = "absolute"
 
 
-@dataclass(frozen=True)
+@schema
 class FlatnessCfg:
     canny_low: float = rng(0, 255)
     canny_high: float = rng(0, 255)
@@ -116,7 +135,7 @@ class FlatnessCfg:
     normalise: Normalise = "absolute"
 
 
-@dataclass(frozen=True)
+@schema
 class InclinationCfg:
     radius_m: float = rng(0, lo_open=True)
     curvature_ref: float = rng(0, 1 / 3, lo_open=True)
@@ -125,7 +144,7 @@ class InclinationCfg:
     normalise: Normalise = "absolute"
 
 
-@dataclass(frozen=True)
+@schema
 class SteepnessCfg:
     normal_px: int = rng(3, 31, odd=True)
     normal_size_m: float = rng(0)
@@ -135,21 +154,21 @@ class SteepnessCfg:
     normalise: Normalise = "absolute"
 
 
-@dataclass(frozen=True)
+@schema
 class NoiseEstimateCfg:
     frames: int = rng(1, 1000)
     min_residuals: int = rng(10)
     prior_a_per_m: float = rng(0, lo_open=True)
 
 
-@dataclass(frozen=True)
+@schema
 class LimitsCfg:
     confidence_sigma: float = rng(0, lo_open=True)
     blocks_per_footprint: float = rng(1)
     target_margin: float = rng(1)
 
 
-@dataclass(frozen=True)
+@schema
 class TerrainCfg:
     noise: Literal["auto"] | float = rng(0)
     noise_estimate: NoiseEstimateCfg
@@ -160,28 +179,28 @@ class TerrainCfg:
     steepness: SteepnessCfg
 
 
-@dataclass(frozen=True)
+@schema
 class FuzzyCfg:
     rules: str
     evaluator: Literal["compiled", "exact"]
     lut_levels: int = rng(3, 128)
 
 
-@dataclass(frozen=True)
+@schema
 class BayesCfg:
     prior: float = rng(0, 1, lo_open=True)
     eps: float = rng(0, 0.5, lo_open=True)
     threshold: float = rng(0, 1)
 
 
-@dataclass(frozen=True)
+@schema
 class ScoringCfg:
     method: Literal["fuzzy", "bayes"]
     fuzzy: FuzzyCfg
     bayes: BayesCfg
 
 
-@dataclass(frozen=True)
+@schema
 class MaskCfg:
     threshold: float = rng(0, 1)
     margin_factor: float = rng(0)
@@ -190,7 +209,7 @@ class MaskCfg:
     plan_cells_per_footprint: float = rng(1, 64)
 
 
-@dataclass(frozen=True)
+@schema
 class UavCfg:
     mass_kg: float = rng(0, lo_open=True)
     inertia_kg_m2: tuple[float, ...] = rng(0, lo_open=True, n=3)
@@ -206,7 +225,7 @@ class UavCfg:
     camera_yaw_deg: float = rng(-180, 180)
 
 
-@dataclass(frozen=True)
+@schema
 class LandingCfg:
     every_nth_frame: int = rng(1)
     kmeans_k: int = rng(1, 100)
@@ -222,7 +241,7 @@ class LandingCfg:
     max_normal_pairs: int = rng(1)
 
 
-@dataclass(frozen=True)
+@schema
 class SimCfg:
     dynamics_dt_s: float = rng(0, 0.1, lo_open=True)
     control_dt_s: float = rng(0, 1, lo_open=True)
@@ -242,7 +261,7 @@ class SimCfg:
     max_steps_per_run: int = rng(1)
 
 
-@dataclass(frozen=True)
+@schema
 class NoiseCfg:
     seed: int = rng(0)
     position_sigma_m: float = rng(0)
@@ -252,7 +271,7 @@ class NoiseCfg:
     yaw_drift_deg_sqrt_s: float = rng(0)
 
 
-@dataclass(frozen=True)
+@schema
 class WindCfg:
     mean_m_s: tuple[float, ...] = rng(n=3)
     gust_m_s: float = rng(0)
@@ -260,7 +279,7 @@ class WindCfg:
     drag_kg_s: float = rng(0)
 
 
-@dataclass(frozen=True)
+@schema
 class MonteCarloCfg:
     start_radius_m: float = rng(0)
     start_dz_m: float = rng(0)
@@ -277,7 +296,7 @@ class MonteCarloCfg:
     max_total_steps: int = rng(1)
 
 
-@dataclass(frozen=True)
+@schema
 class ControlCfg:
     K_e: tuple[float, ...] = rng(0, lo_open=True, n=3)
     K_i: tuple[float, ...] = rng(0, n=3)
@@ -298,7 +317,7 @@ class ControlCfg:
     montecarlo: MonteCarloCfg
 
 
-@dataclass(frozen=True)
+@schema
 class ScenariosCfg:
     s1_m: tuple[float, ...] = rng(n=3)
     s2_m: tuple[float, ...] = rng(n=3)
@@ -306,7 +325,7 @@ class ScenariosCfg:
     s4_m: tuple[float, ...] = rng(n=3)
 
 
-@dataclass(frozen=True)
+@schema
 class FlightCfg:
     drift_m: float = rng(0)
     drift_period_s: float = rng(0, lo_open=True)
@@ -319,7 +338,7 @@ class FlightCfg:
     min_altitude_m: float = rng(0, lo_open=True)
 
 
-@dataclass(frozen=True)
+@schema
 class LightCfg:
     sun_dir: tuple[float, ...] = rng(n=3)
     ambient: float = rng(0, 1)
@@ -328,7 +347,7 @@ class LightCfg:
     sky_rgb: tuple[float, ...] = rng(0, 1, n=3)
 
 
-@dataclass(frozen=True)
+@schema
 class SgbmCfg:
     mode: Literal["sgbm", "sgbm_3way", "hh", "hh4"]
     block_px: int = rng(1, 11, odd=True)
@@ -341,7 +360,7 @@ class SgbmCfg:
     prefilter_cap: int = rng(1, 63)
 
 
-@dataclass(frozen=True)
+@schema
 class StereoCfg:
     emitter: bool
     subpixel: Literal["sgbm", "refine"]
@@ -356,7 +375,7 @@ class StereoCfg:
     refine_iterations: int = rng(1, 10)
 
 
-@dataclass(frozen=True)
+@schema
 class StereoPresetCfg:
     baseline_m: float = rng(0, lo_open=True)
     focal_length_mm: float = rng(0, lo_open=True)
@@ -374,13 +393,13 @@ class StereoPresetCfg:
     read_noise_e: float = rng(0)
 
 
-@dataclass(frozen=True)
+@schema
 class StereoPresetsCfg:
     d435: StereoPresetCfg
     d455: StereoPresetCfg
 
 
-@dataclass(frozen=True)
+@schema
 class SensorCfg:
     model: Literal["ideal", "gaussian", "stereo"]
     preset: Literal["d435", "d455"]
@@ -400,7 +419,7 @@ class SensorCfg:
         return preset
 
 
-@dataclass(frozen=True)
+@schema
 class GroundTruthCfg:
     raster_m: float = rng(0.005, 1.0)
     step_m: float = rng(0, lo_open=True)
@@ -408,7 +427,7 @@ class GroundTruthCfg:
     max_cells: int = rng(1)
 
 
-@dataclass(frozen=True)
+@schema
 class SynthCfg:
     frames: int = rng(1)
     rate_hz: float = rng(1, 200)
@@ -424,7 +443,7 @@ class SynthCfg:
 
 
 # --- slam (slam helper) ---
-@dataclass(frozen=True)
+@schema
 class OrbCfg:
     n_features: int = rng(50, 20000)
     n_levels: int = rng(1, 16)
@@ -433,14 +452,14 @@ class OrbCfg:
     fast_min_threshold: int = rng(1, 255)
 
 
-@dataclass(frozen=True)
+@schema
 class SlamKeyframeCfg:
     min_translation_m: float = rng(0, lo_open=True)
     min_rotation_deg: float = rng(0, 180, lo_open=True)
     min_tracked_ratio: float = rng(0, 1)
 
 
-@dataclass(frozen=True)
+@schema
 class OrbSlam3Cfg:
     close_depth_m: float = rng(0, lo_open=True)
     baseline_m: float = rng(0, lo_open=True)
@@ -449,7 +468,7 @@ class OrbSlam3Cfg:
     frame_timeout_s: float = rng(0, lo_open=True)
 
 
-@dataclass(frozen=True)
+@schema
 class OdometryCfg:
     ratio_test: float = rng(0, 1, lo_open=True)
     search_radius_px: float = rng(0, lo_open=True)
@@ -465,7 +484,7 @@ class OdometryCfg:
     reinit_after_frames: int = rng(1)
 
 
-@dataclass(frozen=True)
+@schema
 class VocabCfg:
     k: int = rng(2, 20)
     levels: int = rng(1, 10)
@@ -474,7 +493,7 @@ class VocabCfg:
     seed: int = rng(0)
 
 
-@dataclass(frozen=True)
+@schema
 class SlamCfg:
     backend: Literal["auto", "orbslam3", "odometry", "recorded"]
     vocabulary: str
@@ -487,7 +506,7 @@ class SlamCfg:
 # --- end slam ---
 
 
-@dataclass(frozen=True)
+@schema
 class CompareCfg:
     methods: tuple[str, ...]
     pr_levels: int = rng(2, 10001)
@@ -495,7 +514,7 @@ class CompareCfg:
 # --- end compare ---
 
 
-@dataclass(frozen=True)
+@schema
 class OutputCfg:
     frame_images: bool
     reverse_colormap: bool
@@ -503,7 +522,7 @@ class OutputCfg:
     mask_cloud_stride_px: int = rng(1, 256)
 
 
-@dataclass(frozen=True)
+@schema
 class Config:
     camera: CameraCfg
     sources: SourcesCfg
@@ -717,7 +736,7 @@ def _nest(key: str, value: Any) -> dict[str, Any]:
     return value
 
 
-def build(cls: type, data: Any, path: str, source: str | None = None) -> Any:
+def build(cls: type[_D], data: Any, path: str, source: str | None = None) -> _D:
     """Validate ``data`` against the dataclass ``cls`` recursively."""
     if not isinstance(data, dict):
         raise ConfigError(path, f"expected a section (mapping), got {_kind(data)}", source)
@@ -735,8 +754,8 @@ def build(cls: type, data: Any, path: str, source: str | None = None) -> Any:
     return cls(**kwargs)
 
 
-def _check(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> Any:
-    if dataclasses.is_dataclass(tp):
+def _check(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str | None) -> Any:
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return build(tp, value, path, source)
     origin = typing.get_origin(tp)
     if origin is Literal:
@@ -770,7 +789,7 @@ def _check(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> Any
     return _scalar(tp, value, path, meta, source)
 
 
-def _scalar(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> Any:
+def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str | None) -> Any:
     if tp is bool:
         if not isinstance(value, bool):
             raise ConfigError(path, f"expected true or false, got {_kind(value)} {short_repr(value)}", source)
@@ -802,12 +821,13 @@ def _scalar(tp: Any, value: Any, path: str, meta: Any, source: str | None) -> An
 
 
 def _alternatives(args: typing.Sequence[Any]) -> str:
-    names = []
+    plain = {float: "a number", int: "an integer", str: "a string", bool: "true or false"}
+    names: list[str] = []
     for arg in args:
         if typing.get_origin(arg) is Literal:
             names.extend(repr(c) for c in typing.get_args(arg))
         else:
-            names.append({float: "a number", int: "an integer", str: "a string", bool: "true or false"}.get(arg, str(arg)))
+            names.append(plain.get(arg, str(arg)))
     return " or ".join(names)
 
 

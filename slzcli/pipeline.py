@@ -31,7 +31,7 @@ import logging
 import platform
 import shutil
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,7 +45,7 @@ from slzcli.errors import DatasetError, OutputError
 from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
 from slzcli.interrupt import call_interruptibly
-from slzcli.landing.select import Selection, SelectParams, select_site
+from slzcli.landing.select import Candidate, Selection, SelectParams, Site, select_site
 from slzcli.outputs import results_mcap
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog
@@ -77,7 +77,7 @@ class Detection:
     score: ScoreMap
     points: MapPoints | None
     selection: Selection | None
-    edge_m: np.ndarray
+    edge_m: np.ndarray | None  # TerrainMaps.edge_distance_m
     timings_ms: dict[str, float]
     truth: MaskCounts | None = None
     segment: int = 0  # SLAM map segment of the pose and points
@@ -246,7 +246,7 @@ class Detector:
         sel = det.selection
         if sel is None:
             return
-        chosen = _chosen_cluster(sel) if sel.site is not None else None
+        chosen = _chosen_cluster(sel.candidates, sel.site) if sel.site is not None else None
         self.state.sites.add_rows([{
             "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
             "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
@@ -254,6 +254,7 @@ class Detector:
             "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment}
             for c in sel.candidates])
         if sel.site is not None:
+            assert det.points is not None  # a site is chosen among the map points
             pts = det.points.xyz_world
             limits = det.maps.work.as_dict() if det.maps.work is not None else None
             self.state.sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits,
@@ -272,9 +273,9 @@ def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
     return maps, _lap(t0)
 
 
-def _chosen_cluster(sel: Selection) -> int:
-    centre = np.asarray(sel.site.center_world)
-    return min(sel.candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre))).cluster
+def _chosen_cluster(candidates: Sequence[Candidate], site: Site) -> int:
+    centre = np.asarray(site.center_world)
+    return min(candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre))).cluster
 
 
 def _apply(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
@@ -363,7 +364,8 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         with limit.stage("opening the recording"):
             truth = ground_truth_of(path)
             rec, info, clouds = open_inputs(path, config, stack)
-        results = stack.enter_context(results_mcap.open_results(tmp, config))
+        results = results_mcap.open_results(tmp, config)
+        stack.enter_context(results)   # __enter__ returns the writer itself
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
         det = Detector(config, method, slam, slam.name, truth, spool=tmp / SPOOL_DIR)

@@ -45,16 +45,17 @@ class StageLimit:
 
     @contextmanager
     def stage(self, what: str) -> Iterator[None]:
-        if self.limit_s is None or self._active:
+        limit_s = self.limit_s
+        if limit_s is None or self._active:
             yield
             return
         self._active = True
         try:
             if threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer"):
-                with self._alarm(what):
+                with self._alarm(what, limit_s):
                     yield
             else:
-                with self._async_exc(what):
+                with self._async_exc(what, limit_s):
                     yield
         finally:
             self._active = False
@@ -63,12 +64,12 @@ class StageLimit:
         return StageTimeout(self.where, what, self.limit_s)
 
     @contextmanager
-    def _alarm(self, what: str) -> Iterator[None]:
+    def _alarm(self, what: str, limit_s: float) -> Iterator[None]:
         def on_alarm(signum: int, frame: object) -> None:
             raise self._error(what)
 
         previous = signal.signal(signal.SIGALRM, on_alarm)
-        signal.setitimer(signal.ITIMER_REAL, self.limit_s)
+        signal.setitimer(signal.ITIMER_REAL, limit_s)
         try:
             yield
         finally:
@@ -76,7 +77,7 @@ class StageLimit:
             signal.signal(signal.SIGALRM, previous)
 
     @contextmanager
-    def _async_exc(self, what: str) -> Iterator[None]:
+    def _async_exc(self, what: str, limit_s: float) -> Iterator[None]:
         target = threading.get_ident()
         lock = threading.Lock()
         state = {"open": True}
@@ -86,7 +87,7 @@ class StageLimit:
                 if state["open"]:
                     ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(target), ctypes.py_object(_Overrun))
 
-        timer = threading.Timer(self.limit_s, fire)
+        timer = threading.Timer(limit_s, fire)
         timer.daemon = True
         timer.start()
         try:

@@ -71,8 +71,9 @@ def camera_pixels(corners_ned: np.ndarray, R_IC: np.ndarray, t_IC: np.ndarray,
 
 def in_image(uv: np.ndarray, depth: np.ndarray, cam: CameraModel) -> np.ndarray:
     """(N,) True when all four corners are in front of the camera and inside the image."""
-    ok = (depth > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= cam.width) & (uv[..., 1] >= 0) & (uv[..., 1] <= cam.height)
-    return ok.all(axis=1)
+    ok: np.ndarray = ((depth > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= cam.width)
+                      & (uv[..., 1] >= 0) & (uv[..., 1] <= cam.height))
+    return np.all(ok, axis=1)
 
 
 @dataclass(frozen=True)

@@ -265,7 +265,7 @@ def _setup(target: Target, config: Config) -> _Setup:
     """Models and constants of a batch; checks that the control period is whole dynamics steps."""
     c, sim, nz = config.control, config.control.sim, config.control.noise
     ratio = sim.control_dt_s / sim.dynamics_dt_s
-    n_sub = int(round(ratio))
+    n_sub = round(ratio)
     if n_sub < 1 or abs(ratio - n_sub) > 1e-6:
         raise ConfigError("control.sim.control_dt_s", "must be a whole multiple of control.sim.dynamics_dt_s")
     limits.check(limits.simulation_sizes(config, 1))   # before the step loop and its log
@@ -279,7 +279,7 @@ def _setup(target: Target, config: Config) -> _Setup:
         wind=dyn.Wind.from_config(config), center_world=np.asarray(target.center_world, float), corners=corners,
         a_d=a_d, px_scale=np.array([cam.f, cam.f, r_star]),
         ground_z_ned=-float(target.center_world[2]) - config.uav.size_m[2] / 2,
-        dt=dt, n_sub=n_sub, steps=int(math.ceil(sim.timeout_s / dt)),
+        dt=dt, n_sub=n_sub, steps=math.ceil(sim.timeout_s / dt),
         alpha=min(1.0, dt / sim.error_filter_s) if sim.error_filter_s > 0 else 1.0,
         pos_rw=nz.position_drift_m_sqrt_s * math.sqrt(dt), yaw_rw=math.radians(nz.yaw_drift_deg_sqrt_s) * math.sqrt(dt),
         att_sigma=math.radians(nz.attitude_sigma_deg))

@@ -80,7 +80,7 @@ def paired(estimated: Sequence[np.ndarray | None], truth: Sequence[np.ndarray | 
     """The frames where both poses exist, as two (N,4,4) arrays."""
     if len(estimated) != len(truth):
         raise ValueError(f"{len(estimated)} estimated poses but {len(truth)} true ones")
-    keep = [i for i, (e, g) in enumerate(zip(estimated, truth)) if e is not None and g is not None]
+    keep = [i for i, (e, g) in enumerate(zip(estimated, truth, strict=True)) if e is not None and g is not None]
     return _stack([estimated[i] for i in keep]), _stack([truth[i] for i in keep])
 
 

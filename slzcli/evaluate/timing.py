@@ -19,7 +19,7 @@ class StageTimer:
     timings stay small.
     """
 
-    samples_ms: dict[str, array] = field(default_factory=dict)
+    samples_ms: dict[str, array[float]] = field(default_factory=dict)
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:

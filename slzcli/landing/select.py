@@ -25,6 +25,8 @@ from scipy.spatial import cKDTree
 from slzcli.errors import ConfigError
 from slzcli.landing.corners import square_corners
 
+WORLD_UP = np.array([0.0, 0.0, 1.0])  # world up when the caller names none: +z
+
 
 @dataclass(frozen=True)
 class SelectParams:
@@ -138,7 +140,7 @@ def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray, max_pairs: i
 
 
 def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray, mask: np.ndarray,
-                score: np.ndarray, params: SelectParams, *, up_world: np.ndarray = np.array([0.0, 0.0, 1.0]),
+                score: np.ndarray, params: SelectParams, *, up_world: np.ndarray = WORLD_UP,
                 edge_distance_m: np.ndarray | None = None) -> Selection:
     """Choose the landing site among the map points of one keyframe (METHOD 2.5)."""
     n = xyz_world.shape[0]
@@ -194,9 +196,9 @@ def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndar
         reason = f"extent {extent[0]:.2f} x {extent[1]:.2f} m below {min_extent[0]:.2f} x {min_extent[1]:.2f} m"
     else:
         (uv,), (inside,) = project(centroid[None], T_world_camera, K, mask.shape)
-        if not inside or not mask[int(round(uv[1])), int(round(uv[0]))]:
+        if not inside or not mask[round(float(uv[1])), round(float(uv[0]))]:
             reason = "centroid falls on a pixel the mask rejects"
-    return Candidate(c, len(pts), tuple(map(float, centroid)), variance, (float(extent[0]), float(extent[1])),
+    return Candidate(c, len(pts), _vec3(centroid), variance, (float(extent[0]), float(extent[1])),
                      reason == "", reason or "qualifies")
 
 
@@ -210,7 +212,7 @@ def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera:
     normal = good_n.mean(axis=0)
     normal /= np.linalg.norm(normal)
     tilt = float(np.degrees(np.arccos(np.clip(normal @ up, -1.0, 1.0))))
-    iu, iv = int(round(uv[0])), int(round(uv[1]))
+    iu, iv = round(float(uv[0])), round(float(uv[1]))
     clearance = None if edge_distance_m is None else float(edge_distance_m[iv, iu])
     failures = []
     if clearance is not None and not clearance > params.edge_clearance_m:
@@ -222,9 +224,14 @@ def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera:
     ip = np.round(px_pts[inside]).astype(int)
     site_score = float(score[ip[:, 1], ip[:, 0]].mean()) if len(ip) else float("nan")
     return Site(
-        pixel=(float(uv[0]), float(uv[1])), center_camera=tuple(map(float, center_camera)),
-        center_world=tuple(map(float, centroid)), corners_world=tuple(tuple(map(float, c)) for c in corners),
-        normal_world=tuple(map(float, normal)), cluster_points=best.points, normal_variance=best.normal_variance,
+        pixel=(float(uv[0]), float(uv[1])), center_camera=_vec3(center_camera),
+        center_world=_vec3(centroid), corners_world=tuple(_vec3(c) for c in corners),
+        normal_world=_vec3(normal), cluster_points=best.points, normal_variance=best.normal_variance,
         extent_m=best.extent_m, score=site_score, tilt_deg=tilt, edge_clearance_m=clearance,
         accepted=not failures,
-        acceptance_reason="; ".join(failures) or ("passed" if clearance is not None else "passed (tilt only: edge clearance not measured)"))
+        acceptance_reason="; ".join(failures)
+        or ("passed" if clearance is not None else "passed (tilt only: edge clearance not measured)"))
+
+
+def _vec3(v: np.ndarray) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from slzcli.errors import OutputError
 
@@ -172,7 +173,7 @@ class ArraySpool:
         except OSError as err:
             raise OutputError(self.folder, f"cannot create spool folder ({err.strerror})") from err
 
-    def append(self, **rows: np.ndarray) -> None:
+    def append(self, **rows: npt.ArrayLike) -> None:
         for name, values in rows.items():
             dtype, shape = self.spec[name]
             block = np.ascontiguousarray(values, dtype=dtype).reshape((-1, *shape))

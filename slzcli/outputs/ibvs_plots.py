@@ -90,7 +90,7 @@ def montecarlo_histograms(path: Path, result: SimResult) -> Path:
     fields = (("landing_time_s", "landing time (s)"), ("final_feature_error_px", "feature error at the switch (px)"),
               ("touchdown_error_m", "touch-down error (m)"))
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
-    for ax, (name, label) in zip(axes, fields):
+    for ax, (name, label) in zip(axes, fields, strict=True):
         vals = getattr(result, name)
         vals = vals[np.isfinite(vals)]
         if vals.size:

@@ -2,13 +2,14 @@
 
 Colours: scores use the same JET convention as ``images.heatmap_bgr`` (1 = good = red);
 SLAM map points are grey when the mask rejects them, magenta when kept; the Eq. 10 square
-of the site is white outlined in black; masks are light green (safe) on dark grey. Every function writes one PNG atomically and returns its path.
+of the site is white outlined in black; masks are light green (safe) on dark grey. Every
+function writes one PNG atomically and returns its path.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -17,6 +18,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from slzcli.outputs.files import atomic_path
+
+if TYPE_CHECKING:
+    from slzcli.compare import FigureFrame
 
 METHOD_COLOURS = {"fuzzy": "tab:red", "bayes": "tab:blue"}
 MAP_COLOURS = {"depth_variance": "tab:olive", "flatness": "tab:green", "inclination": "tab:purple",
@@ -40,11 +44,11 @@ def _save(fig: plt.Figure, path: Path) -> Path:
     return path
 
 
-def figure6(path: Path, frame: Any, title: str) -> Path:
+def figure6(path: Path, frame: FigureFrame, title: str) -> Path:
     """Per method a row: colour image with the mask, the score map, the mask with SLAM points and the site."""
     methods = list(frame.per_method)
     fig, axes = plt.subplots(len(methods), 3, figsize=(12, 3.4 * len(methods)), squeeze=False)
-    for row, m in zip(axes, methods):
+    for row, m in zip(axes, methods, strict=True):
         v = frame.per_method[m]
         mask = v["mask"]
         tint = np.where(mask[..., None], np.array([60, 200, 60]), np.array([220, 40, 40]))

@@ -14,8 +14,10 @@ do not depend on the temporary name (same frames -> same files).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -147,10 +149,8 @@ class RecordingWriter:
         """Drop everything written so far (the target path is left untouched)."""
         backend, self._backend = self._backend, None
         if backend is not None:
-            try:
+            with contextlib.suppress(Exception):
                 backend.close()
-            except Exception:
-                pass
         _remove(self._staging)
 
     # ------------------------------------------------------------------ writing
@@ -186,10 +186,12 @@ class RecordingWriter:
                 msg = t[POSE_TYPES["PoseStamped"]](header=header, pose=pose)
             else:
                 zeros = np.zeros(36, dtype=np.float64)
-                twist = t[gm + "Twist"](linear=t[gm + "Vector3"](0.0, 0.0, 0.0), angular=t[gm + "Vector3"](0.0, 0.0, 0.0))
-                msg = t[POSE_TYPES["Odometry"]](header=header, child_frame_id=child,
-                                                pose=t[gm + "PoseWithCovariance"](pose=pose, covariance=zeros),
-                                                twist=t[gm + "TwistWithCovariance"](twist=twist, covariance=zeros.copy()))
+                twist = t[gm + "Twist"](linear=t[gm + "Vector3"](0.0, 0.0, 0.0),
+                                        angular=t[gm + "Vector3"](0.0, 0.0, 0.0))
+                msg = t[POSE_TYPES["Odometry"]](
+                    header=header, child_frame_id=child,
+                    pose=t[gm + "PoseWithCovariance"](pose=pose, covariance=zeros),
+                    twist=t[gm + "TwistWithCovariance"](twist=twist, covariance=zeros.copy()))
         self._write(topic, POSE_TYPES[kind], msg, stamp_ns)
 
     def write_raw(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
@@ -219,6 +221,7 @@ class RecordingWriter:
     def _write(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
         if self._backend is None:
             raise OutputError(self.path, "writer is not open (use it as a context manager)")
+        data: bytes | memoryview
         if isinstance(msg, (bytes, bytearray, memoryview)):
             data = bytes(msg)
         elif self.ros1:
@@ -232,7 +235,8 @@ class RecordingWriter:
 
     def _header(self, stamp_ns: int, frame_id: str) -> Any:
         t = self.typestore.types
-        stamp = t["builtin_interfaces/msg/Time"](sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
+        stamp = t["builtin_interfaces/msg/Time"](sec=int(stamp_ns // 1_000_000_000),
+                                                 nanosec=int(stamp_ns % 1_000_000_000))
         if self.ros1:
             return t["std_msgs/msg/Header"](seq=self.frames_written, stamp=stamp, frame_id=frame_id)
         return t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
@@ -284,7 +288,8 @@ class RecordingWriter:
             # Depths nearer than A / 65535 (~0.15 m) overflow the 16-bit code: written as "no data".
             code[code > np.iinfo(np.uint16).max] = 0
             q = code.astype(np.uint16)
-            img, header, fmt = q, COMPRESSED_DEPTH_HEADER.pack(0, float(quant_a), float(quant_b)), "32FC1; compressedDepth png"
+            img, header = q, COMPRESSED_DEPTH_HEADER.pack(0, float(quant_a), float(quant_b))
+            fmt = "32FC1; compressedDepth png"
         else:
             img, header, fmt = self._depth_counts(depth_m), COMPRESSED_DEPTH_HEADER.pack(0, 0.0, 0.0), \
                 "16UC1; compressedDepth png"
@@ -304,13 +309,13 @@ class RecordingWriter:
         fields = dict(header=self._header(stamp, self.layout.frame_id), height=k.height, width=k.width,
                       distortion_model=k.distortion_model or "plumb_bob", binning_x=0, binning_y=0, roi=roi)
         keys = ("D", "K", "R", "P") if self.ros1 else ("d", "k", "r", "p")
-        fields.update(dict(zip(keys, (D, K, R, P))))
+        fields.update(dict(zip(keys, (D, K, R, P), strict=True)))
         return t[CAMERA_INFO](**fields)
 
 
 # ----------------------------------------------------------------------------- backends
 class _Backend:
-    def write(self, topic: str, msgtype: str, data: bytes, stamp_ns: int) -> None:
+    def write(self, topic: str, msgtype: str, data: bytes | memoryview, stamp_ns: int) -> None:
         raise NotImplementedError
 
     def close(self) -> None:
@@ -323,13 +328,12 @@ class _McapBackend(_Backend):
 
         self.w = w
         self.f = tmp.open("wb")
-        kwargs = {"chunk_size": w.chunk_bytes} if w.chunk_bytes else {}
-        self.mcap = Writer(self.f, **kwargs)
+        self.mcap = Writer(self.f, chunk_size=w.chunk_bytes) if w.chunk_bytes else Writer(self.f)
         self.mcap.start(profile="ros1" if w.ros1 else "ros2", library="slz")
         self.schemas: dict[str, int] = {}
         self.channels: dict[str, int] = {}
 
-    def write(self, topic: str, msgtype: str, data: bytes, stamp_ns: int) -> None:
+    def write(self, topic: str, msgtype: str, data: bytes | memoryview, stamp_ns: int) -> None:
         if topic not in self.channels:
             if msgtype not in self.schemas:
                 ver = 1 if self.w.ros1 else 2
@@ -339,7 +343,9 @@ class _McapBackend(_Backend):
                     name, "ros1msg" if self.w.ros1 else "ros2msg", text.encode())
             self.channels[topic] = self.mcap.register_channel(
                 topic, "ros1" if self.w.ros1 else "cdr", self.schemas[msgtype])
-        self.mcap.add_message(self.channels[topic], log_time=stamp_ns, data=data, publish_time=stamp_ns)
+        # mcap writes any buffer (its annotation says bytes): rosbags serialises to a memoryview
+        self.mcap.add_message(self.channels[topic], log_time=stamp_ns, data=data,  # type: ignore[arg-type]
+                              publish_time=stamp_ns)
 
     def close(self) -> None:
         try:
@@ -364,7 +370,7 @@ class _RosbagBackend(_Backend):
         self.bag.open()
         self.conns: dict[str, Any] = {}
 
-    def write(self, topic: str, msgtype: str, data: bytes, stamp_ns: int) -> None:
+    def write(self, topic: str, msgtype: str, data: bytes | memoryview, stamp_ns: int) -> None:
         if topic not in self.conns:
             self.conns[topic] = self.bag.add_connection(topic, msgtype, typestore=self.w.typestore)
         self.bag.write(self.conns[topic], stamp_ns, data)
@@ -373,7 +379,7 @@ class _RosbagBackend(_Backend):
         self.bag.close()
 
 
-_BACKENDS: dict[str, type[_Backend]] = {
+_BACKENDS: dict[str, Callable[[Path, RecordingWriter], _Backend]] = {
     "mcap": _McapBackend, "mcap-ros1": _McapBackend,
     "ros1": _RosbagBackend, "ros2-sqlite": _RosbagBackend, "ros2-mcap": _RosbagBackend,
 }

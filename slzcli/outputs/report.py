@@ -140,7 +140,8 @@ def _variant_row(r: dict[str, Any], label: str) -> dict[str, Any]:
     pair = r["pairs"][0] if r["pairs"] else {}
     return {"recording": r.get("variant_of", r["name"]), "variant": label, "methods": methods,
             "maps": {n: v["pr_auc"] for n, v in (r.get("maps") or {}).items()},
-            "map_means": {n: {"safe": v["mean_safe"], "unsafe": v["mean_unsafe"]} for n, v in (r.get("maps") or {}).items()},
+            "map_means": {n: {"safe": v["mean_safe"], "unsafe": v["mean_unsafe"]}
+                          for n, v in (r.get("maps") or {}).items()},
             "site_distance_m": pair.get("site_distance_m"), "mask_iou": pair.get("mask_iou")}
 
 
@@ -181,8 +182,8 @@ def text_table(summary: dict[str, Any], output: str) -> str:
     rows = table_rows(summary["recordings"] + summary["variants"])
     widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(TABLE_HEAD)] if rows else \
         [len(h) for h in TABLE_HEAD]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(TABLE_HEAD, widths))]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(TABLE_HEAD, widths, strict=True))]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
     for r in summary["recordings"]:
         same = "identical" if r["inputs_identical"] else "DIFFERENT"
         lines.append(f"{r['name']}: {r['frames']} frames, {r['detections']} detection frames, SLAM "
@@ -196,9 +197,11 @@ CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:24px auto;max-width:1200px;color:#222}
 h1{font-size:22px;margin-bottom:4px} h2{font-size:18px;margin-top:28px;border-bottom:1px solid #ccc}
 h3{font-size:15px;margin:18px 0 6px} p.note{color:#555;font-size:13px;max-width:900px}
-table{border-collapse:collapse;font-size:12.5px;margin:8px 0} td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}
+table{border-collapse:collapse;font-size:12.5px;margin:8px 0}
+td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}
 th{background:#f1f1f1} td.l,th.l{text-align:left} td.bad{background:#fbe3e3} td.good{background:#e5f5e5}
-img{max-width:100%;border:1px solid #ddd;margin:4px 0} .row{display:flex;gap:12px;flex-wrap:wrap} .row img{max-width:48%}
+img{max-width:100%;border:1px solid #ddd;margin:4px 0}
+.row{display:flex;gap:12px;flex-wrap:wrap} .row img{max-width:48%}
 """
 
 
@@ -220,15 +223,15 @@ def _cell(v: str, head: str) -> str:
 
 def _table(head: tuple[str, ...] | list[str], rows: list[list[str]]) -> str:
     th = "".join(f'<th{" class=l" if i < 3 else ""}>{html.escape(h)}</th>' for i, h in enumerate(head))
-    body = "".join("<tr>" + "".join(_cell(c, h) for c, h in zip(r, head)) + "</tr>" for r in rows)
+    body = "".join("<tr>" + "".join(_cell(c, h) for c, h in zip(r, head, strict=True)) + "</tr>" for r in rows)
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
 def _timing_table(r: dict[str, Any]) -> str:
     stages = ("slam", "maps", "score", "mask", "select", "frame")
     head = ["method", *[f"{s} med / p90" for s in stages]]
-    rows = [[m, *[f"{_f(e['timings_ms'][s]['median_ms'], 1)} / {_f(e['timings_ms'][s]['p90_ms'], 1)}" for s in stages]]
-            for m, e in r["methods"].items()]
+    rows = [[m, *[f"{_f(e['timings_ms'][s]['median_ms'], 1)} / {_f(e['timings_ms'][s]['p90_ms'], 1)}"
+                  for s in stages]] for m, e in r["methods"].items()]
     return _table(head, rows)
 
 
@@ -275,10 +278,10 @@ def report_html(summary: dict[str, Any], figures: dict[str, dict[str, Path]], va
              f"{html.escape(', '.join(summary['methods']))}</title><style>{CSS}</style></head><body>",
              f"<h1>slz compare: {html.escape(' vs '.join(summary['methods']))}</h1>",
              "<p class=note>Same frames, same SLAM map points and the same four terrain maps for every method: only "
-             "the fusion (fuzzy Mamdani score vs naive-Bayes probability) and the cluster rule differ. The Bayes method "
-             "is this project's reconstruction of Chatzikalymnios &amp; Moustakas (2022) [16] (BASELINE.md), not [16] "
-             f"itself. Config hash {html.escape(summary['config_hash'])}. Pixel figures are micro-averaged over all "
-             "detection frames; PR AUC sweeps the score threshold against the ground-truth safe mask.</p>",
+             "the fusion (fuzzy Mamdani score vs naive-Bayes probability) and the cluster rule differ. The Bayes "
+             "method is this project's reconstruction of Chatzikalymnios &amp; Moustakas (2022) [16] (BASELINE.md), "
+             f"not [16] itself. Config hash {html.escape(summary['config_hash'])}. Pixel figures are micro-averaged "
+             "over all detection frames; PR AUC sweeps the score threshold against the ground-truth safe mask.</p>",
              "<h2>Summary</h2>", _table(TABLE_HEAD, table_rows(recs))]
     for r in recs + summary["variants"]:
         key = _key(r)

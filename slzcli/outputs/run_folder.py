@@ -218,7 +218,8 @@ def _truth_summary(st: Any, landing: dict[str, Any]) -> dict[str, Any]:
         res = None
     if res is not None:
         out["slam_ate_rmse_m"] = res.rmse_m
-        out["slam_ate_segments"] = [{"segment": k, "rmse_m": r.rmse_m, "frames": r.n} for k, r in res.per_segment.items()]
+        out["slam_ate_segments"] = [{"segment": k, "rmse_m": r.rmse_m, "frames": r.n}
+                                    for k, r in res.per_segment.items()]
         try:
             rel = rpe(est, true, segments=segs)  # consecutive frames of one segment; lost frames are skipped
             out["slam_rpe"] = {"trans_rmse_m": rel.trans_rmse_m, "rot_rmse_deg": rel.rot_rmse_deg, "pairs": rel.n}

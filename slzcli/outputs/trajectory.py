@@ -34,13 +34,17 @@ def _quat_xyzw(R: np.ndarray) -> np.ndarray:
     which = np.argmax(np.concatenate([tr[:, None], diag], 1), axis=1)
     q = np.zeros((len(R), 4))
     s = np.sqrt(np.maximum(1.0 + tr, 1e-12)) * 2  # which == 0
-    q0 = np.stack([(R[:, 2, 1] - R[:, 1, 2]) / s, (R[:, 0, 2] - R[:, 2, 0]) / s, (R[:, 1, 0] - R[:, 0, 1]) / s, s / 4], 1)
+    q0 = np.stack([(R[:, 2, 1] - R[:, 1, 2]) / s, (R[:, 0, 2] - R[:, 2, 0]) / s,
+                   (R[:, 1, 0] - R[:, 0, 1]) / s, s / 4], 1)
     s1 = np.sqrt(np.maximum(1.0 + R[:, 0, 0] - R[:, 1, 1] - R[:, 2, 2], 1e-12)) * 2
-    q1 = np.stack([s1 / 4, (R[:, 0, 1] + R[:, 1, 0]) / s1, (R[:, 0, 2] + R[:, 2, 0]) / s1, (R[:, 2, 1] - R[:, 1, 2]) / s1], 1)
+    q1 = np.stack([s1 / 4, (R[:, 0, 1] + R[:, 1, 0]) / s1,
+                   (R[:, 0, 2] + R[:, 2, 0]) / s1, (R[:, 2, 1] - R[:, 1, 2]) / s1], 1)
     s2 = np.sqrt(np.maximum(1.0 + R[:, 1, 1] - R[:, 0, 0] - R[:, 2, 2], 1e-12)) * 2
-    q2 = np.stack([(R[:, 0, 1] + R[:, 1, 0]) / s2, s2 / 4, (R[:, 1, 2] + R[:, 2, 1]) / s2, (R[:, 0, 2] - R[:, 2, 0]) / s2], 1)
+    q2 = np.stack([(R[:, 0, 1] + R[:, 1, 0]) / s2, s2 / 4,
+                   (R[:, 1, 2] + R[:, 2, 1]) / s2, (R[:, 0, 2] - R[:, 2, 0]) / s2], 1)
     s3 = np.sqrt(np.maximum(1.0 + R[:, 2, 2] - R[:, 0, 0] - R[:, 1, 1], 1e-12)) * 2
-    q3 = np.stack([(R[:, 0, 2] + R[:, 2, 0]) / s3, (R[:, 1, 2] + R[:, 2, 1]) / s3, s3 / 4, (R[:, 1, 0] - R[:, 0, 1]) / s3], 1)
+    q3 = np.stack([(R[:, 0, 2] + R[:, 2, 0]) / s3, (R[:, 1, 2] + R[:, 2, 1]) / s3,
+                   s3 / 4, (R[:, 1, 0] - R[:, 0, 1]) / s3], 1)
     q = np.choose(which[:, None], [q0, q1, q2, q3])
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     return np.where(q[:, 3:4] < 0, -q, q)
@@ -48,13 +52,13 @@ def _quat_xyzw(R: np.ndarray) -> np.ndarray:
 
 def tum_text(stamps_ns: Sequence[int], poses: Sequence[np.ndarray | None]) -> str:
     """TUM trajectory text of the frames that have a pose (seconds with nanosecond digits)."""
-    rows = [(t, p) for t, p in zip(stamps_ns, poses) if p is not None]
+    rows = [(t, p) for t, p in zip(stamps_ns, poses, strict=True) if p is not None]
     if not rows:
         return "# timestamp tx ty tz qx qy qz qw\n"
     T = np.stack([np.asarray(p, np.float64) for _, p in rows])
     q = _quat_xyzw(T[:, :3, :3])
     lines = ["# timestamp tx ty tz qx qy qz qw"]
-    for (t, _), xyz, qq in zip(rows, T[:, :3, 3], q):
+    for (t, _), xyz, qq in zip(rows, T[:, :3, 3], q, strict=True):
         lines.append(f"{t // 1_000_000_000}.{t % 1_000_000_000:09d} " + " ".join(f"{v:.9f}" for v in (*xyz, *qq)))
     return "\n".join(lines) + "\n"
 
@@ -62,9 +66,9 @@ def tum_text(stamps_ns: Sequence[int], poses: Sequence[np.ndarray | None]) -> st
 def parse_tum(text: str) -> tuple[np.ndarray, np.ndarray]:
     """(stamps_ns (N,), poses (N,4,4)) from TUM trajectory text (the inverse of ``tum_text``)."""
     rows = [ln.split() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    stamps = np.array([int(round(float(r[0]) * 1e9)) if "." not in r[0] else
-                       int(r[0].split(".")[0]) * 1_000_000_000 + int(r[0].split(".")[1].ljust(9, "0")[:9]) for r in rows],
-                      dtype=np.int64)
+    stamps = np.array([round(float(r[0]) * 1e9) if "." not in r[0] else
+                       int(r[0].split(".")[0]) * 1_000_000_000 + int(r[0].split(".")[1].ljust(9, "0")[:9])
+                       for r in rows], dtype=np.int64)
     v = np.array([[float(x) for x in r[1:8]] for r in rows]).reshape(-1, 7)
     x, y, z, w = v[:, 3], v[:, 4], v[:, 5], v[:, 6]
     T = np.tile(np.eye(4), (len(v), 1, 1))

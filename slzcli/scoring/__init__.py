@@ -132,7 +132,7 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
                       mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan, margin_m=config.uav.margin_m)
     if plan is not None:   # the final descent's column must have been in view (control.desired_depth_m hover)
         before = int(sm.mask.sum())
-        np.logical_and(sm.mask, column_in_view(depth_m, plan[0], up_camera, config.control.desired_depth_m),
+        np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], config.control.desired_depth_m),
                        out=sm.mask)
         if before:
             sm = ScoreMap(sm.method, sm.score, sm.mask, 1.0 - int(sm.mask.sum()) / before)

@@ -73,6 +73,13 @@ class _Val:
     def const(self) -> bool:
         return self.id is None
 
+    @property
+    def ssa(self) -> int:
+        """The array id; only arrays enter the program (constants fold while compiling)."""
+        if self.id is None:
+            raise AssertionError("a constant has no array id")
+        return self.id
+
 
 def _const(c: float) -> _Val:
     return _Val(None, c, c)
@@ -84,17 +91,17 @@ class _Builder:
     def __init__(self, n_inputs: int) -> None:
         self.ops: list[tuple[str, tuple[int, ...], tuple[float, ...]]] = [("input", (), (float(i),))
                                                                          for i in range(n_inputs)]
-        self.memo: dict[tuple, _Val] = {}
+        self.memo: dict[tuple[str, tuple[int, ...], tuple[float, ...]], _Val] = {}
         self.vals: dict[int, _Val] = {}
-        self.nary_memo: dict[str, dict[frozenset, _Val]] = {}
+        self.nary_memo: dict[str, dict[frozenset[int], _Val]] = {}
 
     def emit(self, op: str, args: tuple[_Val, ...], consts: tuple[float, ...], lo: float, hi: float) -> _Val:
-        ids = tuple(a.id for a in args)
+        ids = tuple(a.ssa for a in args)
         if op in ("min", "max", "mul"):
             ids = tuple(sorted(ids))  # commutative: one key for both orders
         key = (op, ids, consts)
         if key not in self.memo:
-            self.ops.append((op, ids, consts))  # type: ignore[arg-type]
+            self.ops.append((op, ids, consts))
             self.memo[key] = self.vals[len(self.ops) - 1] = _Val(len(self.ops) - 1, lo, hi)
         return self.memo[key]
 
@@ -138,7 +145,7 @@ class _Builder:
         """1 - x; NOT of a NOT is the value itself."""
         if x.const:
             return _const(1.0 - x.lo)
-        op, ids, _ = self.ops[x.id]  # type: ignore[index]
+        op, ids, _ = self.ops[x.ssa]
         if op == "not":
             return self.vals[ids[0]]
         return self.emit("not", (x,), (), 1.0 - x.hi, 1.0 - x.lo)
@@ -148,14 +155,14 @@ class _Builder:
         (min(1-a, 1-b) = 1 - max(a, b): one NOT instead of several), and a min/max already
         computed over a subset of the operands is reused (rule bases repeat premise parts)."""
         consts = [v.lo for v in vals if v.const]
-        arrays = list({v.id: v for v in vals if not v.const}.values())
-        negated = [v for v in arrays if self.ops[v.id][0] == "not"]  # type: ignore[index]
+        arrays = list({v.ssa: v for v in vals if not v.const}.values())
+        negated = [v for v in arrays if self.ops[v.ssa][0] == "not"]
         if len(negated) >= 2:
             dual = "max" if op == "min" else "min"
-            bases = [self.vals[self.ops[v.id][1][0]] for v in negated]  # type: ignore[index]
+            bases = [self.vals[self.ops[v.ssa][1][0]] for v in negated]
             arrays = [v for v in arrays if v not in negated]
             arrays.append(self.negate(self.nary(dual, bases)))
-            arrays = list({v.id: v for v in arrays}.values())
+            arrays = list({v.ssa: v for v in arrays}.values())
         pair = self.minimum if op == "min" else self.maximum
         acc = self._fold(op, arrays, pair) if arrays else None
         for c in consts:
@@ -164,18 +171,18 @@ class _Builder:
         return acc
 
     def _fold(self, op: str, arrays: list[_Val], pair: Callable[[_Val, _Val], _Val]) -> _Val:
-        key = frozenset(v.id for v in arrays)
+        key = frozenset(v.ssa for v in arrays)
         memo = self.nary_memo.setdefault(op, {})
         if key not in memo:
-            todo = sorted(arrays, key=lambda v: v.id)  # type: ignore[arg-type, return-value]
+            todo = sorted(arrays, key=lambda v: v.ssa)
             subsets = [t for t in memo if t < key]
-            done = max(subsets, key=len) if subsets else frozenset([todo[0].id])
+            done = max(subsets, key=len) if subsets else frozenset([todo[0].ssa])
             acc = memo[done] if subsets else todo[0]
             memo[done] = acc
             for v in todo:
-                if v.id not in done:
+                if v.ssa not in done:
                     acc = pair(acc, v)
-                    done = done | {v.id}
+                    done = done | {v.ssa}
                     memo[done] = acc
         return memo[key]
 
@@ -404,7 +411,7 @@ def build(rb: RuleBase) -> ClosedFormFuzzy | None:
         if out_lo != 0.0:
             score = b.emit("addc", (score,), (out_lo,), -np.inf, np.inf)
         score = b.emit("fmaxc", (score,), (out_lo,), -np.inf, np.inf)
-    program, n_regs = _allocate(b.ops, n, score.id)  # type: ignore[arg-type]
+    program, n_regs = _allocate(b.ops, n, score.ssa)
     return ClosedFormFuzzy(program, n, n_regs, rb.source)
 
 
@@ -440,7 +447,7 @@ def _uses(node: Node, leaf: int) -> bool:
         return node.index == leaf
     if isinstance(node, Not):
         return _uses(node.arg, leaf)
-    return any(_uses(a, leaf) for a in node.args)  # type: ignore[union-attr]
+    return any(_uses(a, leaf) for a in node.args)
 
 
 def _muladd(b: _Builder, x: _Val, y: _Val, acc: _Val | None) -> _Val:

@@ -28,7 +28,7 @@ CHUNK_PX = 256  # pixels per chunk: temporaries stay small enough for malloc to 
 
 def memberships(rb: RuleBase, inputs: np.ndarray) -> np.ndarray:
     """(n_inputs, N) crisp inputs -> (n_leaves, N) membership degrees (inputs clipped to their universes)."""
-    rows = []
+    rows: list[np.ndarray] = []
     for v, var in enumerate(rb.inputs):
         x = np.clip(inputs[v], var.universe[0], var.universe[1])
         rows.extend(fn(x) for fn in var.terms)
@@ -87,8 +87,8 @@ def area_moment(output: Variable, act: np.ndarray) -> tuple[np.ndarray, np.ndarr
     kinks = fixed_kinks(output)
     cand = [np.broadcast_to(kinks, (n, len(kinks)))]
     for fn in output.terms:
-        for y0, m0, y1, m1 in fn.segments():
-            cand.append(y0 + (a - m0) / (m1 - m0) * (y1 - y0))  # where this segment equals each a_k
+        for u0, m0, u1, m1 in fn.segments():
+            cand.append(u0 + (a - m0) / (m1 - m0) * (u1 - u0))  # where this segment equals each a_k
     y = np.sort(np.clip(np.concatenate(cand, axis=1), lo, hi), axis=1)
     f = np.zeros_like(y)
     for k, fn in enumerate(output.terms):

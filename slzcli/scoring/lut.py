@@ -134,7 +134,7 @@ def build(rb: RuleBase, levels: int) -> CompiledFuzzy:
     out_lo = rb.output.universe[0]
     area = area.reshape((L,) * n)
     moment = (moment - out_lo * area.ravel()).reshape((L,) * n)
-    flips = [_mirror_cells(v, g) for v, g in zip(rb.inputs, grids)]
+    flips = [_mirror_cells(v, g) for v, g in zip(rb.inputs, grids, strict=True)]
     # cell-local layout: row = cell index, column = corner bits in the walk's (mirrored) frame,
     # so a vertex is found from the ordering code alone, whatever the cell's mirroring
     cidx = np.meshgrid(*[np.arange(cells)] * n, indexing="ij")
@@ -196,6 +196,11 @@ def _self_check(rb: RuleBase, compiled: CompiledFuzzy) -> float:
 SORT_NETWORKS = {1: [], 2: [(0, 1)], 3: [(0, 1), (1, 2), (0, 1)], 4: [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)]}
 
 
+def _lut(src: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """``cv2.LUT``, typed as the array it is (OpenCV's stubs widen the result to any number type)."""
+    return cv2.LUT(src, table)
+
+
 def interpolate(t: CompiledFuzzy, inputs: list[np.ndarray]) -> np.ndarray:
     """Mirrored Kuhn simplex interpolation of the area and moment tables; returns out_lo + M / A."""
     n, L = t.n, t.levels
@@ -206,15 +211,15 @@ def interpolate(t: CompiledFuzzy, inputs: list[np.ndarray]) -> np.ndarray:
     for i, x in enumerate(inputs):
         x = np.ascontiguousarray(x, np.float32)
         s = (L - 1) * SUB / (t.hi[i] - t.lo[i])
-        q = cv2.addWeighted(x, s, x, 0.0, -t.lo[i] * s, dtype=cv2.CV_16U)  # quantised, rounded, >= 0
+        q: np.ndarray = cv2.addWeighted(x, s, x, 0.0, -t.lo[i] * s, dtype=cv2.CV_16U)  # quantised, rounded, >= 0
         np.minimum(q, scale_max, out=q)
         c8 = (q >> 8).astype(np.uint8)                                     # cell along this input
         np.bitwise_and(q, SUB - 1, out=q)                                  # fraction in the cell
-        fracs.append(cv2.absdiff(q, cv2.LUT(c8, t.mirror_lut[i])))         # SUB - fraction where mirrored
-        cell += cv2.LUT(c8, t.cell_lut[i])
+        fracs.append(cv2.absdiff(q, _lut(c8, t.mirror_lut[i])))            # SUB - fraction where mirrored
+        cell += _lut(c8, t.cell_lut[i])
     code = np.zeros(shape, np.uint8)  # one bit per pair (a < b): fraction a > fraction b
     for bit, (a, b) in enumerate(itertools.combinations(range(n), 2)):
-        gt = cv2.compare(fracs[a], fracs[b], cv2.CMP_GT)
+        gt: np.ndarray = cv2.compare(fracs[a], fracs[b], cv2.CMP_GT)
         np.bitwise_and(gt, 1 << bit, out=gt)
         code |= gt
     # descending sorted fractions -> barycentric weights (they sum to SUB; the ratio M/A cancels it)
@@ -234,7 +239,7 @@ def interpolate(t: CompiledFuzzy, inputs: list[np.ndarray]) -> np.ndarray:
         elif k == n:
             index = rows + (2 ** n - 1)
         else:
-            index = rows + cv2.LUT(code, t.corner_luts[k - 1])
+            index = rows + _lut(code, t.corner_luts[k - 1])
         wf = w.astype(np.float32)
         np.take(flat_area, index, out=gathered)
         cv2.accumulateProduct(gathered, wf, area)

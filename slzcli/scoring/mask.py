@@ -14,9 +14,9 @@ observed neighbours (sparse far-field sampling) takes the worst of them.
 
 The window is square, of side ``margin_factor x max(L1, L2)`` metres (the UAV footprint;
 the larger side, since the yaw at touch-down is not known), converted to pixels at the
-frame's median valid depth (``side_m x fx / depth`` wide, ``side_m x fy / depth`` high): one window per frame, as the paper's
-minimum filter is one image operation; on a steep oblique view the near part of the image
-gets a slightly small margin and the far part a large one. The side is rounded up to an
+frame's median valid depth (``side_m x fx / depth`` wide, ``side_m x fy / depth`` high): one
+window per frame, as the paper's minimum filter is one image operation; on a steep oblique view
+the near part of the image gets a slightly small margin and the far part a large one. The side is rounded up to an
 odd pixel count so the window is centred. Outside the image counts as 0 (unknown is
 unsafe): a site must fit inside the view.
 """
@@ -113,7 +113,8 @@ def column_in_view(depth_m: np.ndarray, intrinsics: Intrinsics, up_camera: np.nd
         z = top[..., 2]
         cu = intrinsics.fx * top[..., 0] / z + intrinsics.cx
         cv_ = intrinsics.fy * top[..., 1] / z + intrinsics.cy
-        inside = (z > 0) & (cu >= -0.5) & (cu <= intrinsics.width - 0.5) & (cv_ >= -0.5) & (cv_ <= intrinsics.height - 0.5)
+        inside = ((z > 0) & (cu >= -0.5) & (cu <= intrinsics.width - 0.5)
+                  & (cv_ >= -0.5) & (cv_ <= intrinsics.height - 0.5))
     return inside & np.isfinite(pts[..., 2])
 
 

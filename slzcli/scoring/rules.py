@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import difflib
 import hashlib
+import itertools
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 import yaml
@@ -97,7 +98,7 @@ class Or:
     args: tuple[Node, ...]
 
 
-Node = Union[Is, Not, And, Or]
+Node = Is | Not | And | Or
 
 
 @dataclass(frozen=True)
@@ -198,7 +199,7 @@ def _variable(name: Any, spec: Any, key: str, source: str) -> Variable:
         if kind not in MF_KINDS:
             raise ConfigError(tkey, f"unknown shape {kind!r}{did_you_mean(str(kind), MF_KINDS)}", source)
         if (not isinstance(pts, list) or len(pts) != MF_KINDS[kind] or not all(_is_number(p) for p in pts)
-                or any(float(p) > float(q) for p, q in zip(pts, pts[1:]))):
+                or any(float(p) > float(q) for p, q in itertools.pairwise(pts))):
             raise ConfigError(tkey, f"{kind} needs {MF_KINDS[kind]} non-decreasing numbers, got {pts!r}", source)
         p = [float(v) for v in pts]
         if p[0] == p[-1]:
@@ -304,10 +305,10 @@ class _Parser:
         return Not(leaf) if negate else leaf
 
 
-def _flatten(args: Iterable[Node], kind: type) -> list[Node]:
+def _flatten(args: Iterable[Node], kind: type[And] | type[Or]) -> list[Node]:
     out: list[Node] = []
     for a in args:
-        out.extend(a.args if isinstance(a, kind) else [a])  # type: ignore[attr-defined]
+        out.extend(a.args if isinstance(a, kind) else [a])
     return out
 
 

@@ -7,23 +7,26 @@ ORB-SLAM3 when the optional pyorbslam3 wheel is installed, else the built-in odo
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from slzcli.errors import ConfigError
 from slzcli.slam.base import Keyframe, MapPoints, SlamBackend, TrackingState, TrackResult
 
+if TYPE_CHECKING:
+    from slzcli.config import Config
 
-def _recorded(config: Any, **kw: Any) -> SlamBackend:
+
+def _recorded(config: Config, **kw: Any) -> SlamBackend:
     from slzcli.slam.recorded import RecordedBackend
     return RecordedBackend(config, kw.get("clouds", ()))
 
 
-def _orbslam3(config: Any, **kw: Any) -> SlamBackend:
+def _orbslam3(config: Config, **kw: Any) -> SlamBackend:
     from slzcli.slam.orbslam3 import OrbSlam3Backend
     return OrbSlam3Backend(config, kw.get("vocabulary"))
 
 
-def _odometry(config: Any, **kw: Any) -> SlamBackend:
+def _odometry(config: Config, **kw: Any) -> SlamBackend:
     from slzcli.slam.odometry import OdometryBackend
     return OdometryBackend(config)
 
@@ -35,7 +38,7 @@ BACKENDS: dict[str, Callable[..., SlamBackend]] = {
 }
 
 
-def choose_backend(config: Any, has_recorded_poses: bool) -> str:
+def choose_backend(config: Config, has_recorded_poses: bool) -> str:
     """The backend name ``slam.backend`` resolves to (``auto`` decided by what is available)."""
     name = config.slam.backend
     if name != "auto":
@@ -46,7 +49,7 @@ def choose_backend(config: Any, has_recorded_poses: bool) -> str:
     return "orbslam3" if available() else "odometry"
 
 
-def get_backend(config: Any, has_recorded_poses: bool = False, **kw: Any) -> SlamBackend:
+def get_backend(config: Config, has_recorded_poses: bool = False, **kw: Any) -> SlamBackend:
     """A backend instance (a context manager). ``kw``: clouds= for recorded, vocabulary= for orbslam3."""
     name = choose_backend(config, has_recorded_poses)
     if name not in BACKENDS:

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from types import TracebackType
+from typing import Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
@@ -97,7 +98,11 @@ class SlamBackend(Protocol):
 
     def __enter__(self) -> SlamBackend: ...
 
-    def __exit__(self, *exc: object) -> None: ...
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None: ...
+
+
+_B = TypeVar("_B", bound="BackendBase")
 
 
 class BackendBase:
@@ -108,14 +113,15 @@ class BackendBase:
     def close(self) -> None:  # pragma: no cover - overridden where there is something to free
         return None
 
-    def __enter__(self):
+    def __enter__(self: _B) -> _B:
         return self
 
     def abort(self) -> None:
         """Free resources without waiting on them (after an error or a --timeout); default: close."""
         self.close()
 
-    def __exit__(self, exc_type: object, *exc: object) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
         if exc_type is None:
             self.close()
         else:

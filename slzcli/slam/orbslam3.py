@@ -10,6 +10,7 @@ projection through the tracked pose.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import logging
 import os
@@ -20,7 +21,7 @@ import sys
 import tempfile
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +30,9 @@ from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
 from slzcli.slam.keyframes import is_new_keyframe, project
 from slzcli.slam.vocabulary import DEFAULT_VOCABULARY, read_vocabulary
 from slzcli.types import Frame, Intrinsics
+
+if TYPE_CHECKING:
+    from slzcli.config import Config
 
 log = logging.getLogger(__name__)
 _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
@@ -122,7 +126,7 @@ def _worker_main() -> None:
     from multiprocessing.connection import Connection
 
     conn = Connection(int(sys.argv[1]))
-    kind, vocab_path, settings_text = conn.recv()
+    _init, vocab_path, settings_text = conn.recv()
     _worker(conn, vocab_path, settings_text)
 
 
@@ -131,7 +135,7 @@ class OrbSlam3Backend(BackendBase):
 
     name = "orbslam3"
 
-    def __init__(self, config: Any, vocabulary: str | Path | None = None) -> None:
+    def __init__(self, config: Config, vocabulary: str | Path | None = None) -> None:
         if not available():
             raise SlzError("slam.backend: orbslam3 needs the optional pyorbslam3 package "
                            "(pip install 'slz[orbslam3]'; GPL-3.0)")
@@ -140,7 +144,7 @@ class OrbSlam3Backend(BackendBase):
         read_vocabulary(path)  # validate before the native loader trusts it
         self.vocab_path = str(path)
         self.cfg = cfg
-        self._proc: subprocess.Popen | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
         self._conn: Connection | None = None
         self._log: Any = None
         self._intrinsics: Intrinsics | None = None
@@ -163,7 +167,7 @@ class OrbSlam3Backend(BackendBase):
                              self.cfg.orbslam3.baseline_m, fps)
         ours, theirs = socket.socketpair()
         # ORB-SLAM3 prints progress to stdout; keep it off ours (--json) and keep stderr for the cause.
-        self._log = tempfile.TemporaryFile(mode="w+b")
+        self._log = tempfile.TemporaryFile(mode="w+b")  # noqa: SIM115  # lives as long as the worker; _stop closes it
         env = dict(os.environ)  # the worker imports this package even when it is not installed
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_PACKAGE_ROOT), env.get("PYTHONPATH", "")) if p)
         self._proc = subprocess.Popen([sys.executable, "-m", "slzcli.slam.orbslam3", str(theirs.fileno())],
@@ -179,14 +183,17 @@ class OrbSlam3Backend(BackendBase):
             raise SlamWorkerError(f"{self.vocab_path}: ORB-SLAM3 failed to start on {frame.source or 'the recording'}: "
                                   f"{detail}")
 
-    def _recv(self, doing: str, timeout_s: float) -> tuple:
+    def _recv(self, doing: str, timeout_s: float) -> tuple[Any, ...]:
+        conn, proc = self._conn, self._proc
+        assert conn is not None and proc is not None  # _start opened both
         try:
-            if self._conn.poll(timeout_s):
-                return self._conn.recv()
+            if conn.poll(timeout_s):
+                reply: tuple[Any, ...] = conn.recv()
+                return reply
         except (EOFError, OSError):
             pass
         try:
-            code = self._proc.wait(timeout=_EXIT_GRACE_S)
+            code = proc.wait(timeout=_EXIT_GRACE_S)
         except subprocess.TimeoutExpired:
             code = None
         last = self._last_log_line()
@@ -222,12 +229,13 @@ class OrbSlam3Backend(BackendBase):
         self._stop()
 
     def close(self) -> None:
-        if self._proc is not None and self._proc.poll() is None:
+        proc, conn = self._proc, self._conn
+        if proc is not None and conn is not None and proc.poll() is None:
             try:
-                self._conn.send(("close",))
-                if self._conn.poll(self.cfg.orbslam3.load_timeout_s):
-                    self._conn.recv()
-                self._proc.wait(timeout=_EXIT_GRACE_S)
+                conn.send(("close",))
+                if conn.poll(self.cfg.orbslam3.load_timeout_s):
+                    conn.recv()
+                proc.wait(timeout=_EXIT_GRACE_S)
             except (EOFError, OSError, subprocess.TimeoutExpired):
                 pass
         self._stop()
@@ -240,10 +248,9 @@ class OrbSlam3Backend(BackendBase):
             raise SlzError(f"{frame.source or 'recording'}: frame {frame.index} has other intrinsics than the first "
                            "frame; ORB-SLAM3 is configured once per run")
         depth = np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32)  # ORB-SLAM3: <= 0 is no depth
-        try:
+        assert self._conn is not None  # _start opened it
+        with contextlib.suppress(BrokenPipeError, OSError):  # _recv reports how the worker died
             self._conn.send(("track", np.ascontiguousarray(frame.rgb), depth, frame.stamp_ns * 1e-9))
-        except (BrokenPipeError, OSError):
-            pass  # _recv reports how the worker died
         reply = self._recv(f"tracking frame {frame.index} of {frame.source or 'the recording'}",
                            self.cfg.orbslam3.frame_timeout_s)
         if reply[0] == "error":  # the native tracker threw: the worker is alive, the frame is not usable
@@ -256,7 +263,8 @@ class OrbSlam3Backend(BackendBase):
             pose = None  # RECENTLY_LOST carries a motion-model guess; not a measurement
         self._keyframe = None
         is_kf = False
-        if pose is not None and self._ever_ok and not self._was_ok and np.allclose(pose, np.eye(4), atol=_IDENTITY_ATOL):
+        if (pose is not None and self._ever_ok and not self._was_ok
+                and np.allclose(pose, np.eye(4), atol=_IDENTITY_ATOL)):
             # ORB-SLAM3 started a new map (Atlas) at the identity: a new world frame.
             self._segment += 1
             self._last_kf_pose = None

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import bisect
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from slzcli.errors import DatasetError, DecodeError
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
 from slzcli.slam.keyframes import is_new_keyframe, project
 from slzcli.types import Frame
+
+if TYPE_CHECKING:
+    from slzcli.config import Config
 
 # sensor_msgs/PointField datatypes -> numpy kinds
 _POINTFIELD = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -145,7 +148,7 @@ class CloudStream:
         self.close()
 
 
-def open_clouds(path: str | Path, config: Any) -> CloudStream | None:
+def open_clouds(path: str | Path, config: Config) -> CloudStream | None:
     """The recorded map clouds of ``slam.points_topic``, or None when no topic is configured.
 
     Read-ahead: the pose tolerance plus the reorder window (a cloud may be logged after
@@ -167,7 +170,7 @@ class RecordedBackend(BackendBase):
 
     name = "recorded"
 
-    def __init__(self, config: Any, clouds: CloudStream | None = None) -> None:
+    def __init__(self, config: Config, clouds: CloudStream | None = None) -> None:
         self.clouds = clouds if clouds is not None and not clouds.empty else None
         self.tolerance_ns = int(config.sources.pose_tolerance_ms * 1e6)
         self._keyframe: MapPoints | None = None

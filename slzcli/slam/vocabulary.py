@@ -315,7 +315,7 @@ def build_from_recordings(paths: Sequence[str | Path], out: str | Path, config: 
             total = max(1, rec.info().expected_frames)
             stride = max(1, total // per_rec)
             frames = (f for i, f in enumerate(rec.frames()) if i % stride == 0)
-            got = frame_descriptors((f for _, f in zip(range(per_rec), frames)), config.slam.orb)
+            got = frame_descriptors((f for _, f in zip(range(per_rec), frames, strict=False)), config.slam.orb)
         n_frames += len(got)
         docs += got
     n_desc = int(sum(len(d) for d in docs))

@@ -262,7 +262,8 @@ def decode_pose(msg: Any) -> tuple[int, str, str, np.ndarray]:
     odom = _is(msg, "Odometry")
     pose = msg.pose.pose if odom else msg.pose
     child = str(msg.child_frame_id).lstrip("/") if odom else ""
-    return stamp_ns(msg.header), str(msg.header.frame_id).lstrip("/"), child, transform_matrix(pose.position, pose.orientation)
+    return (stamp_ns(msg.header), str(msg.header.frame_id).lstrip("/"), child,
+            transform_matrix(pose.position, pose.orientation))
 
 
 def decode_tf(msg: Any) -> list[tuple[int, str, str, np.ndarray]]:
@@ -279,10 +280,11 @@ def compose_chain(tree: Mapping[str, tuple[str, np.ndarray]], frame: str,
     not on the chain. A cycle is reported as DecodeError naming the frames.
     """
     T = np.eye(4)
-    node, seen = frame.lstrip("/"), []
+    node = frame.lstrip("/")
+    seen: list[str] = []
     while node != stop_at and node in tree:
         if node in seen:
-            raise DecodeError(f"tf cycle through frames {' -> '.join(seen + [node])}")
+            raise DecodeError(f"tf cycle through frames {' -> '.join([*seen, node])}")
         seen.append(node)
         parent, T_parent_node = tree[node]
         T = T_parent_node @ T

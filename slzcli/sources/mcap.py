@@ -103,7 +103,8 @@ class McapLog(MessageLog):
                 get_types_from_msg(text, normalise_msgtype(schema.name))
             store.register({k: v for k, v in types.items() if k not in store.fielddefs})
         except Exception as err:  # rosbags parser errors, wrapped once here
-            raise DatasetError(self.path, f"schema {schema.name!r} is not a valid ROS message definition ({err})") from err
+            raise DatasetError(self.path,
+                               f"schema {schema.name!r} is not a valid ROS message definition ({err})") from err
 
     def _store(self, encoding: str) -> Typestore:
         if encoding not in self._stores:

@@ -234,8 +234,8 @@ class TumRecording(Recording):
                 without_pose += 1
             yield Frame(index, stamp, rgb, depth, intr, pose, str(self.path))
             index += 1
-        notes = (f"{undecodable - len(too_large)} of {len(self._pairs)} frame(s) not readable (first: {first_error})",) \
-            if undecodable > len(too_large) else ()
+        notes = ((f"{undecodable - len(too_large)} of {len(self._pairs)} frame(s) not readable "
+                  f"(first: {first_error})",) if undecodable > len(too_large) else ())
         self.report = self._report(without_pose, undecodable, notes)
         if too_large:
             note = f"{len(too_large)} frame(s) over sources.max_image_px {self.cfg.max_image_px} px were skipped"

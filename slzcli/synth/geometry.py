@@ -69,11 +69,12 @@ def build_meshes(scene: Scene, embed_m: float) -> SceneMeshes:
 def raycasting_scene(meshes: SceneMeshes) -> tuple[o3d.t.geometry.RaycastingScene, np.ndarray]:
     """An Open3D raycasting scene and the lookup geometry id -> part index."""
     rc = o3d.t.geometry.RaycastingScene()
-    lookup = []
+    lookup: list[int] = []
     for i, part in enumerate(meshes.parts):
         mesh = o3d.t.geometry.TriangleMesh()
-        mesh.vertex.positions = o3d.core.Tensor(part.vertices.astype(np.float32))
-        mesh.triangle.indices = o3d.core.Tensor(part.triangles.astype(np.int32))
+        # open3d's stubs drop Tensor's optional dtype and device (None: from the array, the CPU)
+        mesh.vertex.positions = o3d.core.Tensor(part.vertices.astype(np.float32))  # type: ignore[call-overload]
+        mesh.triangle.indices = o3d.core.Tensor(part.triangles.astype(np.int32))  # type: ignore[call-overload]
         gid = rc.add_triangles(mesh)
         assert gid == len(lookup)
         lookup.append(i)
@@ -85,8 +86,8 @@ def _expand(p: Primitive) -> list[tuple[Primitive, str]]:
     if p.repeat is None:
         return [(p, "")]
     r = p.repeat
-    nx, ny = (list(r.count) + [1, 1])[:2]
-    px, py = (list(r.pitch_m) + [0.0, 0.0])[:2]
+    nx, ny = [*r.count, 1, 1][:2]
+    px, py = [*r.pitch_m, 0.0, 0.0][:2]
     rng = np.random.default_rng(r.seed)
     out = []
     for j in range(ny):

@@ -146,7 +146,7 @@ class PackedMasks:
 
     def __init__(self, packed: np.ndarray, width: int) -> None:
         self.packed = packed
-        self.shape = (packed.shape[0], packed.shape[1], int(width))
+        self.shape: tuple[int, ...] = (packed.shape[0], packed.shape[1], int(width))
 
     def __len__(self) -> int:
         return self.shape[0]

@@ -5,12 +5,26 @@ Pure: returns an RGB uint8 image; the caller writes it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
 _LABEL_SCALE = 0.6      # cv2 font scale of the panel captions
 _SAFE_TINT = np.array([40, 200, 60], dtype=np.float64)      # RGB of "safe" in the overlay
 _UNSAFE_TINT = np.array([220, 40, 40], dtype=np.float64)    # RGB of "unsafe"
+
+
+@dataclass(frozen=True)
+class SheetRow:
+    """One frame of the sheet."""
+
+    rgb: np.ndarray          # uint8 HxWx3
+    depth_m: np.ndarray      # float32 HxW, NaN = hole
+    object_id: np.ndarray    # HxW
+    safe: np.ndarray         # bool HxW
+    title: str = "colour"
 
 
 def _label(img: np.ndarray, text: str) -> np.ndarray:
@@ -24,7 +38,7 @@ def depth_panel(depth_m: np.ndarray) -> np.ndarray:
     """Depth as a turbo colour map over its own valid range; holes black."""
     valid = np.isfinite(depth_m)
     if not valid.any():
-        return np.zeros(depth_m.shape + (3,), np.uint8)
+        return np.zeros((*depth_m.shape, 3), np.uint8)
     lo, hi = float(np.nanmin(depth_m)), float(np.nanmax(depth_m))
     g = np.zeros(depth_m.shape, np.uint8)
     g[valid] = np.clip((depth_m[valid] - lo) / max(hi - lo, 1e-6) * 255, 0, 255).astype(np.uint8)
@@ -50,7 +64,7 @@ def safe_panel(rgb: np.ndarray, safe: np.ndarray) -> np.ndarray:
 
 def raster_panel(raster_safe: np.ndarray, raster_usable: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """World-XY raster, north up: safe green, usable-but-too-close grey, unusable dark red."""
-    img = np.zeros(raster_safe.shape + (3,), np.uint8)
+    img: np.ndarray = np.zeros((*raster_safe.shape, 3), np.uint8)
     img[raster_usable] = (150, 150, 150)
     img[~raster_usable] = (90, 20, 20)
     img[raster_safe] = (40, 200, 60)
@@ -64,17 +78,16 @@ def raster_panel(raster_safe: np.ndarray, raster_usable: np.ndarray, shape: tupl
     return _label(out, "world safe raster (north up)")
 
 
-def contact_sheet(rows: list[dict[str, np.ndarray]], raster_safe: np.ndarray | None = None,
+def contact_sheet(rows: Sequence[SheetRow], raster_safe: np.ndarray | None = None,
                   raster_usable: np.ndarray | None = None) -> np.ndarray:
-    """One row per frame (keys rgb, depth_m, object_id, safe); an optional raster panel at the end."""
+    """One row per frame; an optional raster panel at the end."""
     out_rows = []
     for r in rows:
-        panels = [_label(r["rgb"], r.get("title", "colour")), depth_panel(r["depth_m"]),
-                  ids_panel(r["object_id"]), safe_panel(r["rgb"], r["safe"])]
+        panels = [_label(r.rgb, r.title), depth_panel(r.depth_m), ids_panel(r.object_id), safe_panel(r.rgb, r.safe)]
         out_rows.append(np.concatenate(panels, axis=1))
     sheet = np.concatenate(out_rows, axis=0)
     if raster_safe is not None and raster_usable is not None:
-        h = rows[0]["rgb"].shape[0]
+        h = rows[0].rgb.shape[0]
         panel = raster_panel(raster_safe, raster_usable, (h * len(rows), h * len(rows)))
         sheet = np.concatenate([sheet, panel], axis=1)
     return sheet

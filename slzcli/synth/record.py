@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
@@ -29,7 +29,7 @@ from slzcli.config import Config
 from slzcli.errors import ConfigError, OutputError
 from slzcli.outputs import files, run_lock
 from slzcli.outputs.recording import FORMATS, RecordingWriter
-from slzcli.synth.flight import Flight, make_flight
+from slzcli.synth.flight import Flight, PathKind, make_flight
 from slzcli.synth.geometry import SceneMeshes, build_meshes
 from slzcli.synth.groundtruth import (
     GT_FORMAT,
@@ -41,7 +41,7 @@ from slzcli.synth.groundtruth import (
     raster_arrays,
     sidecar_paths,
 )
-from slzcli.synth.preview import contact_sheet
+from slzcli.synth.preview import SheetRow, contact_sheet
 from slzcli.synth.render import Renderer
 from slzcli.synth.scenes import Scene, load_scene
 from slzcli.synth.sensor import DepthSensor, apply_color_model, get_depth_sensor
@@ -63,7 +63,7 @@ class SynthOptions:
     scene: str
     frames: int
     rate_hz: float
-    path: str
+    path: PathKind
     seed: int
     start_m: tuple[float, float, float] | None          # None: the scene's default scenario
     variants: tuple[str, ...] = ()
@@ -140,7 +140,7 @@ def render_frames(world: World, flight: Flight, config: Config, sensor_rng: np.r
 
 
 def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path | None = None,
-               progress: Callable[[int, int], None] | None = None, force: bool = False) -> dict[str, object]:
+               progress: Callable[[int, int], None] | None = None, force: bool = False) -> dict[str, Any]:
     """Render ``options.frames`` frames to a recording at ``out``; write the truth sidecar and preview.
 
     Everything is written into a staging folder beside ``out`` (``.OUT.<random>.tmp``) and moved into
@@ -206,13 +206,14 @@ BAG_SUFFIXES = (".db3", ".db3-shm", ".db3-wal", ".mcap")  # what a rosbag2 folde
 
 
 def _render_into(stage: Path, out: Path, options: SynthOptions, scene: Scene, config: Config,
-                 progress: Callable[[int, int], None] | None) -> tuple[dict[str, object], np.ndarray]:
+                 progress: Callable[[int, int], None] | None) -> tuple[dict[str, Any], np.ndarray]:
     """Render the recording and its sidecar into ``stage`` under their final names; the summary and preview."""
     world = build_world(scene, config)
     flight_seed, sensor_rng = seeds(options.seed)
-    flight = make_flight(options.start_m, options.frames, options.rate_hz, options.path,  # type: ignore[arg-type]
+    assert options.start_m is not None  # synthesize() resolves the scene's default first
+    flight = make_flight(options.start_m, options.frames, options.rate_hz, options.path,
                          config.synth.flight, flight_seed, config.synth.start_stamp_ns)
-    sheet_rows: list[dict[str, object]] = []
+    sheet_rows: list[SheetRow] = []
     keep = {0, options.frames // 2}
     safe_first = float("nan")
     intr = world.intrinsics
@@ -222,14 +223,15 @@ def _render_into(stage: Path, out: Path, options: SynthOptions, scene: Scene, co
                              depth_encoding=options.depth_encoding) as writer:
             for sf in render_frames(world, flight, config, sensor_rng, source=str(out)):
                 writer.write_frame(sf.frame)
+                assert sf.frame.T_world_camera is not None  # render_frames gives every frame its pose
                 writer.write_pose(GT_POSE_TOPIC, sf.frame.stamp_ns, sf.frame.T_world_camera, kind="PoseStamped",
                                   parent=WORLD_FRAME, child=CAMERA_FRAME)
                 spool.add(sf.safe, sf.object_id)
                 if sf.frame.index == 0:
                     safe_first = float(sf.safe.mean())
                 if sf.frame.index in keep:
-                    sheet_rows.append({"rgb": sf.frame.rgb, "depth_m": sf.frame.depth_m, "object_id": sf.object_id,
-                                       "safe": sf.safe, "title": f"{scene.name} frame {sf.frame.index}"})
+                    sheet_rows.append(SheetRow(sf.frame.rgb, sf.frame.depth_m, sf.object_id, sf.safe,
+                                               f"{scene.name} frame {sf.frame.index}"))
                 if progress is not None:
                     progress(sf.frame.index + 1, options.frames)
         objects = tuple({"id": o.id, "name": o.name, "kind": o.kind, "landable": o.landable}
@@ -240,7 +242,7 @@ def _render_into(stage: Path, out: Path, options: SynthOptions, scene: Scene, co
             "T_world_camera": np.asarray(flight.T_world_camera, np.float64),
             **spool.members(), **raster_arrays(world.raster)}
         write_sidecar(*sidecar_paths(staged), members, header)
-    summary: dict[str, object] = {
+    summary: dict[str, Any] = {  # JSON values, for `slz synth --json` and the text
         "recording": str(out), "format": options.fmt, "scene": scene.name, "variants": list(scene.variants),
         "frames": options.frames, "rate_hz": options.rate_hz, "path": options.path, "seed": options.seed,
         "start_m": list(options.start_m or ()), "ground_truth": str(sidecar_paths(out)[0]),
@@ -335,7 +337,8 @@ def _header(out: Path, options: SynthOptions, scene: Scene, world: World, frames
         "format": GT_FORMAT, "version": GT_VERSION, "recording": Path(out).name,
         "scene": scene.name, "variants": list(scene.variants), "scene_file": Path(scene.source).name,
         "seed": options.seed, "frames": frames, "rate_hz": options.rate_hz, "path": options.path,
-        "start_m": list(options.start_m), "pose_topic": GT_POSE_TOPIC, "world_frame": f"{WORLD_FRAME} (ENU, z up)",
+        "start_m": list(options.start_m or ()), "pose_topic": GT_POSE_TOPIC,
+        "world_frame": f"{WORLD_FRAME} (ENU, z up)",
         "camera_frame": f"{CAMERA_FRAME} (optical: x right, y down, z forward)",
         "image": {"width": intr.width, "height": intr.height, "fx": intr.fx, "fy": intr.fy, "cx": intr.cx,
                   "cy": intr.cy},

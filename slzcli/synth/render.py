@@ -68,7 +68,7 @@ class Renderer:
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> dict[str, np.ndarray]:
         """Cast rays (N, 3) + (N, 3); returns t, part index (-1 = none), triangle normals."""
         rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
-        ans = self.rc.cast_rays(o3d.core.Tensor(rays))
+        ans = self.rc.cast_rays(o3d.core.Tensor(rays))  # type: ignore[call-overload]  # stubs lack the defaults
         t = ans["t_hit"].numpy().astype(np.float64)
         gid = ans["geometry_ids"].numpy().astype(np.int64)
         hit = np.isfinite(t)
@@ -150,6 +150,7 @@ class Renderer:
             if len(idx):
                 o = points[idx] + normals[idx] * self.light.shadow_bias_m
                 rays = np.concatenate([o, np.broadcast_to(self.sun, o.shape)], axis=1).astype(np.float32)
-                occluded = self.rc.test_occlusions(o3d.core.Tensor(rays)).numpy().astype(bool)
+                tensor = o3d.core.Tensor(rays)  # type: ignore[call-overload]  # stubs lack the defaults
+                occluded = self.rc.test_occlusions(tensor).numpy().astype(bool)
                 lam[idx[occluded]] = 0.0
         return lam

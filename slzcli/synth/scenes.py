@@ -1,4 +1,6 @@
-"""Scene definitions for ``slz synth``: YAML files in ``slzcli/synth/scenes/`` (linked from ``datasets/scenes/``) -> frozen dataclasses.
+"""Scene definitions for ``slz synth``: YAML files in ``slzcli/synth/scenes/`` -> frozen dataclasses.
+
+``datasets/scenes/`` at the top of the repo is a link to that folder.
 
 A scene is data: a ground (plane with an optional gentle slope and smooth undulation),
 materials, and primitives (box, cylinder, cone, sphere, ramp, stairs). Primitives that share
@@ -16,13 +18,18 @@ import types
 import typing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import numpy as np
 import yaml
 
 from slzcli.config import package_dir, read_yaml_text, safe_yaml_load
 from slzcli.errors import ConfigError
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+_D = TypeVar("_D", bound="DataclassInstance")
 
 SCENES_DIR = package_dir("synth", "scenes")
 COMMON_FILE = "_common.yaml"
@@ -83,8 +90,9 @@ class Ground:
             rng = np.random.default_rng(self.seed)
             ph = rng.uniform(0, 2 * np.pi, 4)
             k = 2 * np.pi / self.undulation_scale_m
-            z = z + 0.5 * self.undulation_m * (np.sin(k * x + ph[0]) * np.cos(0.7 * k * y + ph[1])
-                                               + np.sin(0.6 * k * (x + y) + ph[2]) * np.cos(0.9 * k * x - 0.4 * k * y + ph[3]))
+            z = z + 0.5 * self.undulation_m * (
+                np.sin(k * x + ph[0]) * np.cos(0.7 * k * y + ph[1])
+                + np.sin(0.6 * k * (x + y) + ph[2]) * np.cos(0.9 * k * x - 0.4 * k * y + ph[3]))
         return z
 
 
@@ -179,6 +187,7 @@ def split_spec(spec: str) -> tuple[str, tuple[str, ...]]:
 def load_scene(spec: str | Path, variants: typing.Sequence[str] = (), scenes_dir: Path = SCENES_DIR) -> Scene:
     """Load a scene by name (``name[:variant+variant]``) or by path, and apply variants."""
     spec_s = str(spec)
+    spec_variants: tuple[str, ...]
     if spec_s.endswith((".yaml", ".yml")) and Path(spec_s).is_file():
         path, spec_variants = Path(spec_s), ()
     else:
@@ -284,7 +293,7 @@ def _only_keys(data: dict[str, Any], allowed: set[str], where: str, source: str)
             raise SceneError(f"{where}{key}", f"unknown key{hint}", source=source)
 
 
-def _build(cls: type, data: Any, where: str, source: str) -> Any:
+def _build(cls: type[_D], data: Any, where: str, source: str) -> _D:
     """Validate a mapping into dataclass ``cls`` (defaults allowed, unknown keys rejected)."""
     if not isinstance(data, dict):
         raise SceneError(where, f"expected a mapping, got {type(data).__name__}", source=source)
@@ -302,13 +311,13 @@ def _build(cls: type, data: Any, where: str, source: str) -> Any:
 
 
 def _value(tp: Any, value: Any, where: str, source: str) -> Any:
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return _build(tp, value, where, source)
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         if value is None:
             return None
-        return _value([a for a in typing.get_args(tp) if a is not type(None)][0], value, where, source)
+        return _value(next(a for a in typing.get_args(tp) if a is not type(None)), value, where, source)
     if origin is Literal:
         if value not in typing.get_args(tp):
             raise SceneError(where, f"must be one of {', '.join(typing.get_args(tp))}; got {value!r}", source)

@@ -30,7 +30,8 @@ def value_noise(uv: np.ndarray, seed: int) -> np.ndarray:
     m[:n, 0] = uv[:, 0] + off
     m[:n, 1] = uv[:, 1] + _GOLDEN * off
     m -= _TABLE_SIZE * np.floor(m * (1.0 / _TABLE_SIZE))    # wrap into the table (np.mod is slow)
-    out = cv2.remap(_TABLE, m.reshape(rows, _REMAP_COLS, 2), None, cv2.INTER_CUBIC, borderMode=cv2.BORDER_WRAP)
+    out = cv2.remap(_TABLE, m.reshape(rows, _REMAP_COLS, 2), None,  # type: ignore[call-overload]  # stubs: map2 None
+                    cv2.INTER_CUBIC, borderMode=cv2.BORDER_WRAP)
     return out.ravel()[:n]
 
 

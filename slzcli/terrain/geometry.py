@@ -86,7 +86,7 @@ def back_project(depth_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     intr = fit_intrinsics(intrinsics, depth_m.shape)
     rx, ry = pixel_rays(intr)
     z = np.where(valid_depth(depth_m), depth_m, np.nan).astype(np.float32, copy=False)
-    points = np.empty(depth_m.shape + (3,), dtype=np.float32)
+    points = np.empty((*depth_m.shape, 3), dtype=np.float32)
     np.multiply(z, rx, out=points[..., 0])
     np.multiply(z, ry, out=points[..., 1])
     points[..., 2] = z
@@ -316,7 +316,7 @@ def _window_sums(integral: np.ndarray, width: int, y0: np.ndarray, y1: np.ndarra
     s -= at(y0, x1)
     s -= at(y1, x0)
     s += at(y0, x0)
-    return s.reshape(y0.shape + (integral.shape[-1],))
+    return s.reshape((*y0.shape, integral.shape[-1]))
 
 
 def _footprint_half_px(z_work: np.ndarray, intr_work: Intrinsics, radius_m: float,
@@ -364,7 +364,7 @@ def patch_pca(depth_m: np.ndarray, intrinsics: Intrinsics, radius_m: float, work
     z0 = np.where(valid, depth_m, np.float32(0)) if filled is None else filled
     rx, ry = pixel_rays(intr)
     work_w = min(int(work_px), big_w)
-    work_h = max(1, int(round(big_h * work_w / big_w)))
+    work_h = max(1, round(big_h * work_w / big_w))
     cells = (big_w / work_w) * (big_h / work_h)          # full-res pixels per reduced cell
 
     def area(img: np.ndarray) -> np.ndarray:
@@ -418,9 +418,9 @@ def patch_pca(depth_m: np.ndarray, intrinsics: Intrinsics, radius_m: float, work
         with np.errstate(invalid="ignore", divide="ignore"):   # invalid patches stay NaN, dropped below
             inv_norm = 1.0 / np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
             var = (noise_a_per_m * p[2] * p[2]) ** 2
-            ray = [c * inv_norm for c in p]
+            unit_ray = [c * inv_norm for c in p]
             for kk, (i, j) in enumerate(pairs):
-                cov[kk] = cov[kk] - var * ray[i] * ray[j]
+                cov[kk] = cov[kk] - var * unit_ray[i] * unit_ray[j]
     eig = eigvalsh3(*cov)
     np.clip(eig, 0.0, None, out=eig)
     trace = eig.sum(axis=-1)

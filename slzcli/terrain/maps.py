@@ -185,18 +185,19 @@ def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float, hole_p
             side = (cfg.detrend_px, cfg.detrend_px)
             first = g - cv2.blur(g, side, borderType=cv2.BORDER_REPLICATE)
             calm = (~blind & (np.abs(first) < np.float32(cfg.canny_low))).view(np.uint8)
-            calm = cv2.erode(calm, _SHOULDERS, borderType=cv2.BORDER_REPLICATE).astype(np.float32)  # a step's flanks too
+            # eroded: a step's flanks too
+            calm = cv2.erode(calm, _SHOULDERS, borderType=cv2.BORDER_REPLICATE).astype(np.float32)
             num = cv2.boxFilter(g * calm, -1, side, normalize=False, borderType=cv2.BORDER_REPLICATE)
             den = cv2.boxFilter(calm, -1, side, normalize=False, borderType=cv2.BORDER_REPLICATE)
             g -= np.divide(num, den, out=np.zeros_like(num), where=den > 0)
         # Canny takes 16-bit derivatives: round and saturate (a saturated gradient is an edge anyway)
-        derivs.append(cv2.add(g, 0.0, dtype=cv2.CV_16S))
+        derivs.append(cv2.add(g, 0.0, dtype=cv2.CV_16S))  # type: ignore[call-overload]  # stubs lack a scalar src2
     edges = cv2.Canny(derivs[0], derivs[1], cfg.canny_low, cfg.canny_high)   # 255 on edges
-    clear = cv2.compare(edges, 0, cv2.CMP_EQ)                                 # 255 off edges
-    known = d.valid.view(np.uint8)
-    side = int(math.ceil(hole_px))
-    if side >= 2:                                    # an opening of the hole mask keeps the wide holes
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side))
+    clear = cv2.compare(edges, 0, cv2.CMP_EQ)  # type: ignore[call-overload]  # 255 off edges; stubs lack a scalar src2
+    known: np.ndarray = d.valid.view(np.uint8)
+    hole_side = math.ceil(hole_px)
+    if hole_side >= 2:                               # an opening of the hole mask keeps the wide holes
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (hole_side, hole_side))
         known = 1 - cv2.morphologyEx(1 - known, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_CONSTANT,
                                      borderValue=0)
     return cv2.bitwise_and(clear, known)                                      # holes are edges
@@ -234,7 +235,8 @@ def _ground_m(dist_px: np.ndarray, d: _Depth, intr: Intrinsics) -> np.ndarray:
     return metres
 
 
-def edge_distance_m(depth_m: np.ndarray, intrinsics: Intrinsics, cfg: FlatnessCfg, metres_per_level: float) -> np.ndarray:
+def edge_distance_m(depth_m: np.ndarray, intrinsics: Intrinsics, cfg: FlatnessCfg,
+                    metres_per_level: float) -> np.ndarray:
     """Metres from each pixel to the nearest depth edge or hole: the clearance of the acceptance test."""
     d = _prepare(depth_m)
     return _ground_m(_edge_distance_px(d, cfg, metres_per_level), d, fit_intrinsics(intrinsics, d.depth.shape))
@@ -381,7 +383,7 @@ def _blocks(d: _Depth, intr: Intrinsics, block: int) -> tuple[_Depth, Intrinsics
     num = cv2.resize(inv, size, interpolation=cv2.INTER_AREA)
     den = cv2.resize(d.valid.view(np.uint8).astype(np.float32), size, interpolation=cv2.INTER_AREA)
     ok = (den >= 0.5) & (num > 0)
-    depth = np.full(num.shape, np.nan, np.float32)
+    depth: np.ndarray = np.full(num.shape, np.nan, np.float32)
     np.divide(den, num, out=depth, where=ok)
     return _Depth(depth, ok, np.where(ok, depth, np.float32(0))), fit_intrinsics(intr, depth.shape)
 
@@ -392,7 +394,7 @@ def _upsample(values: np.ndarray, ok: np.ndarray, worst: float, shape: tuple[int
     stay undefined (NaN), as do pixels without depth."""
     h, w = shape
     if values.shape == (h, w):
-        out = values.astype(np.float32, copy=True)
+        out: np.ndarray = values.astype(np.float32, copy=True)
         out[~(ok & valid)] = np.nan
         return out
     filled = np.where(ok, values, np.float32(worst)).astype(np.float32)

@@ -113,7 +113,7 @@ def estimate_noise(depth_m: np.ndarray, cfg: NoiseEstimateCfg) -> DepthNoise | N
     depth = np.asarray(depth_m, dtype=np.float32)
     valid = np.isfinite(depth) & (depth > 0)
     quantum = depth_quantum_m(depth, valid)
-    w = np.zeros(depth.shape, np.float32)
+    w: np.ndarray = np.zeros(depth.shape, np.float32)
     np.divide(np.float32(1.0), depth, out=w, where=valid)
     count = valid.astype(np.float32)
     out: list[float] = []
