@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -148,8 +149,10 @@ def main() -> None:
         args.out.write_text(json.dumps({"frames": args.frames, "detect": DETECT, "sensors": SENSORS, "rows": rows},
                                        indent=1) + "\n")
 
-    # one cell per worker process: a cell's memory (stereo matching at 848x480) goes back when it ends
-    with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(args.workers, max_tasks_per_child=1) as pool:
+    # one cell per worker process where Python allows (3.11+): a cell's memory (stereo matching at 848x480)
+    # goes back when it ends
+    fresh: dict[str, Any] = {"max_tasks_per_child": 1} if sys.version_info >= (3, 11) else {}
+    with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(args.workers, **fresh) as pool:
         futures = [pool.submit(run_cell, s, z, sensor, args.frames, seed, tmp) for s, z, sensor, seed in cells]
         for cell, fut in zip(cells, futures, strict=True):
             try:
