@@ -41,7 +41,7 @@ from slzcli.terrain.geometry import (
     window_px,
 )
 from slzcli.terrain.limits import Working, working_scale
-from slzcli.terrain.noise import DepthNoise, NoiseTracker
+from slzcli.terrain.noise import MAD_TO_SIGMA, DepthNoise, NoiseTracker
 from slzcli.types import Frame, Intrinsics, TerrainMaps
 
 # The flanks of a step's derivative (blur + Sobel spread it over ~2 px each side) are left out of
@@ -143,11 +143,17 @@ def depth_edges(depth_m: np.ndarray, cfg: FlatnessCfg, metres_per_level: float) 
     return _clear_of_edges(_prepare(depth_m), cfg, metres_per_level) == 0
 
 
-def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float, hole_px: float = 0.0) -> np.ndarray:
+def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float, hole_px: float = 0.0,
+                    noise_k: float = 0.0) -> np.ndarray:
     """uint8: 1 where a pixel is neither a depth edge nor a hole (the distance-transform input).
 
     ``metres_per_level``: the depth scaling (``Working.metres_per_level``: a step the UAV cannot
     tolerate is a strong edge, unless the noise needs a coarser scaling).
+    ``noise_k`` > 0: the scaling is also coarsened until the derivatives Canny sees stay below its
+    low threshold at ``noise_k`` times their own robust spread (MAD over the frame). The noise model
+    behind ``metres_per_level`` is white; a stereo sensor's error is correlated over several pixels
+    and its sub-pixel steps line up into terraces, and neither is white after the blur (synth D455
+    at 5 m: 17 % of the pixels were Canny edges on open ground at the modelled scaling).
     ``hole_px``: holes narrower than this (``flatness.hole_min_m`` on the ground) do not count as
     edges: a real stereo sensor drops isolated pixels everywhere, and a speck of no data cannot
     hide what a landing cares about. Their pixels still have no depth (they score 0).
@@ -190,8 +196,16 @@ def _clear_of_edges(d: _Depth, cfg: FlatnessCfg, metres_per_level: float, hole_p
             num = cv2.boxFilter(g * calm, -1, side, normalize=False, borderType=cv2.BORDER_REPLICATE)
             den = cv2.boxFilter(calm, -1, side, normalize=False, borderType=cv2.BORDER_REPLICATE)
             g -= np.divide(num, den, out=np.zeros_like(num), where=den > 0)
-        # Canny takes 16-bit derivatives: round and saturate (a saturated gradient is an edge anyway)
-        derivs.append(cv2.add(g, 0.0, dtype=cv2.CV_16S))  # type: ignore[call-overload]  # stubs lack a scalar src2
+        derivs.append(g)
+    if noise_k > 0:
+        seen = ~blind & d.valid
+        spread = MAD_TO_SIGMA * float(np.median(np.abs(np.concatenate([g[seen] for g in derivs])))) \
+            if seen.any() else 0.0
+        if noise_k * spread > cfg.canny_low:
+            gain = np.float32(cfg.canny_low / (noise_k * spread))
+            derivs = [g * gain for g in derivs]
+    # Canny takes 16-bit derivatives: round and saturate (a saturated gradient is an edge anyway)
+    derivs = [cv2.add(g, 0.0, dtype=cv2.CV_16S) for g in derivs]  # type: ignore[call-overload]  # stubs lack a scalar src2
     edges = cv2.Canny(derivs[0], derivs[1], cfg.canny_low, cfg.canny_high)   # 255 on edges
     clear = cv2.compare(edges, 0, cv2.CMP_EQ)  # type: ignore[call-overload]  # 255 off edges; stubs lack a scalar src2
     known: np.ndarray = d.valid.view(np.uint8)
@@ -220,9 +234,10 @@ def _flatness(dist_px: np.ndarray, edge_m: np.ndarray, valid: np.ndarray, cfg: F
     return _finish(edge_m / np.float32(cfg.clearance_m), valid, "absolute")
 
 
-def _edge_distance_px(d: _Depth, cfg: FlatnessCfg, metres_per_level: float, hole_px: float = 0.0) -> np.ndarray:
+def _edge_distance_px(d: _Depth, cfg: FlatnessCfg, metres_per_level: float, hole_px: float = 0.0,
+                      noise_k: float = 0.0) -> np.ndarray:
     """Pixel distance of every pixel to the nearest depth edge or wide hole (float32)."""
-    clear = _clear_of_edges(d, cfg, metres_per_level, hole_px)
+    clear = _clear_of_edges(d, cfg, metres_per_level, hole_px, noise_k)
     if cv2.countNonZero(clear) == clear.size:   # no edge and no hole anywhere: all as far as can be
         return np.full(clear.shape, np.float32(max(clear.shape)), dtype=np.float32)
     return cv2.distanceTransform(clear, cv2.DIST_L2, _DIST_MASKS[cfg.distance_mask])
@@ -437,7 +452,8 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
 
     rough, rough_ok = _roughness_m(db, cfg.depth_variance, noise_a)
     hole_px = cfg.flatness.hole_min_m * 0.5 * (intr_b.fx + intr_b.fy) / work.altitude_m
-    edge_px = _edge_distance_px(db, cfg.flatness, mpl, hole_px)
+    edge_px = _edge_distance_px(db, cfg.flatness, mpl, hole_px,
+                                cfg.limits.confidence_sigma if noise is not None else 0.0)
     edge_m = _ground_m(edge_px, db, intr_b)
     psi = _slope(db, intr_b, up, win, cfg.steepness)
     inc = cfg.inclination

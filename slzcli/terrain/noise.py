@@ -29,7 +29,7 @@ import numpy as np
 
 from slzcli.config import NoiseEstimateCfg
 
-_MAD_TO_SIGMA = 1.482602218505602       # sigma of a normal distribution / its median absolute deviation
+MAD_TO_SIGMA = 1.482602218505602       # sigma of a normal distribution / its median absolute deviation
 _RESIDUAL_SCALE = math.sqrt(8.0 / 9.0)  # std of (x - mean of its 3 x 3 window) / std of x, white noise
 SCALES_PX = (1, 2, 4, 8, 16)            # block sides of the pyramid, px (each level halves the last)
 
@@ -90,7 +90,7 @@ def _residual_mad(w: np.ndarray, ok: np.ndarray, min_count: int) -> tuple[float,
     r = (wf - mean)[inside]
     if r.size < min_count:
         return math.nan, int(r.size)
-    return _MAD_TO_SIGMA * float(np.median(np.abs(r))) / _RESIDUAL_SCALE, int(r.size)
+    return MAD_TO_SIGMA * float(np.median(np.abs(r))) / _RESIDUAL_SCALE, int(r.size)
 
 
 def depth_quantum_m(depth_m: np.ndarray, valid: np.ndarray) -> float:
