@@ -75,6 +75,7 @@ def baseline_module(rev: str) -> ModuleType:
 def run(mod: ModuleType, frames: list, truth: list, overrides: list[str]) -> dict:
     config = load_config(overrides=["slam.backend=odometry", *overrides])
     results, keyframes, times = [], [], []
+    cpu0 = time.process_time()
     with mod.OdometryBackend(config) as b:
         for f in frames:
             t0 = time.perf_counter()
@@ -83,13 +84,14 @@ def run(mod: ModuleType, frames: list, truth: list, overrides: list[str]) -> dic
             kf = b.keyframe()
             if kf is not None:
                 keyframes.append(kf)
+    cpu = time.process_time() - cpu0  # CPU time: less at the mercy of other jobs on a shared machine than wall time
     poses = [r.T_world_camera for r in results]
     a = ate(poses, truth)
     row = {"ate_cm": 100 * a.rmse_m, "ate_max_cm": 100 * a.max_m, "ate_frames": a.n,
            "ok": sum(r.state is TrackingState.OK for r in results),
            "lost": sum(r.state is TrackingState.LOST for r in results),
            "segments": len({r.segment for r in results}), "keyframes": len(keyframes),
-           "ms_per_frame_median": 1e3 * float(np.median(times[1:]))}
+           "ms_per_frame_median": 1e3 * float(np.median(times[1:])), "cpu_ms_per_frame": 1e3 * cpu / len(frames)}
     cut = next((float(o.split("=")[1]) for o in overrides if o.startswith("slam.odometry.max_depth_m=")), None)
     if cut is not None:  # the triangulation test's checks: points beyond the cut, on the ground
         beyond = []
@@ -135,7 +137,8 @@ def summarise(rows: list[dict]) -> list[dict]:
                     "min_far_points": min((r["far_points"] for r in g if "far_points" in r), default=None),
                     "max_far_ground_median_cm": max((r["far_ground_median_cm"] for r in g
                                                      if "far_ground_median_cm" in r), default=None),
-                    "ms_per_frame_median": float(np.median([r["ms_per_frame_median"] for r in g]))})
+                    "ms_per_frame_median": float(np.median([r["ms_per_frame_median"] for r in g])),
+                    "cpu_ms_per_frame": float(np.median([r["cpu_ms_per_frame"] for r in g]))})
     return out
 
 
@@ -176,18 +179,20 @@ def main() -> None:
             rows.append(row)
             print(f"{impl:18} {kind:8} seed {seed} noise {noise!s:4} cut {cut!s:5} thr {threads}: "
                   f"ATE {row['ate_cm']:6.2f} cm  ok {row['ok']:3} lost {row['lost']:3} seg {row['segments']} "
-                  f"KFs {row['keyframes']:3} {row['ms_per_frame_median']:6.1f} ms/frame"
+                  f"KFs {row['keyframes']:3} {row['ms_per_frame_median']:6.1f} ms/frame "
+                  f"{row['cpu_ms_per_frame']:5.1f} cpu"
                   + (f"  far {row['far_points']:5} ground {row['far_ground_median_cm']:.2f} cm" if cut else ""),
                   flush=True)
     summary = summarise(rows)
     head = f"{'impl':18} {'case':13} {'thr':>3} {'runs':>4} {'ATE med cm':>10} {'ATE max cm':>10} {'worst at':24} " \
-           f"{'!ok':>3} {'ms/frame':>8}"
+           f"{'!ok':>3} {'ms/frame':>8} {'cpu ms/fr':>9}"
     print("\n" + head + "\n" + "-" * len(head))
     for s in summary:
         w = s["worst"]
         at = f"seed {w['seed']} noise {w['noise_seed']} cut {w['cut_m']}"
         print(f"{s['impl']:18} {s['case']:13} {s['threads']:>3} {s['runs']:>4} {s['ate_median_cm']:10.2f} "
-              f"{s['ate_max_cm']:10.2f} {at:24} {s['not_all_ok']:>3} {s['ms_per_frame_median']:8.1f}")
+              f"{s['ate_max_cm']:10.2f} {at:24} {s['not_all_ok']:>3} {s['ms_per_frame_median']:8.1f} "
+              f"{s['cpu_ms_per_frame']:9.1f}")
     out = Path(args.out)
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps({"machine": {"python": platform.python_version(), "cpus": os.cpu_count(),

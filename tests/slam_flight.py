@@ -50,13 +50,15 @@ class Scene:
         self.tex = _texture(seed)
         self.tarp = tarp  # (xmin, xmax, ymin, ymax) of a uniform grey patch on the ground
         self.scene = o3d.t.geometry.RaycastingScene()
-        ground = o3d.geometry.TriangleMesh.create_box(60, 60, 0.1).translate((-30, -30, -0.1))
+        ground = o3d.geometry.TriangleMesh.create_box(60, 60, 0.1)
+        ground.translate((-30, -30, -0.1))  # in place (the returned reference is typed as a Geometry3D)
         self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(ground))
         rng = np.random.default_rng(seed + 1)
         for _ in range(6):
             w, d, h = rng.uniform(0.6, 1.5, 3)
             x, y = rng.uniform(-6, 6, 2)
-            box = o3d.geometry.TriangleMesh.create_box(w, d, h).translate((x, y, 0))
+            box = o3d.geometry.TriangleMesh.create_box(w, d, h)
+            box.translate((x, y, 0))
             self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(box))
 
     def render(self, T_world_camera: np.ndarray, K: Intrinsics, max_depth_m: float = 20.0,
@@ -78,7 +80,7 @@ class Scene:
         rays = np.empty((dirs_c.shape[0], 6), np.float32)
         rays[:, :3] = t
         rays[:, 3:] = dirs_c @ R.T
-        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
+        ans = self.scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
         th = ans["t_hit"].numpy()
         nrm = ans["primitive_normals"].numpy()
         hit = np.isfinite(th)

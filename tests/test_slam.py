@@ -3,6 +3,8 @@ the vocabulary (train, validate, load in ORB-SLAM3), the recorded backend and `s
 
 from __future__ import annotations
 
+from typing import Any, cast
+
 import numpy as np
 import pytest
 from slam_flight import render_flight
@@ -21,7 +23,8 @@ from slzcli.slam.vocabulary import (
     vocabulary_text,
 )
 
-needs_orbslam3 = pytest.mark.skipif(not orbslam3_available(), reason="optional pyorbslam3 (slz[orbslam3]) not installed")
+needs_orbslam3 = pytest.mark.skipif(not orbslam3_available(),
+                                    reason="optional pyorbslam3 (slz[orbslam3]) not installed")
 ATE_LIMIT_M = 0.05
 
 
@@ -167,7 +170,7 @@ def test_malformed_vocabulary_never_reaches_the_native_loader(tmp_path, line_fli
     bad = tmp_path / "bad.txt"
     bad.write_text(GOOD.replace(" 0.7", " -1"))
     config = load_config(overrides=["slam.backend=orbslam3", f"slam.vocabulary={bad}"])
-    with pytest.raises(SlzError, match="bad.txt"):
+    with pytest.raises(SlzError, match=r"bad\.txt"):
         get_backend(config)
 
 
@@ -177,8 +180,8 @@ def test_a_dead_worker_is_an_slz_error(line_flight) -> None:
     config = load_config(overrides=["slam.backend=orbslam3"])
     with get_backend(config) as b:
         b.track(frames[0])
-        b._proc.kill()  # stands in for a native crash
-        with pytest.raises(SlzError, match="died .*SIGKILL"):
+        cast(Any, b)._proc.kill()  # stands in for a native crash (a private of the ORB-SLAM3 backend)
+        with pytest.raises(SlzError, match=r"died .*SIGKILL"):
             b.track(frames[1])
 
 
@@ -196,7 +199,7 @@ def _write_recording(path, frames, truth, points_topic=None, clouds=()):
     from slzcli.outputs.recording import RecordingWriter
 
     with RecordingWriter(path, "mcap", depth_encoding="32FC1") as w:
-        for f, T in zip(frames, truth):
+        for f, T in zip(frames, truth, strict=True):
             w.write_frame(f)
             w.write_pose("/orb_slam3/camera_pose", f.stamp_ns, T)
         for stamp, xyz in clouds:
@@ -209,8 +212,17 @@ def _write_recording(path, frames, truth, points_topic=None, clouds=()):
             w.write_raw(points_topic, "sensor_msgs/msg/PointCloud2", msg, stamp)
 
 
+def _clouds(path, config):
+    """The recorded clouds (a points topic is configured, so never None)."""
+    from slzcli.slam.recorded import open_clouds
+
+    clouds = open_clouds(path, config)
+    assert clouds is not None
+    return clouds
+
+
 def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_flight) -> None:
-    from slzcli.slam.recorded import CloudStream, RecordedBackend, open_clouds
+    from slzcli.slam.recorded import CloudStream, RecordedBackend
     from slzcli.sources import open_recording
 
     frames, truth = out_back_flight
@@ -220,16 +232,16 @@ def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_fligh
     _write_recording(path, frames, truth, "/orb_slam3/map_points", [(frames[2].stamp_ns, xyz)])
     config = load_config(overrides=["sources.topics.pose=/orb_slam3/camera_pose",
                                      "slam.points_topic=/orb_slam3/map_points"])
-    with open_clouds(path, config) as clouds:
+    with _clouds(path, config) as clouds:
         assert not clouds.empty
         stamp, got, ids = clouds.nearest(frames[2].stamp_ns + 1000, 1_000_000)
         assert stamp == frames[2].stamp_ns and ids.tolist() == [0, 1, 2]
         np.testing.assert_allclose(got, xyz, atol=1e-6)
         assert clouds.nearest(frames[2].stamp_ns, 1_000_000) is None  # each cloud goes to one frame
-    with open_recording(path, config) as rec, open_clouds(path, config) as clouds, RecordedBackend(config, clouds) as b:
+    with open_recording(path, config) as rec, _clouds(path, config) as clouds, RecordedBackend(config, clouds) as b:
         out = [(b.track(f), b.keyframe()) for f in rec.frames()]
     assert len(out) == 8
-    for (r, _), T in zip(out, truth):
+    for (r, _), T in zip(out, truth, strict=True):
         assert r.state is TrackingState.OK
         np.testing.assert_allclose(r.T_world_camera, T, atol=1e-9)
     kfs = [k for _, k in out if k is not None]
@@ -240,8 +252,6 @@ def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_fligh
 
 def test_recorded_clouds_are_streamed_not_read_up_front(tmp_path, out_back_flight) -> None:
     """A cloud per frame over the whole recording: the stream holds only the clouds near the current frame."""
-    from slzcli.slam.recorded import open_clouds
-
     frames, truth = out_back_flight
     path = tmp_path / "rec.mcap"
     xyz = np.array([[0.0, 0.0, 0.0], [0.5, 0.2, 0.3]])
@@ -250,7 +260,7 @@ def test_recorded_clouds_are_streamed_not_read_up_front(tmp_path, out_back_fligh
     period = frames[1].stamp_ns - frames[0].stamp_ns
     window = config.sources.pose_tolerance_ms + config.sources.reorder_window_ms
     most = 0
-    with open_clouds(path, config) as clouds:
+    with _clouds(path, config) as clouds:
         for f in frames:
             stamp, _, _ = clouds.nearest(f.stamp_ns, int(config.sources.pose_tolerance_ms * 1e6))
             assert stamp == f.stamp_ns

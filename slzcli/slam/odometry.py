@@ -238,7 +238,8 @@ class OdometryBackend(BackendBase):
                     return res
             self.velocity = np.eye(4)
             return TrackResult(frame.index, frame.stamp_ns, TrackingState.LOST, None, False, 0, self.segment)
-        self.velocity = invert_pose(self.last_pose) @ pose if guess is not None else np.eye(4)
+        self.velocity = invert_pose(self.last_pose) @ pose if guess is not None and self.last_pose is not None \
+            else np.eye(4)
         self.lost_for = 0
         self.last_pose = pose
         mq, mids = q[inl], ids[inl]
