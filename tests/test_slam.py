@@ -25,7 +25,14 @@ from slzcli.slam.vocabulary import (
 
 needs_orbslam3 = pytest.mark.skipif(not orbslam3_available(),
                                     reason="optional pyorbslam3 (slz[orbslam3]) not installed")
-ATE_LIMIT_M = 0.05
+ATE_LIMIT_M = 0.05  # ORB-SLAM3 (not measured over seeds here)
+# Odometry limits: benchmarks/slam_robustness.py (results/slam_robustness.json), the test flights over scene
+# seeds 0-4 and noise seeds 0-1 on scene 0 (7 inputs), the triangulation case also over depth cuts 3.5-4.0 m
+# in 0.05 m steps (77 runs); each limit is >= 1.5x the worst measured.
+ODO_LINE_ATE_M = 0.02        # measured max 0.92 cm (median 0.76) over the 7 inputs; limit 2 cm = 2.2x
+ODO_CUT_ATE_M = 0.065        # measured max 4.31 cm (seed 2, cut 3.55; median 1.49) over 77 runs; 6.5 cm = 1.51x
+ODO_CUT_GROUND_M = 0.06      # far points' median height off the ground: measured max 3.80 cm over 77 runs; 1.58x
+ODO_OUT_BACK_ATE_M = 0.075   # measured max 4.94 cm (scene 0, noise seed 1; median 3.76) over the 7 inputs; 1.52x
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +80,8 @@ def test_backend_tracks_rendered_flight_within_5cm(name, line_flight) -> None:
     assert all(r.state is TrackingState.OK for r in results[1:])
     res = ate(poses, truth)
     assert res.n == 100
-    assert res.rmse_m < ATE_LIMIT_M, f"{name}: ATE {res.rmse_m:.3f} m"
+    limit = ODO_LINE_ATE_M if name == "odometry" else ATE_LIMIT_M
+    assert res.rmse_m < limit, f"{name}: ATE {res.rmse_m:.3f} m"
     _check_keyframes(keyframes, frames)
     assert 3 <= len(keyframes) < 60
 
@@ -88,7 +96,7 @@ def test_odometry_reports_loss_and_recovers_in_the_same_world_frame(out_back_fli
     after = [r for r in results[lost[-1] + 1:]]
     assert len(after) > 20 and all(r.state is TrackingState.OK for r in after)
     assert {r.segment for r in results} == {0}  # recovered by relocalisation, not a new map
-    assert ate([r.T_world_camera for r in results], truth).rmse_m < 2 * ATE_LIMIT_M
+    assert ate([r.T_world_camera for r in results], truth).rmse_m < ODO_OUT_BACK_ATE_M
 
 
 def test_odometry_triangulates_points_beyond_the_depth_range(line_flight) -> None:
@@ -99,16 +107,16 @@ def test_odometry_triangulates_points_beyond_the_depth_range(line_flight) -> Non
     results, keyframes = _run("odometry", frames, **{"slam.odometry.max_depth_m": max_depth})
     assert all(r.state is TrackingState.OK for r in results)
     res = ate([r.T_world_camera for r in results], truth)
-    assert res.rmse_m < ATE_LIMIT_M
+    assert res.rmse_m < ODO_CUT_ATE_M, f"ATE {res.rmse_m:.4f} m"
     beyond = []
     for kf in keyframes:
         T_cw = np.linalg.inv(kf.T_world_camera)
         depth = (kf.xyz_world @ T_cw[:3, :3].T + T_cw[:3, 3])[:, 2]
         beyond.append(kf.xyz_world[depth > max_depth])
     far = np.concatenate(beyond)
-    assert len(far) > 1000
+    assert len(far) > 1000  # measured min 6713 at this cut over the 7 inputs
     ground_z = (far @ res.alignment.R.T + res.alignment.t)[:, 2]  # in the true frame the ground is z = 0
-    assert np.median(np.abs(ground_z)) < ATE_LIMIT_M
+    assert np.median(np.abs(ground_z)) < ODO_CUT_GROUND_M
 
 
 @needs_orbslam3
