@@ -482,6 +482,11 @@ class OdometryCfg:
     min_parallax_deg: float = rng(0)
     max_triangulation_error_px: float = rng(0, lo_open=True)
     reinit_after_frames: int = rng(1)
+    ba_keyframes: int = rng(0, 100)
+    ba_depth_sigma_rel: float = rng(0, lo_open=True)
+    ba_huber: float = rng(0, lo_open=True)
+    ba_iterations: int = rng(1, 1000)
+    ba_outlier_px: float = rng(0, lo_open=True)
 
 
 @schema

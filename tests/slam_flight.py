@@ -4,6 +4,10 @@ Textured ground plane with a few boxes, rendered by ray casting (Open3D) from a 
 camera along a known path; colour is a procedural multi-scale texture looked up by world
 position, so features are stable across views. An optional uniform tarp gives a
 textureless stretch where visual tracking must fail.
+
+Seeds: ``seed`` draws the texture and the boxes (a different scene); ``noise_seed`` adds
+per-frame sensor noise (grey levels on the image, a fraction of the range on the depth) so
+accuracy limits can be measured over inputs that differ the way two cameras' frames do.
 """
 
 from __future__ import annotations
@@ -46,13 +50,15 @@ class Scene:
         self.tex = _texture(seed)
         self.tarp = tarp  # (xmin, xmax, ymin, ymax) of a uniform grey patch on the ground
         self.scene = o3d.t.geometry.RaycastingScene()
-        ground = o3d.geometry.TriangleMesh.create_box(60, 60, 0.1).translate((-30, -30, -0.1))
+        ground = o3d.geometry.TriangleMesh.create_box(60, 60, 0.1)
+        ground.translate((-30, -30, -0.1))  # in place (the returned reference is typed as a Geometry3D)
         self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(ground))
         rng = np.random.default_rng(seed + 1)
         for _ in range(6):
             w, d, h = rng.uniform(0.6, 1.5, 3)
             x, y = rng.uniform(-6, 6, 2)
-            box = o3d.geometry.TriangleMesh.create_box(w, d, h).translate((x, y, 0))
+            box = o3d.geometry.TriangleMesh.create_box(w, d, h)
+            box.translate((x, y, 0))
             self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(box))
 
     def render(self, T_world_camera: np.ndarray, K: Intrinsics, max_depth_m: float = 20.0,
@@ -74,7 +80,7 @@ class Scene:
         rays = np.empty((dirs_c.shape[0], 6), np.float32)
         rays[:, :3] = t
         rays[:, 3:] = dirs_c @ R.T
-        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
+        ans = self.scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
         th = ans["t_hit"].numpy()
         nrm = ans["primitive_normals"].numpy()
         hit = np.isfinite(th)
@@ -119,20 +125,35 @@ def flight_poses(n: int, kind: str = "line") -> list[np.ndarray]:
         yaw = 0.1 * s
     else:
         raise ValueError(kind)
-    return [look_down_pose(*args) for args in zip(x, y, z, yaw)]
+    return [look_down_pose(*args) for args in zip(x, y, z, yaw, strict=True)]
+
+
+def add_noise(rgb: np.ndarray, depth: np.ndarray, rng: np.random.Generator, grey_sigma: float,
+              depth_sigma_rel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian image noise (grey levels, rounded) and depth noise proportional to range."""
+    noisy = np.clip(np.rint(rgb + rng.normal(0.0, grey_sigma, rgb.shape)), 0, 255).astype(np.uint8)
+    d = (depth * (1.0 + rng.normal(0.0, depth_sigma_rel, depth.shape))).astype(np.float32)
+    return noisy, d
 
 
 def render_flight(n: int = 100, kind: str = "line", width: int = 320, height: int = 240,
                   seed: int = 0, fps: float = 10.0, with_pose: bool = False,
-                  supersample: int = 2) -> tuple[list[Frame], list[np.ndarray]]:
-    """Frames (pose withheld unless with_pose) and the true T_world_camera of each."""
+                  supersample: int = 2, noise_seed: int | None = None, grey_sigma: float = 2.0,
+                  depth_sigma_rel: float = 0.002) -> tuple[list[Frame], list[np.ndarray]]:
+    """Frames (pose withheld unless with_pose) and the true T_world_camera of each.
+
+    ``noise_seed`` None renders noise-free frames; else the noise of ``add_noise`` with that seed.
+    """
     tarp = (6.0, 14.0, -6.0, 6.0) if kind == "out_back" else None
     scene = Scene(seed, tarp)
     K = intrinsics(width, height)
     poses = flight_poses(n, kind)
+    rng = None if noise_seed is None else np.random.default_rng(noise_seed)
     frames = []
     for i, T in enumerate(poses):
         rgb, depth = scene.render(T, K, supersample=supersample)
+        if rng is not None:
+            rgb, depth = add_noise(rgb, depth, rng, grey_sigma, depth_sigma_rel)
         frames.append(Frame(i, int(1_700_000_000e9) + int(i * 1e9 / fps), rgb, depth, K,
                             T.copy() if with_pose else None, "analytic"))
     return frames, poses

@@ -3,6 +3,8 @@ the vocabulary (train, validate, load in ORB-SLAM3), the recorded backend and `s
 
 from __future__ import annotations
 
+from typing import Any, cast
+
 import numpy as np
 import pytest
 from slam_flight import render_flight
@@ -21,8 +23,16 @@ from slzcli.slam.vocabulary import (
     vocabulary_text,
 )
 
-needs_orbslam3 = pytest.mark.skipif(not orbslam3_available(), reason="optional pyorbslam3 (slz[orbslam3]) not installed")
-ATE_LIMIT_M = 0.05
+needs_orbslam3 = pytest.mark.skipif(not orbslam3_available(),
+                                    reason="optional pyorbslam3 (slz[orbslam3]) not installed")
+ATE_LIMIT_M = 0.05  # ORB-SLAM3 (not measured over seeds here)
+# Odometry limits: benchmarks/slam_robustness.py (results/slam_robustness.json), the test flights over scene
+# seeds 0-4 and noise seeds 0-1 on scene 0 (7 inputs), the triangulation case also over depth cuts 3.5-4.0 m
+# in 0.05 m steps (77 runs); each limit is >= 1.5x the worst measured.
+ODO_LINE_ATE_M = 0.02        # measured max 0.92 cm (median 0.76) over the 7 inputs; limit 2 cm = 2.2x
+ODO_CUT_ATE_M = 0.065        # measured max 4.31 cm (seed 2, cut 3.55; median 1.49) over 77 runs; 6.5 cm = 1.51x
+ODO_CUT_GROUND_M = 0.06      # far points' median height off the ground: measured max 3.80 cm over 77 runs; 1.58x
+ODO_OUT_BACK_ATE_M = 0.075   # measured max 4.94 cm (scene 0, noise seed 1; median 3.76) over the 7 inputs; 1.52x
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +80,8 @@ def test_backend_tracks_rendered_flight_within_5cm(name, line_flight) -> None:
     assert all(r.state is TrackingState.OK for r in results[1:])
     res = ate(poses, truth)
     assert res.n == 100
-    assert res.rmse_m < ATE_LIMIT_M, f"{name}: ATE {res.rmse_m:.3f} m"
+    limit = ODO_LINE_ATE_M if name == "odometry" else ATE_LIMIT_M
+    assert res.rmse_m < limit, f"{name}: ATE {res.rmse_m:.3f} m"
     _check_keyframes(keyframes, frames)
     assert 3 <= len(keyframes) < 60
 
@@ -85,7 +96,7 @@ def test_odometry_reports_loss_and_recovers_in_the_same_world_frame(out_back_fli
     after = [r for r in results[lost[-1] + 1:]]
     assert len(after) > 20 and all(r.state is TrackingState.OK for r in after)
     assert {r.segment for r in results} == {0}  # recovered by relocalisation, not a new map
-    assert ate([r.T_world_camera for r in results], truth).rmse_m < 2 * ATE_LIMIT_M
+    assert ate([r.T_world_camera for r in results], truth).rmse_m < ODO_OUT_BACK_ATE_M
 
 
 def test_odometry_triangulates_points_beyond_the_depth_range(line_flight) -> None:
@@ -96,16 +107,16 @@ def test_odometry_triangulates_points_beyond_the_depth_range(line_flight) -> Non
     results, keyframes = _run("odometry", frames, **{"slam.odometry.max_depth_m": max_depth})
     assert all(r.state is TrackingState.OK for r in results)
     res = ate([r.T_world_camera for r in results], truth)
-    assert res.rmse_m < ATE_LIMIT_M
+    assert res.rmse_m < ODO_CUT_ATE_M, f"ATE {res.rmse_m:.4f} m"
     beyond = []
     for kf in keyframes:
         T_cw = np.linalg.inv(kf.T_world_camera)
         depth = (kf.xyz_world @ T_cw[:3, :3].T + T_cw[:3, 3])[:, 2]
         beyond.append(kf.xyz_world[depth > max_depth])
     far = np.concatenate(beyond)
-    assert len(far) > 1000
+    assert len(far) > 1000  # measured min 6713 at this cut over the 7 inputs
     ground_z = (far @ res.alignment.R.T + res.alignment.t)[:, 2]  # in the true frame the ground is z = 0
-    assert np.median(np.abs(ground_z)) < ATE_LIMIT_M
+    assert np.median(np.abs(ground_z)) < ODO_CUT_GROUND_M
 
 
 @needs_orbslam3
@@ -167,7 +178,7 @@ def test_malformed_vocabulary_never_reaches_the_native_loader(tmp_path, line_fli
     bad = tmp_path / "bad.txt"
     bad.write_text(GOOD.replace(" 0.7", " -1"))
     config = load_config(overrides=["slam.backend=orbslam3", f"slam.vocabulary={bad}"])
-    with pytest.raises(SlzError, match="bad.txt"):
+    with pytest.raises(SlzError, match=r"bad\.txt"):
         get_backend(config)
 
 
@@ -177,8 +188,8 @@ def test_a_dead_worker_is_an_slz_error(line_flight) -> None:
     config = load_config(overrides=["slam.backend=orbslam3"])
     with get_backend(config) as b:
         b.track(frames[0])
-        b._proc.kill()  # stands in for a native crash
-        with pytest.raises(SlzError, match="died .*SIGKILL"):
+        cast(Any, b)._proc.kill()  # stands in for a native crash (a private of the ORB-SLAM3 backend)
+        with pytest.raises(SlzError, match=r"died .*SIGKILL"):
             b.track(frames[1])
 
 
@@ -196,7 +207,7 @@ def _write_recording(path, frames, truth, points_topic=None, clouds=()):
     from slzcli.outputs.recording import RecordingWriter
 
     with RecordingWriter(path, "mcap", depth_encoding="32FC1") as w:
-        for f, T in zip(frames, truth):
+        for f, T in zip(frames, truth, strict=True):
             w.write_frame(f)
             w.write_pose("/orb_slam3/camera_pose", f.stamp_ns, T)
         for stamp, xyz in clouds:
@@ -209,8 +220,17 @@ def _write_recording(path, frames, truth, points_topic=None, clouds=()):
             w.write_raw(points_topic, "sensor_msgs/msg/PointCloud2", msg, stamp)
 
 
+def _clouds(path, config):
+    """The recorded clouds (a points topic is configured, so never None)."""
+    from slzcli.slam.recorded import open_clouds
+
+    clouds = open_clouds(path, config)
+    assert clouds is not None
+    return clouds
+
+
 def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_flight) -> None:
-    from slzcli.slam.recorded import CloudStream, RecordedBackend, open_clouds
+    from slzcli.slam.recorded import CloudStream, RecordedBackend
     from slzcli.sources import open_recording
 
     frames, truth = out_back_flight
@@ -220,16 +240,16 @@ def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_fligh
     _write_recording(path, frames, truth, "/orb_slam3/map_points", [(frames[2].stamp_ns, xyz)])
     config = load_config(overrides=["sources.topics.pose=/orb_slam3/camera_pose",
                                      "slam.points_topic=/orb_slam3/map_points"])
-    with open_clouds(path, config) as clouds:
+    with _clouds(path, config) as clouds:
         assert not clouds.empty
         stamp, got, ids = clouds.nearest(frames[2].stamp_ns + 1000, 1_000_000)
         assert stamp == frames[2].stamp_ns and ids.tolist() == [0, 1, 2]
         np.testing.assert_allclose(got, xyz, atol=1e-6)
         assert clouds.nearest(frames[2].stamp_ns, 1_000_000) is None  # each cloud goes to one frame
-    with open_recording(path, config) as rec, open_clouds(path, config) as clouds, RecordedBackend(config, clouds) as b:
+    with open_recording(path, config) as rec, _clouds(path, config) as clouds, RecordedBackend(config, clouds) as b:
         out = [(b.track(f), b.keyframe()) for f in rec.frames()]
     assert len(out) == 8
-    for (r, _), T in zip(out, truth):
+    for (r, _), T in zip(out, truth, strict=True):
         assert r.state is TrackingState.OK
         np.testing.assert_allclose(r.T_world_camera, T, atol=1e-9)
     kfs = [k for _, k in out if k is not None]
@@ -240,8 +260,6 @@ def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_fligh
 
 def test_recorded_clouds_are_streamed_not_read_up_front(tmp_path, out_back_flight) -> None:
     """A cloud per frame over the whole recording: the stream holds only the clouds near the current frame."""
-    from slzcli.slam.recorded import open_clouds
-
     frames, truth = out_back_flight
     path = tmp_path / "rec.mcap"
     xyz = np.array([[0.0, 0.0, 0.0], [0.5, 0.2, 0.3]])
@@ -250,7 +268,7 @@ def test_recorded_clouds_are_streamed_not_read_up_front(tmp_path, out_back_fligh
     period = frames[1].stamp_ns - frames[0].stamp_ns
     window = config.sources.pose_tolerance_ms + config.sources.reorder_window_ms
     most = 0
-    with open_clouds(path, config) as clouds:
+    with _clouds(path, config) as clouds:
         for f in frames:
             stamp, _, _ = clouds.nearest(f.stamp_ns, int(config.sources.pose_tolerance_ms * 1e6))
             assert stamp == f.stamp_ns

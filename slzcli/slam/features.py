@@ -11,7 +11,7 @@ import numpy as np
 
 def make_orb(n_features: int, n_levels: int, scale_factor: float, fast_threshold: int) -> cv2.ORB:
     """An OpenCV ORB detector with the paper's pyramid (1000 features, 8 levels, 1.2)."""
-    return cv2.ORB_create(nfeatures=n_features, scaleFactor=scale_factor, nlevels=n_levels,
+    return cv2.ORB.create(nfeatures=n_features, scaleFactor=scale_factor, nlevels=n_levels,
                           fastThreshold=fast_threshold)
 
 
@@ -21,7 +21,7 @@ def detect(orb: cv2.ORB, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     kps, desc = orb.detectAndCompute(grey, None)
     if desc is None or not kps:
         return np.zeros((0, 2)), np.zeros((0, 32), np.uint8)
-    return cv2.KeyPoint_convert(kps).astype(np.float64), desc
+    return np.asarray(cv2.KeyPoint.convert(kps), np.float64), desc
 
 
 def ratio_matches(query: np.ndarray, train: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:

@@ -20,6 +20,7 @@ import numpy as np
 
 from slzcli.errors import SlzError
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult, invert_pose
+from slzcli.slam.bundle import bundle_adjust
 from slzcli.slam.features import detect, make_orb, ratio_matches
 from slzcli.slam.keyframes import is_new_keyframe, project
 from slzcli.types import Frame
@@ -31,6 +32,8 @@ log = logging.getLogger(__name__)
 class _KF:
     pose: np.ndarray
     point_ids: np.ndarray        # map points this keyframe observes
+    pixels: np.ndarray           # (N,2) where it observes them
+    depth: np.ndarray            # (N,) measured depth there (m), NaN where out of range
     free_pixels: np.ndarray      # keypoints without depth and without a map point (for triangulation)
     free_desc: np.ndarray
     tracked: int
@@ -85,8 +88,8 @@ class OdometryBackend(BackendBase):
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
             self.xyz[ids].astype(np.float64), px[q].astype(np.float64), frame.K, None,
             iterationsCount=self.cfg.pnp_iterations, reprojectionError=self.cfg.pnp_reprojection_px,
-            confidence=self.cfg.pnp_confidence, flags=cv2.SOLVEPNP_ITERATIVE if guess is not None else cv2.SOLVEPNP_EPNP,
-            **kw)
+            confidence=self.cfg.pnp_confidence,
+            flags=cv2.SOLVEPNP_ITERATIVE if guess is not None else cv2.SOLVEPNP_EPNP, **kw)
         if not ok or inl is None or len(inl) < self.cfg.min_inliers:
             return None, np.zeros(0, int)
         inl = inl[:, 0]
@@ -103,9 +106,10 @@ class OdometryBackend(BackendBase):
         return ids
 
     def _triangulate(self, frame: Frame, pose: np.ndarray, px: np.ndarray, desc: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Map points for depth-less features matched with the previous keyframe's depth-less ones."""
-        empty = (np.zeros((0, 3)), np.zeros(0, int), np.zeros((0, 32), np.uint8))
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Map points for depth-less features matched with the previous keyframe's depth-less ones:
+        (xyz, index into px, descriptors, index into the previous keyframe's free pixels)."""
+        empty = (np.zeros((0, 3)), np.zeros(0, int), np.zeros((0, 32), np.uint8), np.zeros(0, int))
         if not self.kfs or len(px) < 2 or len(self.kfs[-1].free_desc) < 2:
             return empty
         prev = self.kfs[-1]
@@ -126,25 +130,77 @@ class OdometryBackend(BackendBase):
         uv2, in2 = project(X, pose, K, frame.intrinsics.width, frame.intrinsics.height)
         err = np.maximum(np.linalg.norm(uv1 - a, axis=1), np.linalg.norm(uv2 - b, axis=1))
         ok = parallax_ok & in1 & in2 & (err < self.cfg.max_triangulation_error_px)
-        return X[ok], pairs[ok, 0], desc[pairs[ok, 0]]
+        return X[ok], pairs[ok, 0], desc[pairs[ok, 0]], pairs[ok, 1]
 
     def _make_keyframe(self, frame: Frame, pose: np.ndarray, px: np.ndarray, desc: np.ndarray,
                        matched_q: np.ndarray, matched_ids: np.ndarray) -> None:
         pc, has_depth = self._backproject(frame, px)
+        z = np.where(has_depth, pc[:, 2], np.nan)
         new = np.ones(len(px), bool)
         new[matched_q] = False
         pw = pc @ pose[:3, :3].T + pose[:3, 3]
         d_idx = np.flatnonzero(new & has_depth)
         d_ids = self._add_points(pw[d_idx], desc[d_idx])
         free = np.flatnonzero(new & ~has_depth)
-        tri_xyz, tri_local, tri_desc = self._triangulate(frame, pose, px[free], desc[free])
+        tri_xyz, tri_local, tri_desc, tri_prev = self._triangulate(frame, pose, px[free], desc[free])
         t_ids = self._add_points(tri_xyz, tri_desc)
+        if len(t_ids):  # the previous keyframe observes the triangulated points too (for the bundle adjustment)
+            prev = self.kfs[-1]
+            prev.point_ids = np.concatenate([prev.point_ids, t_ids])
+            prev.pixels = np.concatenate([prev.pixels, prev.free_pixels[tri_prev]])
+            prev.depth = np.concatenate([prev.depth, np.full(len(t_ids), np.nan)])
         still_free = np.setdiff1d(np.arange(len(free)), tri_local)
         ids = np.concatenate([matched_ids, d_ids, t_ids]).astype(np.int64)
-        pix = np.concatenate([px[matched_q], px[d_idx], px[free][tri_local]]).reshape(-1, 2)
-        self.kfs.append(_KF(pose, ids, px[free][still_free], desc[free][still_free], len(matched_ids) + len(d_ids)))
-        self._keyframe = MapPoints(ids, self.xyz[ids].copy(), pix.astype(np.float64), len(self.kfs) - 1,
-                                   frame.stamp_ns, pose.copy())
+        pix = np.concatenate([px[matched_q], px[d_idx], px[free][tri_local]]).reshape(-1, 2).astype(np.float64)
+        dep = np.concatenate([z[matched_q], z[d_idx], np.full(len(t_ids), np.nan)])
+        self.kfs.append(_KF(pose, ids, pix, dep, px[free][still_free], desc[free][still_free],
+                            len(matched_ids) + len(d_ids)))
+        if self.cfg.ba_keyframes > 0 and len(self.kfs) > 1:
+            self._local_bundle_adjust(frame.K)
+        kf = self.kfs[-1]
+        self._keyframe = MapPoints(kf.point_ids, self.xyz[kf.point_ids].copy(), kf.pixels.copy(), len(self.kfs) - 1,
+                                   frame.stamp_ns, kf.pose.copy())
+
+    def _local_bundle_adjust(self, K: np.ndarray) -> None:
+        """Refine the last ``ba_keyframes`` keyframe poses and the points they see (bundle.py).
+
+        The keyframe before them is held fixed (it fixes the gauge with the depth terms); points seen
+        once and without depth are left out (nothing constrains them). Observations left with a large
+        reprojection error are dropped from their keyframe (mismatches, points across a depth edge).
+        """
+        n_free = min(self.cfg.ba_keyframes, len(self.kfs) - 1)
+        win = self.kfs[-(n_free + 1):]
+        kf_of = np.concatenate([np.full(len(k.point_ids), i) for i, k in enumerate(win)])
+        pid = np.concatenate([k.point_ids for k in win])
+        px = np.concatenate([k.pixels for k in win])
+        dep = np.concatenate([k.depth for k in win])
+        uniq, inv, count = np.unique(pid, return_inverse=True, return_counts=True)
+        depth_seen = np.zeros(len(uniq), bool)
+        depth_seen[inv[np.isfinite(dep)]] = True
+        keep = (count >= 2) | depth_seen
+        use = keep[inv]
+        local = -np.ones(len(uniq), np.int64)
+        local[keep] = np.arange(int(keep.sum()))
+        if use.sum() < self.cfg.min_inliers:
+            return
+        poses_cw = np.stack([invert_pose(k.pose) for k in win])
+        fixed = np.zeros(len(win), bool)
+        fixed[0] = True
+        res = bundle_adjust(poses_cw, fixed, self.xyz[uniq[keep]], kf_of[use], local[inv[use]], px[use], dep[use], K,
+                            self.cfg.ba_depth_sigma_rel, self.cfg.ba_huber, self.cfg.ba_iterations)
+        self.xyz[uniq[keep]] = res.xyz
+        for k, T_cw in zip(win[1:], res.poses_cw[1:], strict=True):
+            k.pose = invert_pose(T_cw)
+        bad = np.zeros(len(pid), bool)
+        bad[np.flatnonzero(use)] = res.reproj_px > self.cfg.ba_outlier_px
+        start = 0
+        for k in win:
+            n = len(k.point_ids)
+            b = bad[start:start + n]
+            start += n
+            if b.any():
+                k.point_ids, k.pixels, k.depth = k.point_ids[~b], k.pixels[~b], k.depth[~b]
+        self.last_pose = win[-1].pose
 
     # ------------------------------------------------------------------ protocol
     def track(self, frame: Frame) -> TrackResult:
@@ -182,7 +238,8 @@ class OdometryBackend(BackendBase):
                     return res
             self.velocity = np.eye(4)
             return TrackResult(frame.index, frame.stamp_ns, TrackingState.LOST, None, False, 0, self.segment)
-        self.velocity = invert_pose(self.last_pose) @ pose if guess is not None else np.eye(4)
+        self.velocity = invert_pose(self.last_pose) @ pose if guess is not None and self.last_pose is not None \
+            else np.eye(4)
         self.lost_for = 0
         self.last_pose = pose
         mq, mids = q[inl], ids[inl]
@@ -190,6 +247,7 @@ class OdometryBackend(BackendBase):
         if is_new_keyframe(last.pose, pose, len(mq), last.tracked, self.kf_cfg.min_translation_m,
                            self.kf_cfg.min_rotation_deg, self.kf_cfg.min_tracked_ratio):
             self._make_keyframe(frame, pose, px, desc, mq, mids)
+            pose = self.kfs[-1].pose  # refined by the local bundle adjustment
         return TrackResult(frame.index, frame.stamp_ns, TrackingState.OK, pose, self._keyframe is not None, len(mq),
                            self.segment)
 
