@@ -250,7 +250,7 @@ def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_fligh
         out = [(b.track(f), b.keyframe()) for f in rec.frames()]
     assert len(out) == 8
     for (r, _), T in zip(out, truth, strict=True):
-        assert r.state is TrackingState.OK
+        assert r.state is TrackingState.OK and r.T_world_camera is not None
         np.testing.assert_allclose(r.T_world_camera, T, atol=1e-9)
     kfs = [k for _, k in out if k is not None]
     assert len(kfs) == 1 and kfs[0].ids.tolist() == [0, 1]
