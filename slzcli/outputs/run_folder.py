@@ -40,9 +40,11 @@ LEVELS = ("summary", "maps", "all")  # output.level, each writing what the one b
 def detection_arrays(det: Any) -> dict[str, np.ndarray]:
     """The members of one detection's maps.npz (precision: ``MAPS_DTYPE`` above)."""
     maps = {k: np.asarray(v).astype(MAPS_DTYPE) for k, v in det.maps.as_dict().items()}
-    return {"score": np.asarray(det.score.score, np.float32), "mask": det.score.mask, "valid": det.maps.valid,
-            "slope_deg": np.asarray(det.maps.slope_deg).astype(MAPS_DTYPE),
-            "edge_distance_m": np.asarray(det.edge_m).astype(MAPS_DTYPE), **maps}
+    out = {"score": np.asarray(det.score.score, np.float32), "mask": det.score.mask, "valid": det.maps.valid,
+           "slope_deg": np.asarray(det.maps.slope_deg).astype(MAPS_DTYPE)}
+    if det.edge_m is not None:
+        out["edge_distance_m"] = np.asarray(det.edge_m).astype(MAPS_DTYPE)
+    return {**out, **maps}
 
 
 def write_detection(run_dir: Path, det: Any, config: Config) -> None:
