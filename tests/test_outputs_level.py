@@ -81,7 +81,12 @@ def test_the_default_level_is_maps_and_the_level_is_in_the_rerun_key(flight, tmp
 def test_maps_npz_gives_back_the_arrays_to_the_documented_precision(flight, tmp_path, monkeypatch) -> None:
     seen = []
     write = run_folder.write_detection
-    monkeypatch.setattr(run_folder, "write_detection", lambda run, det, cfg: (seen.append(det), write(run, det, cfg)))
+
+    def keep(run, det, cfg) -> None:
+        seen.append(det)
+        write(run, det, cfg)
+
+    monkeypatch.setattr(run_folder, "write_detection", keep)
     out = tmp_path / "run"
     assert detect(flight, out).exit_code == 0
     assert len(seen) == 4
