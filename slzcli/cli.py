@@ -7,6 +7,7 @@ config or a failure with a one-line reason naming the file or key, 2 usage.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import logging
 import math
@@ -21,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from slzcli import __version__
-from slzcli.config import Config, dump, load_config
+from slzcli.config import Config, OutputLevel, dump, load_config
 from slzcli.errors import SlzError
 
 if TYPE_CHECKING:
@@ -488,16 +489,22 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run on this Dask distributed scheduler (e.g. tcp://host:8786) instead of local processes; "
                    "needs slz[dask] and the recordings at the same paths on the workers.")
+@click.option("--outputs", type=click.Choice(["summary", "maps", "all"]), default=None,
+              help="What each detection frame writes to frames/NNNNNN/ (default: output.level, maps): summary = "
+                   "none, maps = maps.npz + overlay.png, all = + the heat-map PNGs of every map, score and mask.")
 @timeout_option("Stop a recording when one stage (opening it, reading, SLAM, detection or writing of one "
                 "frame, the final write) runs longer than this; it fails naming the stage, leaves no run folder, "
                 "and a batch goes on. Default: no limit.")
 @common_options
 def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None, method: str | None,
-               force: bool, workers: int | None, scheduler: str | None,
+               force: bool, workers: int | None, scheduler: str | None, outputs: OutputLevel | None,
                timeout_s: float | None) -> tuple[dict[str, Any], str]:
     """Maps, fuzzy score, mask, SLAM map points and the landing site of each recording (paths or globs)."""
     from slzcli import batch
     from slzcli.pipeline import RunOptions
+
+    if outputs is not None:  # a config value: it is in run.json's config and the rerun key
+        config = dataclasses.replace(config, output=dataclasses.replace(config.output, level=outputs))
 
     paths = batch.expand(recordings)
     is_batch = len(recordings) > 1 or any(batch.is_pattern(r) for r in recordings)
@@ -628,8 +635,9 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
                      f"{lim['slope_min_deg']:.1f} deg detectable"
                      + ("" if noise.get("detections_not_vouched", 0) == 0 else
                         f"; {noise['detections_not_vouched']} detection frame(s) could not vouch"))
+    write = f", write {t['write']:.1f} ms" if "write" in t else ""  # a run.json from before write was summarised
     lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, "
-                 f"mask {t['mask']:.1f} ms, slam {t['slam']:.1f} ms, select {t['select']:.1f} ms (medians)")
+                 f"mask {t['mask']:.1f} ms, slam {t['slam']:.1f} ms, select {t['select']:.1f} ms{write} (medians)")
     gt = s.get("ground_truth")
     if gt and gt.get("mask"):
         m = gt["mask"]
@@ -637,7 +645,10 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
         lines.append(f"  vs ground truth: mask precision {fmt(m['precision'])}, recall {fmt(m['recall'])}, "
                      f"IoU {fmt(m['iou'])}" + (f"; site safe: {gt['site']['safe']}, clearance "
                                                f"{gt['site']['clearance_m']:.2f} m" if gt.get("site") else ""))
-    lines.append(f"  results: {out}/ (landing.json, run.json, sites.csv, points.ply, results.mcap, frames/)")
+    frames = {"summary": "", "maps": ", frames/ (maps.npz, overlay.png)", "all": ", frames/"}.get(
+        s.get("outputs", "all"), ", frames/")
+    mcap = ", results.mcap" if (out / "results.mcap").exists() else ""
+    lines.append(f"  results: {out}/ (landing.json, run.json, sites.csv, points.ply{mcap}{frames})")
     return "\n".join(lines)
 
 

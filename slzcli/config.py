@@ -40,6 +40,7 @@ CONFIG_DIR = package_dir("configs")
 DEFAULT_CONFIG = CONFIG_DIR / "default.yaml"
 
 Normalise = Literal["absolute", "frame"]
+OutputLevel = Literal["summary", "maps", "all"]  # output.level / slz detect --outputs
 
 
 def rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
@@ -521,7 +522,7 @@ class CompareCfg:
 
 @schema
 class OutputCfg:
-    frame_images: bool
+    level: OutputLevel
     reverse_colormap: bool
     results_mcap: bool
     mask_cloud_stride_px: int = rng(1, 256)

@@ -14,7 +14,7 @@ import os
 import shutil
 import tempfile
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -115,7 +115,8 @@ ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)  # fixed member time: the same arrays give the
 _COPY_BUFFER_BYTES = 1 << 20
 
 
-def write_npz_streamed(path: Path, members: dict[str, np.ndarray | Path], stored: frozenset[str] = frozenset()) -> None:
+def write_npz_streamed(path: Path, members: Mapping[str, np.ndarray | Path],
+                       stored: frozenset[str] = frozenset()) -> None:
     """An ``.npz`` (readable by ``np.load``) from arrays and from ``.npy`` files copied in chunks.
 
     Members named in ``stored`` are not compressed (a reader can memory-map them); the rest are

@@ -2,7 +2,8 @@
 
 Files: run.json, landing.json, sites.csv, points.ply, trajectory.tum (and trajectory.seg<K>.tum
 after a SLAM map reset), keyframes.npz,
-frames/NNNNNN/{depth_variance,flatness,inclination,steepness,score,mask,overlay}.png + maps.npz.
+frames/NNNNNN/ by ``output.level``: nothing (summary), maps.npz + overlay.png (maps, the default),
++ {depth_variance,flatness,inclination,steepness,score,mask}.png (all).
 Everything here writes into the temporary run folder the pipeline hands it; the folder is
 put in place only when all of it is written (``output_dir.build``: only the names a run
 writes, ``output_dir.DETECT_NAMES``, are ever replaced; ``ibvs/`` and a user's files stay).
@@ -28,21 +29,42 @@ from slzcli.outputs.results_mcap import frame_ids
 from slzcli.outputs.trajectory import write_trajectories
 from slzcli.slam.segments import Segment, primary_segment, segment_table
 
+# maps.npz: members stored, not deflated (deflating ~5.9 MB of float32 took ~0.35-0.46 s a frame against ~6 ms
+# stored: benchmarks/writes.py). The maps are float16 (relative error <= 2**-11: +-0.00025 on the [0, 1] maps,
+# +-0.03 deg on slope_deg, +-2 mm at 4 m on edge_distance_m, NaN kept); score stays float32 so that
+# score >= mask.threshold gives back the mask exactly, mask and valid stay bool.
+MAPS_DTYPE = np.float16
+LEVELS = ("summary", "maps", "all")  # output.level, each writing what the one before it writes and more
+
+
+def detection_arrays(det: Any) -> dict[str, np.ndarray]:
+    """The members of one detection's maps.npz (precision: ``MAPS_DTYPE`` above)."""
+    maps = {k: np.asarray(v).astype(MAPS_DTYPE) for k, v in det.maps.as_dict().items()}
+    out = {"score": np.asarray(det.score.score, np.float32), "mask": det.score.mask, "valid": det.maps.valid,
+           "slope_deg": np.asarray(det.maps.slope_deg).astype(MAPS_DTYPE)}
+    if det.edge_m is not None:
+        out["edge_distance_m"] = np.asarray(det.edge_m).astype(MAPS_DTYPE)
+    return {**out, **maps}
+
 
 def write_detection(run_dir: Path, det: Any, config: Config) -> None:
-    """One detection frame: the maps as heat maps, score, mask, overlay (Figure 6 style), maps.npz."""
-    if not config.output.frame_images:
+    """One detection frame's folder at ``output.level``: maps.npz and the overlay (Figure 6 style) at
+    ``maps``, the maps, score and mask as heat maps too at ``all``, no folder at ``summary``."""
+    level = config.output.level
+    if level == "summary":
         return
     folder = run_dir / "frames" / f"{det.frame.index:06d}"
+    arrays = detection_arrays(det)
+    files.write_npz_streamed(folder / "maps.npz", arrays, stored=frozenset(arrays))
+    images.write_png(folder / "overlay.png", detection_overlay_bgr(det))
+    if level != "all":
+        return
     reverse = config.output.reverse_colormap
     valid = det.maps.valid
     for name, values in det.maps.as_dict().items():
         images.write_png(folder / f"{name}.png", images.heatmap_bgr(values, reverse=reverse, valid=valid))
     images.write_png(folder / "score.png", images.heatmap_bgr(det.score.score, reverse=reverse, valid=valid))
     images.write_png(folder / "mask.png", images.mask_png(det.score.mask))
-    images.write_png(folder / "overlay.png", detection_overlay_bgr(det))
-    files.write_npz(folder / "maps.npz", score=det.score.score, mask=det.score.mask, valid=valid,
-                    slope_deg=det.maps.slope_deg, edge_distance_m=det.edge_m, **det.maps.as_dict())
 
 
 def detection_overlay_bgr(det: Any) -> np.ndarray:
@@ -115,7 +137,8 @@ def write_run(run_dir: Path, source: Path, config: Config, method: str, info: An
     per_frame = ("maps", "score", "mask", "slam", "select")
     timings = {"maps": med.get("maps", 0.0), method: med.get("score", 0.0), "mask": med.get("mask", 0.0),
                "slam": med.get("slam", 0.0), "select": med.get("select", 0.0),
-               "total": round(sum(med.get(k, 0.0) for k in per_frame), 3)}
+               "total": round(sum(med.get(k, 0.0) for k in per_frame), 3),
+               "write": med.get("write", 0.0)}  # a detection frame's files (output.level) + results.mcap; not in total
     table = segment_table(st.trajectory.segments(), st.trajectory.has_pose(), st.keyframes.per_segment)
     primary = primary_segment(table, None if committed is None else committed["segment"])
     world = world_frame_text(det.slam_name, table, primary)
@@ -133,6 +156,7 @@ def write_run(run_dir: Path, source: Path, config: Config, method: str, info: An
         "reason": landing.get("reason"), "slam_backend": det.slam_name, "tracking": st.tracking,
         "slam": slam_summary(det.slam_name, table, primary, tum_files),
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
+        "outputs": config.output.level,
         "depth_noise": _noise_summary(st),
         "depth_limits": landing.get("site", {}).get("depth_limits") or _noise_summary(st).get("not_vouched"),
         "pairing": {"paired": report.paired, "unpaired_color": report.unpaired_color,
