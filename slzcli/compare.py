@@ -246,7 +246,7 @@ def _view(d: Detection) -> dict[str, Any]:
     sel = d.selection
     corners = None
     if sel is not None and sel.site is not None and d.T_world_camera is not None:
-        from slzcli.landing.select import project
+        from slzcli.geometry import project
 
         corners, _ = project(np.asarray(sel.site.corners_world), d.T_world_camera, d.frame.K, d.score.mask.shape)
     return {"rgb": d.frame.rgb, "score": d.score.score.astype(np.float16), "mask": d.score.mask,

@@ -44,6 +44,7 @@ from slzcli.config import Config
 from slzcli.errors import DatasetError, OutputError
 from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
+from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
 from slzcli.landing.select import Candidate, Selection, SelectParams, Site, select_site
 from slzcli.outputs import results_mcap
@@ -51,7 +52,6 @@ from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, TrackingState, get_backend
-from slzcli.slam.base import invert_pose
 from slzcli.slam.recorded import open_clouds
 from slzcli.sources import check_readable, open_recording
 from slzcli.terrain.geometry import back_project
@@ -135,7 +135,7 @@ def depth_points(frame: Frame, T_world_camera: np.ndarray, stride_px: int) -> Ma
     v, u = np.mgrid[0:frame.depth_m.shape[0]:stride_px, 0:frame.depth_m.shape[1]:stride_px]
     ok = np.all(np.isfinite(xyz_cam), axis=2)
     pc = xyz_cam[ok]
-    xyz = pc @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
+    xyz = transform_points(T_world_camera, pc)
     pixels = np.stack([u[ok], v[ok]], axis=1).astype(np.float64)
     return MapPoints(np.arange(len(xyz), dtype=np.int64), xyz, pixels, frame.index, frame.stamp_ns, T_world_camera)
 
@@ -279,7 +279,7 @@ def _chosen_cluster(candidates: Sequence[Candidate], site: Site) -> int:
 
 
 def _apply(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
-    return xyz @ T[:3, :3].T + T[:3, 3]
+    return transform_points(T, xyz)
 
 
 def _with_pose(frame: Frame, T: np.ndarray) -> Frame:

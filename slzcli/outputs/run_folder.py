@@ -53,7 +53,7 @@ def detection_overlay_bgr(det: Any) -> np.ndarray:
         centre = np.asarray(sel.site.center_world)
         nearest = min(sel.candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre)))
         chosen = sel.labels == nearest.cluster
-        from slzcli.landing.select import project
+        from slzcli.geometry import project
 
         corners_px, _ = project(np.asarray(sel.site.corners_world), det.T_world_camera, det.frame.K,
                                 det.score.mask.shape)
