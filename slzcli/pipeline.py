@@ -112,7 +112,7 @@ def select_params(config: Config, method: str) -> SelectParams:
         footprint_m=(uav.footprint_m[0], uav.footprint_m[1]),
         min_extent_factor=lc.bayes_min_extent_factor if bayes else lc.min_extent_factor,
         rule="largest" if bayes else "min_normal_variance", seed=lc.seed,
-        edge_clearance_m=lc.edge_clearance_factor * max(uav.size_m[:2]), max_tilt_deg=lc.max_tilt_deg,
+        edge_clearance_m=lc.edge_clearance_factor * max(uav.size_m[:2]), max_tilt_deg=uav.max_slope_deg,
         max_normal_pairs=lc.max_normal_pairs)
 
 

@@ -41,7 +41,7 @@ class SelectParams:
     rule: str  # "min_normal_variance" (fuzzy, METHOD 2.5) | "largest" (bayes, BASELINE)
     seed: int
     edge_clearance_m: float  # acceptance test: clearance to the nearest depth edge must exceed this
-    max_tilt_deg: float      # acceptance test: surface tilt at most this
+    max_tilt_deg: float      # acceptance test: surface tilt at most this (uav.max_slope_deg)
     max_normal_pairs: int = 0  # neighbour pairs point_normals may build (0 = no bound; landing.max_normal_pairs)
 
 
