@@ -236,6 +236,7 @@ class LandingCfg:
     detect_on: Literal["keyframes", "every_nth"]
     depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
+    commit_radius_factor: float = rng(0)
     max_normal_pairs: int = rng(1)
 
 
@@ -422,6 +423,7 @@ class GroundTruthCfg:
     raster_m: float = rng(0.005, 1.0)
     step_m: float = rng(0, lo_open=True)
     slope_tolerance_deg: float = rng(0, 1)
+    stamp_tolerance_ms: float = rng(0, 1000)
     max_cells: int = rng(1)
 
 

@@ -94,7 +94,7 @@ def landing_record(source: Path, method: str, committed: dict[str, Any] | None, 
 
 def _site_truth(truth: Any, frame: Any, center_camera: tuple[float, float, float]) -> Any:
     """The site in the ground-truth world: through the TRUE pose of its frame (not SLAM's)."""
-    T = truth.T_world_camera[truth.index_of(frame.stamp_ns, tolerance_ns=1_000_000)]
+    T = truth.T_world_camera[truth.index_of(frame.stamp_ns)]
     p = T[:3, :3] @ np.asarray(center_camera) + T[:3, 3]
     visible = visible_cells(truth.raster, T, frame.K, frame.shape)
     return site_truth(truth.raster, (float(p[0]), float(p[1])), visible)
