@@ -203,6 +203,14 @@ def test_ramp_30_deg_raw_slope_and_absolute_steepness() -> None:
     assert maps.inclination[INNER].min() > 0.99       # a ramp is still a plane
 
 
+def test_steepness_takes_psi_ref_from_uav_max_slope_deg() -> None:
+    """The map's psi_ref is the UAV's slope limit carried by the working scale (no key of its own)."""
+    depth = plane_depth(ramp_normal(30.0), 10.0)
+    uav = load_config(overrides=["uav.max_slope_deg=20"]).uav
+    maps = tm.compute_maps(depth, K, DOWN, TERRAIN, tm.noise_free_working(depth, K, TERRAIN, uav))
+    np.testing.assert_allclose(maps.steepness[INNER], math.exp(-(30.0 / 20.0) ** 2), atol=1e-3)
+
+
 def test_steepness_modes() -> None:
     psi = np.radians(np.array([[0.0, 10.0], [30.0, np.nan]], np.float32))
     frame = tm.steepness_map(psi, terrain(steepness={"normalise": "frame"}).steepness, 15.0)
