@@ -39,7 +39,7 @@ def evaluate(path: Path, overrides: list[str], methods: tuple[str, ...]) -> dict
     with open_recording(path, config) as rec:
         for frame in rec.frames():
             maps = frame_maps(frame, config)
-            gt = truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000)
+            gt = truth.safe_mask(frame.stamp_ns, tolerance_ns=round(config.synth.ground_truth.stamp_tolerance_ms * 1e6))
             truth_fraction.append(float(gt.mean()))
             for m, scorer in scorers.items():
                 sm = score_frame(scorer, maps, frame.depth_m, frame.intrinsics, config)

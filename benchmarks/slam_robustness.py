@@ -38,6 +38,7 @@ import slam_flight  # noqa: E402
 
 from slzcli.config import load_config  # noqa: E402
 from slzcli.evaluate.slam import ate  # noqa: E402
+from slzcli.geometry import transform_points  # noqa: E402
 from slzcli.slam import TrackingState  # noqa: E402
 from slzcli.slam import odometry as current_odometry  # noqa: E402
 
@@ -96,8 +97,7 @@ def run(mod: ModuleType, frames: list, truth: list, overrides: list[str]) -> dic
     if cut is not None:  # the triangulation test's checks: points beyond the cut, on the ground
         beyond = []
         for kf in keyframes:
-            T_cw = np.linalg.inv(kf.T_world_camera)
-            depth = (kf.xyz_world @ T_cw[:3, :3].T + T_cw[:3, 3])[:, 2]
+            depth = transform_points(np.linalg.inv(kf.T_world_camera), kf.xyz_world)[:, 2]
             beyond.append(kf.xyz_world[depth > cut])
         far = np.concatenate(beyond) if beyond else np.zeros((0, 3))
         row["far_points"] = len(far)

@@ -98,9 +98,9 @@ def stages(depth: np.ndarray, intr: Intrinsics, up: np.ndarray, runs: int) -> di
         "depth_variance_map": timed(lambda: tm.depth_variance_map(depth, cfg.depth_variance), runs),
         "flatness_map": timed(lambda: tm.flatness_map(depth, intr, cfg.flatness, 0.01), runs),
         "inclination_map": timed(lambda: tm.inclination_map(pca.curvature, cfg.inclination), runs),
-        "steepness_map": timed(lambda: tm.steepness_map(tm.slope_rad(field, up), cfg.steepness), runs),
+        "steepness_map": timed(lambda: tm.steepness_map(tm.slope_rad(field, up), cfg.steepness, 15.0), runs),
         "slope_only": timed(lambda: tm.slope_rad(field, up), runs),
-        "steepness_from_slope": timed(lambda: tm.steepness_map(psi, cfg.steepness), runs),
+        "steepness_from_slope": timed(lambda: tm.steepness_map(psi, cfg.steepness, 15.0), runs),
         "total_compute_maps": timed(lambda: tm.compute_maps(depth, intr, up, cfg), runs),
     }
 

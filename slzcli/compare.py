@@ -46,7 +46,16 @@ from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
 from slzcli.interrupt import call_interruptibly
 from slzcli.outputs import output_dir, run_lock
-from slzcli.pipeline import Detection, Detector, commit_site, ground_truth_of, open_inputs, posed_maps, tracked_frames
+from slzcli.pipeline import (
+    Detection,
+    Detector,
+    commit_radius_m,
+    commit_site,
+    ground_truth_of,
+    open_inputs,
+    posed_maps,
+    tracked_frames,
+)
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
@@ -181,7 +190,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
     t_start = time.perf_counter()
     with ExitStack() as stack:
         with limit.stage("opening the recording"):
-            truth = ground_truth_of(path)
+            truth = ground_truth_of(path, config)
             rec, info, clouds = open_inputs(path, config, stack)
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         with get_backend(config, has_poses, clouds=clouds) as slam:
@@ -194,7 +203,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
                 if due:
                     with limit.stage(f"detection on frame {frame.index}"):
                         maps, maps_ms = call_interruptibly(posed_maps, frame, T, config, tracker.noise_for(frame))
-                        gt_mask = truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000) if truth is not None else None
+                        gt_mask = truth.safe_mask(frame.stamp_ns) if truth is not None else None
                         dets = {m: _fuse(run, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
                                 for m, run in runs.items()}
                         _agree(dets, agreement)
@@ -246,7 +255,7 @@ def _view(d: Detection) -> dict[str, Any]:
     sel = d.selection
     corners = None
     if sel is not None and sel.site is not None and d.T_world_camera is not None:
-        from slzcli.landing.select import project
+        from slzcli.geometry import project
 
         corners, _ = project(np.asarray(sel.site.corners_world), d.T_world_camera, d.frame.K, d.score.mask.shape)
     return {"rgb": d.frame.rgb, "score": d.score.score.astype(np.float16), "mask": d.score.mask,
@@ -284,7 +293,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                agreement: dict[str, list[MaskCounts]], wall_s: float) -> dict[str, Any]:
     from slzcli.outputs.run_folder import landing_record, no_site_reason
 
-    side = 2 * config.uav.footprint_m[0]
+    side = commit_radius_m(config)
     per: dict[str, Any] = {}
     committed_of: dict[str, dict[str, Any] | None] = {}
     for m, run in runs.items():

@@ -150,7 +150,6 @@ class SteepnessCfg:
     normal_px: int = rng(3, 31, odd=True)
     normal_size_m: float = rng(0)
     normal_max_px: int = rng(3, 255, odd=True)
-    slope_limit_deg: float = rng(0, 90, lo_open=True)
     min_valid_fraction: float = rng(0, 1, lo_open=True)
     normalise: Normalise = "absolute"
 
@@ -238,7 +237,7 @@ class LandingCfg:
     detect_on: Literal["keyframes", "every_nth"]
     depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
-    max_tilt_deg: float = rng(0, 90)
+    commit_radius_factor: float = rng(0)
     max_normal_pairs: int = rng(1)
 
 
@@ -425,6 +424,7 @@ class GroundTruthCfg:
     raster_m: float = rng(0.005, 1.0)
     step_m: float = rng(0, lo_open=True)
     slope_tolerance_deg: float = rng(0, 1)
+    stamp_tolerance_ms: float = rng(0, 1000)
     max_cells: int = rng(1)
 
 
@@ -720,11 +720,22 @@ def parse_override(item: str) -> tuple[str, Any]:
     return key, value
 
 
+# Keys that were removed, with the key that replaced them: a config that still sets one is refused
+# with the replacement named (a silently ignored or "unknown" key would hide a changed limit).
+RENAMED_KEYS: dict[str, str] = {
+    "terrain.steepness.slope_limit_deg": "uav.max_slope_deg",  # one slope limit (issue: duplicated keys)
+    "landing.max_tilt_deg": "uav.max_slope_deg",
+}
+
+
 def merge(base: dict[str, Any], over: dict[str, Any], source: str, prefix: str = "") -> dict[str, Any]:
     """Deep merge; a key unknown to ``base`` is an error (caught here so the source is named)."""
     out = dict(base)
     for key, value in over.items():
         path = f"{prefix}{key}"
+        if key not in base and path in RENAMED_KEYS:
+            raise ConfigError(path, f"removed; set {RENAMED_KEYS[path]} instead (the one key for it now)",
+                              source=source)
         if key not in base:
             raise ConfigError(path, f"unknown key{_did_you_mean(str(key), base)}", source=source)
         if isinstance(base[key], dict):

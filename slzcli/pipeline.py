@@ -18,10 +18,11 @@ the same way from its own first tracked frame, and its map points never serve a 
 another segment.
 
 The committed site. Every detection frame may give a site; the one written to
-``landing.json`` is the site confirmed by the most detections (other sites within one
-footprint side of it, in the same map segment: positions in different segments are in
-different frames), among those that pass the acceptance test when any do; ties go to the
-lower normal variance, then to the later frame. One lucky keyframe cannot outvote a site
+``landing.json`` is the site confirmed by the most detections (other sites within
+``landing.commit_radius_factor`` footprint sides of it in plan, two by default, in the same
+map segment: positions in different segments are in different frames), among those that
+pass the acceptance test when any do; ties go to the lower normal variance, then to the
+later frame. One lucky keyframe cannot outvote a site
 seen again and again. The committed site's segment is the run's world frame.
 """
 
@@ -33,7 +34,7 @@ import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +45,7 @@ from slzcli.config import Config
 from slzcli.errors import DatasetError, OutputError
 from slzcli.evaluate.safety import MaskCounts, mask_counts
 from slzcli.evaluate.timing import StageTimer
+from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
 from slzcli.landing.select import Candidate, Selection, SelectParams, Site, select_site
 from slzcli.outputs import results_mcap
@@ -51,7 +53,6 @@ from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, TrackingState, get_backend
-from slzcli.slam.base import invert_pose
 from slzcli.slam.recorded import open_clouds
 from slzcli.sources import check_readable, open_recording
 from slzcli.terrain.geometry import back_project
@@ -112,7 +113,7 @@ def select_params(config: Config, method: str) -> SelectParams:
         footprint_m=(uav.footprint_m[0], uav.footprint_m[1]),
         min_extent_factor=lc.bayes_min_extent_factor if bayes else lc.min_extent_factor,
         rule="largest" if bayes else "min_normal_variance", seed=lc.seed,
-        edge_clearance_m=lc.edge_clearance_factor * max(uav.size_m[:2]), max_tilt_deg=lc.max_tilt_deg,
+        edge_clearance_m=lc.edge_clearance_factor * max(uav.size_m[:2]), max_tilt_deg=uav.max_slope_deg,
         max_normal_pairs=lc.max_normal_pairs)
 
 
@@ -135,7 +136,7 @@ def depth_points(frame: Frame, T_world_camera: np.ndarray, stride_px: int) -> Ma
     v, u = np.mgrid[0:frame.depth_m.shape[0]:stride_px, 0:frame.depth_m.shape[1]:stride_px]
     ok = np.all(np.isfinite(xyz_cam), axis=2)
     pc = xyz_cam[ok]
-    xyz = pc @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
+    xyz = transform_points(T_world_camera, pc)
     pixels = np.stack([u[ok], v[ok]], axis=1).astype(np.float64)
     return MapPoints(np.arange(len(xyz), dtype=np.int64), xyz, pixels, frame.index, frame.stamp_ns, T_world_camera)
 
@@ -233,7 +234,7 @@ class Detector:
             timer.add(name, ms)
         truth = None
         if self.truth is not None:
-            gt_mask = self.truth.safe_mask(frame.stamp_ns, tolerance_ns=1_000_000)
+            gt_mask = self.truth.safe_mask(frame.stamp_ns)
             truth = mask_counts(score.mask, gt_mask)
             self.state.truth.append(truth)
         self.state.detections += 1
@@ -279,7 +280,7 @@ def _chosen_cluster(candidates: Sequence[Candidate], site: Site) -> int:
 
 
 def _apply(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
-    return xyz @ T[:3, :3].T + T[:3, 3]
+    return transform_points(T, xyz)
 
 
 def _with_pose(frame: Frame, T: np.ndarray) -> Frame:
@@ -290,6 +291,11 @@ def _with_pose(frame: Frame, T: np.ndarray) -> Frame:
 
 def _lap(t0: float) -> float:
     return (time.perf_counter() - t0) * 1e3
+
+
+def commit_radius_m(config: Config) -> float:
+    """How close (in plan, metres) two detections' site centres must be to confirm each other."""
+    return config.landing.commit_radius_factor * config.uav.footprint_m[0]
 
 
 def commit_site(sites: list[dict[str, Any]], side_m: float) -> dict[str, Any] | None:
@@ -362,7 +368,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     t_start = time.perf_counter()
     with output_dir.build(out_dir, output_dir.DETECT, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
-            truth = ground_truth_of(path)
+            truth = ground_truth_of(path, config)
             rec, info, clouds = open_inputs(path, config, stack)
         results = results_mcap.open_results(tmp, config)
         stack.enter_context(results)   # __enter__ returns the writer itself
@@ -385,7 +391,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         if det.state.frames == 0:
             raise DatasetError(path, "no RGB-D frame could be read")
         with limit.stage("writing the run folder"):
-            committed = commit_site(det.state.sites.sites, 2 * config.uav.footprint_m[0])
+            committed = commit_site(det.state.sites.sites, commit_radius_m(config))
             results.write_run(committed)
             summary = run_folder.write_run(tmp, path, config, method, info, rec.report, det, committed, truth,
                                            time.perf_counter() - t_start, key)
@@ -433,18 +439,22 @@ def check_frame_size(path: Path, frame: Frame, min_px: tuple[int, ...]) -> None:
                                  f"{min_px[0]}x{min_px[1]}")
 
 
-def ground_truth_of(path: Path) -> Any | None:
-    """The `slz synth` ground truth beside a recording, or None when it has no sidecar."""
+def ground_truth_of(path: Path, config: Config) -> Any | None:
+    """The `slz synth` ground truth beside a recording, or None when it has no sidecar.
+
+    Its frames are looked up by stamp within ``synth.ground_truth.stamp_tolerance_ms``.
+    """
     from slzcli.synth.groundtruth import load_ground_truth, sidecar_paths
 
     if not all(p.is_file() for p in sidecar_paths(path)):
         return None
-    return load_ground_truth(path)
+    tolerance_ns = round(config.synth.ground_truth.stamp_tolerance_ms * 1e6)
+    return replace(load_ground_truth(path), stamp_tolerance_ns=tolerance_ns)
 
 
 def _truth_pose(truth: Any, stamp_ns: int) -> np.ndarray | None:
     try:
-        return truth.T_world_camera[truth.index_of(stamp_ns, tolerance_ns=1_000_000)]
+        return truth.T_world_camera[truth.index_of(stamp_ns)]
     except DatasetError:
         return None
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -113,6 +114,35 @@ def test_cli_bad_config_is_one_line_exit_1(runner, tmp_path: Path) -> None:
     assert res.exit_code == 1 and "missing.yaml" in res.stderr
     res = runner.invoke(main, ["config", "dump", "--set", "novalue"])
     assert res.exit_code == 1 and "KEY=VALUE" in res.stderr
+
+
+@pytest.mark.parametrize("old", ["terrain.steepness.slope_limit_deg", "landing.max_tilt_deg"])
+def test_removed_slope_keys_name_their_replacement(runner, tmp_path: Path, old: str) -> None:
+    res = runner.invoke(main, ["config", "dump", "--set", f"{old}=10"])
+    assert res.exit_code == 1
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and old in lines[0] and "uav.max_slope_deg" in lines[0], res.stderr
+    section, _, leaf = old.rpartition(".")
+    user = tmp_path / "old.yaml"
+    user.write_text(yaml.safe_dump(_nest_plain(section.split("."), {leaf: 10.0})))
+    res = runner.invoke(main, ["config", "dump", "--config", str(user)])
+    assert res.exit_code == 1 and "old.yaml" in res.stderr and "uav.max_slope_deg" in res.stderr
+
+
+def _nest_plain(parts: list[str], leaf: dict) -> dict:
+    return {parts[0]: _nest_plain(parts[1:], leaf)} if parts else leaf
+
+
+def test_one_slope_limit_reaches_the_steepness_map_and_the_tilt_test() -> None:
+    """uav.max_slope_deg is psi_ref of Eq. 9 and the site acceptance test's tilt limit."""
+    from slzcli.pipeline import select_params
+    from slzcli.terrain.maps import steepness_map
+
+    cfg = load_config(overrides=["uav.max_slope_deg=10"])
+    psi = np.radians(np.array([[10.0]], np.float32))
+    assert float(steepness_map(psi, cfg.terrain.steepness, cfg.uav.max_slope_deg)[0, 0]) == pytest.approx(
+        np.exp(-1.0), rel=1e-6)
+    assert select_params(cfg, "fuzzy").max_tilt_deg == select_params(cfg, "bayes").max_tilt_deg == 10.0
 
 
 @pytest.mark.parametrize(

@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from slzcli.geometry import project
 from slzcli.landing.corners import square_corners
-from slzcli.landing.select import SelectParams, point_normals, project, select_site
+from slzcli.landing.select import SelectParams, point_normals, select_site
 
 F, W, H = 462.137, 640, 480
 K = np.array([[F, 0, 320.0], [0, F, 240.0], [0, 0, 1]])

@@ -23,8 +23,9 @@ from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.evaluate.slam import ate, ate_by_segment, rpe, umeyama
+from slzcli.geometry import invert_pose
 from slzcli.pipeline import RunOptions, commit_site, detect_recording, gravity_alignment
-from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult, invert_pose
+from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
 from slzcli.slam.segments import Segment, primary_segment, segment_table
 from slzcli.synth.groundtruth import load_ground_truth
 from slzcli.terrain.maps import gravity_up_in_camera

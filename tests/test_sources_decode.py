@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_typestore
 
 from slzcli.errors import DecodeError
+from slzcli.geometry import Pose
 from slzcli.sources import decode
 
 TS2 = get_typestore(Stores.ROS2_HUMBLE)
@@ -151,7 +152,9 @@ def test_quaternion_matrix_round_trip(q) -> None:
     R = decode.quat_to_matrix(*q)
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
     assert np.linalg.det(R) == pytest.approx(1.0)
-    np.testing.assert_allclose(decode.quat_to_matrix(*decode.matrix_to_quat(R)), R, atol=1e-9)
+    T = np.eye(4)
+    T[:3, :3] = R
+    np.testing.assert_allclose(decode.quat_to_matrix(*Pose.from_matrix(T).as_quat()), R, atol=1e-9)
 
 
 def test_compose_chain_and_cycles() -> None:

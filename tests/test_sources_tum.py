@@ -30,8 +30,8 @@ def make_tum(root: Path, n: int = 4, camera_yaml: bool = False) -> list:
         rgb_lines.append(f"{t:.6f} rgb/{i}.png")
         depth_lines.append(f"{t + 0.004:.6f} depth/{i}.png")  # 4 ms later, as in the benchmark
         T = pose(i)
-        from slzcli.sources.decode import matrix_to_quat
-        q = matrix_to_quat(T[:3, :3])
+        from slzcli.geometry import Pose
+        q = Pose.from_matrix(T).as_quat()
         gt_lines.append(f"{t:.6f} {T[0, 3]} {T[1, 3]} {T[2, 3]} {q[0]} {q[1]} {q[2]} {q[3]}")
         frames.append((f, counts))
     depth_lines.append(f"{1305031102.175304 + 10:.6f} depth/0.png")  # a depth with no colour

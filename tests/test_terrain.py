@@ -198,19 +198,27 @@ def test_level_plane_scores_high_everywhere_away_from_borders() -> None:
 def test_ramp_30_deg_raw_slope_and_absolute_steepness() -> None:
     maps = tm.compute_maps(plane_depth(ramp_normal(30.0), 10.0), K, DOWN, TERRAIN)
     np.testing.assert_allclose(maps.slope_deg[INNER], 30.0, atol=0.05)
-    expected = math.exp(-(30.0 / TERRAIN.steepness.slope_limit_deg) ** 2)
+    expected = math.exp(-(30.0 / load_config().uav.max_slope_deg) ** 2)
     np.testing.assert_allclose(maps.steepness[INNER], expected, atol=1e-3)
     assert maps.inclination[INNER].min() > 0.99       # a ramp is still a plane
 
 
+def test_steepness_takes_psi_ref_from_uav_max_slope_deg() -> None:
+    """The map's psi_ref is the UAV's slope limit carried by the working scale (no key of its own)."""
+    depth = plane_depth(ramp_normal(30.0), 10.0)
+    uav = load_config(overrides=["uav.max_slope_deg=20"]).uav
+    maps = tm.compute_maps(depth, K, DOWN, TERRAIN, tm.noise_free_working(depth, K, TERRAIN, uav))
+    np.testing.assert_allclose(maps.steepness[INNER], math.exp(-(30.0 / 20.0) ** 2), atol=1e-3)
+
+
 def test_steepness_modes() -> None:
     psi = np.radians(np.array([[0.0, 10.0], [30.0, np.nan]], np.float32))
-    frame = tm.steepness_map(psi, terrain(steepness={"normalise": "frame"}).steepness)
+    frame = tm.steepness_map(psi, terrain(steepness={"normalise": "frame"}).steepness, 15.0)
     raw = np.exp(-psi[np.isfinite(psi)] ** 2)
     expected = (raw - raw.min()) / (raw.max() - raw.min())
     np.testing.assert_allclose(frame[np.isfinite(psi)], expected, rtol=1e-5)
     assert frame[1, 1] == 0
-    absolute = tm.steepness_map(psi, TERRAIN.steepness)
+    absolute = tm.steepness_map(psi, TERRAIN.steepness, load_config().uav.max_slope_deg)
     assert absolute[0, 1] == pytest.approx(math.exp(-(10 / 15) ** 2), rel=1e-5)
 
 

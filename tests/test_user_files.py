@@ -376,12 +376,13 @@ def test_synth_force_never_replaces_a_folder_with_a_users_files(runner, tmp_path
 
 def test_synth_force_never_pairs_a_recording_with_the_old_truth(runner, tmp_path, monkeypatch) -> None:
     """Killed between putting the new recording in place and its sidecar: no truth, not the old scene's."""
+    from slzcli.config import load_config
     from slzcli.pipeline import ground_truth_of
     from slzcli.synth import record
 
     out = tmp_path / "f.mcap"
     assert invoke(runner, "synth", "no_site", "-o", str(out), *SYNTH).exit_code == 0
-    assert ground_truth_of(out) is not None
+    assert ground_truth_of(out, load_config()) is not None
     real = os.replace
 
     def killed_after_the_recording(src, dst):
@@ -393,7 +394,8 @@ def test_synth_force_never_pairs_a_recording_with_the_old_truth(runner, tmp_path
     res = runner.invoke(main, ["synth", "clear_field", "-o", str(out), "--force", *SYNTH])
     assert res.exit_code == 130
     monkeypatch.undo()
-    assert ground_truth_of(out) is None  # the old header went first: no recording is paired with the wrong truth
+    # the old header went first: no recording is paired with the wrong truth
+    assert ground_truth_of(out, load_config()) is None
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # an interrupt cleans up
 
 

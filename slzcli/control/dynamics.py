@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slzcli.config import Config
+from slzcli.geometry import quat_wxyz_to_matrix
 
 # ENU <-> NED is the same proper rotation both ways: (x, y, z) -> (y, x, -z).
 ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -82,19 +83,8 @@ class State:
 
 # ----------------------------------------------------------------------------- rotations
 def quat_to_rot(q: np.ndarray) -> np.ndarray:
-    """(N, 4) unit quaternions (w, x, y, z) -> (N, 3, 3) rotation matrices (body -> inertial)."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    r = np.empty((q.shape[0], 3, 3))
-    r[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    r[:, 0, 1] = 2 * (x * y - w * z)
-    r[:, 0, 2] = 2 * (x * z + w * y)
-    r[:, 1, 0] = 2 * (x * y + w * z)
-    r[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    r[:, 1, 2] = 2 * (y * z - w * x)
-    r[:, 2, 0] = 2 * (x * z - w * y)
-    r[:, 2, 1] = 2 * (y * z + w * x)
-    r[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return r
+    """(N, 4) quaternions (w, x, y, z) -> (N, 3, 3) rotation matrices (body -> inertial), unnormalised."""
+    return quat_wxyz_to_matrix(q)
 
 
 def quat_from_euler(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:

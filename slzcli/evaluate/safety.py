@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from slzcli.geometry import transform_points
+
 
 @dataclass(frozen=True)
 class MaskCounts:
@@ -134,8 +136,7 @@ def visible_cells(raster: Any, T_world_camera: np.ndarray, K: np.ndarray, shape:
     y = raster.origin_xy[1] + (np.arange(rows) + 0.5) * res
     xx, yy = np.meshgrid(x, y)
     zz = np.nan_to_num(raster.height_m, nan=0.0)
-    T_cw = np.linalg.inv(T_world_camera)
-    p = np.stack([xx, yy, zz], axis=-1) @ T_cw[:3, :3].T + T_cw[:3, 3]
+    p = transform_points(np.linalg.inv(T_world_camera), np.stack([xx, yy, zz], axis=-1))
     with np.errstate(divide="ignore", invalid="ignore"):
         u = K[0, 0] * p[..., 0] / p[..., 2] + K[0, 2]
         v = K[1, 1] * p[..., 1] / p[..., 2] + K[1, 2]

@@ -23,6 +23,7 @@ from scipy.cluster.vq import kmeans2
 from scipy.spatial import cKDTree
 
 from slzcli.errors import ConfigError
+from slzcli.geometry import project, transform_points
 from slzcli.landing.corners import square_corners
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])  # world up when the caller names none: +z
@@ -40,7 +41,7 @@ class SelectParams:
     rule: str  # "min_normal_variance" (fuzzy, METHOD 2.5) | "largest" (bayes, BASELINE)
     seed: int
     edge_clearance_m: float  # acceptance test: clearance to the nearest depth edge must exceed this
-    max_tilt_deg: float      # acceptance test: surface tilt at most this
+    max_tilt_deg: float      # acceptance test: surface tilt at most this (uav.max_slope_deg)
     max_normal_pairs: int = 0  # neighbour pairs point_normals may build (0 = no bound; landing.max_normal_pairs)
 
 
@@ -84,20 +85,6 @@ class Selection:
     projected: np.ndarray  # (N, 2) pixels of all map points in the image
     kept: np.ndarray       # (N,) bool: under the mask
     labels: np.ndarray     # (N,) int: cluster of each kept point, -1 for the rest
-
-
-def project(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray,
-            shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels of world points in the camera, and which of them are in front and inside the image."""
-    T_cw = np.linalg.inv(T_world_camera)
-    pc = xyz_world @ T_cw[:3, :3].T + T_cw[:3, 3]
-    z = pc[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = K[0, 0] * pc[:, 0] / z + K[0, 2]
-        v = K[1, 1] * pc[:, 1] / z + K[1, 2]
-    h, w = shape
-    inside = (z > 0) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    return np.stack([u, v], axis=1), inside
 
 
 def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray, max_pairs: int = 0) -> np.ndarray:
@@ -206,8 +193,7 @@ def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera:
           score: np.ndarray, params: SelectParams, up: np.ndarray, edge_distance_m: np.ndarray | None) -> Site:
     centroid = np.asarray(best.centroid_world)
     (uv,), _ = project(centroid[None], T_world_camera, K, score.shape)
-    T_cw = np.linalg.inv(T_world_camera)
-    center_camera = T_cw[:3, :3] @ centroid + T_cw[:3, 3]
+    center_camera = transform_points(np.linalg.inv(T_world_camera), centroid)
     good_n = normals[np.all(np.isfinite(normals), axis=1)]
     normal = good_n.mean(axis=0)
     normal /= np.linalg.norm(normal)

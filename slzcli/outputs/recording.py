@@ -28,7 +28,8 @@ import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from slzcli.errors import OutputError
-from slzcli.sources.decode import COMPRESSED_DEPTH_HEADER, matrix_to_quat
+from slzcli.geometry import Pose
+from slzcli.sources.decode import COMPRESSED_DEPTH_HEADER
 from slzcli.types import Frame, Intrinsics
 
 FORMATS = ("mcap", "mcap-ros1", "ros1", "ros2-sqlite", "ros2-mcap")
@@ -173,8 +174,8 @@ class RecordingWriter:
         T = np.asarray(T_world_camera, dtype=np.float64)
         t = self.typestore.types
         gm = "geometry_msgs/msg/"
-        q = matrix_to_quat(T[:3, :3])
-        quat = t[gm + "Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])
+        q = Pose.from_matrix(T).as_quat()
+        quat = t[gm + "Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
         header = self._header(stamp_ns, parent)
         if kind == "tf":
             tr = t[gm + "Transform"](translation=t[gm + "Vector3"](*map(float, T[:3, 3])), rotation=quat)

@@ -75,7 +75,7 @@ def detection_overlay_bgr(det: Any) -> np.ndarray:
         centre = np.asarray(sel.site.center_world)
         nearest = min(sel.candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre)))
         chosen = sel.labels == nearest.cluster
-        from slzcli.landing.select import project
+        from slzcli.geometry import project
 
         corners_px, _ = project(np.asarray(sel.site.corners_world), det.T_world_camera, det.frame.K,
                                 det.score.mask.shape)
@@ -116,7 +116,7 @@ def landing_record(source: Path, method: str, committed: dict[str, Any] | None, 
 
 def _site_truth(truth: Any, frame: Any, center_camera: tuple[float, float, float]) -> Any:
     """The site in the ground-truth world: through the TRUE pose of its frame (not SLAM's)."""
-    T = truth.T_world_camera[truth.index_of(frame.stamp_ns, tolerance_ns=1_000_000)]
+    T = truth.T_world_camera[truth.index_of(frame.stamp_ns)]
     p = T[:3, :3] @ np.asarray(center_camera) + T[:3, 3]
     visible = visible_cells(truth.raster, T, frame.K, frame.shape)
     return site_truth(truth.raster, (float(p[0]), float(p[1])), visible)

@@ -22,32 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from slzcli.geometry import Pose
 from slzcli.outputs.files import ArraySpool, write_npz_streamed, write_text
 from slzcli.slam.base import MapPoints
-
-
-def _quat_xyzw(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w), w >= 0, of rotation matrices (N,3,3) (Shepperd's method, vectorised)."""
-    R = np.asarray(R, np.float64).reshape(-1, 3, 3)
-    tr = np.trace(R, axis1=1, axis2=2)
-    diag = np.stack([R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], 1)
-    which = np.argmax(np.concatenate([tr[:, None], diag], 1), axis=1)
-    q = np.zeros((len(R), 4))
-    s = np.sqrt(np.maximum(1.0 + tr, 1e-12)) * 2  # which == 0
-    q0 = np.stack([(R[:, 2, 1] - R[:, 1, 2]) / s, (R[:, 0, 2] - R[:, 2, 0]) / s,
-                   (R[:, 1, 0] - R[:, 0, 1]) / s, s / 4], 1)
-    s1 = np.sqrt(np.maximum(1.0 + R[:, 0, 0] - R[:, 1, 1] - R[:, 2, 2], 1e-12)) * 2
-    q1 = np.stack([s1 / 4, (R[:, 0, 1] + R[:, 1, 0]) / s1,
-                   (R[:, 0, 2] + R[:, 2, 0]) / s1, (R[:, 2, 1] - R[:, 1, 2]) / s1], 1)
-    s2 = np.sqrt(np.maximum(1.0 + R[:, 1, 1] - R[:, 0, 0] - R[:, 2, 2], 1e-12)) * 2
-    q2 = np.stack([(R[:, 0, 1] + R[:, 1, 0]) / s2, s2 / 4,
-                   (R[:, 1, 2] + R[:, 2, 1]) / s2, (R[:, 0, 2] - R[:, 2, 0]) / s2], 1)
-    s3 = np.sqrt(np.maximum(1.0 + R[:, 2, 2] - R[:, 0, 0] - R[:, 1, 1], 1e-12)) * 2
-    q3 = np.stack([(R[:, 0, 2] + R[:, 2, 0]) / s3, (R[:, 1, 2] + R[:, 2, 1]) / s3,
-                   s3 / 4, (R[:, 1, 0] - R[:, 0, 1]) / s3], 1)
-    q = np.choose(which[:, None], [q0, q1, q2, q3])
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return np.where(q[:, 3:4] < 0, -q, q)
 
 
 def tum_text(stamps_ns: Sequence[int], poses: Sequence[np.ndarray | None]) -> str:
@@ -56,7 +33,7 @@ def tum_text(stamps_ns: Sequence[int], poses: Sequence[np.ndarray | None]) -> st
     if not rows:
         return "# timestamp tx ty tz qx qy qz qw\n"
     T = np.stack([np.asarray(p, np.float64) for _, p in rows])
-    q = _quat_xyzw(T[:, :3, :3])
+    q = Pose.from_matrix(T).as_quat()
     lines = ["# timestamp tx ty tz qx qy qz qw"]
     for (t, _), xyz, qq in zip(rows, T[:, :3, 3], q, strict=True):
         lines.append(f"{t // 1_000_000_000}.{t % 1_000_000_000:09d} " + " ".join(f"{v:.9f}" for v in (*xyz, *qq)))
@@ -70,13 +47,7 @@ def parse_tum(text: str) -> tuple[np.ndarray, np.ndarray]:
                        int(r[0].split(".")[0]) * 1_000_000_000 + int(r[0].split(".")[1].ljust(9, "0")[:9])
                        for r in rows], dtype=np.int64)
     v = np.array([[float(x) for x in r[1:8]] for r in rows]).reshape(-1, 7)
-    x, y, z, w = v[:, 3], v[:, 4], v[:, 5], v[:, 6]
-    T = np.tile(np.eye(4), (len(v), 1, 1))
-    T[:, :3, :3] = np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], 1)
-    T[:, :3, 3] = v[:, :3]
+    T = Pose.from_quat(v[:, 3:7], v[:, :3]).as_matrix() if len(v) else np.zeros((0, 4, 4))
     return stamps, T
 
 

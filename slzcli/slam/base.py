@@ -16,6 +16,7 @@ from typing import Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
+from slzcli.geometry import invert_pose as invert_pose  # odometry.py of older revisions imports it from here
 from slzcli.types import Frame
 
 
@@ -126,12 +127,3 @@ class BackendBase:
             self.close()
         else:
             self.abort()
-
-
-def invert_pose(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid 4x4 transform without a general matrix inverse."""
-    R, t = T[:3, :3], T[:3, 3]
-    out = np.eye(4)
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ t
-    return out

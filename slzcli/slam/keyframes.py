@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slzcli import geometry
+
 
 def rotation_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
@@ -25,11 +27,6 @@ def is_new_keyframe(T_last_kf: np.ndarray | None, T_now: np.ndarray, tracked: in
 
 def project(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray, width: int, height: int
             ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (N,2) of world points and a mask of those in front of the camera and inside the image."""
-    T_cw = np.linalg.inv(T_world_camera)
-    pc = xyz_world @ T_cw[:3, :3].T + T_cw[:3, 3]
-    z = pc[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = np.stack([K[0, 0] * pc[:, 0] / z + K[0, 2], K[1, 1] * pc[:, 1] / z + K[1, 2]], axis=1)
-    ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= height - 1)
-    return uv, ok
+    """``slzcli.geometry.project`` in its old (width, height) form: odometry.py of revisions before
+    geometry.py imports it from here, and benchmarks/slam_robustness.py --baseline runs those."""
+    return geometry.project(xyz_world, T_world_camera, K, (height, width))

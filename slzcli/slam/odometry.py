@@ -19,10 +19,11 @@ import cv2
 import numpy as np
 
 from slzcli.errors import SlzError
-from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult, invert_pose
+from slzcli.geometry import invert_pose, project, transform_points
+from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
 from slzcli.slam.bundle import bundle_adjust
 from slzcli.slam.features import detect, make_orb, ratio_matches
-from slzcli.slam.keyframes import is_new_keyframe, project
+from slzcli.slam.keyframes import is_new_keyframe
 from slzcli.types import Frame
 
 log = logging.getLogger(__name__)
@@ -126,8 +127,8 @@ class OdometryBackend(BackendBase):
         r2 = X - pose[:3, 3]
         cosang = np.sum(r1 * r2, 1) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
         parallax_ok = cosang < np.cos(np.radians(self.cfg.min_parallax_deg))
-        uv1, in1 = project(X, prev.pose, K, frame.intrinsics.width, frame.intrinsics.height)
-        uv2, in2 = project(X, pose, K, frame.intrinsics.width, frame.intrinsics.height)
+        uv1, in1 = project(X, prev.pose, K, (frame.intrinsics.height, frame.intrinsics.width))
+        uv2, in2 = project(X, pose, K, (frame.intrinsics.height, frame.intrinsics.width))
         err = np.maximum(np.linalg.norm(uv1 - a, axis=1), np.linalg.norm(uv2 - b, axis=1))
         ok = parallax_ok & in1 & in2 & (err < self.cfg.max_triangulation_error_px)
         return X[ok], pairs[ok, 0], desc[pairs[ok, 0]], pairs[ok, 1]
@@ -138,7 +139,7 @@ class OdometryBackend(BackendBase):
         z = np.where(has_depth, pc[:, 2], np.nan)
         new = np.ones(len(px), bool)
         new[matched_q] = False
-        pw = pc @ pose[:3, :3].T + pose[:3, 3]
+        pw = transform_points(pose, pc)
         d_idx = np.flatnonzero(new & has_depth)
         d_ids = self._add_points(pw[d_idx], desc[d_idx])
         free = np.flatnonzero(new & ~has_depth)
@@ -219,7 +220,7 @@ class OdometryBackend(BackendBase):
         if guess is not None:
             local = np.unique(np.concatenate([k.point_ids for k in self.kfs[-self.cfg.local_keyframes:]]))
             q, ids = self._match(desc, local)
-            uv, vis = project(self.xyz[ids], guess, frame.K, frame.intrinsics.width, frame.intrinsics.height)
+            uv, vis = project(self.xyz[ids], guess, frame.K, (frame.intrinsics.height, frame.intrinsics.width))
             near = vis & (np.linalg.norm(uv - px[q], axis=1) < self.cfg.search_radius_px)
             q, ids = q[near], ids[near]
             pose, inl = self._pnp(frame, px, q, ids, guess)

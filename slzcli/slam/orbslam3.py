@@ -26,8 +26,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from slzcli.errors import SlzError
+from slzcli.geometry import project
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
-from slzcli.slam.keyframes import is_new_keyframe, project
+from slzcli.slam.keyframes import is_new_keyframe
 from slzcli.slam.vocabulary import DEFAULT_VOCABULARY, read_vocabulary
 from slzcli.types import Frame, Intrinsics
 
@@ -275,7 +276,7 @@ class OrbSlam3Backend(BackendBase):
             is_kf = is_new_keyframe(self._last_kf_pose, pose, n_tracked, self._last_kf_tracked,
                                     kf.min_translation_m, kf.min_rotation_deg, kf.min_tracked_ratio)
             if is_kf:
-                uv, ok = project(pts, pose, frame.K, frame.intrinsics.width, frame.intrinsics.height)
+                uv, ok = project(pts, pose, frame.K, (frame.intrinsics.height, frame.intrinsics.width))
                 self._keyframe = MapPoints(np.full(int(ok.sum()), -1, np.int64), pts[ok], uv[ok],
                                            self._n_keyframes, frame.stamp_ns, pose)
                 self._n_keyframes += 1

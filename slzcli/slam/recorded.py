@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from slzcli.errors import DatasetError, DecodeError
+from slzcli.geometry import project
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
-from slzcli.slam.keyframes import is_new_keyframe, project
+from slzcli.slam.keyframes import is_new_keyframe
 from slzcli.types import Frame
 
 if TYPE_CHECKING:
@@ -186,7 +187,7 @@ class RecordedBackend(BackendBase):
         cloud = self.clouds.nearest(frame.stamp_ns, self.tolerance_ns) if self.clouds is not None else None
         if cloud is not None:
             _, xyz, ids = cloud
-            uv, ok = project(xyz, pose, frame.K, frame.intrinsics.width, frame.intrinsics.height)
+            uv, ok = project(xyz, pose, frame.K, (frame.intrinsics.height, frame.intrinsics.width))
             self._keyframe = MapPoints(ids[ok], xyz[ok], uv[ok], self._n_kf, frame.stamp_ns, pose)
             self._n_kf += 1
         elif self.clouds is None and is_new_keyframe(self._last_kf_pose, pose, 1, 1, self._kf_cfg.min_translation_m,

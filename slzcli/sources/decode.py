@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from slzcli.errors import DecodeError, short_repr
+from slzcli.geometry import Pose
 from slzcli.sources.image_limits import FrameTooLarge, check_compressed, check_pixels
 from slzcli.types import Intrinsics
 
@@ -212,39 +213,12 @@ def decode_camera_info(msg: Any) -> Intrinsics:
 
 # ----------------------------------------------------------------------------- poses
 def quat_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) -> 3x3 rotation (normalised first; zero quaternion rejected)."""
+    """Unit quaternion (x, y, z, w) -> 3x3 rotation (normalised first; zero or non-finite rejected)."""
     q = np.array([x, y, z, w], dtype=np.float64)
-    n = np.linalg.norm(q)
-    if not np.isfinite(n) or n == 0:
-        raise DecodeError(f"invalid quaternion {q.tolist()}")
-    x, y, z, w = q / n
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def matrix_to_quat(R: np.ndarray) -> tuple[float, float, float, float]:
-    """3x3 rotation -> unit quaternion (x, y, z, w), w >= 0."""
-    m = np.asarray(R, dtype=np.float64)
-    t = np.trace(m)
-    if t > 0:
-        s = 2.0 * np.sqrt(t + 1.0)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
-        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
-        q[i] = 0.25 * s
-        q[j] = (m[j, i] + m[i, j]) / s
-        q[k] = (m[k, i] + m[i, k]) / s
-    qa = np.array(q)
-    qa = qa / np.linalg.norm(qa)
-    if qa[3] < 0:
-        qa = -qa
-    return float(qa[0]), float(qa[1]), float(qa[2]), float(qa[3])
+    try:
+        return Pose.from_quat(q, np.zeros(3)).rotation.as_matrix()
+    except ValueError:
+        raise DecodeError(f"invalid quaternion {q.tolist()}") from None
 
 
 def transform_matrix(translation: Any, rotation: Any) -> np.ndarray:

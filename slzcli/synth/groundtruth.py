@@ -205,19 +205,21 @@ class GroundTruth:
     raster: SafetyRaster
     objects: tuple[dict[str, Any], ...]   # {"id", "name", "kind", "landable"}
     header: dict[str, Any] = field(default_factory=dict)
+    stamp_tolerance_ns: int = 0   # default of index_of / safe_mask: synth.ground_truth.stamp_tolerance_ms
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
 
-    def index_of(self, stamp_ns: int, tolerance_ns: int = 0) -> int:
-        """Frame index with this stamp (within tolerance); DatasetError when none."""
+    def index_of(self, stamp_ns: int, tolerance_ns: int | None = None) -> int:
+        """Frame index with this stamp (within tolerance, default ``stamp_tolerance_ns``); DatasetError when none."""
+        tol = self.stamp_tolerance_ns if tolerance_ns is None else tolerance_ns
         i = int(np.argmin(np.abs(self.stamps_ns - int(stamp_ns))))
-        if abs(int(self.stamps_ns[i]) - int(stamp_ns)) > tolerance_ns:
+        if abs(int(self.stamps_ns[i]) - int(stamp_ns)) > tol:
             raise DatasetError(self.header.get("recording", "ground truth"),
                                f"no ground-truth frame at stamp {stamp_ns} ns")
         return i
 
-    def safe_mask(self, stamp_ns: int, tolerance_ns: int = 0) -> np.ndarray:
+    def safe_mask(self, stamp_ns: int, tolerance_ns: int | None = None) -> np.ndarray:
         """(H, W) bool truth of the frame with this stamp (one frame read, not the stack)."""
         return np.asarray(self.safe_masks[self.index_of(stamp_ns, tolerance_ns)], dtype=bool)
 

@@ -16,7 +16,7 @@ Absolute ranges (all from config):
   depth variance  exp(-s / s0_m), s = residual depth std about the window's plane, noise removed
   flatness        min(d / clearance_m, 1), d = ground distance (m) to the nearest depth edge or hole
   inclination     exp(-C / curvature_ref), C = l0 / (l0 + l1 + l2) of the radius_m patch
-  steepness       exp(-(psi / slope_limit_deg)^2), psi = surface slope against gravity
+  steepness       exp(-(psi / uav.max_slope_deg)^2), psi = surface slope against gravity
 """
 
 from __future__ import annotations
@@ -283,10 +283,14 @@ def slope_rad(normals: NormalField, up_camera: np.ndarray) -> np.ndarray:
     return cos
 
 
-def steepness_map(psi_rad: np.ndarray, cfg: SteepnessCfg) -> np.ndarray:
-    """Alg. 4 / Eq. 9: exp(-(psi / slope_limit)^2), or exp(-psi^2) min-maxed (METHOD's fix of line 7)."""
+def steepness_map(psi_rad: np.ndarray, cfg: SteepnessCfg, slope_limit_deg: float) -> np.ndarray:
+    """Alg. 4 / Eq. 9: exp(-(psi / slope_limit)^2), or exp(-psi^2) min-maxed (METHOD's fix of line 7).
+
+    ``slope_limit_deg`` is psi_ref, the UAV's own limit ``uav.max_slope_deg`` (one key for the map,
+    the working-scale limits and the site acceptance test).
+    """
     ok = np.isfinite(psi_rad)
-    scale = 1.0 if cfg.normalise == "frame" else 1.0 / math.radians(cfg.slope_limit_deg)
+    scale = 1.0 if cfg.normalise == "frame" else 1.0 / math.radians(slope_limit_deg)
     x = np.multiply(psi_rad, np.float32(scale), dtype=np.float32)
     np.multiply(x, x, out=x)
     np.negative(x, out=x)
@@ -478,7 +482,7 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
         flatness=_flatness(edge_px_full, edge_m, valid, cfg.flatness),
         edge_distance_m=edge_m,
         inclination=inclination_map(curvature, cfg.inclination),
-        steepness=steepness_map(psi, cfg.steepness),
+        steepness=steepness_map(psi, cfg.steepness, work.max_slope_deg),
         valid=valid,
         slope_deg=slope_deg,
         work=work,
