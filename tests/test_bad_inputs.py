@@ -515,7 +515,8 @@ def test_disk_full_during_detect_names_the_file_and_leaves_nothing(runner: CliRu
     out.parent.mkdir()
     if where == "png":  # every atomic file write (PNGs, JSON, CSV, PLY, npz)
         _fail_for(monkeypatch, Path, "write_bytes", out.parent, errno.ENOSPC, "No space left on device")
-        cause = "/frames/000000/depth_variance.png: cannot write (No space left on device)"
+        # overlay.png: the first file a frame folder gets at the default --outputs maps
+        cause = "/frames/000000/overlay.png: cannot write (No space left on device)"
     elif where == "spool":
         real_open = builtins.open
 
