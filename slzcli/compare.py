@@ -46,6 +46,7 @@ from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
 from slzcli.interrupt import call_interruptibly
 from slzcli.outputs import output_dir, run_lock
+from slzcli.outputs.run_folder import landing_record
 from slzcli.pipeline import (
     Detection,
     Detector,
@@ -59,8 +60,9 @@ from slzcli.pipeline import (
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
+from slzcli.summary import no_site_reason, site_truth
 from slzcli.timeout import StageLimit
-from slzcli.types import TerrainMaps
+from slzcli.types import FigureFrame, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
@@ -127,15 +129,6 @@ class MethodRun:
     pr: CurveCounts | None = None
     mask_fractions: list[float] = field(default_factory=list)
     views: dict[int, dict[str, Any]] = field(default_factory=dict)
-
-
-@dataclass(frozen=True, eq=False)
-class FigureFrame:
-    """The arrays of one detection frame for the Figure 6 panel."""
-
-    index: int
-    rgb: np.ndarray
-    per_method: dict[str, dict[str, Any]]
 
 
 def digest(*arrays: np.ndarray | None) -> str:
@@ -291,8 +284,6 @@ def _stats(values: Sequence[float]) -> dict[str, float | None]:
 def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[str, MethodRun], tracker: Detector,
                truth: Any | None, map_curves: dict[str, CurveCounts], map_means: dict[str, list[float]],
                agreement: dict[str, list[MaskCounts]], wall_s: float) -> dict[str, Any]:
-    from slzcli.outputs.run_folder import landing_record, no_site_reason
-
     side = commit_radius_m(config)
     per: dict[str, Any] = {}
     committed_of: dict[str, dict[str, Any] | None] = {}
@@ -303,7 +294,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)
         reason = no_site_reason(st, tracker.slam_name, len(tracker.state.keyframes))
-        rec = landing_record(path, m, committed, "", {}, reason, truth)
+        rec = landing_record(path, m, committed, "", {}, reason, site_truth(truth, committed))
         entry: dict[str, Any] = {
             "method": m, "detections": st.detections, "sites_found": len(st.sites.sites), "status": rec["status"],
             "reason": rec.get("reason"), "timings_ms": timing,

@@ -29,34 +29,35 @@ seen again and again. The committed site's segment is the run's world frame.
 from __future__ import annotations
 
 import logging
-import platform
 import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from slzcli import __version__
+from slzcli import fingerprint
 from slzcli.config import Config
 from slzcli.errors import DatasetError, OutputError
 from slzcli.evaluate.safety import MaskCounts, mask_counts
-from slzcli.evaluate.timing import StageTimer
+from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
+from slzcli.evaluate.truth import true_pose
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
 from slzcli.landing.select import Candidate, Selection, SelectParams, Site, select_site
-from slzcli.outputs import results_mcap
+from slzcli.outputs import output_dir, results_mcap, run_folder
 from slzcli.outputs.site_log import SiteLog
-from slzcli.outputs.trajectory import KeyframeLog, PoseLog
+from slzcli.outputs.trajectory import KeyframeLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, TrackingState, get_backend
 from slzcli.slam.recorded import open_clouds
 from slzcli.sources import check_readable, open_recording
+from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
-from slzcli.terrain.limits import Working, limit_reason
+from slzcli.terrain.limits import limit_reason
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.timeout import StageLimit
@@ -82,27 +83,6 @@ class Detection:
     timings_ms: dict[str, float]
     truth: MaskCounts | None = None
     segment: int = 0  # SLAM map segment of the pose and points
-
-
-@dataclass
-class RunState:
-    """What accumulates over a recording: poses, detections' summaries, timings."""
-
-    timer: StageTimer = field(default_factory=StageTimer)
-    trajectory: PoseLog = field(default_factory=PoseLog)  # every frame's stamp, pose (None: not tracked), segment
-    tracking: dict[str, int] = field(default_factory=dict)
-    keyframes: KeyframeLog = field(default_factory=KeyframeLog)  # count only unless given a folder
-    sites: SiteLog = field(default_factory=SiteLog)  # candidate rows and sites (in memory unless given a folder)
-    truth: list[MaskCounts] = field(default_factory=list)
-    truth_trajectory: PoseLog = field(default_factory=PoseLog)  # ground-truth poses of the same frames
-    frames: int = 0
-    detections: int = 0
-    detections_without_depth: int = 0
-    noise: NoiseTracker | None = None  # the depth noise of the detection frames, smoothed over the run
-    unvouched: int = 0                 # detection frames whose noise hides what the UAV cannot tolerate
-    worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
-    unvouched_reason: str = ""         # limits.limit_reason of that frame
-    column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
 
 
 def select_params(config: Config, method: str) -> SelectParams:
@@ -284,8 +264,6 @@ def _apply(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
 
 
 def _with_pose(frame: Frame, T: np.ndarray) -> Frame:
-    from dataclasses import replace
-
     return replace(frame, T_world_camera=T)
 
 
@@ -344,9 +322,6 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     keyframes, candidate rows and site points go to a spool in the temporary run folder; what
     stays per frame is its stamp, pose and stage times (~0.2 KB), per site its summary.
     """
-    from slzcli import fingerprint
-    from slzcli.outputs import output_dir, run_folder
-
     method = options.method or config.scoring.method
     check_readable(path)  # a missing, looping or unreadable input is named before anything else reads it
     output_dir.refuse_inputs(out_dir, [path])
@@ -385,7 +360,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
                     run_folder.write_detection(tmp, d, config)
                     results.write_detection(d)
             if truth is not None:
-                det.state.truth_trajectory.append(frame.stamp_ns, _truth_pose(truth, frame.stamp_ns))
+                det.state.truth_trajectory.append(frame.stamp_ns, true_pose(truth, frame.stamp_ns))
             if progress is not None:
                 progress(det.state.frames, info.expected_frames)
         if det.state.frames == 0:
@@ -393,11 +368,12 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         with limit.stage("writing the run folder"):
             committed = commit_site(det.state.sites.sites, commit_radius_m(config))
             results.write_run(committed)
-            summary = run_folder.write_run(tmp, path, config, method, info, rec.report, det, committed, truth,
-                                           time.perf_counter() - t_start, key)
+            result = summarise(path, config, method, info, rec.report, det.state, det.slam_name, committed, truth,
+                               time.perf_counter() - t_start, key)
+            run_folder.write_run(tmp, result, det.state.sites, det.state.trajectory, det.state.keyframes)
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
             shutil.rmtree(tmp / SPOOL_DIR)
-    return summary
+    return result.summary
 
 
 def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, Any]:
@@ -437,38 +413,3 @@ def check_frame_size(path: Path, frame: Frame, min_px: tuple[int, ...]) -> None:
     if w < min_px[0] or h < min_px[1]:
         raise DatasetError(path, f"frame {frame.index} is {w}x{h} px, smaller than sources.min_image_px "
                                  f"{min_px[0]}x{min_px[1]}")
-
-
-def ground_truth_of(path: Path, config: Config) -> Any | None:
-    """The `slz synth` ground truth beside a recording, or None when it has no sidecar.
-
-    Its frames are looked up by stamp within ``synth.ground_truth.stamp_tolerance_ms``.
-    """
-    from slzcli.synth.groundtruth import load_ground_truth, sidecar_paths
-
-    if not all(p.is_file() for p in sidecar_paths(path)):
-        return None
-    tolerance_ns = round(config.synth.ground_truth.stamp_tolerance_ms * 1e6)
-    return replace(load_ground_truth(path), stamp_tolerance_ns=tolerance_ns)
-
-
-def _truth_pose(truth: Any, stamp_ns: int) -> np.ndarray | None:
-    try:
-        return truth.T_world_camera[truth.index_of(stamp_ns)]
-    except DatasetError:
-        return None
-
-
-def versions() -> dict[str, str]:
-    """Versions for run.json. Open3D's comes from its metadata: importing it only to read the
-    version cost ~150 MiB of resident memory at the end of every run (the run's peak)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    import cv2
-
-    try:
-        o3d = version("open3d")
-    except PackageNotFoundError:
-        o3d = "not installed"
-    return {"slz": __version__, "python": platform.python_version(), "numpy": np.__version__,
-            "opencv": cv2.__version__, "open3d": o3d}

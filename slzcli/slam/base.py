@@ -18,6 +18,7 @@ import numpy as np
 
 from slzcli.geometry import invert_pose as invert_pose  # odometry.py of older revisions imports it from here
 from slzcli.types import Frame
+from slzcli.types import MapPoints as MapPoints  # defined with the other shared types
 
 
 class TrackingState(str, enum.Enum):
@@ -26,30 +27,6 @@ class TrackingState(str, enum.Enum):
     INITIALISING = "initialising"
     OK = "ok"
     LOST = "lost"
-
-
-@dataclass(frozen=True, eq=False)
-class MapPoints:
-    """Map points seen in one keyframe: world XYZ (N,3) float64, their pixels (N,2) in that keyframe.
-
-    ``ids`` are stable per backend run (int64, -1 where a backend has no identity for a point);
-    ``T_world_camera`` is the keyframe's pose when the points were reported.
-    """
-
-    ids: np.ndarray
-    xyz_world: np.ndarray
-    pixels: np.ndarray
-    keyframe_index: int
-    stamp_ns: int
-    T_world_camera: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.xyz_world.shape[0])
-
-    @staticmethod
-    def empty(keyframe_index: int, stamp_ns: int, T_world_camera: np.ndarray) -> MapPoints:
-        return MapPoints(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2)), keyframe_index,
-                         stamp_ns, T_world_camera)
 
 
 @dataclass(frozen=True, eq=False)
