@@ -187,12 +187,12 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
             rec, info, clouds = open_inputs(path, config, stack)
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         with get_backend(config, has_poses, clouds=clouds) as slam:
-            tracker = Detector(config, methods[0], slam, slam.name, truth)
+            tracker = Detector(config, methods[0], slam, truth)
             for m in methods:
-                runs[m] = MethodRun(m, Detector(config, m, None, slam.name, truth),
+                runs[m] = MethodRun(m, Detector(config, m, truth=truth),
                                     pr=CurveCounts.empty(levels) if truth is not None else None)
             for frame, T, due in tracked_frames(path, rec, tracker, limit):
-                slam_ms = tracker.state.timer.samples_ms["slam"][-1]
+                slam_ms = tracker.latest_slam_ms()
                 if due:
                     with limit.stage(f"detection on frame {frame.index}"):
                         maps, maps_ms = call_interruptibly(posed_maps, frame, T, config, tracker.noise_for(frame))
@@ -215,10 +215,8 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
 def _fuse(run: MethodRun, tracker: Detector, frame: Any, T: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
           slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
     det = run.det
-    det.last_points, det.segment = tracker.last_points, tracker.segment
-    d = call_interruptibly(det.fuse, frame, T, maps, maps_ms)
+    d = call_interruptibly(det.fuse, frame, T, maps, maps_ms, tracker)  # the tracker's points, segment, slam time
     det.record(d)
-    det.state.timer.add("slam", slam_ms)
     pts = d.points
     run.inputs.append((frame.index, frame.stamp_ns, digest(None if pts is None else pts.ids,
                                                            None if pts is None else pts.xyz_world),

@@ -52,7 +52,7 @@ from slzcli.outputs import output_dir, results_mcap, run_folder
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
-from slzcli.slam import MapPoints, TrackingState, get_backend
+from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import open_clouds
 from slzcli.sources import check_readable, open_recording
 from slzcli.summary import RunState, summarise
@@ -123,52 +123,80 @@ def depth_points(frame: Frame, T_world_camera: np.ndarray, stride_px: int) -> Ma
 
 # ----------------------------------------------------------------------------- the detector
 class Detector:
-    """Runs the stages over the frames of one recording; holds SLAM and the run's accumulators."""
+    """Runs the stages over the frames of one recording; holds SLAM and the run's accumulators.
 
-    def __init__(self, config: Config, method: str, slam: Any, slam_name: str, truth: Any | None,
+    ``slz compare`` tracks with one detector and fuses with one per method: ``fuse(...,
+    tracked_by=tracker)`` takes the tracker's map points, segment and tracking time.
+    """
+
+    def __init__(self, config: Config, method: str, slam: SlamBackend | None = None, truth: Any | None = None,
                  spool: Path | None = None) -> None:
-        """``spool``: a folder for keyframes, candidate rows and site points (else they stay in memory)."""
+        """``slam``: None for a detector that only fuses; ``spool``: a folder for keyframes, candidate rows and
+        site points (else they stay in memory)."""
         self.config = config
         self.method = method
         self.scorer: Scorer = get_scorer(config, method)
         self.params = select_params(config, method)
         self.slam = slam
-        self.slam_name = slam_name
         self.truth = truth
         self.state = RunState(keyframes=KeyframeLog(spool), sites=SiteLog(spool),
                               noise=NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
         self.align: dict[int, np.ndarray] = {}  # T_world_slam of each map segment, from its first pose
-        self.segment = 0  # map segment of the latest frame
-        self.last_points: MapPoints | None = None
+        self._segment = 0  # map segment of the latest frame
+        self._points: MapPoints | None = None  # the latest keyframe's map points (of the current segment)
+
+    @property
+    def slam_name(self) -> str:
+        return "none" if self.slam is None else self.slam.name
+
+    @property
+    def poses_are_recorded(self) -> bool:
+        return self.slam is not None and self.slam.poses_are_recorded
+
+    @property
+    def segment(self) -> int:
+        """The SLAM map segment of the latest tracked frame."""
+        return self._segment
+
+    @property
+    def points(self) -> MapPoints | None:
+        """The latest keyframe's map points in the world frame (None: none yet in this map segment)."""
+        return self._points
+
+    def latest_slam_ms(self) -> float:
+        """The tracking time of the latest frame (ms)."""
+        return self.state.timer.samples_ms["slam"][-1]
 
     def _world(self, T_slam_camera: np.ndarray | None, segment: int) -> np.ndarray | None:
         if T_slam_camera is None:
             return None
         if segment not in self.align:
-            self.align[segment] = np.eye(4) if self.slam_name == "recorded" else \
+            self.align[segment] = np.eye(4) if self.poses_are_recorded else \
                 gravity_alignment(gravity_up_in_camera(None, self.config.camera.mount)) @ invert_pose(T_slam_camera)
         return self.align[segment] @ T_slam_camera
 
     def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
         """SLAM on one frame: the gravity-aligned pose and whether it is a keyframe with map points."""
+        slam = self.slam
+        assert slam is not None, "a detector made without a SLAM backend only fuses"
         with self.state.timer.stage("slam"):
-            result = self.slam.track(frame)
-            points = self.slam.keyframe() if result.is_keyframe else None
-        if result.segment != self.segment:  # a new map: the old map's points are in another frame
-            self.segment, self.last_points = result.segment, None
-        T = self._world(result.T_world_camera, self.segment)
+            result = slam.track(frame)
+            points = slam.keyframe() if result.is_keyframe else None
+        if result.segment != self._segment:  # a new map: the old map's points are in another frame
+            self._segment, self._points = result.segment, None
+        T = self._world(result.T_world_camera, self._segment)
         st = self.state
         st.frames += 1
-        st.trajectory.append(frame.stamp_ns, T, self.segment)
+        st.trajectory.append(frame.stamp_ns, T, self._segment)
         st.tracking[result.state.value] = st.tracking.get(result.state.value, 0) + 1
         if points is not None and T is not None:
-            if len(points) == 0 and self.slam_name == "recorded":
+            if len(points) == 0 and slam.map_points_from_depth:
                 points = depth_points(frame, T, self.config.landing.depth_points_stride_px)
             else:
-                points = MapPoints(points.ids, _apply(self.align[self.segment], points.xyz_world), points.pixels,
+                points = MapPoints(points.ids, _apply(self.align[self._segment], points.xyz_world), points.pixels,
                                    points.keyframe_index, points.stamp_ns, T)
-            self.last_points = points
-            st.keyframes.append(points, self.segment)
+            self._points = points
+            st.keyframes.append(points, self._segment)
         return T, points is not None and result.state == TrackingState.OK
 
     def noise_for(self, frame: Frame) -> DepthNoise:
@@ -182,9 +210,15 @@ class Detector:
         return self.fuse(frame, T_world_camera, maps, maps_ms)
 
     def fuse(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps,
-             maps_ms: float) -> Detection:
-        """This detector's method on maps already computed: score, mask, site (``slz compare`` shares the maps)."""
+             maps_ms: float, tracked_by: Detector | None = None) -> Detection:
+        """This detector's method on maps already computed: score, mask, site (``slz compare`` shares the maps).
+
+        ``tracked_by``: the detector that tracked the frame (default: this one); its map points and
+        segment are used, and its tracking time of the frame is counted in this detector's ``slam`` stage.
+        """
         timer = self.state.timer
+        tracker = self if tracked_by is None else tracked_by
+        points, segment = tracker.points, tracker.segment
         t: dict[str, float] = {"maps": maps_ms}
         t0 = time.perf_counter()
         raw = self.scorer(maps)
@@ -206,8 +240,8 @@ class Detector:
                 self.state.worst_unvouched = maps.work
                 self.state.unvouched_reason = limit_reason(maps.work, self.config.terrain, self.config.uav)
         t0 = time.perf_counter()
-        if vouched and T_world_camera is not None and self.last_points is not None:
-            selection = select_site(self.last_points.xyz_world, T_world_camera, frame.K, score.mask, score.score,
+        if vouched and T_world_camera is not None and points is not None:
+            selection = select_site(points.xyz_world, T_world_camera, frame.K, score.mask, score.score,
                                     self.params, edge_distance_m=edge)
         t["select"] = _lap(t0)
         for name, ms in t.items():
@@ -219,8 +253,9 @@ class Detector:
             self.state.truth.append(truth)
         self.state.detections += 1
         self.state.detections_without_depth += not maps.valid.any()
-        return Detection(frame, T_world_camera, maps, score, self.last_points, selection, edge, t, truth,
-                         self.segment)
+        if tracker is not self:
+            timer.add("slam", tracker.latest_slam_ms())
+        return Detection(frame, T_world_camera, maps, score, points, selection, edge, t, truth, segment)
 
     def record(self, det: Detection) -> None:
         """Add a detection's site and candidates to the run's tables."""
@@ -349,7 +384,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         stack.enter_context(results)   # __enter__ returns the writer itself
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
-        det = Detector(config, method, slam, slam.name, truth, spool=tmp / SPOOL_DIR)
+        det = Detector(config, method, slam, truth, spool=tmp / SPOOL_DIR)
         for frame, T, due in tracked_frames(path, rec, det, limit):
             results.write_pose(frame.stamp_ns, T, det.segment)
             if due:
@@ -368,8 +403,8 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         with limit.stage("writing the run folder"):
             committed = commit_site(det.state.sites.sites, commit_radius_m(config))
             results.write_run(committed)
-            result = summarise(path, config, method, info, rec.report, det.state, det.slam_name, committed, truth,
-                               time.perf_counter() - t_start, key)
+            result = summarise(path, config, method, info, rec.report, det.state, det.slam_name,
+                               det.poses_are_recorded, committed, truth, time.perf_counter() - t_start, key)
             run_folder.write_run(tmp, result, det.state.sites, det.state.trajectory, det.state.keyframes)
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
             shutil.rmtree(tmp / SPOOL_DIR)

@@ -75,9 +75,9 @@ def stage_timings(timing: dict[str, dict[str, float]], method: str) -> dict[str,
             "write": med.get("write", 0.0)}  # a detection frame's files (output.level) + results.mcap; not in total
 
 
-def world_frame_text(slam_name: str, table: list[Segment], primary: int | None) -> str:
+def world_frame_text(slam_name: str, poses_are_recorded: bool, table: list[Segment], primary: int | None) -> str:
     """landing.json ``world_frame``: what the run's world frame is, and which map segment it belongs to."""
-    if slam_name == "recorded":
+    if poses_are_recorded:
         return "the recording's world frame (recorded poses)"
     if len(table) <= 1 or primary is None:
         return (f"{slam_name} map, gravity-aligned: z up from camera.mount at the first tracked frame, "
@@ -140,17 +140,18 @@ def site_truth(truth: Any | None, committed: dict[str, Any] | None) -> dict[str,
 
 
 def summarise(source: Path, config: Config, method: str, info: Any, report: Any, st: RunState, slam_name: str,
-              committed: dict[str, Any] | None, truth: Any | None, wall_s: float,
+              poses_are_recorded: bool, committed: dict[str, Any] | None, truth: Any | None, wall_s: float,
               key: dict[str, Any]) -> RunResult:
     """landing.json and run.json of a finished run (nothing is written here).
 
+    ``poses_are_recorded``: the backend's capability (``slam.base.SlamBackend``), for the world frame's text.
     ``key``: the rerun key and the digests of the files it covers (``fingerprint``), kept in run.json.
     """
     timing = st.timer.summary()
     timings = stage_timings(timing, method)
     table = segment_table(st.trajectory.segments(), st.trajectory.has_pose(), st.keyframes.per_segment)
     primary = primary_segment(table, None if committed is None else committed["segment"])
-    world = world_frame_text(slam_name, table, primary)
+    world = world_frame_text(slam_name, poses_are_recorded, table, primary)
     reason = no_site_reason(st, slam_name, len(st.keyframes))
     landing = landing_record(source, method, committed, world, timings, reason, site_truth(truth, committed), primary)
     noise = noise_summary(st)

@@ -149,3 +149,20 @@ def test_no_cycle() -> None:
 def test_cycle_finder_finds_a_cycle() -> None:
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b"}, "b": set()}) is None
+
+
+BACKEND_NAMES = {"recorded", "orbslam3", "odometry"}
+
+
+def test_backends_are_told_apart_by_capability_not_by_name() -> None:
+    """Outside slam/ no code compares a value with a backend's name (``SlamBackend`` capabilities instead)."""
+    bad = []
+    for m, path in MODULES.items():
+        if _top(m) == "slam":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare):
+                consts = {c.value for c in (node.left, *node.comparators) if isinstance(c, ast.Constant)}
+                if consts & BACKEND_NAMES:
+                    bad.append(f"{m}:{node.lineno}")
+    assert not bad, bad

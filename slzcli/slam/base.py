@@ -58,9 +58,21 @@ class Keyframe:
 
 @runtime_checkable
 class SlamBackend(Protocol):
-    """Frames in (in time order), poses and keyframe map points out."""
+    """Frames in (in time order), poses and keyframe map points out.
+
+    What a backend can do is said by its capabilities (``BackendBase`` holds the defaults), so
+    the pipeline never asks for a backend by name:
+
+    - ``poses_are_recorded``: its poses are the recording's, in the recording's world frame
+      (REP 103, z up), taken as given; else its world is its first camera frame and the
+      pipeline turns it gravity-aligned.
+    - ``map_points_from_depth``: a keyframe with no map points stands for its depth image
+      (poses recorded without a map cloud); the pipeline samples map points from the depth.
+    """
 
     name: str
+    poses_are_recorded: bool
+    map_points_from_depth: bool
 
     def track(self, frame: Frame) -> TrackResult:
         """Consume one frame; the pose of that frame (or None) and whether it became a keyframe."""
@@ -84,9 +96,11 @@ _B = TypeVar("_B", bound="BackendBase")
 
 
 class BackendBase:
-    """Context-manager plumbing shared by the backends."""
+    """Context-manager plumbing and the default capabilities (``SlamBackend``) shared by the backends."""
 
     name = "base"
+    poses_are_recorded = False
+    map_points_from_depth = False
 
     def close(self) -> None:  # pragma: no cover - overridden where there is something to free
         return None
