@@ -297,7 +297,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
                   start: tuple[float, ...] | None, runs: int, seed: int | None) -> tuple[dict[str, Any], str]:
     """Simulate the image-moment IBVS descent onto the site of RUN/landing.json (METHOD 2.6-2.9)."""
     from slzcli.control import montecarlo
-    from slzcli.control.simulate import resolve_start, simulate
+    from slzcli.control.simulate import check_target, resolve_start, simulate
     from slzcli.errors import ConfigError
     from slzcli.outputs import ibvs as ibvs_out
     from slzcli.outputs import ibvs_plots
@@ -307,7 +307,9 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
     from slzcli import limits
 
     limits.check(limits.simulation_sizes(config, runs))
-    target, _ = ibvs_out.read_target(run, config.uav.footprint_m, config.control.sim.target_tolerance)
+    target, _ = ibvs_out.read_target(run, config.uav.footprint_m)
+    target = check_target(ibvs_out.landing_path(run), target, config.uav.footprint_m,
+                          config.control.sim.target_tolerance)
     out = output or ibvs_out.landing_path(run).parent / "ibvs"
     start_world = resolve_start(target, config, scenario, start)
     cam = config.camera

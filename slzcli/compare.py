@@ -46,6 +46,7 @@ from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
 from slzcli.interrupt import call_interruptibly
 from slzcli.outputs import output_dir, run_lock
+from slzcli.outputs.run_folder import landing_record
 from slzcli.pipeline import (
     Detection,
     Detector,
@@ -59,8 +60,9 @@ from slzcli.pipeline import (
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
+from slzcli.summary import no_site_reason, site_truth
 from slzcli.timeout import StageLimit
-from slzcli.types import TerrainMaps
+from slzcli.types import FigureFrame, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
@@ -129,15 +131,6 @@ class MethodRun:
     views: dict[int, dict[str, Any]] = field(default_factory=dict)
 
 
-@dataclass(frozen=True, eq=False)
-class FigureFrame:
-    """The arrays of one detection frame for the Figure 6 panel."""
-
-    index: int
-    rgb: np.ndarray
-    per_method: dict[str, dict[str, Any]]
-
-
 def digest(*arrays: np.ndarray | None) -> str:
     """A short content digest of arrays (identity of the inputs each method saw)."""
     h = hashlib.blake2b(digest_size=8)
@@ -194,12 +187,12 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
             rec, info, clouds = open_inputs(path, config, stack)
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         with get_backend(config, has_poses, clouds=clouds) as slam:
-            tracker = Detector(config, methods[0], slam, slam.name, truth)
+            tracker = Detector(config, methods[0], slam, truth)
             for m in methods:
-                runs[m] = MethodRun(m, Detector(config, m, None, slam.name, truth),
+                runs[m] = MethodRun(m, Detector(config, m, truth=truth),
                                     pr=CurveCounts.empty(levels) if truth is not None else None)
             for frame, T, due in tracked_frames(path, rec, tracker, limit):
-                slam_ms = tracker.state.timer.samples_ms["slam"][-1]
+                slam_ms = tracker.latest_slam_ms()
                 if due:
                     with limit.stage(f"detection on frame {frame.index}"):
                         maps, maps_ms = call_interruptibly(posed_maps, frame, T, config, tracker.noise_for(frame))
@@ -222,10 +215,8 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
 def _fuse(run: MethodRun, tracker: Detector, frame: Any, T: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
           slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
     det = run.det
-    det.last_points, det.segment = tracker.last_points, tracker.segment
-    d = call_interruptibly(det.fuse, frame, T, maps, maps_ms)
+    d = call_interruptibly(det.fuse, frame, T, maps, maps_ms, tracker)  # the tracker's points, segment, slam time
     det.record(d)
-    det.state.timer.add("slam", slam_ms)
     pts = d.points
     run.inputs.append((frame.index, frame.stamp_ns, digest(None if pts is None else pts.ids,
                                                            None if pts is None else pts.xyz_world),
@@ -291,8 +282,6 @@ def _stats(values: Sequence[float]) -> dict[str, float | None]:
 def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[str, MethodRun], tracker: Detector,
                truth: Any | None, map_curves: dict[str, CurveCounts], map_means: dict[str, list[float]],
                agreement: dict[str, list[MaskCounts]], wall_s: float) -> dict[str, Any]:
-    from slzcli.outputs.run_folder import landing_record, no_site_reason
-
     side = commit_radius_m(config)
     per: dict[str, Any] = {}
     committed_of: dict[str, dict[str, Any] | None] = {}
@@ -303,7 +292,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)
         reason = no_site_reason(st, tracker.slam_name, len(tracker.state.keyframes))
-        rec = landing_record(path, m, committed, "", {}, reason, truth)
+        rec = landing_record(path, m, committed, "", {}, reason, site_truth(truth, committed))
         entry: dict[str, Any] = {
             "method": m, "detections": st.detections, "sites_found": len(st.sites.sites), "status": rec["status"],
             "reason": rec.get("reason"), "timings_ms": timing,

@@ -1,4 +1,4 @@
-"""Rigid poses, quaternions and the pinhole projection, in one place.
+"""Rigid poses, quaternions, the pinhole projection and its inverse (Eq. 1), in one place.
 
 Conventions (every caller relies on them):
 
@@ -11,10 +11,13 @@ Conventions (every caller relies on them):
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+from slzcli.types import Intrinsics
 
 
 @dataclass(frozen=True)
@@ -122,3 +125,42 @@ def project(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray,
     h, w = shape
     inside = (z > 0) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
     return np.stack([u, v], axis=1), inside
+
+
+# ----------------------------------------------------------------------------- depth image -> points (Eq. 1)
+def valid_depth(depth_m: np.ndarray) -> np.ndarray:
+    """Pixels with a usable measurement (finite and positive)."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(depth_m) & (depth_m > 0)
+
+
+@functools.lru_cache(maxsize=8)
+def pixel_rays(intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel ``(u - cx) / fx`` (1 x W) and ``(v - cy) / fy`` (H x 1), float32; cached per camera."""
+    u = np.arange(intrinsics.width, dtype=np.float64)
+    v = np.arange(intrinsics.height, dtype=np.float64)
+    rx = ((u - intrinsics.cx) / intrinsics.fx).astype(np.float32)[None, :]
+    ry = ((v - intrinsics.cy) / intrinsics.fy).astype(np.float32)[:, None]
+    rx.setflags(write=False)
+    ry.setflags(write=False)
+    return rx, ry
+
+
+def fit_intrinsics(intrinsics: Intrinsics, shape: tuple[int, int]) -> Intrinsics:
+    """The intrinsics for an image of ``shape`` (H, W): unchanged, or rescaled if the size differs."""
+    h, w = shape
+    if (intrinsics.width, intrinsics.height) == (w, h):
+        return intrinsics
+    return intrinsics.scaled(w, h)
+
+
+def back_project(depth_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """Eq. 1: the organised point image (H x W x 3, float32, camera frame), NaN where no depth."""
+    intr = fit_intrinsics(intrinsics, depth_m.shape)
+    rx, ry = pixel_rays(intr)
+    z = np.where(valid_depth(depth_m), depth_m, np.nan).astype(np.float32, copy=False)
+    points = np.empty((*depth_m.shape, 3), dtype=np.float32)
+    np.multiply(z, rx, out=points[..., 0])
+    np.multiply(z, ry, out=points[..., 1])
+    points[..., 2] = z
+    return points

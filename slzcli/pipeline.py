@@ -29,34 +29,35 @@ seen again and again. The committed site's segment is the run's world frame.
 from __future__ import annotations
 
 import logging
-import platform
 import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from slzcli import __version__
+from slzcli import fingerprint
 from slzcli.config import Config
 from slzcli.errors import DatasetError, OutputError
 from slzcli.evaluate.safety import MaskCounts, mask_counts
-from slzcli.evaluate.timing import StageTimer
+from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
+from slzcli.evaluate.truth import true_pose
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
 from slzcli.landing.select import Candidate, Selection, SelectParams, Site, select_site
-from slzcli.outputs import results_mcap
+from slzcli.outputs import output_dir, results_mcap, run_folder
 from slzcli.outputs.site_log import SiteLog
-from slzcli.outputs.trajectory import KeyframeLog, PoseLog
+from slzcli.outputs.trajectory import KeyframeLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
-from slzcli.slam import MapPoints, TrackingState, get_backend
+from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import open_clouds
 from slzcli.sources import check_readable, open_recording
+from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
-from slzcli.terrain.limits import Working, limit_reason
+from slzcli.terrain.limits import limit_reason
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.timeout import StageLimit
@@ -82,27 +83,6 @@ class Detection:
     timings_ms: dict[str, float]
     truth: MaskCounts | None = None
     segment: int = 0  # SLAM map segment of the pose and points
-
-
-@dataclass
-class RunState:
-    """What accumulates over a recording: poses, detections' summaries, timings."""
-
-    timer: StageTimer = field(default_factory=StageTimer)
-    trajectory: PoseLog = field(default_factory=PoseLog)  # every frame's stamp, pose (None: not tracked), segment
-    tracking: dict[str, int] = field(default_factory=dict)
-    keyframes: KeyframeLog = field(default_factory=KeyframeLog)  # count only unless given a folder
-    sites: SiteLog = field(default_factory=SiteLog)  # candidate rows and sites (in memory unless given a folder)
-    truth: list[MaskCounts] = field(default_factory=list)
-    truth_trajectory: PoseLog = field(default_factory=PoseLog)  # ground-truth poses of the same frames
-    frames: int = 0
-    detections: int = 0
-    detections_without_depth: int = 0
-    noise: NoiseTracker | None = None  # the depth noise of the detection frames, smoothed over the run
-    unvouched: int = 0                 # detection frames whose noise hides what the UAV cannot tolerate
-    worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
-    unvouched_reason: str = ""         # limits.limit_reason of that frame
-    column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
 
 
 def select_params(config: Config, method: str) -> SelectParams:
@@ -143,52 +123,80 @@ def depth_points(frame: Frame, T_world_camera: np.ndarray, stride_px: int) -> Ma
 
 # ----------------------------------------------------------------------------- the detector
 class Detector:
-    """Runs the stages over the frames of one recording; holds SLAM and the run's accumulators."""
+    """Runs the stages over the frames of one recording; holds SLAM and the run's accumulators.
 
-    def __init__(self, config: Config, method: str, slam: Any, slam_name: str, truth: Any | None,
+    ``slz compare`` tracks with one detector and fuses with one per method: ``fuse(...,
+    tracked_by=tracker)`` takes the tracker's map points, segment and tracking time.
+    """
+
+    def __init__(self, config: Config, method: str, slam: SlamBackend | None = None, truth: Any | None = None,
                  spool: Path | None = None) -> None:
-        """``spool``: a folder for keyframes, candidate rows and site points (else they stay in memory)."""
+        """``slam``: None for a detector that only fuses; ``spool``: a folder for keyframes, candidate rows and
+        site points (else they stay in memory)."""
         self.config = config
         self.method = method
         self.scorer: Scorer = get_scorer(config, method)
         self.params = select_params(config, method)
         self.slam = slam
-        self.slam_name = slam_name
         self.truth = truth
         self.state = RunState(keyframes=KeyframeLog(spool), sites=SiteLog(spool),
                               noise=NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
         self.align: dict[int, np.ndarray] = {}  # T_world_slam of each map segment, from its first pose
-        self.segment = 0  # map segment of the latest frame
-        self.last_points: MapPoints | None = None
+        self._segment = 0  # map segment of the latest frame
+        self._points: MapPoints | None = None  # the latest keyframe's map points (of the current segment)
+
+    @property
+    def slam_name(self) -> str:
+        return "none" if self.slam is None else self.slam.name
+
+    @property
+    def poses_are_recorded(self) -> bool:
+        return self.slam is not None and self.slam.poses_are_recorded
+
+    @property
+    def segment(self) -> int:
+        """The SLAM map segment of the latest tracked frame."""
+        return self._segment
+
+    @property
+    def points(self) -> MapPoints | None:
+        """The latest keyframe's map points in the world frame (None: none yet in this map segment)."""
+        return self._points
+
+    def latest_slam_ms(self) -> float:
+        """The tracking time of the latest frame (ms)."""
+        return self.state.timer.samples_ms["slam"][-1]
 
     def _world(self, T_slam_camera: np.ndarray | None, segment: int) -> np.ndarray | None:
         if T_slam_camera is None:
             return None
         if segment not in self.align:
-            self.align[segment] = np.eye(4) if self.slam_name == "recorded" else \
+            self.align[segment] = np.eye(4) if self.poses_are_recorded else \
                 gravity_alignment(gravity_up_in_camera(None, self.config.camera.mount)) @ invert_pose(T_slam_camera)
         return self.align[segment] @ T_slam_camera
 
     def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
         """SLAM on one frame: the gravity-aligned pose and whether it is a keyframe with map points."""
+        slam = self.slam
+        assert slam is not None, "a detector made without a SLAM backend only fuses"
         with self.state.timer.stage("slam"):
-            result = self.slam.track(frame)
-            points = self.slam.keyframe() if result.is_keyframe else None
-        if result.segment != self.segment:  # a new map: the old map's points are in another frame
-            self.segment, self.last_points = result.segment, None
-        T = self._world(result.T_world_camera, self.segment)
+            result = slam.track(frame)
+            points = slam.keyframe() if result.is_keyframe else None
+        if result.segment != self._segment:  # a new map: the old map's points are in another frame
+            self._segment, self._points = result.segment, None
+        T = self._world(result.T_world_camera, self._segment)
         st = self.state
         st.frames += 1
-        st.trajectory.append(frame.stamp_ns, T, self.segment)
+        st.trajectory.append(frame.stamp_ns, T, self._segment)
         st.tracking[result.state.value] = st.tracking.get(result.state.value, 0) + 1
         if points is not None and T is not None:
-            if len(points) == 0 and self.slam_name == "recorded":
+            if len(points) == 0 and slam.map_points_from_depth:
                 points = depth_points(frame, T, self.config.landing.depth_points_stride_px)
             else:
-                points = MapPoints(points.ids, _apply(self.align[self.segment], points.xyz_world), points.pixels,
+                points = MapPoints(points.ids, _apply(self.align[self._segment], points.xyz_world), points.pixels,
                                    points.keyframe_index, points.stamp_ns, T)
-            self.last_points = points
-            st.keyframes.append(points, self.segment)
+            self._points = points
+            st.keyframes.append(points, self._segment)
         return T, points is not None and result.state == TrackingState.OK
 
     def noise_for(self, frame: Frame) -> DepthNoise:
@@ -202,9 +210,15 @@ class Detector:
         return self.fuse(frame, T_world_camera, maps, maps_ms)
 
     def fuse(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps,
-             maps_ms: float) -> Detection:
-        """This detector's method on maps already computed: score, mask, site (``slz compare`` shares the maps)."""
+             maps_ms: float, tracked_by: Detector | None = None) -> Detection:
+        """This detector's method on maps already computed: score, mask, site (``slz compare`` shares the maps).
+
+        ``tracked_by``: the detector that tracked the frame (default: this one); its map points and
+        segment are used, and its tracking time of the frame is counted in this detector's ``slam`` stage.
+        """
         timer = self.state.timer
+        tracker = self if tracked_by is None else tracked_by
+        points, segment = tracker.points, tracker.segment
         t: dict[str, float] = {"maps": maps_ms}
         t0 = time.perf_counter()
         raw = self.scorer(maps)
@@ -226,8 +240,8 @@ class Detector:
                 self.state.worst_unvouched = maps.work
                 self.state.unvouched_reason = limit_reason(maps.work, self.config.terrain, self.config.uav)
         t0 = time.perf_counter()
-        if vouched and T_world_camera is not None and self.last_points is not None:
-            selection = select_site(self.last_points.xyz_world, T_world_camera, frame.K, score.mask, score.score,
+        if vouched and T_world_camera is not None and points is not None:
+            selection = select_site(points.xyz_world, T_world_camera, frame.K, score.mask, score.score,
                                     self.params, edge_distance_m=edge)
         t["select"] = _lap(t0)
         for name, ms in t.items():
@@ -239,8 +253,9 @@ class Detector:
             self.state.truth.append(truth)
         self.state.detections += 1
         self.state.detections_without_depth += not maps.valid.any()
-        return Detection(frame, T_world_camera, maps, score, self.last_points, selection, edge, t, truth,
-                         self.segment)
+        if tracker is not self:
+            timer.add("slam", tracker.latest_slam_ms())
+        return Detection(frame, T_world_camera, maps, score, points, selection, edge, t, truth, segment)
 
     def record(self, det: Detection) -> None:
         """Add a detection's site and candidates to the run's tables."""
@@ -284,8 +299,6 @@ def _apply(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
 
 
 def _with_pose(frame: Frame, T: np.ndarray) -> Frame:
-    from dataclasses import replace
-
     return replace(frame, T_world_camera=T)
 
 
@@ -344,9 +357,6 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     keyframes, candidate rows and site points go to a spool in the temporary run folder; what
     stays per frame is its stamp, pose and stage times (~0.2 KB), per site its summary.
     """
-    from slzcli import fingerprint
-    from slzcli.outputs import output_dir, run_folder
-
     method = options.method or config.scoring.method
     check_readable(path)  # a missing, looping or unreadable input is named before anything else reads it
     output_dir.refuse_inputs(out_dir, [path])
@@ -374,7 +384,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         stack.enter_context(results)   # __enter__ returns the writer itself
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
-        det = Detector(config, method, slam, slam.name, truth, spool=tmp / SPOOL_DIR)
+        det = Detector(config, method, slam, truth, spool=tmp / SPOOL_DIR)
         for frame, T, due in tracked_frames(path, rec, det, limit):
             results.write_pose(frame.stamp_ns, T, det.segment)
             if due:
@@ -385,7 +395,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
                     run_folder.write_detection(tmp, d, config)
                     results.write_detection(d)
             if truth is not None:
-                det.state.truth_trajectory.append(frame.stamp_ns, _truth_pose(truth, frame.stamp_ns))
+                det.state.truth_trajectory.append(frame.stamp_ns, true_pose(truth, frame.stamp_ns))
             if progress is not None:
                 progress(det.state.frames, info.expected_frames)
         if det.state.frames == 0:
@@ -393,11 +403,12 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         with limit.stage("writing the run folder"):
             committed = commit_site(det.state.sites.sites, commit_radius_m(config))
             results.write_run(committed)
-            summary = run_folder.write_run(tmp, path, config, method, info, rec.report, det, committed, truth,
-                                           time.perf_counter() - t_start, key)
+            result = summarise(path, config, method, info, rec.report, det.state, det.slam_name,
+                               det.poses_are_recorded, committed, truth, time.perf_counter() - t_start, key)
+            run_folder.write_run(tmp, result, det.state.sites, det.state.trajectory, det.state.keyframes)
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
             shutil.rmtree(tmp / SPOOL_DIR)
-    return summary
+    return result.summary
 
 
 def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, Any]:
@@ -437,38 +448,3 @@ def check_frame_size(path: Path, frame: Frame, min_px: tuple[int, ...]) -> None:
     if w < min_px[0] or h < min_px[1]:
         raise DatasetError(path, f"frame {frame.index} is {w}x{h} px, smaller than sources.min_image_px "
                                  f"{min_px[0]}x{min_px[1]}")
-
-
-def ground_truth_of(path: Path, config: Config) -> Any | None:
-    """The `slz synth` ground truth beside a recording, or None when it has no sidecar.
-
-    Its frames are looked up by stamp within ``synth.ground_truth.stamp_tolerance_ms``.
-    """
-    from slzcli.synth.groundtruth import load_ground_truth, sidecar_paths
-
-    if not all(p.is_file() for p in sidecar_paths(path)):
-        return None
-    tolerance_ns = round(config.synth.ground_truth.stamp_tolerance_ms * 1e6)
-    return replace(load_ground_truth(path), stamp_tolerance_ns=tolerance_ns)
-
-
-def _truth_pose(truth: Any, stamp_ns: int) -> np.ndarray | None:
-    try:
-        return truth.T_world_camera[truth.index_of(stamp_ns)]
-    except DatasetError:
-        return None
-
-
-def versions() -> dict[str, str]:
-    """Versions for run.json. Open3D's comes from its metadata: importing it only to read the
-    version cost ~150 MiB of resident memory at the end of every run (the run's peak)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    import cv2
-
-    try:
-        o3d = version("open3d")
-    except PackageNotFoundError:
-        o3d = "not installed"
-    return {"slz": __version__, "python": platform.python_version(), "numpy": np.__version__,
-            "opencv": cv2.__version__, "open3d": o3d}

@@ -7,8 +7,9 @@ the OpenCV/ROS optical frame (x right, y down, z forward); world frame z up.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -157,3 +158,105 @@ class ScoreMap:
     score: np.ndarray
     mask: np.ndarray
     column_cut: float = 0.0  # fraction of the otherwise-safe pixels whose descent column was out of view
+
+
+# ----------------------------------------------------------------------------- SLAM
+@dataclass(frozen=True, eq=False)
+class MapPoints:
+    """Map points seen in one keyframe: world XYZ (N,3) float64, their pixels (N,2) in that keyframe.
+
+    ``ids`` are stable per backend run (int64, -1 where a backend has no identity for a point);
+    ``T_world_camera`` is the keyframe's pose when the points were reported.
+    """
+
+    ids: np.ndarray
+    xyz_world: np.ndarray
+    pixels: np.ndarray
+    keyframe_index: int
+    stamp_ns: int
+    T_world_camera: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.xyz_world.shape[0])
+
+    @staticmethod
+    def empty(keyframe_index: int, stamp_ns: int, T_world_camera: np.ndarray) -> MapPoints:
+        return MapPoints(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2)), keyframe_index,
+                         stamp_ns, T_world_camera)
+
+
+# ----------------------------------------------------------------------------- slz compare
+@dataclass(frozen=True, eq=False)
+class FigureFrame:
+    """The arrays of one detection frame for the Figure 6 panel."""
+
+    index: int
+    rgb: np.ndarray
+    per_method: dict[str, dict[str, Any]]
+
+
+# ----------------------------------------------------------------------------- slz land simulate
+@dataclass(frozen=True)
+class Target:
+    """The landing square in the world (ENU, z up): centre and the four Eq. 10 corners."""
+
+    center_world: np.ndarray     # (3,)
+    corners_world: np.ndarray    # (4, 3)
+
+
+@dataclass(frozen=True, eq=False)
+class SimResult:
+    """Per-run outcomes (arrays of length N) and, when asked, the per-step log of every run."""
+
+    reason: np.ndarray           # (N,) str
+    success: np.ndarray          # (N,) bool
+    stabilisation_time_s: np.ndarray
+    settling_time_s: np.ndarray  # true error last above settling_fraction of its start value (IBVS phase)
+    switch_time_s: np.ndarray
+    final_feature_error_px: np.ndarray
+    final_yaw_error_deg: np.ndarray
+    touchdown_error_m: np.ndarray
+    touchdown_speed_m_s: np.ndarray
+    max_tilt_deg: np.ndarray
+    landing_time_s: np.ndarray
+    starts_world: np.ndarray     # (N, 4) x, y, z, yaw_deg (ENU)
+    sim_time_s: float
+    log: dict[str, np.ndarray] | None
+
+    def metrics(self, i: int = 0) -> dict[str, Any]:
+        """One run's metrics as plain JSON values (NaN -> None)."""
+        def num(a: np.ndarray) -> float | None:
+            v = float(a[i])
+            return None if math.isnan(v) else round(v, 6)
+        return {
+            "success": bool(self.success[i]), "reason": str(self.reason[i]),
+            "stabilisation_time_s": num(self.stabilisation_time_s), "settling_time_s": num(self.settling_time_s),
+            "switch_time_s": num(self.switch_time_s),
+            "final_feature_error_px": num(self.final_feature_error_px),
+            "final_yaw_error_deg": num(self.final_yaw_error_deg),
+            "touchdown_error_m": num(self.touchdown_error_m), "touchdown_speed_m_s": num(self.touchdown_speed_m_s),
+            "max_tilt_deg": num(self.max_tilt_deg), "landing_time_s": num(self.landing_time_s),
+            "start_world": [round(float(v), 6) for v in self.starts_world[i]],
+        }
+
+
+# ----------------------------------------------------------------------------- slz detect
+@dataclass(frozen=True, eq=False)
+class RunResult:
+    """What one detection run sums up to (``summary.summarise``), as the run folder writes it.
+
+    ``landing``: landing.json; ``run``: run.json (its ``summary`` is what ``slz detect`` returns);
+    ``committed``: the committed site entry (``pipeline.commit_site``) or None; ``primary_segment``:
+    the run's map segment (trajectory.tum); ``points_segment``: the segment whose map points
+    points.ply holds (None: all, a run of one segment).
+    """
+
+    landing: dict[str, Any]
+    run: dict[str, Any]
+    committed: dict[str, Any] | None
+    primary_segment: int | None
+    points_segment: int | None
+
+    @property
+    def summary(self) -> dict[str, Any]:
+        return self.run["summary"]

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
 
 import numpy as np
 
@@ -32,7 +32,10 @@ from slzcli.control import dynamics as dyn
 from slzcli.control import features as ft
 from slzcli.control import ibvs
 from slzcli.control.noise import START_STREAM, FlightNoise, run_generator
-from slzcli.errors import ConfigError
+from slzcli.errors import ConfigError, DatasetError
+from slzcli.landing.corners import corners_problem
+from slzcli.types import SimResult as SimResult  # shared with outputs/ibvs*.py
+from slzcli.types import Target as Target
 
 REASONS = ("running", "touchdown", "site_not_in_view", "corners_lost", "tilt_limit", "ground_contact",
            "timeout")
@@ -41,48 +44,15 @@ SCENARIOS = {1: (0.0, 0.0, 10.0), 2: (-3.0, 12.0, 9.0), 3: (0.0, 0.0, 7.0), 4: (
 """Paper sec. 3 start positions (m, world frame of the paper's Gazebo worlds)."""
 
 
-@dataclass(frozen=True)
-class Target:
-    """The landing square in the world (ENU, z up): centre and the four Eq. 10 corners."""
-
-    center_world: np.ndarray     # (3,)
-    corners_world: np.ndarray    # (4, 3)
-
-
-@dataclass(frozen=True, eq=False)
-class SimResult:
-    """Per-run outcomes (arrays of length N) and, when asked, the per-step log of every run."""
-
-    reason: np.ndarray           # (N,) str
-    success: np.ndarray          # (N,) bool
-    stabilisation_time_s: np.ndarray
-    settling_time_s: np.ndarray  # true error last above settling_fraction of its start value (IBVS phase)
-    switch_time_s: np.ndarray
-    final_feature_error_px: np.ndarray
-    final_yaw_error_deg: np.ndarray
-    touchdown_error_m: np.ndarray
-    touchdown_speed_m_s: np.ndarray
-    max_tilt_deg: np.ndarray
-    landing_time_s: np.ndarray
-    starts_world: np.ndarray     # (N, 4) x, y, z, yaw_deg (ENU)
-    sim_time_s: float
-    log: dict[str, np.ndarray] | None
-
-    def metrics(self, i: int = 0) -> dict[str, Any]:
-        """One run's metrics as plain JSON values (NaN -> None)."""
-        def num(a: np.ndarray) -> float | None:
-            v = float(a[i])
-            return None if math.isnan(v) else round(v, 6)
-        return {
-            "success": bool(self.success[i]), "reason": str(self.reason[i]),
-            "stabilisation_time_s": num(self.stabilisation_time_s), "settling_time_s": num(self.settling_time_s),
-            "switch_time_s": num(self.switch_time_s),
-            "final_feature_error_px": num(self.final_feature_error_px),
-            "final_yaw_error_deg": num(self.final_yaw_error_deg),
-            "touchdown_error_m": num(self.touchdown_error_m), "touchdown_speed_m_s": num(self.touchdown_speed_m_s),
-            "max_tilt_deg": num(self.max_tilt_deg), "landing_time_s": num(self.landing_time_s),
-            "start_world": [round(float(v), 6) for v in self.starts_world[i]],
-        }
+def check_target(source: Path, target: Target, footprint_m: tuple[float, ...], tolerance: float) -> Target:
+    """``target`` when its corners are the Eq. 10 square of ``footprint_m`` within ``tolerance``
+    (``control.sim.target_tolerance``, a fraction of the footprint); else DatasetError naming ``source``."""
+    problem = corners_problem(target.center_world, target.corners_world, footprint_m, tolerance)
+    if problem is not None:
+        raise DatasetError(source, f"site.corners_world: {problem}, beyond control.sim.target_tolerance = "
+                                   f"{tolerance:g} x the side; not a landing square of this UAV: use the config "
+                                   "slz detect used")
+    return target
 
 
 def start_from_offsets(target: Target, offsets: np.ndarray) -> np.ndarray:

@@ -17,10 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from slzcli.control.simulate import SimResult, Target
 from slzcli.errors import DatasetError, NoSiteFound
-from slzcli.landing.corners import corners_problem
 from slzcli.outputs.files import atomic_path, write_json, write_text
+from slzcli.types import SimResult, Target
 
 
 def landing_path(path: Path) -> Path:
@@ -40,11 +39,10 @@ def landing_path(path: Path) -> Path:
     raise DatasetError(path, "not found")
 
 
-def read_target(path: Path, footprint_m: tuple[float, ...], tolerance: float) -> tuple[Target, dict[str, Any]]:
+def read_target(path: Path, footprint_m: tuple[float, ...]) -> tuple[Target, dict[str, Any]]:
     """The landing square of a landing.json, and the parsed document; no site -> NoSiteFound.
 
-    The corners must be the Eq. 10 square of ``footprint_m`` within ``tolerance``
-    (``control.sim.target_tolerance``, a fraction of the footprint).
+    Parsed only: whether the corners are this UAV's Eq. 10 square is ``control.simulate.check_target``.
     """
     file = landing_path(path)
     try:
@@ -79,11 +77,6 @@ def read_target(path: Path, footprint_m: tuple[float, ...], tolerance: float) ->
             raise DatasetError(file, "site.corners_world: expected four [x, y, z] points") from err
     if not (np.isfinite(center).all() and np.isfinite(corners_arr).all()):
         raise DatasetError(file, "site: centre or corners are not finite numbers")
-    problem = corners_problem(center, corners_arr, footprint_m, tolerance)
-    if problem is not None:
-        raise DatasetError(file, f"site.corners_world: {problem}, beyond control.sim.target_tolerance = "
-                                 f"{tolerance:g} x the side; not a landing square of this UAV: use the config "
-                                 "slz detect used")
     return Target(center, corners_arr), doc
 
 

@@ -10,8 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from slzcli.control.simulate import SimResult, Target
 from slzcli.outputs.files import atomic_path
+from slzcli.types import SimResult, Target
 
 COLOURS = ("tab:red", "tab:green", "tab:blue", "tab:orange")
 

@@ -9,7 +9,7 @@ function writes one PNG atomically and returns its path.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import matplotlib
 
@@ -18,9 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from slzcli.outputs.files import atomic_path
-
-if TYPE_CHECKING:
-    from slzcli.compare import FigureFrame
+from slzcli.types import FigureFrame
 
 METHOD_COLOURS = {"fuzzy": "tab:red", "bayes": "tab:blue"}
 MAP_COLOURS = {"depth_variance": "tab:olive", "flatness": "tab:green", "inclination": "tab:purple",

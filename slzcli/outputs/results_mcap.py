@@ -42,8 +42,9 @@ import cv2
 import numpy as np
 
 from slzcli.config import Config
+from slzcli.geometry import back_project
+from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.recording import CAMERA_INFO, IMAGE, RecordingWriter, TopicLayout
-from slzcli.terrain.geometry import back_project
 
 WORLD_FRAME = "world"
 CAMERA_FRAME = "camera"
@@ -91,8 +92,6 @@ class ResultsMcap:
     # ------------------------------------------------------------------ per detection
     def write_detection(self, det: Any) -> None:
         """The images, clouds and site markers of one detection (a ``pipeline.Detection``)."""
-        from slzcli.outputs.run_folder import detection_overlay_bgr
-
         frame, stamp = det.frame, det.frame.stamp_ns
         world, camera = frame_ids(det.segment)
         self._image("color", frame.rgb, "rgb8", stamp, camera)

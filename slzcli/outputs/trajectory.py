@@ -24,7 +24,7 @@ import numpy as np
 
 from slzcli.geometry import Pose
 from slzcli.outputs.files import ArraySpool, write_npz_streamed, write_text
-from slzcli.slam.base import MapPoints
+from slzcli.types import MapPoints
 
 
 def tum_text(stamps_ns: Sequence[int], poses: Sequence[np.ndarray | None]) -> str:
@@ -60,23 +60,30 @@ def segment_tum_name(segment: int) -> str:
     return f"trajectory.seg{segment}.tum"
 
 
+def trajectory_files(log: PoseLog) -> dict[int, str]:
+    """Segment -> the TUM file that holds it alone (with one segment, ``trajectory.tum``); nothing is written."""
+    present = sorted({int(k) for k, p in zip(log.segments(), log.poses(), strict=True) if p is not None})
+    if len(present) <= 1:
+        return {k: "trajectory.tum" for k in present}
+    return {k: segment_tum_name(k) for k in present}
+
+
 def write_trajectories(run_dir: Path, log: PoseLog, primary: int | None) -> dict[int, str]:
     """trajectory.tum (segment ``primary``) and, with several segments, one file per segment.
 
-    Returns segment -> file name (the per-segment files; with one segment, ``trajectory.tum``).
+    Returns segment -> file name (``trajectory_files``: the per-segment files; with one segment, ``trajectory.tum``).
     """
     stamps, poses, segs = log.stamps, log.poses(), log.segments()
-    present = sorted({int(k) for k, p in zip(segs, poses, strict=True) if p is not None})
+    names = trajectory_files(log)
 
     def of(k: int | None) -> list[np.ndarray | None]:
         return [p if s == k else None for p, s in zip(poses, segs, strict=True)]
 
     write_tum(Path(run_dir) / "trajectory.tum", stamps, of(primary))
-    if len(present) <= 1:
-        return {k: "trajectory.tum" for k in present}
-    for k in present:
-        write_tum(Path(run_dir) / segment_tum_name(k), stamps, of(k))
-    return {k: segment_tum_name(k) for k in present}
+    if len(names) > 1:
+        for k, name in names.items():
+            write_tum(Path(run_dir) / name, stamps, of(k))
+    return names
 
 
 class PoseLog:

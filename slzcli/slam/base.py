@@ -18,6 +18,7 @@ import numpy as np
 
 from slzcli.geometry import invert_pose as invert_pose  # odometry.py of older revisions imports it from here
 from slzcli.types import Frame
+from slzcli.types import MapPoints as MapPoints  # defined with the other shared types
 
 
 class TrackingState(str, enum.Enum):
@@ -26,30 +27,6 @@ class TrackingState(str, enum.Enum):
     INITIALISING = "initialising"
     OK = "ok"
     LOST = "lost"
-
-
-@dataclass(frozen=True, eq=False)
-class MapPoints:
-    """Map points seen in one keyframe: world XYZ (N,3) float64, their pixels (N,2) in that keyframe.
-
-    ``ids`` are stable per backend run (int64, -1 where a backend has no identity for a point);
-    ``T_world_camera`` is the keyframe's pose when the points were reported.
-    """
-
-    ids: np.ndarray
-    xyz_world: np.ndarray
-    pixels: np.ndarray
-    keyframe_index: int
-    stamp_ns: int
-    T_world_camera: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.xyz_world.shape[0])
-
-    @staticmethod
-    def empty(keyframe_index: int, stamp_ns: int, T_world_camera: np.ndarray) -> MapPoints:
-        return MapPoints(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2)), keyframe_index,
-                         stamp_ns, T_world_camera)
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,9 +58,21 @@ class Keyframe:
 
 @runtime_checkable
 class SlamBackend(Protocol):
-    """Frames in (in time order), poses and keyframe map points out."""
+    """Frames in (in time order), poses and keyframe map points out.
+
+    What a backend can do is said by its capabilities (``BackendBase`` holds the defaults), so
+    the pipeline never asks for a backend by name:
+
+    - ``poses_are_recorded``: its poses are the recording's, in the recording's world frame
+      (REP 103, z up), taken as given; else its world is its first camera frame and the
+      pipeline turns it gravity-aligned.
+    - ``map_points_from_depth``: a keyframe with no map points stands for its depth image
+      (poses recorded without a map cloud); the pipeline samples map points from the depth.
+    """
 
     name: str
+    poses_are_recorded: bool
+    map_points_from_depth: bool
 
     def track(self, frame: Frame) -> TrackResult:
         """Consume one frame; the pose of that frame (or None) and whether it became a keyframe."""
@@ -107,9 +96,11 @@ _B = TypeVar("_B", bound="BackendBase")
 
 
 class BackendBase:
-    """Context-manager plumbing shared by the backends."""
+    """Context-manager plumbing and the default capabilities (``SlamBackend``) shared by the backends."""
 
     name = "base"
+    poses_are_recorded = False
+    map_points_from_depth = False
 
     def close(self) -> None:  # pragma: no cover - overridden where there is something to free
         return None

@@ -170,6 +170,8 @@ class RecordedBackend(BackendBase):
     """
 
     name = "recorded"
+    poses_are_recorded = True
+    map_points_from_depth = True
 
     def __init__(self, config: Config, clouds: CloudStream | None = None) -> None:
         self.clouds = clouds if clouds is not None and not clouds.empty else None

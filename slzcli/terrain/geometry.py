@@ -36,13 +36,16 @@ frame for the normals alone (benchmarks/terrain.py).
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from slzcli.geometry import back_project as back_project  # Eq. 1 lives in slzcli.geometry (outputs use it too)
+from slzcli.geometry import fit_intrinsics as fit_intrinsics
+from slzcli.geometry import pixel_rays as pixel_rays
+from slzcli.geometry import valid_depth as valid_depth
 from slzcli.types import Intrinsics
 
 # Numerical guards (not tuning parameters): a 2x2 / 3x3 moment matrix whose determinant is
@@ -52,45 +55,6 @@ _DEGENERATE_REL_DET = 1e-6
 # Side of the square with the same area as a disc of radius 1 (sqrt(pi)); half of it is
 # the window half-width per unit of projected radius.
 _EQUAL_AREA_HALF_SIDE = math.sqrt(math.pi) / 2.0
-
-
-# ----------------------------------------------------------------------------- points
-def valid_depth(depth_m: np.ndarray) -> np.ndarray:
-    """Pixels with a usable measurement (finite and positive)."""
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(depth_m) & (depth_m > 0)
-
-
-@functools.lru_cache(maxsize=8)
-def pixel_rays(intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pixel ``(u - cx) / fx`` (1 x W) and ``(v - cy) / fy`` (H x 1), float32; cached per camera."""
-    u = np.arange(intrinsics.width, dtype=np.float64)
-    v = np.arange(intrinsics.height, dtype=np.float64)
-    rx = ((u - intrinsics.cx) / intrinsics.fx).astype(np.float32)[None, :]
-    ry = ((v - intrinsics.cy) / intrinsics.fy).astype(np.float32)[:, None]
-    rx.setflags(write=False)
-    ry.setflags(write=False)
-    return rx, ry
-
-
-def fit_intrinsics(intrinsics: Intrinsics, shape: tuple[int, int]) -> Intrinsics:
-    """The intrinsics for an image of ``shape`` (H, W): unchanged, or rescaled if the size differs."""
-    h, w = shape
-    if (intrinsics.width, intrinsics.height) == (w, h):
-        return intrinsics
-    return intrinsics.scaled(w, h)
-
-
-def back_project(depth_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
-    """Eq. 1: the organised point image (H x W x 3, float32, camera frame), NaN where no depth."""
-    intr = fit_intrinsics(intrinsics, depth_m.shape)
-    rx, ry = pixel_rays(intr)
-    z = np.where(valid_depth(depth_m), depth_m, np.nan).astype(np.float32, copy=False)
-    points = np.empty((*depth_m.shape, 3), dtype=np.float32)
-    np.multiply(z, rx, out=points[..., 0])
-    np.multiply(z, ry, out=points[..., 1])
-    points[..., 2] = z
-    return points
 
 
 # ----------------------------------------------------------------------------- metric windows

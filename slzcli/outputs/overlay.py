@@ -1,0 +1,27 @@
+"""The Figure 6 overlay of one detection, drawn for its frame folder (overlay.png) and results.mcap (/slz/overlay).
+
+Its own module so that both writers share it without one importing the other.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from slzcli.geometry import project
+from slzcli.outputs import images
+
+
+def detection_overlay_bgr(det: Any) -> np.ndarray:
+    """The Figure 6 overlay of one detection: mask tint, SLAM points, chosen cluster, Eq. 10 square."""
+    sel = det.selection
+    chosen = corners_px = None
+    if sel is not None and sel.site is not None:
+        centre = np.asarray(sel.site.center_world)
+        nearest = min(sel.candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre)))
+        chosen = sel.labels == nearest.cluster
+        corners_px, _ = project(np.asarray(sel.site.corners_world), det.T_world_camera, det.frame.K,
+                                det.score.mask.shape)
+    return images.site_overlay_bgr(det.frame.rgb, det.score.mask, None if sel is None else sel.projected,
+                                   None if sel is None else sel.kept, chosen, corners_px)

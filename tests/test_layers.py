@@ -1,0 +1,168 @@
+"""The import layers of slzcli (issue 17), read from the source with ``ast``, not by importing it.
+
+Every ``import`` and ``from ... import`` of an slzcli module counts, wherever it stands: at
+module level, inside a function, or under ``if TYPE_CHECKING`` (a type is a dependency too).
+A function-level import used to hide the cycle pipeline -> outputs.run_folder -> pipeline.
+
+The rules, one line each (``RULES``: importing package -> packages it must not import):
+
+- outputs/ is a leaf of the detection path: it serialises what it is handed and computes no
+  result, so it imports no package that computes one (nor the commands above it).
+- evaluate/ measures results against ground truth; it does not write files nor run detection.
+- scoring/, terrain/, landing/ are the per-frame steps: pure functions of arrays, they import
+  neither the run machinery nor the writers nor each other's callers.
+- slam/ tracks frames; it knows nothing of the detection steps above it (it may use the file
+  helpers of outputs/, a leaf, to store a downloaded vocabulary).
+- sources/ reads recordings; it knows nothing of what is done with the frames.
+- control/ simulates the landing from a site; it does not import detection or the writers.
+- summary (what a run sums up to) does not import the run machinery that calls it; pipeline
+  (``slz detect``) does not import the commands built on it (compare, batch, cli).
+- Only ``slzcli.cli`` may import ``slzcli.cli`` (``FORBIDDEN_FOR_ALL``).
+- No import cycle among slzcli modules counting module-level imports (``test_no_cycle``).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1] / "slzcli"
+
+DETECTION = ("pipeline", "summary", "compare", "batch")  # the run machinery: detect, summarise, compare, batch
+COMMANDS = ("cli",)
+RULES: dict[str, tuple[str, ...]] = {
+    # package: packages (slzcli.<name>, module or subpackage) it must not import
+    "outputs": ("pipeline", "summary", "evaluate", "landing", "slam", "terrain", "control", "compare", "batch",
+                "scoring", "synth", "cli"),
+    "evaluate": (*DETECTION, "outputs", "landing", "scoring", "control", *COMMANDS),
+    "scoring": (*DETECTION, "outputs", "evaluate", "landing", "slam", "control", "synth", *COMMANDS),
+    "terrain": (*DETECTION, "outputs", "evaluate", "landing", "slam", "control", "synth", *COMMANDS),
+    "landing": (*DETECTION, "outputs", "evaluate", "slam", "control", "synth", *COMMANDS),
+    "slam": (*DETECTION, "evaluate", "landing", "scoring", "terrain", "control", "synth", *COMMANDS),
+    "sources": (*DETECTION, "outputs", "evaluate", "landing", "scoring", "terrain", "slam", "control", "synth",
+                *COMMANDS),
+    "control": (*DETECTION, "outputs", "evaluate", "scoring", "terrain", "slam", "synth", *COMMANDS),
+    "summary": ("pipeline", "compare", "batch", *COMMANDS),
+    "pipeline": ("compare", "batch", *COMMANDS),
+}
+FORBIDDEN_FOR_ALL = ("cli",)
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports_of(path: Path) -> list[tuple[str, int, bool]]:
+    """(imported slzcli module, line, at module level) for every import statement in one file."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    package = module_name(path) if path.name == "__init__.py" else module_name(path).rpartition(".")[0]
+    top_level = {id(n) for n in tree.body}
+    out: list[tuple[str, int, bool]] = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Import | ast.ImportFrom):
+            continue
+        names: list[str] = []
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        else:
+            base = node.module or ""
+            if node.level:  # relative import
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, base] if base else anchor)
+            # ``from slzcli import pipeline`` imports the module slzcli.pipeline
+            names = [f"{base}.{a.name}" if _is_module(f"{base}.{a.name}") else base for a in node.names]
+        out += [(n, node.lineno, id(node) in top_level) for n in dict.fromkeys(names)
+                if n == "slzcli" or n.startswith("slzcli.")]
+    return out
+
+
+def _is_module(name: str) -> bool:
+    rel = Path(*name.split("."))
+    return (ROOT.parent / rel).with_suffix(".py").is_file() or (ROOT.parent / rel / "__init__.py").is_file()
+
+
+MODULES = {module_name(p): p for p in sorted(ROOT.rglob("*.py"))}
+IMPORTS = {m: imports_of(p) for m, p in MODULES.items()}
+
+
+def _top(name: str) -> str:
+    """slzcli.outputs.run_folder -> outputs; slzcli -> ''."""
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def test_the_parser_sees_every_kind_of_import() -> None:
+    """The rules below mean something only if the parser finds imports of every form."""
+    found = {(m, n) for m, rows in IMPORTS.items() for n, _, _ in rows}
+    assert ("slzcli.cli", "slzcli.pipeline") in found  # function-level, in a command
+    assert ("slzcli.types", "slzcli.terrain.limits") in found  # under TYPE_CHECKING
+    assert len(MODULES) > 80
+
+
+@pytest.mark.parametrize("package", sorted(RULES))
+def test_layer_rules(package: str) -> None:
+    bad = [f"{m}:{line} imports {n}" for m, rows in IMPORTS.items() if _top(m) == package
+           for n, line, _ in rows if _top(n) in RULES[package]]
+    assert not bad, "\n".join(bad)
+
+
+def test_only_cli_imports_cli() -> None:
+    bad = [f"{m}:{line} imports {n}" for m, rows in IMPORTS.items() if _top(m) not in FORBIDDEN_FOR_ALL
+           for n, line, _ in rows if _top(n) in FORBIDDEN_FOR_ALL]
+    assert not bad, "\n".join(bad)
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of a directed graph (depth-first search), or None."""
+    colour: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(v: str) -> list[str] | None:
+        colour[v] = 1
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if colour.get(w) == 1:
+                return [*stack[stack.index(w):], w]
+            if w not in colour and (found := visit(w)) is not None:
+                return found
+        stack.pop()
+        colour[v] = 2
+        return None
+
+    for v in sorted(graph):
+        if v not in colour and (found := visit(v)) is not None:
+            return found
+    return None
+
+
+def test_no_cycle() -> None:
+    """No cycle among modules through module-level imports (a package's __init__ is its own module)."""
+    graph = {m: {n for n, _, top in rows if top and n in MODULES and n != m} for m, rows in IMPORTS.items()}
+    assert _cycle(graph) is None, " -> ".join(_cycle(graph) or [])
+
+
+def test_cycle_finder_finds_a_cycle() -> None:
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b"}, "b": set()}) is None
+
+
+BACKEND_NAMES = {"recorded", "orbslam3", "odometry"}
+
+
+def test_backends_are_told_apart_by_capability_not_by_name() -> None:
+    """Outside slam/ no code compares a value with a backend's name (``SlamBackend`` capabilities instead)."""
+    bad = []
+    for m, path in MODULES.items():
+        if _top(m) == "slam":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare):
+                consts = {c.value for c in (node.left, *node.comparators) if isinstance(c, ast.Constant)}
+                if consts & BACKEND_NAMES:
+                    bad.append(f"{m}:{node.lineno}")
+    assert not bad, bad
