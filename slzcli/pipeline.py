@@ -53,7 +53,7 @@ from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
-from slzcli.slam.recorded import open_clouds
+from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
 from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
@@ -411,14 +411,11 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     return result.summary
 
 
-def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, Any]:
-    """The open recording, its info and its recorded map clouds (or None), closed with ``stack``."""
+def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, bool]:
+    """The open recording (closed with ``stack``), its info and whether its frames carry recorded map clouds."""
     rec = stack.enter_context(open_recording(path, config))
     info = rec.info()
-    clouds = open_clouds(path, config)
-    if clouds is not None:
-        stack.enter_context(clouds)
-    return rec, info, clouds
+    return rec, info, has_recorded_clouds(info, config)
 
 
 def tracked_frames(path: Path, rec: Any, tracker: Detector,

@@ -42,11 +42,26 @@ class Intrinsics:
 
 
 @dataclass(frozen=True, eq=False)
+class MapCloud:
+    """A map-point cloud a SLAM system published in the recording (``slam.points_topic``).
+
+    xyz: (N,3) float64 in the recorded world frame, finite points only; ids: (N,) int64
+    map-point ids, -1 where the cloud has no id field.
+    """
+
+    stamp_ns: int
+    xyz: np.ndarray
+    ids: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
 class Frame:
     """One paired RGB-D frame.
 
     rgb: uint8 HxWx3 in RGB order. depth_m: float32 HxW metres, NaN = no data.
     T_world_camera: 4x4 float64 or None when the recording has no pose for this frame.
+    map_points: the recorded map cloud nearest in stamp to this frame (read by the same
+    reader in the same pass, so the recording is opened once), None for most frames.
     """
 
     index: int
@@ -56,6 +71,7 @@ class Frame:
     intrinsics: Intrinsics
     T_world_camera: np.ndarray | None = None
     source: str = ""
+    map_points: MapCloud | None = None
 
     @property
     def K(self) -> np.ndarray:

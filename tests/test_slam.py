@@ -203,77 +203,122 @@ def test_auto_prefers_recorded_then_orbslam3_then_odometry() -> None:
 
 
 # ----------------------------------------------------------------------------- recorded + CLI
-def _write_recording(path, frames, truth, points_topic=None, clouds=()):
+def _write_recording(path, frames, truth, points_topic=None, clouds=(), clouds_at_end=False):
+    """Frames, poses and map clouds logged in stamp order, as a recorder would (clouds_at_end: after all frames)."""
     from slzcli.outputs.recording import RecordingWriter
 
     with RecordingWriter(path, "mcap", depth_encoding="32FC1") as w:
+        todo = sorted(clouds, key=lambda c: c[0])
         for f, T in zip(frames, truth, strict=True):
+            while todo and not clouds_at_end and todo[0][0] <= f.stamp_ns:
+                _write_cloud(w, points_topic, *todo.pop(0))
             w.write_frame(f)
             w.write_pose("/orb_slam3/camera_pose", f.stamp_ns, T)
-        for stamp, xyz in clouds:
-            data = np.concatenate([xyz.astype("<f4"), np.arange(len(xyz), dtype="<i4")[:, None].view("<f4")], 1)
-            fields = [w.message("sensor_msgs/msg/PointField", name=n, offset=4 * i, datatype=7 if n != "id" else 5,
-                                count=1) for i, n in enumerate(("x", "y", "z", "id"))]
-            msg = w.message("sensor_msgs/msg/PointCloud2", header=w.header(stamp, "world"), height=1, width=len(xyz),
-                            fields=fields, is_bigendian=False, point_step=16, row_step=16 * len(xyz),
-                            data=np.frombuffer(data.tobytes(), np.uint8).copy(), is_dense=True)
-            w.write_raw(points_topic, "sensor_msgs/msg/PointCloud2", msg, stamp)
+        for stamp, xyz in todo:
+            _write_cloud(w, points_topic, stamp, xyz)
 
 
-def _clouds(path, config):
-    """The recorded clouds (a points topic is configured, so never None)."""
-    from slzcli.slam.recorded import open_clouds
+def _write_cloud(w, points_topic, stamp, xyz):
+    data = np.concatenate([xyz.astype("<f4"), np.arange(len(xyz), dtype="<i4")[:, None].view("<f4")], 1)
+    fields = [w.message("sensor_msgs/msg/PointField", name=n, offset=4 * i, datatype=7 if n != "id" else 5,
+                        count=1) for i, n in enumerate(("x", "y", "z", "id"))]
+    msg = w.message("sensor_msgs/msg/PointCloud2", header=w.header(stamp, "world"), height=1, width=len(xyz),
+                    fields=fields, is_bigendian=False, point_step=16, row_step=16 * len(xyz),
+                    data=np.frombuffer(data.tobytes(), np.uint8).copy(), is_dense=True)
+    w.write_raw(points_topic, "sensor_msgs/msg/PointCloud2", msg, stamp)
 
-    clouds = open_clouds(path, config)
-    assert clouds is not None
-    return clouds
+
+def _open_with_clouds(path, config):
+    """The recording and whether its frames carry recorded clouds (what ``slz detect`` hands the backend)."""
+    from slzcli.slam.recorded import has_recorded_clouds
+    from slzcli.sources import open_recording
+
+    rec = open_recording(path, config)
+    rec.open()
+    return rec, has_recorded_clouds(rec.info(), config)
 
 
 def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_flight) -> None:
-    from slzcli.slam.recorded import CloudStream, RecordedBackend
+    from slzcli.slam.recorded import RecordedBackend
     from slzcli.sources import open_recording
 
     frames, truth = out_back_flight
     frames, truth = frames[:8], truth[:8]
     xyz = np.array([[0.0, 0.0, 0.0], [0.5, 0.2, 0.3], [50.0, 0.0, 0.0]])  # the last is outside the view
     path = tmp_path / "rec.mcap"
-    _write_recording(path, frames, truth, "/orb_slam3/map_points", [(frames[2].stamp_ns, xyz)])
+    # Halfway between frames 2 and 3 (100 ms apart): within the 50 ms pose tolerance of both.
+    mid = (frames[2].stamp_ns + frames[3].stamp_ns) // 2
+    _write_recording(path, frames, truth, "/orb_slam3/map_points", [(mid, xyz)])
     config = load_config(overrides=["sources.topics.pose=/orb_slam3/camera_pose",
                                      "slam.points_topic=/orb_slam3/map_points"])
-    with _clouds(path, config) as clouds:
-        assert not clouds.empty
-        stamp, got, ids = clouds.nearest(frames[2].stamp_ns + 1000, 1_000_000)
-        assert stamp == frames[2].stamp_ns and ids.tolist() == [0, 1, 2]
-        np.testing.assert_allclose(got, xyz, atol=1e-6)
-        assert clouds.nearest(frames[2].stamp_ns, 1_000_000) is None  # each cloud goes to one frame
-    with open_recording(path, config) as rec, _clouds(path, config) as clouds, RecordedBackend(config, clouds) as b:
-        out = [(b.track(f), b.keyframe()) for f in rec.frames()]
+    assert mid - frames[2].stamp_ns <= config.sources.pose_tolerance_ms * 1e6
+    rec, clouds = _open_with_clouds(path, config)
+    with rec, RecordedBackend(config, clouds) as b:
+        assert clouds
+        read = list(rec.frames())
+        out = [(b.track(f), b.keyframe()) for f in read]
+    carried = [f for f in read if f.map_points is not None]
+    assert [f.index for f in carried] == [2]  # each cloud goes to one frame: the first one in tolerance
+    cloud = carried[0].map_points
+    assert cloud.stamp_ns == mid and cloud.ids.tolist() == [0, 1, 2]
+    np.testing.assert_allclose(cloud.xyz, xyz, atol=1e-6)
     assert len(out) == 8
     for (r, _), T in zip(out, truth, strict=True):
         assert r.state is TrackingState.OK and r.T_world_camera is not None
         np.testing.assert_allclose(r.T_world_camera, T, atol=1e-9)
     kfs = [k for _, k in out if k is not None]
-    assert len(kfs) == 1 and kfs[0].ids.tolist() == [0, 1]
-    with pytest.raises(DatasetError, match="not in the recording"):
-        CloudStream(path, "/nope", 0)
+    assert len(kfs) == 1 and kfs[0].ids.tolist() == [0, 1] and kfs[0].stamp_ns == frames[2].stamp_ns
+    bad = load_config(overrides=["slam.points_topic=/nope"])
+    with open_recording(path, bad) as rec, pytest.raises(DatasetError, match="'/nope' is not in the recording"):
+        rec.frames()
 
 
-def test_recorded_clouds_are_streamed_not_read_up_front(tmp_path, out_back_flight) -> None:
-    """A cloud per frame over the whole recording: the stream holds only the clouds near the current frame."""
+def test_recorded_clouds_are_streamed_not_read_up_front(tmp_path, out_back_flight, monkeypatch) -> None:
+    """A cloud per frame over the whole recording: the reader holds only the clouds near the frames in flight."""
+    from slzcli.sources.clouds import CloudBuffer
+
     frames, truth = out_back_flight
     path = tmp_path / "rec.mcap"
     xyz = np.array([[0.0, 0.0, 0.0], [0.5, 0.2, 0.3]])
     _write_recording(path, frames, truth, "/orb_slam3/map_points", [(f.stamp_ns, xyz) for f in frames])
-    config = load_config(overrides=["slam.points_topic=/orb_slam3/map_points"])
+    config = load_config(overrides=["sources.topics.pose=/orb_slam3/camera_pose",
+                                     "slam.points_topic=/orb_slam3/map_points"])
     period = frames[1].stamp_ns - frames[0].stamp_ns
-    window = config.sources.pose_tolerance_ms + config.sources.reorder_window_ms
-    most = 0
-    with _clouds(path, config) as clouds:
-        for f in frames:
-            stamp, _, _ = clouds.nearest(f.stamp_ns, int(config.sources.pose_tolerance_ms * 1e6))
-            assert stamp == f.stamp_ns
-            most = max(most, len(clouds._buffer))
-    assert len(frames) > most + 2 and most <= window * 1e6 / period + 2
+    # Frames wait for the reorder window plus the pose tolerance; a cloud is kept until no frame
+    # within the tolerance can still come: its span is the window plus twice the tolerance.
+    span_ms = config.sources.reorder_window_ms + 2 * config.sources.pose_tolerance_ms
+    sizes: list[int] = []
+    add = CloudBuffer.add
+
+    def counting_add(self, cloud):
+        add(self, cloud)
+        sizes.append(len(self))
+
+    monkeypatch.setattr(CloudBuffer, "add", counting_add)
+    rec, _ = _open_with_clouds(path, config)
+    with rec:
+        stamps = [f.map_points.stamp_ns if f.map_points is not None else None for f in rec.frames()]
+    assert stamps == [f.stamp_ns for f in frames]  # read with the recorded poses: every frame takes its own
+    assert len(sizes) == len(frames)
+    assert len(frames) > max(sizes) + 2 and max(sizes) <= span_ms * 1e6 / period + 2
+
+
+def test_a_cloud_logged_after_its_frames_is_counted_not_kept(tmp_path, out_back_flight) -> None:
+    """One pass over the log: a cloud logged past the reorder window finds its frame gone and is reported."""
+    frames, truth = out_back_flight
+    frames, truth = frames[:20], truth[:20]
+    path = tmp_path / "rec.mcap"
+    xyz = np.array([[0.0, 0.0, 0.0], [0.5, 0.2, 0.3]])
+    # Both logged after all 20 frames (1.9 s): frame 2 is 1.7 s back, past the 0.5 s window; frame 15 is not.
+    _write_recording(path, frames, truth, "/orb_slam3/map_points", [(frames[i].stamp_ns, xyz) for i in (2, 15)],
+                     clouds_at_end=True)
+    config = load_config(overrides=["sources.topics.pose=/orb_slam3/camera_pose",
+                                     "slam.points_topic=/orb_slam3/map_points"])
+    rec, _ = _open_with_clouds(path, config)
+    with rec:
+        carried = [f.index for f in rec.frames() if f.map_points is not None]
+    assert carried == [15]
+    assert any(n.startswith("1 map cloud(s) on /orb_slam3/map_points were logged later") for n in rec.report.notes)
 
 
 def test_detect_with_recorded_slam_output_uses_the_streamed_clouds(tmp_path, runner, out_back_flight) -> None:

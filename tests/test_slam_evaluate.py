@@ -136,7 +136,7 @@ def _cloud(xyz: np.ndarray, *, big: bool = False, f64: bool = False, pad: int = 
 
 @pytest.mark.parametrize("kw", [{}, {"big": True}, {"f64": True}, {"pad": 5, "height": 2}])
 def test_decode_pointcloud2_layouts(kw) -> None:
-    from slzcli.slam.recorded import decode_pointcloud2
+    from slzcli.sources.decode import decode_pointcloud2
 
     xyz = np.array([[1.0, 2.0, 3.0], [-4.5, 0.25, 8.0], [np.nan, 0.0, 0.0], [7.0, 8.0, 9.0]])
     got, ids = decode_pointcloud2(_cloud(xyz, **kw))
@@ -146,7 +146,7 @@ def test_decode_pointcloud2_layouts(kw) -> None:
 
 def test_decode_pointcloud2_errors() -> None:
     from slzcli.errors import DecodeError
-    from slzcli.slam.recorded import decode_pointcloud2
+    from slzcli.sources.decode import decode_pointcloud2
 
     with pytest.raises(DecodeError, match="no z field"):
         decode_pointcloud2(_cloud(np.zeros((2, 3)), drop="z"))

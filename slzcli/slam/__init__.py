@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 
 def _recorded(config: Config, **kw: Any) -> SlamBackend:
     from slzcli.slam.recorded import RecordedBackend
-    return RecordedBackend(config, kw.get("clouds", ()))
+    return RecordedBackend(config, bool(kw.get("clouds", False)))
 
 
 def _orbslam3(config: Config, **kw: Any) -> SlamBackend:
@@ -50,7 +50,10 @@ def choose_backend(config: Config, has_recorded_poses: bool) -> str:
 
 
 def get_backend(config: Config, has_recorded_poses: bool = False, **kw: Any) -> SlamBackend:
-    """A backend instance (a context manager). ``kw``: clouds= for recorded, vocabulary= for orbslam3."""
+    """A backend instance (a context manager).
+
+    ``kw``: clouds= (bool: the frames carry recorded map clouds) for recorded, vocabulary= for orbslam3.
+    """
     name = choose_backend(config, has_recorded_poses)
     if name not in BACKENDS:
         raise ConfigError("slam.backend", f"unknown backend {name!r}")

@@ -266,3 +266,49 @@ def compose_chain(tree: Mapping[str, tuple[str, np.ndarray]], frame: str,
     if stop_at is not None and node != stop_at:
         return None
     return node, T
+
+
+# sensor_msgs/PointField datatypes -> numpy kinds
+POINTFIELD_KINDS = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+
+
+def decode_pointcloud2(msg: Any) -> tuple[np.ndarray, np.ndarray]:
+    """XYZ (N,3) float64 of the finite points of a PointCloud2 and their ids (int64, -1 without an id field).
+
+    Works on rosbags ROS 1 and ROS 2 message objects (same field names). DecodeError when x/y/z are
+    missing or the byte count does not match the declared layout.
+    """
+    fields = {f.name: f for f in msg.fields}
+    missing = [c for c in "xyz" if c not in fields]
+    if missing:
+        raise DecodeError(f"PointCloud2 has no {'/'.join(missing)} field (fields: {', '.join(fields) or 'none'})")
+    endian = ">" if msg.is_bigendian else "<"
+    names, formats, offsets = [], [], []
+    for name in ("x", "y", "z", "id"):
+        f = fields.get(name)
+        if f is None:
+            continue
+        if f.datatype not in POINTFIELD_KINDS:
+            raise DecodeError(f"PointCloud2 field {name!r} has unknown datatype {f.datatype}")
+        names.append(name)
+        formats.append(endian + POINTFIELD_KINDS[f.datatype])
+        offsets.append(f.offset)
+    step = int(msg.point_step)
+    width, height = int(msg.width), int(msg.height)
+    n = width * height
+    raw = msg.data
+    data = np.frombuffer(raw.tobytes() if isinstance(raw, np.ndarray) else bytes(raw), dtype=np.uint8)
+    row_step = int(msg.row_step)
+    if n == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    if step <= 0 or len(data) < row_step * (height - 1) + step * width:
+        raise DecodeError(f"PointCloud2 data has {len(data)} bytes, too few for {n} points of {step} bytes")
+    if row_step != step * width:
+        rows = data[: row_step * height].reshape(height, row_step)[:, : step * width]
+        data = np.ascontiguousarray(rows).reshape(-1)
+    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
+    pts = np.frombuffer(data[: n * step].tobytes(), dtype=dtype, count=n)
+    xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
+    ids = pts["id"].astype(np.int64) if "id" in names else np.full(n, -1, np.int64)
+    ok = np.all(np.isfinite(xyz), axis=1)
+    return xyz[ok], ids[ok]

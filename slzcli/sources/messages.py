@@ -4,7 +4,9 @@ The format readers (rosbag.py, mcap.py) only list topics, stream raw messages an
 deserialise one on request. Here: colour and depth stamps are read from the raw
 header bytes, paired in a bounded window (sync.StreamPairer), and only paired
 messages are deserialised and decoded into a ``Frame``. Poses (PoseStamped,
-Odometry, tf with tf_static) are kept in a pruned PoseTrack.
+Odometry, tf with tf_static) are kept in a pruned PoseTrack; recorded map clouds
+(``slam.points_topic``) are decoded in the same pass and carried by the frame they belong
+to (clouds.CloudBuffer), so nothing else opens the recording again to read them.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources import decode
+from slzcli.sources.clouds import CloudBuffer
 from slzcli.sources.image_limits import FrameTooLarge
 from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import Pair, PoseTrack, Stream, StreamPairer
@@ -37,7 +40,7 @@ from slzcli.sources.topics import (
     normalise_msgtype,
 )
 from slzcli.sources.validate import StampCounts, intrinsics_problem, size_problem, stamp_problem
-from slzcli.types import Frame, Intrinsics, PairingReport, StreamInfo
+from slzcli.types import Frame, Intrinsics, MapCloud, PairingReport, StreamInfo
 
 log = logging.getLogger(__name__)
 NS_PER_MS = 1_000_000
@@ -241,19 +244,27 @@ class MessageRecording(Recording):
 
     # ------------------------------------------------------------------ frames
     def frames(self) -> Iterator[Frame]:
+        """The frames (see Recording); a configured points topic missing from the recording is refused here."""
         ch = self._need_choices()
+        points = self.config.slam.points_topic
+        if points and points not in self._topics:
+            raise DatasetError(self.path, f"slam.points_topic {points!r} is not in the recording")
+        return self._frames(ch, points)
+
+    def _frames(self, ch: Choices, points_topic: str) -> Iterator[Frame]:
         cfg = self.cfg
         tol_pose = int(cfg.pose_tolerance_ms * NS_PER_MS)
         window = int(cfg.reorder_window_ms * NS_PER_MS)
         pairer = StreamPairer(int(cfg.sync_tolerance_ms * NS_PER_MS), window)
-        state = _FrameState()
+        state = _FrameState(CloudBuffer(tol_pose) if points_topic else None)
         poses = _PoseSource(self, ch, PoseTrack(tol_pose), state)
-        topics = {t for t in (ch.color.topic, ch.depth.topic, ch.camera_info.topic, ch.pose.topic) if t}
+        topics = {t for t in (ch.color.topic, ch.depth.topic, ch.camera_info.topic, ch.pose.topic, points_topic) if t}
         if ch.pose_type in (TF, ODOMETRY) and TF_STATIC in self._topics:
             topics.add(TF_STATIC)
         pending: deque[Pair] = deque()
         newest: int | None = None
-        has_pose = ch.pose.topic is not None
+        # A frame waits until no pose (nor cloud) within the pose tolerance of its stamp can still arrive.
+        has_pose = ch.pose.topic is not None or state.clouds is not None
         stamps = {"color": StampCounts(), "depth": StampCounts()}
         for msg in self._wrap(self.log.messages(topics)):
             if msg.topic in (ch.color.topic, ch.depth.topic):
@@ -277,6 +288,8 @@ class MessageRecording(Recording):
                     state.info_source = f"CameraInfo on {msg.topic}"
                 except DecodeError as err:
                     state.note(f"CameraInfo on {msg.topic} not usable: {err}")
+            elif msg.topic == points_topic and state.clouds is not None:
+                state.clouds.add(self._cloud(msg))
             else:
                 poses.feed(msg)
             horizon = None if newest is None else newest - window - (tol_pose if has_pose else 0)
@@ -289,6 +302,8 @@ class MessageRecording(Recording):
                 keep = [newest - window, *([pending[0].stamp_ns] if pending else []),
                         *([pairer.oldest_ns] if pairer.oldest_ns is not None else [])]
                 poses.track.prune(min(keep) - tol_pose)
+                if state.clouds is not None:
+                    state.clouds.prune(min(keep) - tol_pose)
         pending.extend(pairer.flush())
         while pending:
             frame = self._decode(pending.popleft(), state, poses)
@@ -296,6 +311,9 @@ class MessageRecording(Recording):
                 yield frame
         state.pose_summary()
         state.note_too_large(cfg.max_image_px)
+        if state.clouds is not None and state.clouds.late:
+            state.note(f"{state.clouds.late} map cloud(s) on {points_topic} were logged later than "
+                       "sources.reorder_window_ms after the images of their time and went to no frame")
         notes = tuple(state.notes) + tuple(self._stamp_report(ch, stamps, pairer))
         self.report = self._report(pairer, state.without_pose, state.n_undecodable, notes)
         if self.log.warnings:
@@ -305,6 +323,15 @@ class MessageRecording(Recording):
         bad_stamps = [c.first_out_of_range for c in stamps.values() if c.out_of_range]
         if state.yielded == 0 and bad_stamps:
             raise DatasetError(self.path, f"no frame has a usable stamp (first: {bad_stamps[0]})")
+
+    def _cloud(self, msg: RawMessage) -> MapCloud:
+        """One recorded map cloud, decoded; DatasetError naming the topic when it cannot be."""
+        try:
+            m = self.log.deserialize(msg.topic, msg.data)
+            xyz, ids = decode.decode_pointcloud2(m)
+            return MapCloud(decode.stamp_ns(m.header), xyz, ids)
+        except DecodeError as err:
+            raise DatasetError(self.path, f"{msg.topic}: {err}") from err
 
     def _first_color_frame_id(self) -> str | None:
         """The colour header's frame_id, read from the first colour message (for tf composition)."""
@@ -348,7 +375,9 @@ class MessageRecording(Recording):
         T = poses.track.at(pair.stamp_ns) if ch.pose.topic else None
         if ch.pose.topic and T is None:
             state.without_pose += 1
-        frame = Frame(state.yielded, pair.stamp_ns, rgb, depth, intr, T, str(self.path))
+        # A cloud is placed with its frame's pose: a frame without one leaves it to the next.
+        cloud = state.clouds.take(pair.stamp_ns) if state.clouds is not None and T is not None else None
+        frame = Frame(state.yielded, pair.stamp_ns, rgb, depth, intr, T, str(self.path), cloud)
         state.yielded += 1
         return frame
 
@@ -356,7 +385,8 @@ class MessageRecording(Recording):
 class _FrameState:
     """Mutable bookkeeping of one ``frames()`` pass (notes are de-duplicated, in order)."""
 
-    def __init__(self) -> None:
+    def __init__(self, clouds: CloudBuffer | None = None) -> None:
+        self.clouds = clouds
         self.info: Intrinsics | None = None
         self.info_source = ""
         self.yielded = 0

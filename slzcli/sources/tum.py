@@ -199,6 +199,13 @@ class TumRecording(Recording):
                              tuple(streams), self._choices(), self._intr, self._intr_source, self._report(0, 0))
 
     def frames(self) -> Iterator[Frame]:
+        """The frames (see Recording); a configured points topic is refused here: TUM has no point clouds."""
+        if self.config.slam.points_topic:
+            raise DatasetError(self.path, f"slam.points_topic {self.config.slam.points_topic!r}: TUM folders carry "
+                                          "no point clouds")
+        return self._frames()
+
+    def _frames(self) -> Iterator[Frame]:
         track = None
         if self._pose_choice().topic:
             track = PoseTrack(int(self.cfg.pose_tolerance_ms * NS_PER_MS))
