@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -9,7 +10,8 @@ from click.testing import CliRunner
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared"
-REALSENSE = SHARED / "data" / "realsense_floor"
+# the real frames: beside the checkout, or wherever SLZ_REALSENSE_DIR says (a clone elsewhere)
+REALSENSE = Path(os.environ.get("SLZ_REALSENSE_DIR") or SHARED / "data" / "realsense_floor")
 # Tests of the pipeline, not of the depth sensor, render with the gaussian model: the default stereo
 # model (an infrared pair matched with SGBM) costs ~3x more per frame; the sensor models have their
 # own tests (test_synth_sensor.py) and the default sensor runs end to end in test_sensor_cells.py and
