@@ -42,7 +42,8 @@ import numpy as np
 from slzcli import fingerprint
 from slzcli.config import Config
 from slzcli.errors import DatasetError, OutputError
-from slzcli.evaluate.safety import MaskCounts, mask_counts
+from slzcli.evaluate.safety import mask_counts
+from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
 from slzcli.evaluate.truth import true_pose
 from slzcli.geometry import invert_pose, transform_points
@@ -50,7 +51,7 @@ from slzcli.interrupt import call_interruptibly
 from slzcli.landing.select import Candidate, Selection, SelectParams, Site, select_site
 from slzcli.outputs import output_dir, results_mcap, run_folder
 from slzcli.outputs.site_log import SiteLog
-from slzcli.outputs.trajectory import KeyframeLog
+from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import open_clouds
@@ -81,7 +82,6 @@ class Detection:
     selection: Selection | None
     edge_m: np.ndarray | None  # TerrainMaps.edge_distance_m
     timings_ms: dict[str, float]
-    truth: MaskCounts | None = None
     segment: int = 0  # SLAM map segment of the pose and points
 
 
@@ -121,37 +121,36 @@ def depth_points(frame: Frame, T_world_camera: np.ndarray, stride_px: int) -> Ma
     return MapPoints(np.arange(len(xyz), dtype=np.int64), xyz, pixels, frame.index, frame.stamp_ns, T_world_camera)
 
 
-# ----------------------------------------------------------------------------- the detector
-class Detector:
-    """Runs the stages over the frames of one recording; holds SLAM and the run's accumulators.
+# ----------------------------------------------------------------------------- tracking
+class Tracker:
+    """SLAM over the frames of one recording: the backend, the gravity alignment of each map segment,
+    the pose and keyframe logs and the latest keyframe's map points; nothing about detection.
 
-    ``slz compare`` tracks with one detector and fuses with one per method: ``fuse(...,
-    tracked_by=tracker)`` takes the tracker's map points, segment and tracking time.
+    ``slz detect`` and ``slz compare`` track with one and fuse each method on what it holds.
     """
 
-    def __init__(self, config: Config, method: str, slam: SlamBackend | None = None, truth: Any | None = None,
-                 spool: Path | None = None) -> None:
-        """``slam``: None for a detector that only fuses; ``spool``: a folder for keyframes, candidate rows and
-        site points (else they stay in memory)."""
+    def __init__(self, config: Config, slam: SlamBackend, keyframes: KeyframeLog | None = None,
+                 timer: StageTimer | None = None) -> None:
+        """``keyframes``: a log with a spool folder (else a count only); ``timer``: where the ``slam`` stage
+        is timed (a run's timer, so its stages keep their order; else its own)."""
         self.config = config
-        self.method = method
-        self.scorer: Scorer = get_scorer(config, method)
-        self.params = select_params(config, method)
         self.slam = slam
-        self.truth = truth
-        self.state = RunState(keyframes=KeyframeLog(spool), sites=SiteLog(spool),
-                              noise=NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
+        self.timer = StageTimer() if timer is None else timer
+        self.trajectory = PoseLog()  # every frame's stamp, pose (None: not tracked), segment
+        self.keyframes = KeyframeLog() if keyframes is None else keyframes
+        self.tracking: dict[str, int] = {}  # frames per tracking state
+        self.frames = 0
         self.align: dict[int, np.ndarray] = {}  # T_world_slam of each map segment, from its first pose
         self._segment = 0  # map segment of the latest frame
         self._points: MapPoints | None = None  # the latest keyframe's map points (of the current segment)
 
     @property
     def slam_name(self) -> str:
-        return "none" if self.slam is None else self.slam.name
+        return self.slam.name
 
     @property
     def poses_are_recorded(self) -> bool:
-        return self.slam is not None and self.slam.poses_are_recorded
+        return self.slam.poses_are_recorded
 
     @property
     def segment(self) -> int:
@@ -165,7 +164,7 @@ class Detector:
 
     def latest_slam_ms(self) -> float:
         """The tracking time of the latest frame (ms)."""
-        return self.state.timer.samples_ms["slam"][-1]
+        return self.timer.samples_ms["slam"][-1]
 
     def _world(self, T_slam_camera: np.ndarray | None, segment: int) -> np.ndarray | None:
         if T_slam_camera is None:
@@ -178,17 +177,15 @@ class Detector:
     def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
         """SLAM on one frame: the gravity-aligned pose and whether it is a keyframe with map points."""
         slam = self.slam
-        assert slam is not None, "a detector made without a SLAM backend only fuses"
-        with self.state.timer.stage("slam"):
+        with self.timer.stage("slam"):
             result = slam.track(frame)
             points = slam.keyframe() if result.is_keyframe else None
         if result.segment != self._segment:  # a new map: the old map's points are in another frame
             self._segment, self._points = result.segment, None
         T = self._world(result.T_world_camera, self._segment)
-        st = self.state
-        st.frames += 1
-        st.trajectory.append(frame.stamp_ns, T, self._segment)
-        st.tracking[result.state.value] = st.tracking.get(result.state.value, 0) + 1
+        self.frames += 1
+        self.trajectory.append(frame.stamp_ns, T, self._segment)
+        self.tracking[result.state.value] = self.tracking.get(result.state.value, 0) + 1
         if points is not None and T is not None:
             if len(points) == 0 and slam.map_points_from_depth:
                 points = depth_points(frame, T, self.config.landing.depth_points_stride_px)
@@ -196,29 +193,39 @@ class Detector:
                 points = MapPoints(points.ids, _apply(self.align[self._segment], points.xyz_world), points.pixels,
                                    points.keyframe_index, points.stamp_ns, T)
             self._points = points
-            st.keyframes.append(points, self._segment)
+            self.keyframes.append(points, self._segment)
         return T, points is not None and result.state == TrackingState.OK
 
-    def noise_for(self, frame: Frame) -> DepthNoise:
-        """The depth noise a detection frame's maps use: its own estimate smoothed over the run's."""
-        assert self.state.noise is not None
-        return self.state.noise.update(frame.depth_m)
 
-    def detect(self, frame: Frame, T_world_camera: np.ndarray | None) -> Detection:
-        """Maps, score, mask and (with a pose and map points) the site of one frame."""
-        maps, maps_ms = posed_maps(frame, T_world_camera, self.config, self.noise_for(frame))
-        return self.fuse(frame, T_world_camera, maps, maps_ms)
+def run_state(tracker: Tracker, config: Config, spool: Path | None = None) -> RunState:
+    """A run's accumulators over a tracker's logs (shared, not copied); ``spool``: where site rows go."""
+    return RunState(timer=tracker.timer, trajectory=tracker.trajectory, tracking=tracker.tracking,
+                    keyframes=tracker.keyframes, sites=SiteLog(spool),
+                    noise=NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
 
-    def fuse(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps,
-             maps_ms: float, tracked_by: Detector | None = None) -> Detection:
-        """This detector's method on maps already computed: score, mask, site (``slz compare`` shares the maps).
 
-        ``tracked_by``: the detector that tracked the frame (default: this one); its map points and
-        segment are used, and its tracking time of the frame is counted in this detector's ``slam`` stage.
-        """
-        timer = self.state.timer
-        tracker = self if tracked_by is None else tracked_by
-        points, segment = tracker.points, tracker.segment
+# ----------------------------------------------------------------------------- fusion
+@dataclass(frozen=True)
+class Fusion:
+    """One method's step from terrain maps to a site: score -> mask -> site, without state.
+
+    The same frame, pose, maps and map points give the same Detection, whatever came before;
+    what a run accumulates is added by ``tally``. ``slz compare`` runs one per method on the
+    same maps and points.
+    """
+
+    config: Config
+    method: str
+    scorer: Scorer
+    params: SelectParams
+
+    @classmethod
+    def of(cls, config: Config, method: str) -> Fusion:
+        return cls(config, method, get_scorer(config, method), select_params(config, method))
+
+    def __call__(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
+                 points: MapPoints | None, segment: int) -> Detection:
+        """Score, mask and (with a pose, map points and maps that vouch) the site of one frame."""
         t: dict[str, float] = {"maps": maps_ms}
         t0 = time.perf_counter()
         raw = self.scorer(maps)
@@ -226,62 +233,72 @@ class Detector:
         t0 = time.perf_counter()
         score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config, maps.work, maps.up_camera)
         t["mask"] = _lap(t0)
-        if score.column_cut > 0 or score.mask.any():
-            st_cut = self.state.column_cut
-            self.state.column_cut = score.column_cut if st_cut is None else min(st_cut, score.column_cut)
         edge = maps.edge_distance_m
         selection = None
         vouched = maps.work is None or maps.work.vouched
-        if not vouched:
-            assert maps.work is not None
-            self.state.unvouched += 1
-            worst = self.state.worst_unvouched
-            if worst is None or maps.work.altitude_m > worst.altitude_m:
-                self.state.worst_unvouched = maps.work
-                self.state.unvouched_reason = limit_reason(maps.work, self.config.terrain, self.config.uav)
         t0 = time.perf_counter()
         if vouched and T_world_camera is not None and points is not None:
             selection = select_site(points.xyz_world, T_world_camera, frame.K, score.mask, score.score,
                                     self.params, edge_distance_m=edge)
         t["select"] = _lap(t0)
-        for name, ms in t.items():
-            timer.add(name, ms)
-        truth = None
-        if self.truth is not None:
-            gt_mask = self.truth.safe_mask(frame.stamp_ns)
-            truth = mask_counts(score.mask, gt_mask)
-            self.state.truth.append(truth)
-        self.state.detections += 1
-        self.state.detections_without_depth += not maps.valid.any()
-        if tracker is not self:
-            timer.add("slam", tracker.latest_slam_ms())
-        return Detection(frame, T_world_camera, maps, score, points, selection, edge, t, truth, segment)
+        return Detection(frame, T_world_camera, maps, score, points, selection, edge, t, segment)
 
-    def record(self, det: Detection) -> None:
-        """Add a detection's site and candidates to the run's tables."""
-        sel = det.selection
-        if sel is None:
-            return
-        chosen = _chosen_cluster(sel.candidates, sel.site) if sel.site is not None else None
-        self.state.sites.add_rows([{
-            "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
-            "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
-            "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
-            "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment}
-            for c in sel.candidates])
-        if sel.site is not None:
-            assert det.points is not None  # a site is chosen among the map points
-            pts = det.points.xyz_world
-            limits = det.maps.work.as_dict() if det.maps.work is not None else None
-            self.state.sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits,
-                                      det.segment)
+
+def detect_frame(frame: Frame, T_world_camera: np.ndarray | None, tracker: Tracker, fusion: Fusion,
+                 noise: NoiseTracker) -> Detection:
+    """Maps (with the run's depth noise), then the fusion on the tracker's latest map points."""
+    maps, maps_ms = posed_maps(frame, T_world_camera, fusion.config, noise.update(frame.depth_m))
+    return fusion(frame, T_world_camera, maps, maps_ms, tracker.points, tracker.segment)
+
+
+def tally(state: RunState, det: Detection, config: Config) -> None:
+    """Add one detection to a run's accumulators: stage times, counts, the no-site evidence, sites."""
+    score, work = det.score, det.maps.work
+    if score.column_cut > 0 or score.mask.any():
+        cut = state.column_cut
+        state.column_cut = score.column_cut if cut is None else min(cut, score.column_cut)
+    if work is not None and not work.vouched:
+        state.unvouched += 1
+        worst = state.worst_unvouched
+        if worst is None or work.altitude_m > worst.altitude_m:
+            state.worst_unvouched = work
+            state.unvouched_reason = limit_reason(work, config.terrain, config.uav)
+    for name, ms in det.timings_ms.items():
+        state.timer.add(name, ms)
+    state.detections += 1
+    state.detections_without_depth += not det.maps.valid.any()
+    record(state.sites, det)
+
+
+def record(sites: SiteLog, det: Detection) -> None:
+    """Add a detection's site and candidates to the run's tables."""
+    sel = det.selection
+    if sel is None:
+        return
+    chosen = _chosen_cluster(sel.candidates, sel.site) if sel.site is not None else None
+    sites.add_rows([{
+        "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
+        "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
+        "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
+        "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment}
+        for c in sel.candidates])
+    if sel.site is not None:
+        assert det.points is not None  # a site is chosen among the map points
+        pts = det.points.xyz_world
+        limits = det.maps.work.as_dict() if det.maps.work is not None else None
+        sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits, det.segment)
+
+
+def count_truth(state: RunState, det: Detection, truth: Any) -> None:
+    """The detection's landing mask against the ground truth's safe mask of its frame (pixel counts)."""
+    state.truth.append(mask_counts(det.score.mask, truth.safe_mask(det.frame.stamp_ns)))
 
 
 def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
                noise: DepthNoise | None = None) -> tuple[TerrainMaps, float]:
     """The four terrain maps of a frame (with its SLAM pose, when there is one) and their time in ms.
 
-    ``noise``: the run's depth noise (``Detector.noise_for``); None measures it on this frame alone.
+    ``noise``: the run's depth noise (``NoiseTracker.update``); None measures it on this frame alone.
     """
     posed = frame if T_world_camera is None else _with_pose(frame, T_world_camera)
     t0 = time.perf_counter()
@@ -384,28 +401,35 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         stack.enter_context(results)   # __enter__ returns the writer itself
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
-        det = Detector(config, method, slam, truth, spool=tmp / SPOOL_DIR)
-        for frame, T, due in tracked_frames(path, rec, det, limit):
-            results.write_pose(frame.stamp_ns, T, det.segment)
+        tracker = Tracker(config, slam, KeyframeLog(tmp / SPOOL_DIR))
+        state = run_state(tracker, config, tmp / SPOOL_DIR)
+        fusion = Fusion.of(config, method)
+        noise = state.noise
+        assert noise is not None
+        for frame, T, due in tracked_frames(path, rec, tracker, limit):
+            results.write_pose(frame.stamp_ns, T, tracker.segment)
             if due:
                 with limit.stage(f"detection on frame {frame.index}"):
-                    d = call_interruptibly(det.detect, frame, T)   # seconds of native work on large frames
-                    det.record(d)
-                with limit.stage(f"writing frame {frame.index}"), det.state.timer.stage("write"):
+                    d = call_interruptibly(detect_frame, frame, T, tracker, fusion, noise)  # seconds of native work
+                    tally(state, d, config)
+                    if truth is not None:
+                        count_truth(state, d, truth)
+                with limit.stage(f"writing frame {frame.index}"), state.timer.stage("write"):
                     run_folder.write_detection(tmp, d, config)
                     results.write_detection(d)
             if truth is not None:
-                det.state.truth_trajectory.append(frame.stamp_ns, true_pose(truth, frame.stamp_ns))
+                state.truth_trajectory.append(frame.stamp_ns, true_pose(truth, frame.stamp_ns))
             if progress is not None:
-                progress(det.state.frames, info.expected_frames)
-        if det.state.frames == 0:
+                progress(tracker.frames, info.expected_frames)
+        state.frames = tracker.frames
+        if state.frames == 0:
             raise DatasetError(path, "no RGB-D frame could be read")
         with limit.stage("writing the run folder"):
-            committed = commit_site(det.state.sites.sites, commit_radius_m(config))
+            committed = commit_site(state.sites.sites, commit_radius_m(config))
             results.write_run(committed)
-            result = summarise(path, config, method, info, rec.report, det.state, det.slam_name,
-                               det.poses_are_recorded, committed, truth, time.perf_counter() - t_start, key)
-            run_folder.write_run(tmp, result, det.state.sites, det.state.trajectory, det.state.keyframes)
+            result = summarise(path, config, method, info, rec.report, state, tracker.slam_name,
+                               tracker.poses_are_recorded, committed, truth, time.perf_counter() - t_start, key)
+            run_folder.write_run(tmp, result, state.sites, state.trajectory, state.keyframes)
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
             shutil.rmtree(tmp / SPOOL_DIR)
     return result.summary
@@ -421,7 +445,7 @@ def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any,
     return rec, info, clouds
 
 
-def tracked_frames(path: Path, rec: Any, tracker: Detector,
+def tracked_frames(path: Path, rec: Any, tracker: Tracker,
                    limit: StageLimit) -> Iterator[tuple[Frame, np.ndarray | None, bool]]:
     """The frames of an open recording with their SLAM pose and whether detection is due.
 
@@ -432,7 +456,7 @@ def tracked_frames(path: Path, rec: Any, tracker: Detector,
     every = config.landing.every_nth_frame
     frames = iter(rec.frames())
     while True:
-        with limit.stage(f"reading frame {tracker.state.frames}"):
+        with limit.stage(f"reading frame {tracker.frames}"):
             frame = next(frames, None)
         if frame is None:
             return
