@@ -128,6 +128,7 @@ class MethodRun:
     name: str
     fusion: Fusion
     state: RunState
+    truth: list[MaskCounts] = field(default_factory=list)  # each detection's mask against the true safe mask
     inputs: list[tuple[int, int, str, str]] = field(default_factory=list)
     frame_ms: list[float] = field(default_factory=list)
     pr: CurveCounts | None = None
@@ -222,7 +223,7 @@ def _fuse(run: MethodRun, config: Config, tracker: Tracker, frame: Any, T: np.nd
     d = call_interruptibly(run.fusion, frame, T, maps, maps_ms, tracker.points, tracker.segment)
     tally(run.state, d, config)
     if gt_mask is not None:
-        run.state.truth.append(mask_counts(d.score.mask, gt_mask))
+        run.truth.append(mask_counts(d.score.mask, gt_mask))
     run.state.timer.add("slam", slam_ms)  # the shared tracking time of the frame, as each method would pay it
     pts = d.points
     run.inputs.append((frame.index, frame.stamp_ns, digest(None if pts is None else pts.ids,
@@ -315,7 +316,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
             "inputs": [{"frame": i, "stamp_ns": t, "points": p, "maps": q} for i, t, p, q in run.inputs],
         }
         if truth is not None:
-            counts = total(st.truth)
+            counts = total(run.truth)
             entry["ground_truth"] = {
                 "mask": counts.as_dict(),
                 "site": None if committed is None else rec["site"].get("ground_truth"),

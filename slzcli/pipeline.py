@@ -42,10 +42,9 @@ import numpy as np
 from slzcli import fingerprint
 from slzcli.config import Config
 from slzcli.errors import DatasetError, OutputError
-from slzcli.evaluate.safety import mask_counts
 from slzcli.evaluate.timing import StageTimer
+from slzcli.evaluate.truth import TruthEvaluator
 from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
-from slzcli.evaluate.truth import true_pose
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
 from slzcli.landing.select import Candidate, Selection, SelectParams, Site, select_site
@@ -289,11 +288,6 @@ def record(sites: SiteLog, det: Detection) -> None:
         sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits, det.segment)
 
 
-def count_truth(state: RunState, det: Detection, truth: Any) -> None:
-    """The detection's landing mask against the ground truth's safe mask of its frame (pixel counts)."""
-    state.truth.append(mask_counts(det.score.mask, truth.safe_mask(det.frame.stamp_ns)))
-
-
 def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
                noise: DepthNoise | None = None) -> tuple[TerrainMaps, float]:
     """The four terrain maps of a frame (with its SLAM pose, when there is one) and their time in ms.
@@ -395,7 +389,8 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     t_start = time.perf_counter()
     with output_dir.build(out_dir, output_dir.DETECT, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
-            truth = ground_truth_of(path, config)
+            gt = ground_truth_of(path, config)
+            truth = None if gt is None else TruthEvaluator(gt)  # a sink: detection never reads the truth
             rec, info, clouds = open_inputs(path, config, stack)
         results = results_mcap.open_results(tmp, config)
         stack.enter_context(results)   # __enter__ returns the writer itself
@@ -413,12 +408,12 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
                     d = call_interruptibly(detect_frame, frame, T, tracker, fusion, noise)  # seconds of native work
                     tally(state, d, config)
                     if truth is not None:
-                        count_truth(state, d, truth)
+                        truth.detection(d)
                 with limit.stage(f"writing frame {frame.index}"), state.timer.stage("write"):
                     run_folder.write_detection(tmp, d, config)
                     results.write_detection(d)
             if truth is not None:
-                state.truth_trajectory.append(frame.stamp_ns, true_pose(truth, frame.stamp_ns))
+                truth.frame(frame.stamp_ns)
             if progress is not None:
                 progress(tracker.frames, info.expected_frames)
         state.frames = tracker.frames
