@@ -48,7 +48,6 @@ from slzcli.interrupt import call_interruptibly
 from slzcli.outputs import output_dir, run_lock
 from slzcli.outputs.run_folder import landing_record
 from slzcli.pipeline import (
-    Detection,
     Fusion,
     Tracker,
     commit_radius_m,
@@ -65,7 +64,7 @@ from slzcli.slam.segments import segment_table
 from slzcli.summary import RunState, no_site_reason, site_truth
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
-from slzcli.types import FigureFrame, TerrainMaps
+from slzcli.types import Detection, FigureFrame, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]

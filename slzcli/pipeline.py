@@ -31,7 +31,7 @@ from __future__ import annotations
 import logging
 import shutil
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -47,7 +47,7 @@ from slzcli.evaluate.truth import TruthEvaluator
 from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
-from slzcli.landing.select import Candidate, Selection, SelectParams, Site, select_site
+from slzcli.landing.select import Candidate, SelectParams, Site, select_site
 from slzcli.outputs import output_dir, results_mcap, run_folder
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog
@@ -61,27 +61,12 @@ from slzcli.terrain.limits import limit_reason
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.timeout import StageLimit
-from slzcli.types import Frame, ScoreMap, TerrainMaps
+from slzcli.types import Detection, Frame, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
+TrackedFrame = tuple[Frame, np.ndarray | None, bool]  # a frame, its world pose (None: lost), detection is due
 SPOOL_DIR = ".spool"  # keyframes, candidate rows and site points of a run, inside its temporary run folder
-
-
-# ----------------------------------------------------------------------------- per-frame result
-@dataclass(frozen=True, eq=False)
-class Detection:
-    """Everything computed for one detection frame (nothing written yet)."""
-
-    frame: Frame
-    T_world_camera: np.ndarray | None
-    maps: TerrainMaps
-    score: ScoreMap
-    points: MapPoints | None
-    selection: Selection | None
-    edge_m: np.ndarray | None  # TerrainMaps.edge_distance_m
-    timings_ms: dict[str, float]
-    segment: int = 0  # SLAM map segment of the pose and points
 
 
 def select_params(config: Config, method: str) -> SelectParams:
@@ -250,6 +235,22 @@ def detect_frame(frame: Frame, T_world_camera: np.ndarray | None, tracker: Track
     return fusion(frame, T_world_camera, maps, maps_ms, tracker.points, tracker.segment)
 
 
+def detect(frames: Iterable[TrackedFrame], tracker: Tracker, fusion: Fusion, noise: NoiseTracker,
+           limit: StageLimit) -> Iterator[Detection]:
+    """The detection core: one Detection per tracked frame that is due, as the frames stream in.
+
+    Nothing is written, counted or kept here: the run folder, results.mcap, the run's tables and
+    the ground-truth evaluation consume the detections. ``frames``: ``tracked_frames`` (the
+    tracker's points and segment are those of the frame just tracked). Each detection is a
+    stage under ``limit``; the consumer's work on it is not.
+    """
+    for frame, T, due in frames:
+        if due:
+            with limit.stage(f"detection on frame {frame.index}"):
+                d = call_interruptibly(detect_frame, frame, T, tracker, fusion, noise)  # seconds of native work
+            yield d
+
+
 def tally(state: RunState, det: Detection, config: Config) -> None:
     """Add one detection to a run's accumulators: stage times, counts, the no-site evidence, sites."""
     score, work = det.score, det.maps.work
@@ -398,24 +399,27 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
         tracker = Tracker(config, slam, KeyframeLog(tmp / SPOOL_DIR))
         state = run_state(tracker, config, tmp / SPOOL_DIR)
-        fusion = Fusion.of(config, method)
         noise = state.noise
         assert noise is not None
-        for frame, T, due in tracked_frames(path, rec, tracker, limit):
+
+        def tracked(frame: Frame, T: np.ndarray | None) -> None:  # every frame, before its detection
             results.write_pose(frame.stamp_ns, T, tracker.segment)
-            if due:
-                with limit.stage(f"detection on frame {frame.index}"):
-                    d = call_interruptibly(detect_frame, frame, T, tracker, fusion, noise)  # seconds of native work
-                    tally(state, d, config)
-                    if truth is not None:
-                        truth.detection(d)
-                with limit.stage(f"writing frame {frame.index}"), state.timer.stage("write"):
-                    run_folder.write_detection(tmp, d, config)
-                    results.write_detection(d)
+
+        def done(frame: Frame) -> None:  # every frame, after its detection went to the sinks
             if truth is not None:
                 truth.frame(frame.stamp_ns)
             if progress is not None:
                 progress(tracker.frames, info.expected_frames)
+
+        frames = each_frame(tracked_frames(path, rec, tracker, limit), tracked, done)
+        for d in detect(frames, tracker, Fusion.of(config, method), noise, limit):
+            with limit.stage(f"writing frame {d.frame.index}"):  # the sinks: tables, ground truth, files
+                tally(state, d, config)
+                if truth is not None:
+                    truth.detection(d)
+                with state.timer.stage("write"):
+                    run_folder.write_detection(tmp, d, config)
+                    results.write_detection(d)
         state.frames = tracker.frames
         if state.frames == 0:
             raise DatasetError(path, "no RGB-D frame could be read")
@@ -440,8 +444,7 @@ def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any,
     return rec, info, clouds
 
 
-def tracked_frames(path: Path, rec: Any, tracker: Tracker,
-                   limit: StageLimit) -> Iterator[tuple[Frame, np.ndarray | None, bool]]:
+def tracked_frames(path: Path, rec: Any, tracker: Tracker, limit: StageLimit) -> Iterator[TrackedFrame]:
     """The frames of an open recording with their SLAM pose and whether detection is due.
 
     Reading each frame and tracking it are stages under ``limit``; shared by ``slz detect``
@@ -459,6 +462,16 @@ def tracked_frames(path: Path, rec: Any, tracker: Tracker,
         with limit.stage(f"SLAM on frame {frame.index}"):
             T, is_keyframe = tracker.track(frame)
         yield frame, T, (is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0)
+
+
+def each_frame(frames: Iterable[TrackedFrame], before: Callable[[Frame, np.ndarray | None], None],
+               after: Callable[[Frame], None]) -> Iterator[TrackedFrame]:
+    """The frames unchanged, with the per-frame sinks: ``before`` each is handed on, ``after`` once the
+    consumer asks for the next one (its detection, if any, has then gone through the sinks)."""
+    for frame, T, due in frames:
+        before(frame, T)
+        yield frame, T, due
+        after(frame)
 
 
 def check_frame_size(path: Path, frame: Frame, min_px: tuple[int, ...]) -> None:
