@@ -1,5 +1,13 @@
 """``slz detect`` as a readable list of steps: frames -> maps -> score -> mask -> SLAM points -> site.
 
+The core has no file I/O: a ``Tracker`` (SLAM backend, gravity alignment, pose and keyframe
+logs, the latest map points) tracks the frames, ``detect`` yields a ``types.Detection`` per
+frame due, made by a ``Fusion`` without state (maps -> score -> mask -> site). Everything
+else consumes the detections as they stream: the run's tables (``tally``), the ground truth
+(``evaluate.truth.TruthEvaluator``), the run folder and ``results.mcap``; ``summary.summarise``
+sums up. ``detect_recording`` is open / track / detect / sinks / summary; ``slz compare``
+tracks once and runs one Fusion per method on the same maps.
+
 Compute first, write after: every frame's stages are timed on their own (maps, score, mask,
 slam, select), writing is timed separately and kept out of the per-frame figure. The run
 folder is built under a temporary name and put in place at the end, so a failed run leaves
@@ -370,23 +378,10 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     stays per frame is its stamp, pose and stage times (~0.2 KB), per site its summary.
     """
     method = options.method or config.scoring.method
-    check_readable(path)  # a missing, looping or unreadable input is named before anything else reads it
-    output_dir.refuse_inputs(out_dir, [path])
-    existing = output_dir.inspect(out_dir, output_dir.DETECT)  # refuses a path that is not a detect run folder
-    previous = existing.marker if existing.finished else None
     limit = StageLimit(options.timeout_s, str(path))
-    with limit.stage("hashing the inputs"):
-        inputs = fingerprint.run_inputs(path, config, fingerprint.cache_of(existing.marker))
-    vers = fingerprint.versions(config)
-    key = {"sha256": fingerprint.run_key(config, method, inputs, vers), "method": method, "versions": vers,
-           "inputs": inputs}
-    if previous is not None and not options.force:
-        if (previous.get("key") or {}).get("sha256") == key["sha256"] and "summary" in previous:
-            log.info("%s: already done for these inputs and config (%s); use --force to redo", out_dir, config.hash())
-            return {**previous["summary"], "skipped": True}
-        raise OutputError(out_dir, "holds a finished run of other inputs or config ("
-                                   f"{fingerprint.what_changed(previous, config, method, inputs, vers)}); "
-                                   "use --force to replace it (files slz did not write stay) or another -o")
+    key, done_before = rerun_key(path, config, method, out_dir, options.force, limit)
+    if done_before is not None:
+        return done_before
     t_start = time.perf_counter()
     with output_dir.build(out_dir, output_dir.DETECT, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
@@ -432,6 +427,30 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
             shutil.rmtree(tmp / SPOOL_DIR)
     return result.summary
+
+
+def rerun_key(path: Path, config: Config, method: str, out_dir: Path, force: bool,
+              limit: StageLimit) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """The run's key (``fingerprint``) and, when ``out_dir`` holds a finished run of that key and
+    ``force`` is off, its summary marked ``skipped`` (else None). Refuses an unusable ``out_dir``
+    (OutputError) and one holding a finished run of another key without ``force``."""
+    check_readable(path)  # a missing, looping or unreadable input is named before anything else reads it
+    output_dir.refuse_inputs(out_dir, [path])
+    existing = output_dir.inspect(out_dir, output_dir.DETECT)  # refuses a path that is not a detect run folder
+    previous = existing.marker if existing.finished else None
+    with limit.stage("hashing the inputs"):
+        inputs = fingerprint.run_inputs(path, config, fingerprint.cache_of(existing.marker))
+    vers = fingerprint.versions(config)
+    key = {"sha256": fingerprint.run_key(config, method, inputs, vers), "method": method, "versions": vers,
+           "inputs": inputs}
+    if previous is not None and not force:
+        if (previous.get("key") or {}).get("sha256") == key["sha256"] and "summary" in previous:
+            log.info("%s: already done for these inputs and config (%s); use --force to redo", out_dir, config.hash())
+            return key, {**previous["summary"], "skipped": True}
+        raise OutputError(out_dir, "holds a finished run of other inputs or config ("
+                                   f"{fingerprint.what_changed(previous, config, method, inputs, vers)}); "
+                                   "use --force to replace it (files slz did not write stay) or another -o")
+    return key, None
 
 
 def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, Any]:
