@@ -2,7 +2,7 @@
 
 Only the fusion may differ. SLAM tracks every frame ONCE and the four terrain maps are
 computed ONCE per detection frame; each method then scores, masks and selects on those
-very arrays and the very same map points (``pipeline.Detector.fuse``). Every detection
+very arrays and the very same map points (one ``pipeline.Tracker``, a ``pipeline.Fusion`` per method). Every detection
 records what it was given (frame index, stamp, a digest of the map points and of the
 maps) and ``check_same_inputs`` refuses a comparison whose methods saw different inputs.
 
@@ -48,21 +48,23 @@ from slzcli.interrupt import call_interruptibly
 from slzcli.outputs import output_dir, run_lock
 from slzcli.outputs.run_folder import landing_record
 from slzcli.pipeline import (
-    Detection,
-    Detector,
+    Fusion,
+    Tracker,
     commit_radius_m,
     commit_site,
     ground_truth_of,
     open_inputs,
     posed_maps,
+    tally,
     tracked_frames,
 )
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
-from slzcli.summary import no_site_reason, site_truth
+from slzcli.summary import RunState, no_site_reason, site_truth
+from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
-from slzcli.types import FigureFrame, TerrainMaps
+from slzcli.types import Detection, FigureFrame, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
@@ -120,10 +122,12 @@ class CurveCounts:
 # ----------------------------------------------------------------------------- per-method state
 @dataclass
 class MethodRun:
-    """One method's detector (its own accumulators) and what only the comparison needs."""
+    """One method's fusion, its own accumulators and what only the comparison needs."""
 
     name: str
-    det: Detector
+    fusion: Fusion
+    state: RunState
+    truth: list[MaskCounts] = field(default_factory=list)  # each detection's mask against the true safe mask
     inputs: list[tuple[int, int, str, str]] = field(default_factory=list)
     frame_ms: list[float] = field(default_factory=list)
     pr: CurveCounts | None = None
@@ -187,36 +191,39 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
             rec, info, clouds = open_inputs(path, config, stack)
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         with get_backend(config, has_poses, clouds=clouds) as slam:
-            tracker = Detector(config, methods[0], slam, truth)
+            tracker = Tracker(config, slam)
+            noise = NoiseTracker(config.terrain.noise, config.terrain.noise_estimate)  # the maps', shared
             for m in methods:
-                runs[m] = MethodRun(m, Detector(config, m, truth=truth),
+                runs[m] = MethodRun(m, Fusion.of(config, m), RunState(),
                                     pr=CurveCounts.empty(levels) if truth is not None else None)
             for frame, T, due in tracked_frames(path, rec, tracker, limit):
                 slam_ms = tracker.latest_slam_ms()
                 if due:
                     with limit.stage(f"detection on frame {frame.index}"):
-                        maps, maps_ms = call_interruptibly(posed_maps, frame, T, config, tracker.noise_for(frame))
+                        maps, maps_ms = call_interruptibly(posed_maps, frame, T, config, noise.update(frame.depth_m))
                         gt_mask = truth.safe_mask(frame.stamp_ns) if truth is not None else None
-                        dets = {m: _fuse(run, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
+                        dets = {m: _fuse(run, config, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
                                 for m, run in runs.items()}
                         _agree(dets, agreement)
                         _forget_views(runs, methods[0], frame.index)
                         if gt_mask is not None:
                             _map_truth(maps, gt_mask, map_curves, map_means)
                 if progress is not None:
-                    progress(tracker.state.frames, info.expected_frames)
-    if tracker.state.frames == 0:
+                    progress(tracker.frames, info.expected_frames)
+    if tracker.frames == 0:
         raise DatasetError(path, "no RGB-D frame could be read")
     check_same_inputs({m: r.inputs for m, r in runs.items()})
-    return _summarise(path, config, methods, runs, tracker, truth, map_curves, map_means, agreement,
+    return _summarise(path, config, methods, runs, tracker, noise, truth, map_curves, map_means, agreement,
                       time.perf_counter() - t_start)
 
 
-def _fuse(run: MethodRun, tracker: Detector, frame: Any, T: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
-          slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
-    det = run.det
-    d = call_interruptibly(det.fuse, frame, T, maps, maps_ms, tracker)  # the tracker's points, segment, slam time
-    det.record(d)
+def _fuse(run: MethodRun, config: Config, tracker: Tracker, frame: Any, T: np.ndarray | None, maps: TerrainMaps,
+          maps_ms: float, slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
+    d = call_interruptibly(run.fusion, frame, T, maps, maps_ms, tracker.points, tracker.segment)
+    tally(run.state, d, config)
+    if gt_mask is not None:
+        run.truth.append(mask_counts(d.score.mask, gt_mask))
+    run.state.timer.add("slam", slam_ms)  # the shared tracking time of the frame, as each method would pay it
     pts = d.points
     run.inputs.append((frame.index, frame.stamp_ns, digest(None if pts is None else pts.ids,
                                                            None if pts is None else pts.xyz_world),
@@ -235,7 +242,7 @@ def _forget_views(runs: dict[str, MethodRun], first: str, current: int) -> None:
     The committed site (known at the end) is one of the first method's sites, so the other
     frames' arrays can go: memory grows with the frames that gave a site, not with the recording.
     """
-    with_site = {s["frame"].index for s in runs[first].det.state.sites.sites}
+    with_site = {s["frame"].index for s in runs[first].state.sites.sites}
     for run in runs.values():
         for k in [k for k in run.views if k != current and k not in with_site]:
             del run.views[k]
@@ -279,19 +286,20 @@ def _stats(values: Sequence[float]) -> dict[str, float | None]:
     return {"median_ms": round(float(np.median(a)), 3), "p90_ms": round(float(np.percentile(a, 90)), 3)}
 
 
-def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[str, MethodRun], tracker: Detector,
-               truth: Any | None, map_curves: dict[str, CurveCounts], map_means: dict[str, list[float]],
-               agreement: dict[str, list[MaskCounts]], wall_s: float) -> dict[str, Any]:
+def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[str, MethodRun], tracker: Tracker,
+               noise: NoiseTracker, truth: Any | None, map_curves: dict[str, CurveCounts],
+               map_means: dict[str, list[float]], agreement: dict[str, list[MaskCounts]],
+               wall_s: float) -> dict[str, Any]:
     side = commit_radius_m(config)
     per: dict[str, Any] = {}
     committed_of: dict[str, dict[str, Any] | None] = {}
     for m, run in runs.items():
-        st = run.det.state
+        st = run.state
         committed = commit_site(st.sites.sites, side)
         committed_of[m] = committed
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)
-        reason = no_site_reason(st, tracker.slam_name, len(tracker.state.keyframes))
+        reason = no_site_reason(st, tracker.slam_name, len(tracker.keyframes))
         rec = landing_record(path, m, committed, "", {}, reason, site_truth(truth, committed))
         entry: dict[str, Any] = {
             "method": m, "detections": st.detections, "sites_found": len(st.sites.sites), "status": rec["status"],
@@ -307,7 +315,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
             "inputs": [{"frame": i, "stamp_ns": t, "points": p, "maps": q} for i, t, p, q in run.inputs],
         }
         if truth is not None:
-            counts = total(st.truth)
+            counts = total(run.truth)
             entry["ground_truth"] = {
                 "mask": counts.as_dict(),
                 "site": None if committed is None else rec["site"].get("ground_truth"),
@@ -320,15 +328,15 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         for b in methods[i + 1:]:
             pairs.append(_pair(a, b, runs, committed_of, agreement.get(f"{a}|{b}", [])))
     out: dict[str, Any] = {
-        "source": str(path), "name": recording_name(path), "frames": tracker.state.frames,
-        "detections": runs[methods[0]].det.state.detections,
-        "slam_backend": tracker.slam_name, "tracking": tracker.state.tracking,
-        "keyframes": len(tracker.state.keyframes),
-        "slam": {"maps": len(segment_table(tracker.state.trajectory.segments(), tracker.state.trajectory.has_pose(),
-                                           tracker.state.keyframes.per_segment))},
+        "source": str(path), "name": recording_name(path), "frames": tracker.frames,
+        "detections": runs[methods[0]].state.detections,
+        "slam_backend": tracker.slam_name, "tracking": tracker.tracking,
+        "keyframes": len(tracker.keyframes),
+        "slam": {"maps": len(segment_table(tracker.trajectory.segments(), tracker.trajectory.has_pose(),
+                                           tracker.keyframes.per_segment))},
         "inputs_identical": True,
         "methods": per, "pairs": pairs, "wall_s": round(wall_s, 3), "ground_truth": truth is not None,
-        "depth_noise": tracker.state.noise.summary() if tracker.state.noise is not None else None,
+        "depth_noise": noise.summary(),
     }
     if truth is not None:
         header = truth.header
@@ -356,8 +364,8 @@ def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[
     if ca is not None and cb is not None and ca["segment"] == cb["segment"]:  # else: two unrelated SLAM maps
         dist = float(np.linalg.norm(np.asarray(ca["site"].center_world) - np.asarray(cb["site"].center_world)))
     per_frame = []
-    sites_a = {s["frame"].index: s["site"] for s in runs[a].det.state.sites.sites}
-    sites_b = {s["frame"].index: s["site"] for s in runs[b].det.state.sites.sites}
+    sites_a = {s["frame"].index: s["site"] for s in runs[a].state.sites.sites}
+    sites_b = {s["frame"].index: s["site"] for s in runs[b].state.sites.sites}
     for k in sorted(set(sites_a) & set(sites_b)):
         gap = np.asarray(sites_a[k].center_world) - np.asarray(sites_b[k].center_world)
         per_frame.append(float(np.linalg.norm(gap)))
@@ -384,7 +392,7 @@ def _arrays(runs: dict[str, MethodRun], committed: dict[str, dict[str, Any] | No
     if has_truth:
         curves = {m: r.pr.curve() for m, r in runs.items() if r.pr is not None}
         curves.update({f"map:{n}": c.curve() for n, c in map_curves.items()})
-    timings = {m: {**{k: list(r.det.state.timer.samples_ms.get(k, [])) for k in STAGES}, "frame": list(r.frame_ms)}
+    timings = {m: {**{k: list(r.state.timer.samples_ms.get(k, [])) for k in STAGES}, "frame": list(r.frame_ms)}
                for m, r in runs.items()}
     return {"figure_frame": fig_frame, "curves": curves, "timings": timings}
 

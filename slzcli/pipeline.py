@@ -1,5 +1,13 @@
 """``slz detect`` as a readable list of steps: frames -> maps -> score -> mask -> SLAM points -> site.
 
+The core has no file I/O: a ``Tracker`` (SLAM backend, gravity alignment, pose and keyframe
+logs, the latest map points) tracks the frames, ``detect`` yields a ``types.Detection`` per
+frame due, made by a ``Fusion`` without state (maps -> score -> mask -> site). Everything
+else consumes the detections as they stream: the run's tables (``tally``), the ground truth
+(``evaluate.truth.TruthEvaluator``), the run folder and ``results.mcap``; ``summary.summarise``
+sums up. ``detect_recording`` is open / track / detect / sinks / summary; ``slz compare``
+tracks once and runs one Fusion per method on the same maps.
+
 Compute first, write after: every frame's stages are timed on their own (maps, score, mask,
 slam, select), writing is timed separately and kept out of the per-frame figure. The run
 folder is built under a temporary name and put in place at the end, so a failed run leaves
@@ -31,7 +39,7 @@ from __future__ import annotations
 import logging
 import shutil
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -42,15 +50,15 @@ import numpy as np
 from slzcli import fingerprint
 from slzcli.config import Config
 from slzcli.errors import DatasetError, OutputError
-from slzcli.evaluate.safety import MaskCounts, mask_counts
+from slzcli.evaluate.timing import StageTimer
+from slzcli.evaluate.truth import TruthEvaluator
 from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
-from slzcli.evaluate.truth import true_pose
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
-from slzcli.landing.select import Candidate, Selection, SelectParams, Site, select_site
+from slzcli.landing.select import Candidate, SelectParams, Site, select_site
 from slzcli.outputs import output_dir, results_mcap, run_folder
 from slzcli.outputs.site_log import SiteLog
-from slzcli.outputs.trajectory import KeyframeLog
+from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import has_recorded_clouds
@@ -61,28 +69,12 @@ from slzcli.terrain.limits import limit_reason
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.timeout import StageLimit
-from slzcli.types import Frame, ScoreMap, TerrainMaps
+from slzcli.types import Detection, Frame, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
+TrackedFrame = tuple[Frame, np.ndarray | None, bool]  # a frame, its world pose (None: lost), detection is due
 SPOOL_DIR = ".spool"  # keyframes, candidate rows and site points of a run, inside its temporary run folder
-
-
-# ----------------------------------------------------------------------------- per-frame result
-@dataclass(frozen=True, eq=False)
-class Detection:
-    """Everything computed for one detection frame (nothing written yet)."""
-
-    frame: Frame
-    T_world_camera: np.ndarray | None
-    maps: TerrainMaps
-    score: ScoreMap
-    points: MapPoints | None
-    selection: Selection | None
-    edge_m: np.ndarray | None  # TerrainMaps.edge_distance_m
-    timings_ms: dict[str, float]
-    truth: MaskCounts | None = None
-    segment: int = 0  # SLAM map segment of the pose and points
 
 
 def select_params(config: Config, method: str) -> SelectParams:
@@ -121,37 +113,36 @@ def depth_points(frame: Frame, T_world_camera: np.ndarray, stride_px: int) -> Ma
     return MapPoints(np.arange(len(xyz), dtype=np.int64), xyz, pixels, frame.index, frame.stamp_ns, T_world_camera)
 
 
-# ----------------------------------------------------------------------------- the detector
-class Detector:
-    """Runs the stages over the frames of one recording; holds SLAM and the run's accumulators.
+# ----------------------------------------------------------------------------- tracking
+class Tracker:
+    """SLAM over the frames of one recording: the backend, the gravity alignment of each map segment,
+    the pose and keyframe logs and the latest keyframe's map points; nothing about detection.
 
-    ``slz compare`` tracks with one detector and fuses with one per method: ``fuse(...,
-    tracked_by=tracker)`` takes the tracker's map points, segment and tracking time.
+    ``slz detect`` and ``slz compare`` track with one and fuse each method on what it holds.
     """
 
-    def __init__(self, config: Config, method: str, slam: SlamBackend | None = None, truth: Any | None = None,
-                 spool: Path | None = None) -> None:
-        """``slam``: None for a detector that only fuses; ``spool``: a folder for keyframes, candidate rows and
-        site points (else they stay in memory)."""
+    def __init__(self, config: Config, slam: SlamBackend, keyframes: KeyframeLog | None = None,
+                 timer: StageTimer | None = None) -> None:
+        """``keyframes``: a log with a spool folder (else a count only); ``timer``: where the ``slam`` stage
+        is timed (a run's timer, so its stages keep their order; else its own)."""
         self.config = config
-        self.method = method
-        self.scorer: Scorer = get_scorer(config, method)
-        self.params = select_params(config, method)
         self.slam = slam
-        self.truth = truth
-        self.state = RunState(keyframes=KeyframeLog(spool), sites=SiteLog(spool),
-                              noise=NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
+        self.timer = StageTimer() if timer is None else timer
+        self.trajectory = PoseLog()  # every frame's stamp, pose (None: not tracked), segment
+        self.keyframes = KeyframeLog() if keyframes is None else keyframes
+        self.tracking: dict[str, int] = {}  # frames per tracking state
+        self.frames = 0
         self.align: dict[int, np.ndarray] = {}  # T_world_slam of each map segment, from its first pose
         self._segment = 0  # map segment of the latest frame
         self._points: MapPoints | None = None  # the latest keyframe's map points (of the current segment)
 
     @property
     def slam_name(self) -> str:
-        return "none" if self.slam is None else self.slam.name
+        return self.slam.name
 
     @property
     def poses_are_recorded(self) -> bool:
-        return self.slam is not None and self.slam.poses_are_recorded
+        return self.slam.poses_are_recorded
 
     @property
     def segment(self) -> int:
@@ -165,7 +156,7 @@ class Detector:
 
     def latest_slam_ms(self) -> float:
         """The tracking time of the latest frame (ms)."""
-        return self.state.timer.samples_ms["slam"][-1]
+        return self.timer.samples_ms["slam"][-1]
 
     def _world(self, T_slam_camera: np.ndarray | None, segment: int) -> np.ndarray | None:
         if T_slam_camera is None:
@@ -178,17 +169,15 @@ class Detector:
     def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
         """SLAM on one frame: the gravity-aligned pose and whether it is a keyframe with map points."""
         slam = self.slam
-        assert slam is not None, "a detector made without a SLAM backend only fuses"
-        with self.state.timer.stage("slam"):
+        with self.timer.stage("slam"):
             result = slam.track(frame)
             points = slam.keyframe() if result.is_keyframe else None
         if result.segment != self._segment:  # a new map: the old map's points are in another frame
             self._segment, self._points = result.segment, None
         T = self._world(result.T_world_camera, self._segment)
-        st = self.state
-        st.frames += 1
-        st.trajectory.append(frame.stamp_ns, T, self._segment)
-        st.tracking[result.state.value] = st.tracking.get(result.state.value, 0) + 1
+        self.frames += 1
+        self.trajectory.append(frame.stamp_ns, T, self._segment)
+        self.tracking[result.state.value] = self.tracking.get(result.state.value, 0) + 1
         if points is not None and T is not None:
             if len(points) == 0 and slam.map_points_from_depth:
                 points = depth_points(frame, T, self.config.landing.depth_points_stride_px)
@@ -196,29 +185,39 @@ class Detector:
                 points = MapPoints(points.ids, _apply(self.align[self._segment], points.xyz_world), points.pixels,
                                    points.keyframe_index, points.stamp_ns, T)
             self._points = points
-            st.keyframes.append(points, self._segment)
+            self.keyframes.append(points, self._segment)
         return T, points is not None and result.state == TrackingState.OK
 
-    def noise_for(self, frame: Frame) -> DepthNoise:
-        """The depth noise a detection frame's maps use: its own estimate smoothed over the run's."""
-        assert self.state.noise is not None
-        return self.state.noise.update(frame.depth_m)
 
-    def detect(self, frame: Frame, T_world_camera: np.ndarray | None) -> Detection:
-        """Maps, score, mask and (with a pose and map points) the site of one frame."""
-        maps, maps_ms = posed_maps(frame, T_world_camera, self.config, self.noise_for(frame))
-        return self.fuse(frame, T_world_camera, maps, maps_ms)
+def run_state(tracker: Tracker, config: Config, spool: Path | None = None) -> RunState:
+    """A run's accumulators over a tracker's logs (shared, not copied); ``spool``: where site rows go."""
+    return RunState(timer=tracker.timer, trajectory=tracker.trajectory, tracking=tracker.tracking,
+                    keyframes=tracker.keyframes, sites=SiteLog(spool),
+                    noise=NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
 
-    def fuse(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps,
-             maps_ms: float, tracked_by: Detector | None = None) -> Detection:
-        """This detector's method on maps already computed: score, mask, site (``slz compare`` shares the maps).
 
-        ``tracked_by``: the detector that tracked the frame (default: this one); its map points and
-        segment are used, and its tracking time of the frame is counted in this detector's ``slam`` stage.
-        """
-        timer = self.state.timer
-        tracker = self if tracked_by is None else tracked_by
-        points, segment = tracker.points, tracker.segment
+# ----------------------------------------------------------------------------- fusion
+@dataclass(frozen=True)
+class Fusion:
+    """One method's step from terrain maps to a site: score -> mask -> site, without state.
+
+    The same frame, pose, maps and map points give the same Detection, whatever came before;
+    what a run accumulates is added by ``tally``. ``slz compare`` runs one per method on the
+    same maps and points.
+    """
+
+    config: Config
+    method: str
+    scorer: Scorer
+    params: SelectParams
+
+    @classmethod
+    def of(cls, config: Config, method: str) -> Fusion:
+        return cls(config, method, get_scorer(config, method), select_params(config, method))
+
+    def __call__(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
+                 points: MapPoints | None, segment: int) -> Detection:
+        """Score, mask and (with a pose, map points and maps that vouch) the site of one frame."""
         t: dict[str, float] = {"maps": maps_ms}
         t0 = time.perf_counter()
         raw = self.scorer(maps)
@@ -226,62 +225,83 @@ class Detector:
         t0 = time.perf_counter()
         score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config, maps.work, maps.up_camera)
         t["mask"] = _lap(t0)
-        if score.column_cut > 0 or score.mask.any():
-            st_cut = self.state.column_cut
-            self.state.column_cut = score.column_cut if st_cut is None else min(st_cut, score.column_cut)
         edge = maps.edge_distance_m
         selection = None
         vouched = maps.work is None or maps.work.vouched
-        if not vouched:
-            assert maps.work is not None
-            self.state.unvouched += 1
-            worst = self.state.worst_unvouched
-            if worst is None or maps.work.altitude_m > worst.altitude_m:
-                self.state.worst_unvouched = maps.work
-                self.state.unvouched_reason = limit_reason(maps.work, self.config.terrain, self.config.uav)
         t0 = time.perf_counter()
         if vouched and T_world_camera is not None and points is not None:
             selection = select_site(points.xyz_world, T_world_camera, frame.K, score.mask, score.score,
                                     self.params, edge_distance_m=edge)
         t["select"] = _lap(t0)
-        for name, ms in t.items():
-            timer.add(name, ms)
-        truth = None
-        if self.truth is not None:
-            gt_mask = self.truth.safe_mask(frame.stamp_ns)
-            truth = mask_counts(score.mask, gt_mask)
-            self.state.truth.append(truth)
-        self.state.detections += 1
-        self.state.detections_without_depth += not maps.valid.any()
-        if tracker is not self:
-            timer.add("slam", tracker.latest_slam_ms())
-        return Detection(frame, T_world_camera, maps, score, points, selection, edge, t, truth, segment)
+        return Detection(frame, T_world_camera, maps, score, points, selection, edge, t, segment)
 
-    def record(self, det: Detection) -> None:
-        """Add a detection's site and candidates to the run's tables."""
-        sel = det.selection
-        if sel is None:
-            return
-        chosen = _chosen_cluster(sel.candidates, sel.site) if sel.site is not None else None
-        self.state.sites.add_rows([{
-            "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
-            "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
-            "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
-            "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment}
-            for c in sel.candidates])
-        if sel.site is not None:
-            assert det.points is not None  # a site is chosen among the map points
-            pts = det.points.xyz_world
-            limits = det.maps.work.as_dict() if det.maps.work is not None else None
-            self.state.sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits,
-                                      det.segment)
+
+def detect_frame(frame: Frame, T_world_camera: np.ndarray | None, tracker: Tracker, fusion: Fusion,
+                 noise: NoiseTracker) -> Detection:
+    """Maps (with the run's depth noise), then the fusion on the tracker's latest map points."""
+    maps, maps_ms = posed_maps(frame, T_world_camera, fusion.config, noise.update(frame.depth_m))
+    return fusion(frame, T_world_camera, maps, maps_ms, tracker.points, tracker.segment)
+
+
+def detect(frames: Iterable[TrackedFrame], tracker: Tracker, fusion: Fusion, noise: NoiseTracker,
+           limit: StageLimit) -> Iterator[Detection]:
+    """The detection core: one Detection per tracked frame that is due, as the frames stream in.
+
+    Nothing is written, counted or kept here: the run folder, results.mcap, the run's tables and
+    the ground-truth evaluation consume the detections. ``frames``: ``tracked_frames`` (the
+    tracker's points and segment are those of the frame just tracked). Each detection is a
+    stage under ``limit``; the consumer's work on it is not.
+    """
+    for frame, T, due in frames:
+        if due:
+            with limit.stage(f"detection on frame {frame.index}"):
+                d = call_interruptibly(detect_frame, frame, T, tracker, fusion, noise)  # seconds of native work
+            yield d
+
+
+def tally(state: RunState, det: Detection, config: Config) -> None:
+    """Add one detection to a run's accumulators: stage times, counts, the no-site evidence, sites."""
+    score, work = det.score, det.maps.work
+    if score.column_cut > 0 or score.mask.any():
+        cut = state.column_cut
+        state.column_cut = score.column_cut if cut is None else min(cut, score.column_cut)
+    if work is not None and not work.vouched:
+        state.unvouched += 1
+        worst = state.worst_unvouched
+        if worst is None or work.altitude_m > worst.altitude_m:
+            state.worst_unvouched = work
+            state.unvouched_reason = limit_reason(work, config.terrain, config.uav)
+    for name, ms in det.timings_ms.items():
+        state.timer.add(name, ms)
+    state.detections += 1
+    state.detections_without_depth += not det.maps.valid.any()
+    record(state.sites, det)
+
+
+def record(sites: SiteLog, det: Detection) -> None:
+    """Add a detection's site and candidates to the run's tables."""
+    sel = det.selection
+    if sel is None:
+        return
+    chosen = _chosen_cluster(sel.candidates, sel.site) if sel.site is not None else None
+    sites.add_rows([{
+        "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
+        "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
+        "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
+        "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment}
+        for c in sel.candidates])
+    if sel.site is not None:
+        assert det.points is not None  # a site is chosen among the map points
+        pts = det.points.xyz_world
+        limits = det.maps.work.as_dict() if det.maps.work is not None else None
+        sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits, det.segment)
 
 
 def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
                noise: DepthNoise | None = None) -> tuple[TerrainMaps, float]:
     """The four terrain maps of a frame (with its SLAM pose, when there is one) and their time in ms.
 
-    ``noise``: the run's depth noise (``Detector.noise_for``); None measures it on this frame alone.
+    ``noise``: the run's depth noise (``NoiseTracker.update``); None measures it on this frame alone.
     """
     posed = frame if T_world_camera is None else _with_pose(frame, T_world_camera)
     t0 = time.perf_counter()
@@ -358,57 +378,79 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     stays per frame is its stamp, pose and stage times (~0.2 KB), per site its summary.
     """
     method = options.method or config.scoring.method
-    check_readable(path)  # a missing, looping or unreadable input is named before anything else reads it
-    output_dir.refuse_inputs(out_dir, [path])
-    existing = output_dir.inspect(out_dir, output_dir.DETECT)  # refuses a path that is not a detect run folder
-    previous = existing.marker if existing.finished else None
     limit = StageLimit(options.timeout_s, str(path))
-    with limit.stage("hashing the inputs"):
-        inputs = fingerprint.run_inputs(path, config, fingerprint.cache_of(existing.marker))
-    vers = fingerprint.versions(config)
-    key = {"sha256": fingerprint.run_key(config, method, inputs, vers), "method": method, "versions": vers,
-           "inputs": inputs}
-    if previous is not None and not options.force:
-        if (previous.get("key") or {}).get("sha256") == key["sha256"] and "summary" in previous:
-            log.info("%s: already done for these inputs and config (%s); use --force to redo", out_dir, config.hash())
-            return {**previous["summary"], "skipped": True}
-        raise OutputError(out_dir, "holds a finished run of other inputs or config ("
-                                   f"{fingerprint.what_changed(previous, config, method, inputs, vers)}); "
-                                   "use --force to replace it (files slz did not write stay) or another -o")
+    key, done_before = rerun_key(path, config, method, out_dir, options.force, limit)
+    if done_before is not None:
+        return done_before
     t_start = time.perf_counter()
     with output_dir.build(out_dir, output_dir.DETECT, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
-            truth = ground_truth_of(path, config)
+            gt = ground_truth_of(path, config)
+            truth = None if gt is None else TruthEvaluator(gt)  # a sink: detection never reads the truth
             rec, info, clouds = open_inputs(path, config, stack)
         results = results_mcap.open_results(tmp, config)
         stack.enter_context(results)   # __enter__ returns the writer itself
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
-        det = Detector(config, method, slam, truth, spool=tmp / SPOOL_DIR)
-        for frame, T, due in tracked_frames(path, rec, det, limit):
-            results.write_pose(frame.stamp_ns, T, det.segment)
-            if due:
-                with limit.stage(f"detection on frame {frame.index}"):
-                    d = call_interruptibly(det.detect, frame, T)   # seconds of native work on large frames
-                    det.record(d)
-                with limit.stage(f"writing frame {frame.index}"), det.state.timer.stage("write"):
+        tracker = Tracker(config, slam, KeyframeLog(tmp / SPOOL_DIR))
+        state = run_state(tracker, config, tmp / SPOOL_DIR)
+        noise = state.noise
+        assert noise is not None
+
+        def tracked(frame: Frame, T: np.ndarray | None) -> None:  # every frame, before its detection
+            results.write_pose(frame.stamp_ns, T, tracker.segment)
+
+        def done(frame: Frame) -> None:  # every frame, after its detection went to the sinks
+            if truth is not None:
+                truth.frame(frame.stamp_ns)
+            if progress is not None:
+                progress(tracker.frames, info.expected_frames)
+
+        frames = each_frame(tracked_frames(path, rec, tracker, limit), tracked, done)
+        for d in detect(frames, tracker, Fusion.of(config, method), noise, limit):
+            with limit.stage(f"writing frame {d.frame.index}"):  # the sinks: tables, ground truth, files
+                tally(state, d, config)
+                if truth is not None:
+                    truth.detection(d)
+                with state.timer.stage("write"):
                     run_folder.write_detection(tmp, d, config)
                     results.write_detection(d)
-            if truth is not None:
-                det.state.truth_trajectory.append(frame.stamp_ns, true_pose(truth, frame.stamp_ns))
-            if progress is not None:
-                progress(det.state.frames, info.expected_frames)
-        if det.state.frames == 0:
+        state.frames = tracker.frames
+        if state.frames == 0:
             raise DatasetError(path, "no RGB-D frame could be read")
         with limit.stage("writing the run folder"):
-            committed = commit_site(det.state.sites.sites, commit_radius_m(config))
+            committed = commit_site(state.sites.sites, commit_radius_m(config))
             results.write_run(committed)
-            result = summarise(path, config, method, info, rec.report, det.state, det.slam_name,
-                               det.poses_are_recorded, committed, truth, time.perf_counter() - t_start, key)
-            run_folder.write_run(tmp, result, det.state.sites, det.state.trajectory, det.state.keyframes)
+            result = summarise(path, config, method, info, rec.report, state, tracker.slam_name,
+                               tracker.poses_are_recorded, committed, truth, time.perf_counter() - t_start, key)
+            run_folder.write_run(tmp, result, state.sites, state.trajectory, state.keyframes)
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
             shutil.rmtree(tmp / SPOOL_DIR)
     return result.summary
+
+
+def rerun_key(path: Path, config: Config, method: str, out_dir: Path, force: bool,
+              limit: StageLimit) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """The run's key (``fingerprint``) and, when ``out_dir`` holds a finished run of that key and
+    ``force`` is off, its summary marked ``skipped`` (else None). Refuses an unusable ``out_dir``
+    (OutputError) and one holding a finished run of another key without ``force``."""
+    check_readable(path)  # a missing, looping or unreadable input is named before anything else reads it
+    output_dir.refuse_inputs(out_dir, [path])
+    existing = output_dir.inspect(out_dir, output_dir.DETECT)  # refuses a path that is not a detect run folder
+    previous = existing.marker if existing.finished else None
+    with limit.stage("hashing the inputs"):
+        inputs = fingerprint.run_inputs(path, config, fingerprint.cache_of(existing.marker))
+    vers = fingerprint.versions(config)
+    key = {"sha256": fingerprint.run_key(config, method, inputs, vers), "method": method, "versions": vers,
+           "inputs": inputs}
+    if previous is not None and not force:
+        if (previous.get("key") or {}).get("sha256") == key["sha256"] and "summary" in previous:
+            log.info("%s: already done for these inputs and config (%s); use --force to redo", out_dir, config.hash())
+            return key, {**previous["summary"], "skipped": True}
+        raise OutputError(out_dir, "holds a finished run of other inputs or config ("
+                                   f"{fingerprint.what_changed(previous, config, method, inputs, vers)}); "
+                                   "use --force to replace it (files slz did not write stay) or another -o")
+    return key, None
 
 
 def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, bool]:
@@ -418,8 +460,7 @@ def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any,
     return rec, info, has_recorded_clouds(info, config)
 
 
-def tracked_frames(path: Path, rec: Any, tracker: Detector,
-                   limit: StageLimit) -> Iterator[tuple[Frame, np.ndarray | None, bool]]:
+def tracked_frames(path: Path, rec: Any, tracker: Tracker, limit: StageLimit) -> Iterator[TrackedFrame]:
     """The frames of an open recording with their SLAM pose and whether detection is due.
 
     Reading each frame and tracking it are stages under ``limit``; shared by ``slz detect``
@@ -429,7 +470,7 @@ def tracked_frames(path: Path, rec: Any, tracker: Detector,
     every = config.landing.every_nth_frame
     frames = iter(rec.frames())
     while True:
-        with limit.stage(f"reading frame {tracker.state.frames}"):
+        with limit.stage(f"reading frame {tracker.frames}"):
             frame = next(frames, None)
         if frame is None:
             return
@@ -437,6 +478,16 @@ def tracked_frames(path: Path, rec: Any, tracker: Detector,
         with limit.stage(f"SLAM on frame {frame.index}"):
             T, is_keyframe = tracker.track(frame)
         yield frame, T, (is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0)
+
+
+def each_frame(frames: Iterable[TrackedFrame], before: Callable[[Frame, np.ndarray | None], None],
+               after: Callable[[Frame], None]) -> Iterator[TrackedFrame]:
+    """The frames unchanged, with the per-frame sinks: ``before`` each is handed on, ``after`` once the
+    consumer asks for the next one (its detection, if any, has then gone through the sinks)."""
+    for frame, T, due in frames:
+        before(frame, T)
+        yield frame, T, due
+        after(frame)
 
 
 def check_frame_size(path: Path, frame: Frame, min_px: tuple[int, ...]) -> None:

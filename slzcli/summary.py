@@ -18,9 +18,8 @@ import numpy as np
 
 from slzcli import __version__
 from slzcli.config import Config
-from slzcli.evaluate.safety import MaskCounts
 from slzcli.evaluate.timing import StageTimer
-from slzcli.evaluate.truth import site_truth_of, truth_summary
+from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
 from slzcli.outputs.results_mcap import frame_ids
 from slzcli.outputs.run_folder import landing_record
 from slzcli.outputs.site_log import SiteLog
@@ -43,8 +42,6 @@ class RunState:
     tracking: dict[str, int] = field(default_factory=dict)
     keyframes: KeyframeLog = field(default_factory=KeyframeLog)  # count only unless given a folder
     sites: SiteLog = field(default_factory=SiteLog)  # candidate rows and sites (in memory unless given a folder)
-    truth: list[MaskCounts] = field(default_factory=list)
-    truth_trajectory: PoseLog = field(default_factory=PoseLog)  # ground-truth poses of the same frames
     frames: int = 0
     detections: int = 0
     detections_without_depth: int = 0
@@ -140,11 +137,12 @@ def site_truth(truth: Any | None, committed: dict[str, Any] | None) -> dict[str,
 
 
 def summarise(source: Path, config: Config, method: str, info: Any, report: Any, st: RunState, slam_name: str,
-              poses_are_recorded: bool, committed: dict[str, Any] | None, truth: Any | None, wall_s: float,
-              key: dict[str, Any]) -> RunResult:
+              poses_are_recorded: bool, committed: dict[str, Any] | None, truth: TruthEvaluator | None,
+              wall_s: float, key: dict[str, Any]) -> RunResult:
     """landing.json and run.json of a finished run (nothing is written here).
 
     ``poses_are_recorded``: the backend's capability (``slam.base.SlamBackend``), for the world frame's text.
+    ``truth``: the run's ground-truth evaluator (None: no ground truth).
     ``key``: the rerun key and the digests of the files it covers (``fingerprint``), kept in run.json.
     """
     timing = st.timer.summary()
@@ -153,7 +151,8 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
     primary = primary_segment(table, None if committed is None else committed["segment"])
     world = world_frame_text(slam_name, poses_are_recorded, table, primary)
     reason = no_site_reason(st, slam_name, len(st.keyframes))
-    landing = landing_record(source, method, committed, world, timings, reason, site_truth(truth, committed), primary)
+    site_gt = site_truth(None if truth is None else truth.truth, committed)
+    landing = landing_record(source, method, committed, world, timings, reason, site_gt, primary)
     noise = noise_summary(st)
     summary: dict[str, Any] = {
         "source": str(source), "method": method, "frames": st.frames, "detections": st.detections,
@@ -169,8 +168,8 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
                     "notes": list(report.notes)},
     }
     if truth is not None:
-        summary["ground_truth"] = truth_summary(st.truth, st.trajectory.poses(), st.truth_trajectory.poses(),
-                                                st.trajectory.segments().tolist(), landing.get("site"))
+        summary["ground_truth"] = truth.summary(st.trajectory.poses(), st.trajectory.segments().tolist(),
+                                                landing.get("site"))
     run = {"summary": summary, "config_hash": config.hash(), "key": key, "versions": versions(),
            "config": config.to_dict(), "recording": info.to_dict(), "timings": timing}
     return RunResult(landing, run, committed, primary, primary if len(table) > 1 else None)

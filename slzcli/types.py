@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-if TYPE_CHECKING:  # a type only: terrain imports types, not the other way round
+if TYPE_CHECKING:  # types only: terrain and landing import types, not the other way round
+    from slzcli.landing.select import Selection
     from slzcli.terrain.limits import Working
 
 
@@ -202,6 +203,22 @@ class MapPoints:
 
 
 # ----------------------------------------------------------------------------- slz compare
+# ----------------------------------------------------------------------------- detection
+@dataclass(frozen=True, eq=False)
+class Detection:
+    """Everything computed for one detection frame (nothing written yet): what the sinks consume."""
+
+    frame: Frame
+    T_world_camera: np.ndarray | None
+    maps: TerrainMaps
+    score: ScoreMap
+    points: MapPoints | None
+    selection: Selection | None
+    edge_m: np.ndarray | None  # TerrainMaps.edge_distance_m
+    timings_ms: dict[str, float]
+    segment: int = 0  # SLAM map segment of the pose and points
+
+
 @dataclass(frozen=True, eq=False)
 class FigureFrame:
     """The arrays of one detection frame for the Figure 6 panel."""

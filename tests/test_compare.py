@@ -1,7 +1,7 @@
 """`slz compare` (issue 8): fuzzy vs Bayes on the same frames, checked against ground truth.
 
 Recordings are rendered at 320x240 (camera.* overrides) with few frames so the module stays fast.
-The end-to-end test spies on ``Detector.fuse`` to get every detection both methods made, and
+The end-to-end test spies on ``Fusion.__call__`` to get every detection both methods made, and
 recomputes the report's numbers from those arrays and the ground truth, independently of the
 aggregation code (``total``, ``precision_recall_curve`` and ``site_truth`` from evaluate/safety).
 """
@@ -41,7 +41,7 @@ def compared(clear_field, tmp_path_factory):
     from click.testing import CliRunner
 
     seen: list[tuple[str, pipeline.Detection]] = []
-    original = pipeline.Detector.fuse
+    original = pipeline.Fusion.__call__
 
     def spy(self, *args, **kwargs):
         d = original(self, *args, **kwargs)
@@ -49,7 +49,7 @@ def compared(clear_field, tmp_path_factory):
         return d
 
     mp = pytest.MonkeyPatch()
-    mp.setattr(pipeline.Detector, "fuse", spy)
+    mp.setattr(pipeline.Fusion, "__call__", spy)
     out = tmp_path_factory.mktemp("cmp") / "out"
     try:
         res = CliRunner().invoke(main, ["compare", str(clear_field), "-o", str(out), "--json", *SMALL])

@@ -131,14 +131,14 @@ def bound_only(monkeypatch, stage_name: str, recording: str = "") -> None:
 
 
 def _stuck_detection(monkeypatch, only: str = "") -> None:
-    real = pipeline.Detector.detect
+    real = pipeline.detect_frame
 
-    def detect(self, frame, T):
+    def detect(frame, T, *args):
         if not only or only in frame.source:
             stuck()
-        return real(self, frame, T)
+        return real(frame, T, *args)
 
-    monkeypatch.setattr(pipeline.Detector, "detect", detect)
+    monkeypatch.setattr(pipeline, "detect_frame", detect)
 
 
 def test_detect_stops_a_stuck_stage_names_it_and_leaves_nothing(runner, flights, tmp_path, monkeypatch) -> None:

@@ -2,23 +2,26 @@
 
 The sidecar is loaded here (not by detection, which never imports ``synth/``); the run folder
 only writes what these functions return (run.json ``summary.ground_truth``, landing.json
-``site.ground_truth``).
+``site.ground_truth``). ``TruthEvaluator`` is a sink of a streaming run: detection never
+reads the ground truth, the evaluator is handed every frame's stamp and every detection.
 """
 
 from __future__ import annotations
 
+from array import array
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import DatasetError
-from slzcli.evaluate.safety import MaskCounts, SiteTruth, site_truth, total, visible_cells
+from slzcli.evaluate.safety import MaskCounts, SiteTruth, mask_counts, site_truth, total, visible_cells
 from slzcli.evaluate.slam import ate_by_segment, rpe
 from slzcli.synth.groundtruth import GroundTruth, load_ground_truth, sidecar_paths
+from slzcli.types import Frame, ScoreMap
 
 
 def ground_truth_of(path: Path, config: Config) -> GroundTruth | None:
@@ -30,14 +33,6 @@ def ground_truth_of(path: Path, config: Config) -> GroundTruth | None:
         return None
     tolerance_ns = round(config.synth.ground_truth.stamp_tolerance_ms * 1e6)
     return replace(load_ground_truth(path), stamp_tolerance_ns=tolerance_ns)
-
-
-def true_pose(truth: Any, stamp_ns: int) -> np.ndarray | None:
-    """The true ``T_world_camera`` of the frame at ``stamp_ns``, or None when the truth has no such frame."""
-    try:
-        return truth.T_world_camera[truth.index_of(stamp_ns)]
-    except DatasetError:
-        return None
 
 
 def site_truth_of(truth: Any, frame: Any, center_camera: tuple[float, float, float]) -> SiteTruth:
@@ -72,3 +67,48 @@ def truth_summary(masks: Sequence[MaskCounts], estimated: Sequence[np.ndarray | 
     if site is not None:
         out["site"] = site.get("ground_truth")
     return out
+
+
+class Detected(Protocol):
+    """What the evaluator reads of a detection (``pipeline.Detection``)."""
+
+    @property
+    def frame(self) -> Frame: ...
+
+    @property
+    def score(self) -> ScoreMap: ...
+
+
+class TruthEvaluator:
+    """A run against its ground truth, fed as the run streams: each frame's stamp, each detection.
+
+    Keeps 8 B per frame (the index of its true pose) and one ``MaskCounts`` per detection.
+    """
+
+    def __init__(self, truth: GroundTruth) -> None:
+        self.truth = truth
+        self.masks: list[MaskCounts] = []  # each detection's landing mask against the true safe mask
+        self._pose_index = array("q")      # each frame's index in the truth, -1: no true frame at its stamp
+
+    def frame(self, stamp_ns: int) -> None:
+        """A frame was tracked: note its true pose, for ATE and RPE."""
+        try:
+            self._pose_index.append(self.truth.index_of(stamp_ns))
+        except DatasetError:
+            self._pose_index.append(-1)
+
+    def detection(self, det: Detected) -> MaskCounts:
+        """A detection was made: count its landing mask against the true safe mask of its frame."""
+        counts = mask_counts(det.score.mask, self.truth.safe_mask(det.frame.stamp_ns))
+        self.masks.append(counts)
+        return counts
+
+    def true_poses(self) -> list[np.ndarray | None]:
+        """The true ``T_world_camera`` of every frame handed in (None: the truth has no frame at its stamp)."""
+        T = self.truth.T_world_camera
+        return [None if i < 0 else np.asarray(T[i], dtype=np.float64) for i in self._pose_index]
+
+    def summary(self, estimated: Sequence[np.ndarray | None], segments: Sequence[int],
+                site: dict[str, Any] | None) -> dict[str, Any]:
+        """run.json ``summary.ground_truth`` (``truth_summary``) of the frames and detections handed in."""
+        return truth_summary(self.masks, estimated, self.true_poses(), segments, site)

@@ -1,0 +1,98 @@
+"""The detection core (issue 17): ``detect`` over tracked frames, a stateless ``Fusion``, ground truth as a sink.
+
+The core is run by hand here, with no run folder, and must give what ``slz detect`` writes.
+"""
+
+from __future__ import annotations
+
+import json
+from contextlib import ExitStack
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import GAUSSIAN
+
+from slzcli.cli import main
+from slzcli.config import Config, load_config
+from slzcli.evaluate.safety import total
+from slzcli.evaluate.truth import TruthEvaluator, ground_truth_of
+from slzcli.pipeline import (
+    Fusion,
+    Tracker,
+    commit_radius_m,
+    commit_site,
+    detect,
+    open_inputs,
+    run_state,
+    tally,
+    tracked_frames,
+)
+from slzcli.slam import get_backend
+from slzcli.summary import RunState
+from slzcli.timeout import StageLimit
+from slzcli.types import Detection
+
+FRAMES = 4
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    from click.testing import CliRunner
+
+    path = tmp_path_factory.mktemp("flights") / "parking_lot.mcap"
+    res = CliRunner().invoke(main, ["synth", "parking_lot", "-o", str(path), "--frames", str(FRAMES), *GAUSSIAN])
+    assert res.exit_code == 0, res.output
+    return path
+
+
+def run_core(path: Path, config: Config, fusion: Fusion) -> tuple[list[Detection], RunState, TruthEvaluator]:
+    """open / track / detect / sinks, as detect_recording does, with the detections kept."""
+    gt = ground_truth_of(path, config)
+    assert gt is not None
+    truth = TruthEvaluator(gt)
+    limit = StageLimit(None, str(path))
+    with ExitStack() as stack:
+        rec, info, clouds = open_inputs(path, config, stack)
+        has_poses = any(c.role == "pose" and c.topic for c in info.choices)
+        tracker = Tracker(config, stack.enter_context(get_backend(config, has_poses, clouds=clouds)))
+        state = run_state(tracker, config)
+        assert state.noise is not None
+        dets = []
+        for d in detect(tracked_frames(path, rec, tracker, limit), tracker, fusion, state.noise, limit):
+            tally(state, d, config)
+            truth.detection(d)
+            dets.append(d)
+    return dets, state, truth
+
+
+def test_the_core_gives_what_slz_detect_writes(runner, recording, tmp_path) -> None:
+    config = load_config()
+    dets, state, truth = run_core(recording, config, Fusion.of(config, config.scoring.method))
+    assert dets, "no detection frame: the test would compare nothing"
+    res = runner.invoke(main, ["detect", str(recording), "-o", str(tmp_path / "run"), "--json"])
+    assert res.exit_code == 0, res.output + res.stderr
+    landing = json.loads((tmp_path / "run" / "landing.json").read_text())
+    summary = json.loads((tmp_path / "run" / "run.json").read_text())["summary"]
+    assert summary["detections"] == len(dets) == state.detections
+    assert total(truth.masks).as_dict() == summary["ground_truth"]["mask"]
+    committed = commit_site(state.sites.sites, commit_radius_m(config))
+    assert (committed is None) == (landing["status"] != "site")
+    if committed is not None:
+        assert landing["frame"]["index"] == committed["frame"].index
+        assert np.allclose(landing["site"]["center_world"], committed["site"].center_world, atol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["fuzzy", "bayes"])
+def test_fusion_keeps_no_state(recording, method) -> None:
+    """The same inputs give the same mask and site, after any number of other frames."""
+    config = load_config()
+    fusion = Fusion.of(config, method)
+    dets, _, _ = run_core(recording, config, fusion)
+    for d in reversed(dets):  # the other order: nothing carried over from the previous frame
+        again = fusion(d.frame, d.T_world_camera, d.maps, 0.0, d.points, d.segment)
+        assert np.array_equal(again.score.mask, d.score.mask)
+        assert np.array_equal(again.score.score, d.score.score, equal_nan=True)
+        assert (again.selection is None) == (d.selection is None)
+        if d.selection is not None and again.selection is not None:
+            assert again.selection.site == d.selection.site
