@@ -19,6 +19,15 @@ REALSENSE = Path(os.environ.get("SLZ_REALSENSE_DIR") or SHARED / "data" / "reals
 GAUSSIAN = ("--set", "synth.sensor.model=gaussian")
 
 
+def synth_recording(path: Path, scene: str, frames: int, *options: str) -> Path:
+    """``slz synth SCENE -o PATH --frames N OPTIONS`` through the CLI (the module fixtures' recordings)."""
+    from slzcli.cli import main
+
+    res = CliRunner().invoke(main, ["synth", scene, "-o", str(path), "--frames", str(frames), *options])
+    assert res.exit_code == 0, res.output
+    return path
+
+
 @pytest.fixture
 def runner() -> CliRunner:
     return CliRunner()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import GAUSSIAN
+from conftest import GAUSSIAN, synth_recording
 
 from slzcli import pipeline
 from slzcli.cli import main
@@ -27,12 +27,7 @@ FRAMES = 6
 
 @pytest.fixture(scope="module")
 def clear_field(tmp_path_factory) -> Path:
-    from click.testing import CliRunner
-
-    path = tmp_path_factory.mktemp("flights") / "clear_field.mcap"
-    res = CliRunner().invoke(main, ["synth", "clear_field", "-o", str(path), "--frames", str(FRAMES), *SMALL])
-    assert res.exit_code == 0, res.output
-    return path
+    return synth_recording(tmp_path_factory.mktemp("flights") / "clear_field.mcap", "clear_field", FRAMES, *SMALL)
 
 
 @pytest.fixture(scope="module")

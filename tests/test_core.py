@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import GAUSSIAN
+from conftest import GAUSSIAN, synth_recording
 
 from slzcli.cli import main
 from slzcli.config import Config, load_config
@@ -38,12 +38,7 @@ FRAMES = 4
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
-    from click.testing import CliRunner
-
-    path = tmp_path_factory.mktemp("flights") / "parking_lot.mcap"
-    res = CliRunner().invoke(main, ["synth", "parking_lot", "-o", str(path), "--frames", str(FRAMES), *GAUSSIAN])
-    assert res.exit_code == 0, res.output
-    return path
+    return synth_recording(tmp_path_factory.mktemp("flights") / "parking_lot.mcap", "parking_lot", FRAMES, *GAUSSIAN)
 
 
 def run_core(path: Path, config: Config, fusion: Fusion) -> tuple[list[Detection], RunState, TruthEvaluator]:

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import GAUSSIAN
+from conftest import GAUSSIAN, synth_recording
 from scipy.spatial.transform import Rotation
 
 from slzcli import pipeline
@@ -92,12 +92,7 @@ class TwoMaps(BackendBase):
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory) -> Path:
-    from click.testing import CliRunner
-
-    path = tmp_path_factory.mktemp("seg") / "clear_field.mcap"
-    res = CliRunner().invoke(main, ["synth", "clear_field", "-o", str(path), "--frames", str(FRAMES), *GAUSSIAN])
-    assert res.exit_code == 0, res.output
-    return path
+    return synth_recording(tmp_path_factory.mktemp("seg") / "clear_field.mcap", "clear_field", FRAMES, *GAUSSIAN)
 
 
 @pytest.fixture
