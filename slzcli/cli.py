@@ -304,9 +304,9 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
 
     if scenario is not None and start is not None:  # when --start came first on the command line
         raise ConfigError("--start", "give --scenario or --start, not both")
-    from slzcli import limits
+    from slzcli import bounds
 
-    limits.check(limits.simulation_sizes(config, runs))
+    bounds.check(bounds.simulation_sizes(config, runs))
     target, _ = ibvs_out.read_target(run, config.uav.footprint_m)
     target = check_target(ibvs_out.landing_path(run), target, config.uav.footprint_m,
                           config.control.sim.target_tolerance)

@@ -192,27 +192,27 @@ def test_normals_refuse_a_radius_that_joins_every_pair() -> None:
     ([], 400_000, "--runs", "dynamics steps of the whole batch"),
 ])
 def test_simulation_sizes_are_refused_naming_the_key(overrides: list[str], runs: int, key: str, what: str) -> None:
-    from slzcli import limits
+    from slzcli import bounds
 
     with pytest.raises(ConfigError, match=what) as err:
-        limits.check(limits.simulation_sizes(load_config(overrides=overrides), runs))
+        bounds.check(bounds.simulation_sizes(load_config(overrides=overrides), runs))
     assert err.value.key == key
-    limits.check(limits.simulation_sizes(load_config(), 100_000))   # the tester's --runs 100000 is allowed
+    bounds.check(bounds.simulation_sizes(load_config(), 100_000))   # the tester's --runs 100000 is allowed
 
 
 def test_synth_sizes_are_refused_naming_the_key() -> None:
-    from slzcli import limits
+    from slzcli import bounds
 
     big = load_config(overrides=["camera.width=100000", "camera.height=100000", "camera.fx=72000", "camera.fy=72000",
                                  "camera.cx=50000", "camera.cy=50000"])   # the paper's field of view, 100k px wide
     with pytest.raises(ConfigError, match="pixels of each rendered frame") as err:
-        limits.check(limits.synth_sizes(big))
+        bounds.check(bounds.synth_sizes(big))
     assert err.value.key == "camera.width"
     fine = load_config(overrides=["synth.ground_truth.raster_m=0.005"])
     with pytest.raises(ConfigError, match="cells of the ground-truth safety raster") as err:
-        limits.check(limits.synth_sizes(fine, (-20.0, 20.0, -20.0, 20.0)))
+        bounds.check(bounds.synth_sizes(fine, (-20.0, 20.0, -20.0, 20.0)))
     assert err.value.key == "synth.ground_truth.raster_m"
-    limits.check(limits.synth_sizes(load_config(), (-20.0, 20.0, -20.0, 20.0)))   # the shipped scenes pass
+    bounds.check(bounds.synth_sizes(load_config(), (-20.0, 20.0, -20.0, 20.0)))   # the shipped scenes pass
 
 
 def test_a_landing_with_a_tiny_step_is_refused_before_it_starts(tmp_path: Path, runner: CliRunner) -> None:

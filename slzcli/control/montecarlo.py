@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from slzcli import limits
+from slzcli import bounds
 from slzcli.config import Config
 from slzcli.control.simulate import SimResult, Target, sample_starts, simulate
 
@@ -56,7 +56,7 @@ def run_chunked(target: Target, base_start_world: np.ndarray, runs: int, seed: i
     there), ``progress(done, runs, successes)`` after it. Chunking does not change a run: run i
     depends only on (seed, i).
     """
-    limits.check(limits.simulation_sizes(config, runs))
+    bounds.check(bounds.simulation_sizes(config, runs))
     chunk = config.control.montecarlo.chunk_runs
     parts: list[SimResult] = []
     successes = 0

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slzcli import limits
+from slzcli import bounds
 from slzcli.config import Config, SimCfg
 from slzcli.control import dynamics as dyn
 from slzcli.control import features as ft
@@ -238,7 +238,7 @@ def _setup(target: Target, config: Config) -> _Setup:
     n_sub = round(ratio)
     if n_sub < 1 or abs(ratio - n_sub) > 1e-6:
         raise ConfigError("control.sim.control_dt_s", "must be a whole multiple of control.sim.dynamics_dt_s")
-    limits.check(limits.simulation_sizes(config, 1))   # before the step loop and its log
+    bounds.check(bounds.simulation_sizes(config, 1))   # before the step loop and its log
     cam = ft.CameraModel.from_config(config)
     corners = dyn.enu_to_ned(target.corners_world)
     a_d = ft.desired_area(corners, cam.f, c.desired_depth_m)

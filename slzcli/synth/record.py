@@ -24,7 +24,7 @@ from typing import Any, BinaryIO
 import cv2
 import numpy as np
 
-from slzcli import limits
+from slzcli import bounds
 from slzcli.config import Config
 from slzcli.errors import ConfigError, OutputError
 from slzcli.outputs import files, run_lock
@@ -109,7 +109,7 @@ def intrinsics_of(config: Config) -> Intrinsics:
 def build_world(scene: Scene, config: Config) -> World:
     """Meshes, raycaster and the ground-truth safety raster of a scene."""
     meshes = build_meshes(scene, config.synth.embed_m)
-    limits.check(limits.synth_sizes(config, meshes.extent_xy))   # raster cells, before the rays are cast
+    bounds.check(bounds.synth_sizes(config, meshes.extent_xy))   # raster cells, before the rays are cast
     renderer = Renderer(scene, meshes, config.synth.light)
     top = max(float(p.vertices[:, 2].max()) for p in meshes.parts) + _RAY_TOP_CLEARANCE_M
     landable = np.array([p.landable for p in meshes.parts], dtype=bool)
