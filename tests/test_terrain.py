@@ -561,3 +561,23 @@ def test_realsense_floor_at_the_papers_altitude_scores_safe_and_the_hazards_do_n
     assert sm.mask[FLOOR_LEFT].mean() > 0.4
     for hazard in (BOX_FACE, WALL, DOOR):
         assert np.median(sm.score[hazard]) < 0.2 and not sm.mask[hazard].any()
+
+
+def test_flatness_scaling_follows_the_derivatives_spread_exactly() -> None:
+    """_within_spread skips the median when a count shows it cannot pass the level; the result must be the
+    direct formula's (k x MAD spread <= Canny's low threshold) bit for bit, on either side of the level."""
+    from slzcli.terrain.maps import _within_spread
+    from slzcli.terrain.noise import MAD_TO_SIGMA
+
+    rng = np.random.default_rng(0)
+    k, low = 2.0, 10.0
+    scaled = 0
+    for scale in np.linspace(1.0, 6.0, 60):   # the level sits at MAD-sigma ~3.4 (a median |g| of ~3.4 x 0.67)
+        g = [(rng.standard_normal((60, 80)) * scale).astype(np.float32) for _ in range(2)]
+        seen = rng.random((60, 80)) > 0.1
+        spread = MAD_TO_SIGMA * float(np.median(np.abs(np.concatenate([x[seen] for x in g]))))
+        want = [x * np.float32(low / (k * spread)) for x in g] if k * spread > low else g
+        got = _within_spread(g, seen, k, low)
+        assert all(np.array_equal(a, b) for a, b in zip(want, got, strict=True))
+        scaled += got[0] is not g[0]
+    assert 10 < scaled < 50   # both sides of the level were exercised
