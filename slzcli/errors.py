@@ -29,8 +29,8 @@ class ConfigError(SlzError):
         return type(self), (self.key, self.reason, self.source)
 
 
-class DatasetError(SlzError):
-    """A recording cannot be read or does not hold what slz needs; names the path."""
+class _PathError(SlzError):
+    """An error about one path: the message is ``path: reason``; picklable (crosses process pools)."""
 
     def __init__(self, path: str | Path, reason: str) -> None:
         self.path = str(path)
@@ -39,6 +39,10 @@ class DatasetError(SlzError):
 
     def __reduce__(self) -> tuple[type, tuple[str, str]]:
         return type(self), (self.path, self.reason)
+
+
+class DatasetError(_PathError):
+    """A recording cannot be read or does not hold what slz needs; names the path."""
 
 
 class DecodeError(SlzError):
@@ -49,16 +53,8 @@ class NoSiteFound(SlzError):
     """No landing site qualifies. A result, not a failure: the pipeline reports it as status."""
 
 
-class OutputError(SlzError):
+class OutputError(_PathError):
     """An output folder or file cannot be written."""
-
-    def __init__(self, path: str | Path, reason: str) -> None:
-        self.path = str(path)
-        self.reason = reason
-        super().__init__(f"{self.path}: {reason}")
-
-    def __reduce__(self) -> tuple[type, tuple[str, str]]:
-        return type(self), (self.path, self.reason)
 
 
 class StageTimeout(SlzError):
