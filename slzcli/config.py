@@ -559,12 +559,14 @@ def load_config(config_file: str | Path | None = None, overrides: typing.Sequenc
     if config_file is not None:
         user = read_yaml_mapping(Path(config_file))
         data = merge(data, user, source=str(config_file))
+    changed = []
     for item in overrides:
         key, value = parse_override(item)
+        changed.append(key)
         data = merge(data, _nest(key, value), source="--set")
     where = str(config_file) if config_file else None
     config = build(Config, data, "", source=where)
-    validate_pairs(config, where or ("--set" if overrides else None))
+    validate_pairs(config, where or ("--set" if overrides else None), frozenset(changed))
     return config
 
 
@@ -870,20 +872,33 @@ def _get(config: Config, key: str) -> Any:
     return node
 
 
-def validate_pairs(config: Config, source: str | None = None) -> None:
-    """Refuse values that are fine alone but contradict each other, naming both keys."""
+_FLIPPED = {"<": ">", "<=": ">="}
+_WEIGHT_KEYS = ("uav.mass_kg", "control.gravity_m_s2")
+
+
+def validate_pairs(config: Config, source: str | None = None, changed: frozenset[str] = frozenset()) -> None:
+    """Refuse values that are fine alone but contradict each other, naming both keys.
+
+    The error is keyed on the one of them the user ``changed`` (``--set``) when only that one was:
+    ``--set uav.mass_kg=1`` is about the mass, though the thrust limit is what it contradicts."""
     for small, rel, large, why in PAIRS:
         a, b = _get(config, small), _get(config, large)
         if not (a <= b if rel == "<=" else a < b):
+            if large in changed and small not in changed:
+                raise ConfigError(large, f"must be {_FLIPPED[rel]} {small} ({why}); got {b:g} and {a:g}", source)
             raise ConfigError(small, f"must be {rel} {large} ({why}); got {a:g} and {b:g}", source)
     uav, weight = config.uav, config.uav.mass_kg * config.control.gravity_m_s2
-    if uav.thrust_max_n <= weight:
-        raise ConfigError("uav.thrust_max_n", f"must exceed the weight uav.mass_kg x control.gravity_m_s2 = "
-                                              f"{weight:.3g} N (it could not hover); got {uav.thrust_max_n:g}", source)
-    if uav.thrust_min_n >= weight:
-        raise ConfigError("uav.thrust_min_n", f"must be below the weight uav.mass_kg x control.gravity_m_s2 = "
-                                              f"{weight:.3g} N (it could not descend); got {uav.thrust_min_n:g}",
-                          source)
+    weight_key = next((k for k in _WEIGHT_KEYS if k in changed), None)
+    for thrust, ok, what, effect in (("uav.thrust_max_n", uav.thrust_max_n > weight, "exceed", "hover"),
+                                     ("uav.thrust_min_n", uav.thrust_min_n < weight, "be below", "descend")):
+        if ok:
+            continue
+        value = _get(config, thrust)
+        if weight_key is not None and thrust not in changed:
+            raise ConfigError(weight_key, f"makes the weight uav.mass_kg x control.gravity_m_s2 = {weight:.3g} N, "
+                                          f"which {thrust} = {value:g} must {what} (it could not {effect})", source)
+        raise ConfigError(thrust, f"must {what} the weight uav.mass_kg x control.gravity_m_s2 = "
+                                  f"{weight:.3g} N (it could not {effect}); got {value:g}", source)
     from slzcli.sources.validate import intrinsics_problem  # here: sources imports this module
     from slzcli.types import Intrinsics
 

@@ -193,3 +193,19 @@ def test_errors_survive_a_process_pool() -> None:
                 StageTimeout("x.mcap", "SLAM on frame 3", 2.0)):
         back = pickle.loads(pickle.dumps(err))
         assert type(back) is type(err) and str(back) == str(err)
+
+
+@pytest.mark.parametrize(("item", "cause"), [
+    # found by tests/test_properties.py: --set uav.mass_kg=1 was refused naming uav.thrust_max_n
+    ("uav.mass_kg=1", "uav.mass_kg: makes the weight uav.mass_kg x control.gravity_m_s2 = 9.81 N, which "
+                      "uav.thrust_max_n = 7.8 must exceed (it could not hover)"),
+    ("control.gravity_m_s2=30", "control.gravity_m_s2: makes the weight"),
+    ("uav.thrust_max_n=0.1", "uav.thrust_max_n: must be > uav.thrust_min_n (the thrust range); got 0.1 and 0.4"),
+    ("uav.thrust_min_n=10", "uav.thrust_min_n: must be < uav.thrust_max_n (the thrust range); got 10 and 7.8"),
+    ("terrain.steepness.normal_max_px=3", "terrain.steepness.normal_max_px: must be >= terrain.steepness.normal_px"),
+])
+def test_a_contradiction_is_named_by_the_key_the_user_set(item: str, cause: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_config(None, [item])
+    assert info.value.key == item.partition("=")[0]
+    assert cause in str(info.value)
