@@ -9,6 +9,7 @@ a CameraInfo beats its intrinsics. The files document their sources beside each 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import re
 from collections.abc import Collection, Mapping
@@ -18,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from slzcli.config import CONFIG_DIR, read_yaml_text, safe_yaml_load
+from slzcli.config import CONFIG_DIR, Config, read_yaml_text, safe_yaml_load
 from slzcli.errors import ConfigError
 from slzcli.types import Intrinsics
 
@@ -139,3 +140,23 @@ def choose_preset(setting: str, topics: Collection[str] | None = None, folder: P
     if folder is not None:
         return guess_from_folder(folder)
     return guess_from_topics(topics or ())
+
+
+@functools.lru_cache(maxsize=1)
+def _default_prior() -> float:
+    from slzcli.config import load_config
+
+    return load_config().terrain.noise_estimate.prior_a_per_m
+
+
+def with_noise_prior(config: Config, preset_name: str | None) -> Config:
+    """``config`` with the preset's depth noise prior (``terrain.noise_estimate.prior_a_per_m``).
+
+    Only where that key still holds its default: a value the user set (``--set``, ``--config``) wins.
+    The prior is used before any frame's own depth could be measured (terrain/noise.py).
+    """
+    if preset_name is None or config.terrain.noise_estimate.prior_a_per_m != _default_prior():
+        return config
+    prior = get_preset(preset_name).noise_prior_a_per_m
+    est = dataclasses.replace(config.terrain.noise_estimate, prior_a_per_m=prior)
+    return dataclasses.replace(config, terrain=dataclasses.replace(config.terrain, noise_estimate=est))
