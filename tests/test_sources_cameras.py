@@ -114,7 +114,7 @@ def test_undistortion_maps_a_distorted_grid_of_points_back(model: str, coeffs: t
         seen = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), k.K, D)[0].reshape(-1, 2)
     img = np.zeros((480, 640, 3), np.uint8)
     for x, y in seen:  # test set-up only: 63 dots
-        cv2.circle(img, (int(round(x * 16)), int(round(y * 16))), 3 * 16, (255, 255, 255), -1, cv2.LINE_AA, 4)
+        cv2.circle(img, (int(np.rint(x * 16)), int(np.rint(y * 16))), 3 * 16, (255, 255, 255), -1, cv2.LINE_AA, 4)
     maps = undistort_maps(k)
     assert maps is not None and maps.intrinsics.distortion == () and maps.intrinsics.fx == k.fx
     out = undistort_color(img, maps)[..., 0].astype(np.float64)
