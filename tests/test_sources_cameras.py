@@ -202,8 +202,8 @@ def write_raw_d435(path: Path, T_depth_color: np.ndarray, box_z: float, frames: 
     """A realsense2_camera-like recording: 640x480 colour and 848x480 depth, each with its own CameraInfo and
     optical frame, /tf_static linking both to camera_link, and (optionally) a PoseStamped per frame."""
     depth = render(K_DEPTH, np.eye(4), box_z)
-    rgb = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
-    rgb = cv2.GaussianBlur(rgb, (0, 0), 3)
+    rgb: np.ndarray = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8),
+                                       (0, 0), 3)
     with RecordingWriter(path, "ros1" if path.suffix == ".bag" else "mcap", layout=RAW) as w:
         if tf_static:
             T_link_depth = np.eye(4)
@@ -290,3 +290,67 @@ def test_oakd_layout_is_read(tmp_path: Path, runner) -> None:
     assert "aligned" in info["depth_to_color"]
     text = runner.invoke(main, ["info", str(path)]).stdout
     assert "camera preset: oakd" in text and "guessed from the topics" in text
+
+
+def test_realsense_viewer_bag_layout_is_read_and_registered(tmp_path: Path, runner) -> None:
+    """The RealSense Viewer's own .bag (librealsense ros-bag format 3): streams under /device_0/sensor_N/,
+    CameraInfo per stream, per-stream extrinsics (geometry_msgs/Transform on .../tf/0), the depth unit as an
+    option, and librealsense's own message types beside them."""
+    from rosbags.typesys import get_types_from_msg
+
+    T_depth_color, box_z = camera_pair(3)
+    depth_mm = np.nan_to_num(render(K_DEPTH, np.eye(4), box_z) * 10000)   # Depth_Units 0.0001 m (a D405's)
+    dev = "/device_0/sensor_0/Depth_0"
+    col = "/device_0/sensor_1/Color_0"
+    path = tmp_path / "viewer.bag"
+    with RecordingWriter(path, "ros1") as w:
+        w.typestore.register(get_types_from_msg("uint32 fps\nstring encoding\nbool is_recommended",
+                                                "realsense_msgs/msg/StreamInfo"))
+        gm = w.typestore.types
+        for prefix, T in ((dev, np.eye(4)), (col, T_depth_color)):     # each stream's pose in the reference (depth)
+            q = Pose.from_matrix(T).as_quat()
+            tr = gm["geometry_msgs/msg/Transform"](
+                translation=gm["geometry_msgs/msg/Vector3"](*map(float, T[:3, 3])),
+                rotation=gm["geometry_msgs/msg/Quaternion"](*map(float, q)))
+            w.write_raw(prefix + "/tf/0", "geometry_msgs/msg/Transform", tr, T0_NS)
+            w.write_raw(prefix + "/info", "realsense_msgs/msg/StreamInfo",
+                        w.message("realsense_msgs/msg/StreamInfo", fps=30, encoding="mono16", is_recommended=True),
+                        T0_NS)
+        w.write_raw("/device_0/sensor_0/option/Depth_Units/value", "std_msgs/msg/Float32",
+                    w.message("std_msgs/msg/Float32", data=0.0001), T0_NS)
+        rgb = np.full((480, 640, 3), 90, np.uint8)
+        for i in range(2):
+            stamp = T0_NS + i * 33_333_333
+            w.write_raw(col + "/image/data", *w.color_message(rgb, stamp), stamp)
+            img = w._image(stamp, depth_mm.astype(np.uint16), "mono16")
+            w.write_raw(dev + "/image/data", "sensor_msgs/msg/Image", img, stamp)
+            w.write_raw(col + "/info/camera_info", "sensor_msgs/msg/CameraInfo", w._camera_info(K_COLOR, stamp), stamp)
+            w.write_raw(dev + "/info/camera_info", "sensor_msgs/msg/CameraInfo", w._camera_info(K_DEPTH, stamp), stamp)
+    res = runner.invoke(main, ["info", str(path), "--json"])
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.stdout)
+    assert info["camera_preset"]["name"] == "realsense_viewer" and info["frames"] == 2
+    assert info["streams"]["depth_info"]["topic"] == dev + "/info/camera_info"
+    assert "recorded stream extrinsics" in info["depth_to_color"] and info["warnings"] == []
+    with open_recording(path, load_config()) as rec:
+        frame = next(iter(rec.frames()))
+    truth = render(K_COLOR, T_depth_color, box_z)
+    edge = ndimage.maximum_filter(truth, 5) - ndimage.minimum_filter(truth, 5) > 0.05
+    both = np.isfinite(frame.depth_m) & np.isfinite(truth) & ~edge
+    # the recorded depth unit is used (0.1 mm counts), and the extrinsics: as the D435 bag, limit 0.2 %
+    assert both.mean() > 0.9 and (np.abs(frame.depth_m[both] - truth[both]) / truth[both]).max() < 0.002
+
+
+def test_zed_layout_takes_the_rgb_camera_info_not_the_first_of_two() -> None:
+    from slzcli.sources.topics import choose_streams
+
+    types = {"/zed/zed_node/rgb/image_rect_color": "sensor_msgs/msg/Image",
+             "/zed/zed_node/rgb/camera_info": "sensor_msgs/msg/CameraInfo",
+             "/zed/zed_node/depth/depth_registered": "sensor_msgs/msg/Image",
+             "/zed/zed_node/depth/camera_info": "sensor_msgs/msg/CameraInfo"}
+    cfg = load_config().sources
+    for preset in (guess_from_topics(types).preset, None):   # with the zed preset, and by the generic rules
+        ch = choose_streams(types, cfg, "zed.bag", preset=preset)
+        assert ch.aligned and ch.depth.topic == "/zed/zed_node/depth/depth_registered"
+        assert ch.camera_info.topic == "/zed/zed_node/rgb/camera_info", ch.camera_info.reason
+        assert "not aligned" not in ch.depth.reason

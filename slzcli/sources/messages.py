@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import abc
 import logging
+import re
 from collections import deque
 from collections.abc import Collection, Generator, Iterator
 from contextlib import closing
@@ -52,6 +53,8 @@ TF_STATIC = "/tf_static"
 # How far (log time) past the first image the pre-pass looks for the depth CameraInfo and /tf_static
 # (both are published at start-up, tf_static latched); project decision.
 SETUP_SCAN_NS = 5 * 1_000_000_000
+# A RealSense recorder's depth unit (std_msgs/Float32, metres per count): librealsense's ros-bag format.
+DEPTH_UNITS_TOPIC = re.compile(r"/device_\d+/sensor_\d+/option/Depth_Units/value")
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,7 @@ class MessageRecording(Recording):
         self.preset = PresetChoice(None, "")
         self.camera_warnings: list[str] = []   # fallbacks: each logged once and listed in RecordingInfo.warnings
         self._d2c: DepthToColor | None = None
+        self._unit: float | None = None
 
     # ------------------------------------------------------------------ open / close
     def open(self) -> None:
@@ -128,6 +132,27 @@ class MessageRecording(Recording):
         if text not in self.camera_warnings:
             self.camera_warnings.append(text)
             log.warning("%s: %s", self.path, text)
+
+    def _depth_unit_m(self) -> float:
+        """Metres per 16-bit depth count: the recording's own (a RealSense recorder's Depth_Units option),
+        else ``sources.depth_unit_16u_m``."""
+        if self._unit is None:
+            self._unit = self.cfg.depth_unit_16u_m
+            topic = next((t for t in sorted(self._topics) if DEPTH_UNITS_TOPIC.fullmatch(t)), None)
+            if topic is not None:
+                with closing(self._wrap(self.log.messages([topic]))) as messages:
+                    for msg in messages:
+                        try:
+                            value = float(self.log.deserialize(msg.topic, msg.data).data)
+                        except (DecodeError, AttributeError, TypeError, ValueError) as err:
+                            self._warn(f"{topic}: not a depth unit ({err}): sources.depth_unit_16u_m used")
+                            break
+                        if 0 < value < 1:
+                            self._unit = value
+                        else:
+                            self._warn(f"{topic}: depth unit {value!r} m is not usable: sources.depth_unit_16u_m used")
+                        break
+        return self._unit
 
     def _depth_to_color(self) -> DepthToColor:
         """How depth reaches the colour grid, decided once from the first messages (warnings for fallbacks)."""
@@ -465,7 +490,7 @@ class MessageRecording(Recording):
             max_px = self.cfg.max_image_px
             rgb = decode.decode_color(self.log.deserialize(pair.color.topic, pair.color.data), max_px)
             depth = decode.decode_depth(self.log.deserialize(pair.depth.topic, pair.depth.data),
-                                        self.cfg.depth_unit_16u_m, self.cfg.max_depth_m, max_px)
+                                        self._depth_unit_m(), self.cfg.max_depth_m, max_px)
         except DecodeError as err:
             where = f"{ch.color.topic} / {ch.depth.topic}"
             if isinstance(err, FrameTooLarge):
