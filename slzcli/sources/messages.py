@@ -373,7 +373,7 @@ class MessageRecording(Recording):
         k = Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
         self._warn(f"no CameraInfo: intrinsics from the config camera section (fx {cam.fx:g} px, {cam.width}x"
                    f"{cam.height}), not this camera's calibration; set camera.fx/fy/cx/cy or --camera NAME")
-        return k, "config camera section (fallback)"
+        return k, "config camera section"
 
     def _report(self, pairer: StreamPairer, without_pose: int, undecodable: int,
                 notes: tuple[str, ...]) -> PairingReport:
@@ -515,6 +515,11 @@ class MessageRecording(Recording):
         if (intr.width, intr.height) != (w, h):
             state.note(f"intrinsics for {intr.width}x{intr.height} scaled to the colour size {w}x{h}")
             intr = intr.scaled(w, h)
+        if d2c.mode == "register" and d2c.k_depth is not None:
+            problem = size_problem(d2c.k_depth, depth.shape[1], depth.shape[0], self.cfg.intrinsics.aspect_tolerance)
+            if problem is not None:
+                raise DatasetError(self.path, f"frame {state.yielded} ({ch.depth.topic}): CameraInfo on "
+                                              f"{ch.depth_info.topic}: {problem}")
         rgb, depth, intr = to_color_camera(rgb, depth, intr, d2c)
         T = poses.track.at(pair.stamp_ns) if ch.pose.topic else None
         if ch.pose.topic and T is None:

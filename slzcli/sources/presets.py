@@ -38,7 +38,6 @@ class CameraPreset:
     depth_aligned: bool
     folder: str
     intrinsics: Intrinsics | None
-    depth_scale: float | None
     noise_prior_a_per_m: float
 
     def topic_for(self, role: str, topics: Collection[str]) -> str | None:
@@ -77,10 +76,9 @@ def _load(path: Path) -> CameraPreset:
         topics = {r: str(d["topics"].get(r) or "") for r in ROLES}
         for pattern in [*topics.values(), str(d.get("hint") or ""), str(d.get("folder") or "")]:
             re.compile(pattern)
-        scale = d.get("depth_scale")
         return CameraPreset(str(d["name"]), str(d["description"]), int(d["order"]), str(d.get("hint") or ""),
                             topics, bool(d["depth_aligned"]), str(d.get("folder") or ""), intr,
-                            None if scale is None else float(scale), float(d["noise_prior_a_per_m"]))
+                            float(d["noise_prior_a_per_m"]))
     except (yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError, re.error) as err:
         raise ConfigError("", f"{path}: not a camera preset ({type(err).__name__}: {err})") from err
 

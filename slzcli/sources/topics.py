@@ -17,7 +17,7 @@ first; ``sources.topics.*`` beats both.
 from __future__ import annotations
 
 import re
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 
 from slzcli.config import SourcesCfg
@@ -92,10 +92,11 @@ def choose_streams(topics: Mapping[str, str], cfg: SourcesCfg, path: str,
     """
     types = {t: normalise_msgtype(m) for t, m in topics.items()}
     enc = dict(encodings or {})
-    color = _preset_pick(preset, "color", types, (IMAGE, COMPRESSED), cfg.topics.color) \
-        or _pick_color(types, cfg.topics.color, path, enc)
-    depth = _preset_pick(preset, "depth", types, (IMAGE, COMPRESSED), cfg.topics.depth) \
-        or _pick_depth(types, cfg.topics.depth, path, exclude=color.topic, encodings=enc)
+    color = _with_misfits(_preset_pick(preset, "color", types, (IMAGE, COMPRESSED), cfg.topics.color, enc,
+                                       COLOR_ENCODINGS), lambda: _pick_color(types, cfg.topics.color, path, enc))
+    depth = _with_misfits(_preset_pick(preset, "depth", types, (IMAGE, COMPRESSED), cfg.topics.depth, enc,
+                                       DEPTH_ENCODINGS),
+                          lambda: _pick_depth(types, cfg.topics.depth, path, exclude=color.topic, encodings=enc))
     by_preset = preset is not None and depth.reason.startswith("preset")
     aligned = (preset.depth_aligned if by_preset and preset is not None else is_aligned_name(depth.topic)) \
         and not cfg.topics.depth_info
@@ -111,12 +112,27 @@ def choose_streams(topics: Mapping[str, str], cfg: SourcesCfg, path: str,
     return Choices(color, depth, info, pose, types.get(pose.topic) if pose.topic else None, depth_info, aligned)
 
 
+def _with_misfits(chosen: StreamChoice | None, generic: Callable[[], StreamChoice]) -> StreamChoice:
+    """The preset's choice (keeping the generic rule's note on topics of the wrong encoding), else the generic one."""
+    if chosen is None:
+        return generic()
+    try:
+        note = generic().reason
+    except DatasetError:
+        return chosen
+    ranked = note[note.find("ranked last"):] if "ranked last" in note else ""
+    return StreamChoice(chosen.role, chosen.topic, "; ".join([chosen.reason] + ([ranked] if ranked else [])))
+
+
 def _preset_pick(preset: CameraPreset | None, role: str, types: Mapping[str, str], allowed: tuple[str, ...],
-                 override: str) -> StreamChoice | None:
-    """The preset's topic for a role (None: no preset, an override, or no topic of the right type matches)."""
+                 override: str, encodings: Mapping[str, str] | None = None,
+                 fit: Collection[str] = ()) -> StreamChoice | None:
+    """The preset's topic for a role (None: no preset, an override, or no topic of the right type and, when
+    known, encoding matches)."""
     if preset is None or override:
         return None
-    topic = preset.topic_for(role, [t for t, m in types.items() if m in allowed])
+    topic = preset.topic_for(role, [t for t, m in types.items() if m in allowed
+                                    and (not fit or _fits(encodings or {}, t, fit))])
     if topic is None:
         return None
     why = f"preset {preset.name} ({preset.topics[role]})"

@@ -173,7 +173,7 @@ class TumRecording(Recording):
         self._warn(f"no camera.yaml and no camera preset ({self.preset.reason}): intrinsics from the config camera "
                    f"section (fx {cam.fx:g} px, {cam.width}x{cam.height}), not this camera's calibration; add "
                    "camera.yaml or use --camera tum_fr1/tum_fr2/tum_fr3")
-        return Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height), "config camera section (fallback)"
+        return Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height), "config camera section"
 
     def _pose_choice(self) -> StreamChoice:
         if not self._gt:
