@@ -354,3 +354,24 @@ def test_zed_layout_takes_the_rgb_camera_info_not_the_first_of_two() -> None:
         assert ch.aligned and ch.depth.topic == "/zed/zed_node/depth/depth_registered"
         assert ch.camera_info.topic == "/zed/zed_node/rgb/camera_info", ch.camera_info.reason
         assert "not aligned" not in ch.depth.reason
+
+
+def test_real_realsense_depth_survives_a_round_trip_through_another_camera(realsense_dir: Path) -> None:
+    """Real D435 depth (noise, holes at edges) registered into a virtual 848x480 depth camera 5 cm aside
+    and back: what comes back is the original depth, and every hole wider than 2 px is still a hole."""
+    params = json.loads((realsense_dir / "cam_params_realsense.json").read_text())["intrinsic_matrix"]
+    k_real = Intrinsics(params[0], params[4], params[6], params[7], 640, 480)   # column-major K
+    T = np.eye(4)
+    T[0, 3] = 0.05
+    for name in sorted((realsense_dir / "depth").glob("*.png"))[:10]:
+        raw = cv2.imread(str(name), cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000
+        raw[raw == 0] = np.nan
+        back = register_depth(register_depth(raw, k_real, T, K_DEPTH), K_DEPTH, np.linalg.inv(T), k_real)
+        both = np.isfinite(back) & np.isfinite(raw)
+        rel = np.abs(back[both] - raw[both]) / raw[both]
+        # Measured over the 10 frames: median 0, 90th percentile 0.28-0.86 % (two resamplings through a grid
+        # 1.45x coarser, at depth edges), coverage of the valid pixels 0.897-0.991; limits 2 % and 0.85.
+        assert np.median(rel) < 1e-6 and np.quantile(rel, 0.9) < 0.02
+        assert both.sum() / np.isfinite(raw).sum() > 0.85
+        core = ndimage.binary_erosion(np.isnan(raw), iterations=2)   # holes: 485-52,858 px per frame
+        assert np.isnan(back[core]).all()

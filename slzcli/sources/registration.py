@@ -32,7 +32,7 @@ MAX_FOOTPRINT_PX = 4
 @dataclass(frozen=True, eq=False)
 class DepthRays:
     """Per depth pixel: the undistorted normalised ray through its centre (x, y; z = 1) and its size
-    (the spacing of the rays through its corners, sx across and sy down), float32 h x w each."""
+    (the spacing of the rays through its corners, sx across and sy down), float32, h x w flattened."""
 
     x: np.ndarray
     y: np.ndarray
@@ -49,7 +49,7 @@ def depth_rays(k: Intrinsics) -> DepthRays:
     sx = 0.5 * ((cx[:-1, 1:] - cx[:-1, :-1]) + (cx[1:, 1:] - cx[1:, :-1]))
     sy = 0.5 * ((cy[1:, :-1] - cy[:-1, :-1]) + (cy[1:, 1:] - cy[:-1, 1:]))
     f32 = np.float32
-    return DepthRays(x.astype(f32), y.astype(f32), np.abs(sx).astype(f32), np.abs(sy).astype(f32))
+    return DepthRays(*(a.astype(f32).ravel() for a in (x, y, np.abs(sx), np.abs(sy))))
 
 
 def register_depth(depth_m: np.ndarray, k_depth: Intrinsics, T_color_depth: np.ndarray,
@@ -65,33 +65,42 @@ def register_depth(depth_m: np.ndarray, k_depth: Intrinsics, T_color_depth: np.n
     rays = depth_rays(k_depth)
     H, W = int(k_color.height), int(k_color.width)
     out = np.full(H * W, np.inf, dtype=np.float32)
-    vv, uu = np.nonzero(np.isfinite(depth_m) & (depth_m > 0))
-    if vv.size:
-        z = depth_m[vv, uu].astype(np.float32)
-        x, y = rays.x[vv, uu] * z, rays.y[vv, uu] * z
-        T = np.asarray(T_color_depth, dtype=np.float32)
-        R, t = T[:3, :3], T[:3, 3]
-        X = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]
-        Y = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]
-        Z = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
-        front = Z > 0
-        X, Y, Z, z, vv, uu = X[front], Y[front], Z[front], z[front], vv[front], uu[front]
-        uc = np.float32(k_color.fx) * X / Z + np.float32(k_color.cx)
-        vc = np.float32(k_color.fy) * Y / Z + np.float32(k_color.cy)
-        scale = z / Z
-        hu = np.float32(0.5 * k_color.fx) * rays.sx[vv, uu] * scale
-        hv = np.float32(0.5 * k_color.fy) * rays.sy[vv, uu] * scale
+    z = np.where(depth_m > 0, depth_m, np.float32(np.nan)).astype(np.float32, copy=False).ravel()
+    T = np.asarray(T_color_depth, dtype=np.float32)
+    R, t = T[:3, :3], T[:3, 3]
+    # Whole-grid arithmetic (no gathers): holes are NaN and drop out below.
+    x, y = rays.x * z, rays.y * z
+    Z = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inv = np.float32(1.0) / Z
+        uc = (R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]) * inv * np.float32(k_color.fx) + np.float32(k_color.cx)
+        vc = (R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]) * inv * np.float32(k_color.fy) + np.float32(k_color.cy)
+        scale = z * inv
+        ok = np.flatnonzero((Z > 0) & (uc > -W) & (uc < 2 * W) & (vc > -H) & (vc < 2 * H))
+    if ok.size:
+        Z, uc, vc, scale = Z[ok], uc[ok], vc[ok], scale[ok]
+        hu = np.float32(0.5 * k_color.fx) * rays.sx[ok] * scale
+        hv = np.float32(0.5 * k_color.fy) * rays.sy[ok] * scale
         c0, c1 = _cover(uc - hu, uc + hu, uc)
         r0, r1 = _cover(vc - hv, vc + hv, vc)
-        inside = (c1 >= 0) & (c0 < W) & (r1 >= 0) & (r0 < H)
-        c0, c1, r0, r1, Z = c0[inside], c1[inside], r0[inside], r1[inside], Z[inside]
+        np.maximum(c0, 0, out=c0)
+        np.minimum(c1, W - 1, out=c1)
+        np.maximum(r0, 0, out=r0)
+        np.minimum(r1, H - 1, out=r1)
+        nc, nr = c1 - c0, r1 - r0                       # the footprint's extent - 1 (negative: off the image)
+        inside = (nc >= 0) & (nr >= 0)
+        if not inside.all():
+            c0, r0, nc, nr, Z = c0[inside], r0[inside], nc[inside], nr[inside], Z[inside]
         if Z.size:
-            for dr in range(int((r1 - r0).max()) + 1):
-                for dc in range(int((c1 - c0).max()) + 1):
-                    r, c = r0 + dr, c0 + dc
-                    m = (r <= r1) & (c <= c1) & (r >= 0) & (r < H) & (c >= 0) & (c < W)
-                    np.minimum.at(out, r[m] * W + c[m], Z[m])
-    out[~np.isfinite(out)] = np.nan
+            base = r0 * W + c0
+            for dr in range(int(nr.max()) + 1):
+                for dc in range(int(nc.max()) + 1):
+                    if dr == dc == 0:
+                        np.minimum.at(out, base, Z)
+                        continue
+                    m = (nr >= dr) & (nc >= dc)
+                    np.minimum.at(out, base[m] + (dr * W + dc), Z[m])
+    out[out == np.inf] = np.nan
     return out.reshape(H, W)
 
 
@@ -100,12 +109,13 @@ def _cover(lo: np.ndarray, hi: np.ndarray, mid: np.ndarray) -> tuple[np.ndarray,
 
     Boxes wider than MAX_FOOTPRINT_PX are cut to that width around their middle.
     """
-    first = np.ceil(lo).astype(np.int64)
-    last = np.ceil(hi).astype(np.int64) - 1
-    nearest = np.rint(mid).astype(np.int64)
-    empty = last < first
-    first[empty] = last[empty] = nearest[empty]
+    first = np.ceil(lo).astype(np.int32)
+    last = np.ceil(hi).astype(np.int32) - 1
+    nearest = np.rint(mid).astype(np.int32)
+    np.copyto(first, nearest, where=last < first)
+    np.maximum(last, first, out=last)
     wide = last - first + 1 > MAX_FOOTPRINT_PX
-    first[wide] = nearest[wide] - MAX_FOOTPRINT_PX // 2
-    last[wide] = first[wide] + MAX_FOOTPRINT_PX - 1
+    if wide.any():
+        first[wide] = nearest[wide] - MAX_FOOTPRINT_PX // 2
+        last[wide] = first[wide] + MAX_FOOTPRINT_PX - 1
     return first, last
