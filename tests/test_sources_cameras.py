@@ -364,7 +364,9 @@ def test_real_realsense_depth_survives_a_round_trip_through_another_camera(reals
     T = np.eye(4)
     T[0, 3] = 0.05
     for name in sorted((realsense_dir / "depth").glob("*.png"))[:10]:
-        raw = cv2.imread(str(name), cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000
+        counts = cv2.imread(str(name), cv2.IMREAD_UNCHANGED)
+        assert counts is not None
+        raw = counts.astype(np.float32) / 1000
         raw[raw == 0] = np.nan
         back = register_depth(register_depth(raw, k_real, T, K_DEPTH), K_DEPTH, np.linalg.inv(T), k_real)
         both = np.isfinite(back) & np.isfinite(raw)
