@@ -504,6 +504,7 @@ class SlamCfg:
     backend: Literal["auto", "orbslam3", "odometry", "recorded"]
     vocabulary: str
     points_topic: str
+    track_ahead: bool
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
     orbslam3: OrbSlam3Cfg
@@ -526,6 +527,7 @@ class OutputCfg:
     reverse_colormap: bool
     results_mcap: bool
     mask_cloud_stride_px: int = rng(1, 256)
+    write_queue: int = rng(0, 64)
 
 
 @schema
