@@ -114,6 +114,7 @@ class SourcesCfg:
     max_depth_m: float = rng(0)
     min_image_px: tuple[int, ...] = rng(1, n=2)
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
+    read_ahead_frames: int = rng(0, 64)
 
 
 @schema

@@ -40,7 +40,7 @@ import logging
 import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import ExitStack
+from contextlib import ExitStack, closing
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -65,6 +65,7 @@ from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
+from slzcli.sources.read_ahead import read_ahead
 from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.limits import limit_reason
@@ -497,8 +498,13 @@ def tracked_frames(path: Path, rec: Any, tracker: Tracker, limit: StageLimit) ->
     and ``slz compare`` so both read, track and choose detection frames the same way.
     """
     config = tracker.config
+    with closing(read_ahead(rec.frames(), config.sources.read_ahead_frames)) as frames:  # decoded in a thread
+        yield from _track_each(path, frames, tracker, limit)
+
+
+def _track_each(path: Path, frames: Iterator[Frame], tracker: Tracker, limit: StageLimit) -> Iterator[TrackedFrame]:
+    config = tracker.config
     every = config.landing.every_nth_frame
-    frames = iter(rec.frames())
     read = 0
 
     def next_frame() -> Frame | None:  # read, checked and handed to SLAM (a worker process starts on it)
