@@ -390,6 +390,9 @@ class MessageRecording(Recording):
         points = self.config.slam.points_topic
         if points and points not in self._topics:
             raise DatasetError(self.path, f"slam.points_topic {points!r} is not in the recording")
+        # Settled before the pass: both read messages of their own, which must not happen inside it.
+        self._depth_to_color()
+        self._depth_unit_m()
         return self._frames(ch, points)
 
     def _frames(self, ch: Choices, points_topic: str) -> Iterator[Frame]:
