@@ -371,7 +371,7 @@ class MessageRecording(Recording):
             return preset.intrinsics, f"camera preset {preset.name} (no CameraInfo)"
         cam = self.config.camera
         k = Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
-        self._warn(f"no CameraInfo: intrinsics from the config camera section (fx {cam.fx:g} px, {cam.width}x"
+        self._warn(f"no usable CameraInfo: intrinsics from the config camera section (fx {cam.fx:g} px, {cam.width}x"
                    f"{cam.height}), not this camera's calibration; set camera.fx/fy/cx/cy or --camera NAME")
         return k, "config camera section"
 
