@@ -307,7 +307,8 @@ def test_realsense_viewer_bag_layout_is_read_and_registered(tmp_path: Path, runn
         w.typestore.register(get_types_from_msg("uint32 fps\nstring encoding\nbool is_recommended",
                                                 "realsense_msgs/msg/StreamInfo"))
         gm = w.typestore.types
-        for prefix, T in ((dev, np.eye(4)), (col, T_depth_color)):     # each stream's pose in the reference (depth)
+        # each stream's extrinsics from the reference (the depth) stream: T_stream_ref, as librealsense writes them
+        for prefix, T in ((dev, np.eye(4)), (col, np.linalg.inv(T_depth_color))):
             q = Pose.from_matrix(T).as_quat()
             tr = gm["geometry_msgs/msg/Transform"](
                 translation=gm["geometry_msgs/msg/Vector3"](*map(float, T[:3, 3])),

@@ -192,8 +192,9 @@ class MessageRecording(Recording):
         ref = {role: T for role, p in prefix.items() if p
                for topic, T in sorted(stream_tf.items(), reverse=True) if topic.startswith(p + "/tf/")}
         if "color" in ref and "depth" in ref:
-            # each is the stream's pose in the group's reference stream (librealsense's ros-bag format)
-            return np.linalg.inv(ref["color"]) @ ref["depth"], "the recorded stream extrinsics (.../tf/0)"
+            # each maps the group's reference stream into the stream (T_stream_ref): librealsense's recorder writes
+            # device::get_extrinsics(stream), the extrinsics from the reference ("pin") stream to the stream
+            return ref["color"] @ np.linalg.inv(ref["depth"]), "the recorded stream extrinsics (.../tf/0)"
         return extrinsics(tree, frames.get("color", ""), frames.get("depth", ""))
 
     def _scan_setup(self, ch: Choices) -> tuple[Intrinsics | None, Intrinsics | None, dict[str, str],
