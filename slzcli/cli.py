@@ -75,6 +75,27 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+def camera_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``--camera NAME``: the camera preset (configs/camera/NAME.yaml, auto or none), as ``--set camera.preset=NAME``.
+
+    Put it above ``@common_options``: it becomes the last override, so it wins over --set and --config.
+    """
+    from slzcli.config import CONFIG_DIR
+
+    names = ["auto", "none", *sorted(p.stem for p in (CONFIG_DIR / "camera").glob("*.yaml"))]
+
+    @click.option("--camera", "camera", type=click.Choice(names), default=None,
+                  help="Camera preset: topic layout, intrinsics without CameraInfo, noise prior "
+                       "(default: camera.preset, auto = guessed; slz info says which).")
+    @functools.wraps(fn)
+    def wrapper(camera: str | None, overrides: tuple[str, ...] = (), **kwargs: Any) -> Any:
+        if camera is not None:
+            overrides = (*overrides, f"camera.preset={camera}")
+        return fn(overrides=overrides, **kwargs)
+
+    return wrapper
+
+
 # The longest line slz prints for one error or warning: messages bound the values they quote
 # (errors.short_repr); this is the net under any that does not (a third-party error's text).
 MAX_LINE_CHARS = 2000
@@ -214,6 +235,7 @@ def config_dump(config: Config) -> tuple[dict[str, Any], str]:
 
 @main.command("info")
 @click.argument("bag", type=click.Path(path_type=Path, readable=False))
+@camera_option
 @common_options
 def info_cmd(config: Config, bag: Path) -> tuple[dict[str, Any], str]:
     """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames."""
@@ -497,6 +519,7 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 @timeout_option("Stop a recording when one stage (opening it, reading, SLAM, detection or writing of one "
                 "frame, the final write) runs longer than this; it fails naming the stage, leaves no run folder, "
                 "and a batch goes on. Default: no limit.")
+@camera_option
 @common_options
 def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None, method: str | None,
                force: bool, workers: int | None, scheduler: str | None, outputs: OutputLevel | None,
@@ -668,6 +691,7 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
 @timeout_option("Stop when one stage (opening a recording, reading, SLAM or detection of one frame, the final "
                 "write) runs longer than this; the comparison fails naming the stage and leaves no output folder. "
                 "Default: no limit.")
+@camera_option
 @common_options
 def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, output: Path | None,
                 variants: bool, force: bool, timeout_s: float | None) -> tuple[dict[str, Any], str]:

@@ -65,6 +65,7 @@ from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
+from slzcli.sources.presets import with_noise_prior
 from slzcli.sources.read_ahead import read_ahead
 from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
@@ -409,6 +410,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             gt = ground_truth_of(path, config)
             truth = None if gt is None else TruthEvaluator(gt)  # a sink: detection never reads the truth
             rec, info, clouds = open_inputs(path, config, stack)
+            config = with_noise_prior(config, info.camera_preset)  # the camera preset's depth noise prior
         results = results_mcap.open_results(tmp, config)
         stack.enter_context(results)   # __enter__ returns the writer itself
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)

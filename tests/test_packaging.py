@@ -79,6 +79,9 @@ def test_the_wheel_carries_configs_rules_and_scenes(installed: tuple[Path, dict[
     assert "fuzzy_rules.yaml" in dump and "# px; paper T1" in dump  # the comments of default.yaml came along
     scenes = _run([str(venv / "bin" / "slz"), "synth", "--list"], cwd=work, env=env).stdout
     assert all(name in scenes for name in ("clear_field", "parking_lot", "no_site"))
+    presets = _run([str(venv / "bin" / "python"), "-c", "from slzcli.sources.presets import preset_names as p; "
+                    "print(' '.join(p()))"], cwd=work, env=env).stdout.split()
+    assert {"d435_aligned", "d435_raw", "zed", "oakd", "realsense_viewer", "tum_fr1"} <= set(presets)  # camera presets
 
 
 def test_the_installed_slz_renders_and_detects_outside_the_checkout(
