@@ -16,7 +16,7 @@ from slzcli.control.simulate import SimResult, Target, sample_starts, simulate
 
 PERCENTILES = (5, 50, 95)
 SUMMARY_FIELDS = ("stabilisation_time_s", "settling_time_s", "switch_time_s", "final_feature_error_px",
-                  "touchdown_error_m", "landing_time_s", "max_tilt_deg")
+                  "touchdown_error_m", "landing_time_s", "max_tilt_deg", "approach_time_s", "recoveries")
 
 
 def batch_config(config: Config) -> Config:
@@ -83,9 +83,11 @@ def summarise(result: SimResult) -> dict[str, Any]:
     n = len(result.reason)
     out: dict[str, Any] = {"runs": n, "success_rate": float(result.success.mean()) if n else math.nan,
                            "successes": int(result.success.sum()),
-                           "reasons": dict(Counter(str(r) for r in result.reason))}
+                           "reasons": dict(Counter(str(r) for r in result.reason)),
+                           "failures": dict(Counter(str(r) for r, ok in zip(result.reason, result.success, strict=True)
+                                                    if not ok))}
     for name in SUMMARY_FIELDS:
-        vals = getattr(result, name)
+        vals = np.asarray(getattr(result, name), float)
         vals = vals[np.isfinite(vals)]
         out[name] = {"count": int(vals.size), "mean": float(vals.mean()) if vals.size else None,
                      **{f"p{p}": (float(np.percentile(vals, p)) if vals.size else None) for p in PERCENTILES}}
