@@ -91,17 +91,25 @@ def summarise(result: SimResult) -> dict[str, Any]:
         vals = vals[np.isfinite(vals)]
         out[name] = {"count": int(vals.size), "mean": float(vals.mean()) if vals.size else None,
                      **{f"p{p}": (float(np.percentile(vals, p)) if vals.size else None) for p in PERCENTILES}}
+    # Where the UAV really touches down around the site (every touch-down, inside the radius or not):
+    # `slz detect --set uav.margin_m=<this>` makes a site's clearance cover it (README, METHOD 2.9).
+    out["landing_dispersion_p95_m"] = out["touchdown_error_m"]["p95"]
     return out
 
 
 def table(summary: dict[str, Any]) -> str:
     """The aggregate as a small fixed-width text table."""
     lines = [f"runs {summary['runs']}  success {summary['successes']} ({100 * summary['success_rate']:.1f} %)  "
-             f"reasons {summary['reasons']}",
+             f"failures {summary['failures'] or 'none'}",
              f"{'metric':<24}{'n':>6}{'mean':>10}" + "".join(f"{'p' + str(p):>10}" for p in PERCENTILES)]
     for name in SUMMARY_FIELDS:
         s = summary[name]
         cells = [s["mean"], *(s[f"p{p}"] for p in PERCENTILES)]
         lines.append(f"{name:<24}{s['count']:>6}" + "".join(f"{'-' if v is None else format(v, '.3f'):>10}"
                                                              for v in cells))
+    p95 = summary.get("landing_dispersion_p95_m")
+    if p95 is not None:
+        margin = math.ceil(p95 * 100) / 100
+        lines.append(f"landing dispersion p95 {p95:.3f} m: `slz detect --set uav.margin_m={margin:g}` keeps that "
+                     "much clearance around a site")
     return "\n".join(lines)
