@@ -48,7 +48,8 @@ NOISE_SCALES = (0.5, 1.0, 2.0, 4.0)
 
 def target_at(center: tuple[float, ...], config: Config) -> Target:
     c = np.array(center, float)
-    return Target(c, square_corners(c, tuple(config.uav.footprint_m)))
+    l1, l2 = config.uav.footprint_m  # the config's (L1, L2)
+    return Target(c, square_corners(c, (l1, l2)))
 
 
 def with_sets(config: Config, sets: list[str]) -> Config:
@@ -73,8 +74,8 @@ def mc(config: Config, site: tuple[float, ...], base: np.ndarray, runs: int, see
 def starts_of(config: Config) -> list[tuple[str, tuple[float, ...], np.ndarray]]:
     """(name, site, base start) for the default start and the paper's starts."""
     t1 = target_at(PAPER_SITE_1, config)
-    out = [("default (scenario-1 geometry)", PAPER_SITE_1, start_from_offsets(t1, np.array(
-        config.control.sim.start_offset_m))[0])]
+    default = start_from_offsets(t1, np.array(config.control.sim.start_offset_m))[0]
+    out: list[tuple[str, tuple[float, ...], np.ndarray]] = [("default (scenario-1 geometry)", PAPER_SITE_1, default)]
     out += [(f"scenario {s}", SITES[s], np.array([*SCENARIOS[s], 0.0])) for s in sorted(SCENARIOS)]
     return out
 
