@@ -330,7 +330,8 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
         s = metrics
         text = (f"{'landed' if s['success'] else 'FAILED'} ({s['reason']}) after {s['landing_time_s']} s; "
                 f"stabilisation {s['stabilisation_time_s']} s, final feature error {s['final_feature_error_px']} px, "
-                f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg -> {out}")
+                f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg; phases (s) "
+                f"{s['phases_s']}, {s['recoveries']} recoveries -> {out}")
         return summary, text
     mc_seed = config.control.noise.seed if seed is None else seed
     with _remove_if_left_empty(out), ibvs_out.montecarlo_rows(out) as add_rows, \
