@@ -274,8 +274,9 @@ def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path) -> t
 def _start_floats(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[float, ...] | None:
     if value is None:
         return None
-    if ctx.params.get("scenario") is not None:
-        raise click.BadParameter("give --scenario or --start, not both")
+    others = [f"--{k}" for k in ("scenario", "start", "offset") if k != param.name and ctx.params.get(k) is not None]
+    if others:
+        raise click.BadParameter(f"give one start: --{param.name} or {others[0]}, not both")
     try:
         values = tuple(float(v) for v in value.split(","))
     except ValueError:
@@ -309,23 +310,28 @@ def land_group() -> None:
 @click.option("--scenario", type=click.IntRange(1, 4), help="Paper start (world frame): 1 (0,0,10), "
               "2 (-3,12,9), 3 (0,0,7), 4 (0,0,10) m.")
 @click.option("--start", callback=_start_floats, metavar="X,Y,Z[,YAW]",
-              help="Start as an offset from the site centre (m, world x/y/up; yaw deg). Default: control.sim.start_m.")
+              help="Start position in the run's world frame (m, ENU as in slz synth --start; yaw deg from +x, "
+              "counter-clockwise).")
+@click.option("--offset", callback=_start_floats, metavar="X,Y,Z[,YAW]",
+              help="Start as an offset from the site centre (m, world x/y/up; yaw deg). "
+              "Default: control.sim.start_offset_m (the paper's scenario 1 geometry).")
 @click.option("--runs", type=click.IntRange(1), default=1, show_default=True,
               help="Monte Carlo runs over start scatter, pose noise and gusts.")
 @click.option("--seed", type=click.IntRange(0), default=None, help="Seed of the noise (and of the start scatter); "
               "default control.noise.seed.")
 @common_options
 def land_simulate(config: Config, run: Path, output: Path | None, scenario: int | None,
-                  start: tuple[float, ...] | None, runs: int, seed: int | None) -> tuple[dict[str, Any], str]:
+                  start: tuple[float, ...] | None, offset: tuple[float, ...] | None, runs: int,
+                  seed: int | None) -> tuple[dict[str, Any], str]:
     """Simulate the image-moment IBVS descent onto the site of RUN/landing.json (METHOD 2.6-2.9)."""
     from slzcli.control import montecarlo
     from slzcli.control.simulate import check_target, resolve_start, simulate
-    from slzcli.errors import ConfigError
     from slzcli.outputs import ibvs as ibvs_out
     from slzcli.outputs import ibvs_plots
 
-    if scenario is not None and start is not None:  # when --start came first on the command line
-        raise ConfigError("--start", "give --scenario or --start, not both")
+    if sum(v is not None for v in (scenario, start, offset)) > 1:  # whatever order they came in
+        from slzcli.errors import ConfigError
+        raise ConfigError("--start", "give one of --scenario, --start or --offset, not both")
     from slzcli import bounds
 
     bounds.check(bounds.simulation_sizes(config, runs))
@@ -333,7 +339,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
     target = check_target(ibvs_out.landing_path(run), target, config.uav.footprint_m,
                           config.control.sim.target_tolerance)
     out = output or ibvs_out.landing_path(run).parent / "ibvs"
-    start_world = resolve_start(target, config, scenario, start)
+    start_world = resolve_start(target, config, scenario, start, offset)
     cam = config.camera
     if runs == 1:
         result = simulate(target, start_world[None], config, log=True, seed=seed)
@@ -346,7 +352,8 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
         s = metrics
         text = (f"{'landed' if s['success'] else 'FAILED'} ({s['reason']}) after {s['landing_time_s']} s; "
                 f"stabilisation {s['stabilisation_time_s']} s, final feature error {s['final_feature_error_px']} px, "
-                f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg -> {out}")
+                f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg; phases (s) "
+                f"{s['phases_s']}, {s['recoveries']} recoveries -> {out}")
         return summary, text
     mc_seed = config.control.noise.seed if seed is None else seed
     with _remove_if_left_empty(out), ibvs_out.montecarlo_rows(out) as add_rows, \

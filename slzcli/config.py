@@ -259,7 +259,7 @@ class SimCfg:
     timeout_s: float = rng(0, lo_open=True)
     abort_tilt_deg: float = rng(0, 180, lo_open=True)
     success_radius_m: float = rng(0, lo_open=True)
-    start_m: tuple[float, ...] = rng(n=3)
+    start_offset_m: tuple[float, ...] = rng(n=3)
     target_tolerance: float = rng(0, 0.5, lo_open=True)
     max_steps_per_run: int = rng(1)
 
@@ -300,6 +300,30 @@ class MonteCarloCfg:
 
 
 @schema
+class TunedGainsCfg:
+    K_e: tuple[float, ...] = rng(0, lo_open=True, n=3)
+    K_i: tuple[float, ...] = rng(0, n=3)
+    K_p: tuple[float, ...] = rng(0, lo_open=True, n=3)
+
+
+@schema
+class ApproachCfg:
+    enabled: bool
+    view_margin: float = rng(0, 0.45)
+    min_height_m: float = rng(0, lo_open=True)
+    speed_m_s: float = rng(0, lo_open=True)
+    climb_speed_m_s: float = rng(0, lo_open=True)
+    k_pos_1_s: float = rng(0, lo_open=True)
+    k_vel_1_s: float = rng(0, lo_open=True)
+
+
+@schema
+class DisturbanceCfg:
+    observer: bool
+    bandwidth_rad_s: float = rng(0, lo_open=True)
+
+
+@schema
 class ControlCfg:
     K_e: tuple[float, ...] = rng(0, lo_open=True, n=3)
     K_i: tuple[float, ...] = rng(0, n=3)
@@ -314,6 +338,10 @@ class ControlCfg:
     max_tilt_cmd_deg: float = rng(0, 89, lo_open=True)
     integral_zone_px: float = rng(0)
     yaw_symmetry_deg: float = rng(0, 360)
+    gain_set: Literal["paper", "tuned"]
+    tuned: TunedGainsCfg
+    approach: ApproachCfg
+    disturbance: DisturbanceCfg
     sim: SimCfg
     noise: NoiseCfg
     wind: WindCfg
