@@ -58,7 +58,7 @@ from slzcli.pipeline import (
     tally,
     tracked_frames,
 )
-from slzcli.scoring import SCORERS
+from slzcli.scoring import METHODS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
 from slzcli.summary import RunState, no_site_reason, site_truth
@@ -161,8 +161,8 @@ def resolve_methods(methods: tuple[str, ...] | list[str], key: str = "--methods"
     out: list[str] = []
     for m in methods:
         m = m.strip()
-        if m not in SCORERS:
-            raise ConfigError(key, f"unknown method {m!r}; known: {', '.join(SCORERS)}")
+        if m not in METHODS:
+            raise ConfigError(key, f"unknown method {m!r}; known: {', '.join(METHODS)}")
         if m not in out:
             out.append(m)
     if len(out) < 2:
