@@ -264,10 +264,10 @@ def grid_detection(planner: Px4SlpPlanner, memory: Px4SlpMemory, config: Config,
         return Detection(frame, None, maps, empty, points, None, maps.edge_distance_m,
                          {**t, "score": 0.0, "mask": 0.0, "select": 0.0}, segment)
     t0 = time.perf_counter()
-    state, xyz = planner.step(memory, frame.depth_m, frame.intrinsics, T_world_camera, segment)
+    state, cells = planner.step(memory, frame.depth_m, frame.intrinsics, T_world_camera, segment)
     t["score"] = _lap(t0)
     t0 = time.perf_counter()
-    score, mask = planner.pixels(state, xyz)
+    score, mask = planner.pixels(state, cells)
     t["mask"] = _lap(t0)
     t0 = time.perf_counter()
     selection = None

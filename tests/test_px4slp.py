@@ -172,9 +172,9 @@ def test_depth_image_to_grid_pixels_and_site() -> None:
     depth = np.full((240, 320), 5.0, np.float32)
     depth[:, :10] = np.nan                                           # no depth: never land-able
     planner, memory, T = Px4SlpPlanner(P), Px4SlpMemory(), looking_down(5.0)
-    st, xyz = planner.step(memory, depth, intr, T, 0)
+    st, cells = planner.step(memory, depth, intr, T, 0)
     assert memory.previous is st and st.counter.max() >= 100       # ~2.2 cm pixels: ~130 points a cell
-    score, mask = planner.pixels(st, xyz)
+    score, mask = planner.pixels(st, cells)
     assert not mask[:, :10].any() and score[:, :10].max() == 0.0
     assert mask[100:140, 140:180].all() and 0.5 < mask.mean() < 1.0   # the view's border cells fail the vote
     world_pts = np.array([[0.0, 0.0, 0.0], [0.5, 0.5, 0.0], [3.0, 0.0, 0.0]])

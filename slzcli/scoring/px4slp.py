@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slzcli.config import Config
-from slzcli.geometry import back_project, transform_points
+from slzcli.geometry import back_project
 from slzcli.types import Intrinsics
 
 NAME = "px4slp"
@@ -108,11 +108,14 @@ def cell_index(xy: np.ndarray, origin_xy: np.ndarray, p: Px4SlpParams) -> tuple[
 def cell_statistics(xyz_world: np.ndarray, origin_xy: np.ndarray,
                     p: Px4SlpParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per cell: count, mean and population variance (M2 / n, upstream's) of the heights of the points inside."""
-    n = p.cells
-    ok = np.all(np.isfinite(xyz_world), axis=1)
+    ok = np.isfinite(xyz_world).all(axis=1)
     pts = xyz_world[ok]
     flat, inside = cell_index(pts[:, :2], origin_xy, p)
-    flat, z = flat[inside], pts[inside, 2].astype(np.float64)
+    return binned_statistics(flat[inside], pts[inside, 2], p.cells)
+
+
+def binned_statistics(flat: np.ndarray, z: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Count, mean and population variance of ``z`` per flat cell index, as (n, n) arrays (two passes)."""
     count = np.bincount(flat, minlength=n * n)
     safe = np.maximum(count, 1)
     mean = np.bincount(flat, weights=z, minlength=n * n) / safe
@@ -144,6 +147,12 @@ def update(previous: GridState | None, xyz_world: np.ndarray, position: np.ndarr
     position = np.asarray(position, np.float64)
     origin = position[:2] - p.grid_size_m / 2.0
     counter, mean, var = cell_statistics(xyz_world, origin, p)
+    return blend(previous, counter, mean, var, origin, position, segment, p)
+
+
+def blend(previous: GridState | None, counter: np.ndarray, mean: np.ndarray, var: np.ndarray, origin: np.ndarray,
+          position: np.ndarray, segment: int, p: Px4SlpParams) -> GridState:
+    """This update's cell statistics low-passed with ``previous`` (see ``update``), land-able cells, hysteresis."""
     fresh = previous is None or previous.segment != segment
     if fresh:
         prev_mean, prev_var = (mean, var) if p.warm_start else (np.zeros_like(mean), np.zeros_like(var))
@@ -175,21 +184,43 @@ class Px4SlpPlanner:
 
     def step(self, memory: Px4SlpMemory, depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray,
              segment: int) -> tuple[GridState, np.ndarray]:
-        """Update the grid with a frame's depth points; returns the update and the points (H, W, 3) in the world."""
-        xyz = transform_points(T_world_camera, back_project(depth_m, intrinsics).astype(np.float64))
-        state = update(memory.previous, xyz.reshape(-1, 3), T_world_camera[:3, 3], segment, self.params)
+        """Update the grid with a frame's depth points; returns the update and each pixel's flat cell index
+        (-1: no depth, or outside the grid). float32 points, as upstream's PCL clouds."""
+        p = self.params
+        pts = back_project(depth_m, intrinsics).reshape(-1, 3)
+        valid = np.flatnonzero(np.isfinite(pts[:, 2]))
+        xyz = _to_world(T_world_camera, pts[valid])
+        position = np.asarray(T_world_camera[:3, 3], np.float64)
+        origin = position[:2] - p.grid_size_m / 2.0
+        flat, inside = cell_index(xyz[:, :2], origin.astype(np.float32), p)
+        stats = binned_statistics(flat[inside], xyz[inside, 2].astype(np.float64), p.cells)
+        state = blend(memory.previous, *stats, origin, position, segment, p)
         memory.previous = state
-        return state, xyz
+        cells = np.full(pts.shape[0], -1, np.int64)
+        cells[valid[inside]] = flat[inside]
+        return state, cells.reshape(depth_m.shape)
 
-    def pixels(self, state: GridState, xyz_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def pixels(self, state: GridState, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Back to the image: each pixel's cell's hysteresis (score, float32) and land-able flag (mask, bool).
 
-        Pixels without depth or outside the grid score 0 and are not land-able.
+        Pixels without depth or outside the grid (``cells`` -1) score 0 and are not land-able.
         """
-        h, w = xyz_world.shape[:2]
-        pts = xyz_world.reshape(-1, 3)
-        flat, inside = cell_index(pts[:, :2], state.origin_xy, self.params)
-        inside &= np.all(np.isfinite(pts), axis=1)
-        score = np.where(inside, state.hysteresis.ravel()[flat], 0.0).astype(np.float32).reshape(h, w)
-        mask = (inside & state.land.ravel()[flat]).reshape(h, w)
+        ok = cells >= 0
+        idx = np.where(ok, cells, 0)
+        score = np.where(ok, state.hysteresis.astype(np.float32).ravel()[idx], np.float32(0.0))
+        mask = ok & state.land.ravel()[idx]
         return score, mask
+
+
+def _to_world(T: np.ndarray, pc: np.ndarray) -> np.ndarray:
+    """``R p + t`` on (N, 3) float32 camera points, column by column: nine multiply-adds per point and no
+    BLAS call (a (N, 3) x (3, 3) product is memory-bound; BLAS threads only contend on a busy machine)."""
+    R, t = T[:3, :3].astype(np.float32), T[:3, 3].astype(np.float32)
+    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
+    out = np.empty_like(pc)
+    for k in range(3):  # the three world axes, not points
+        np.multiply(x, R[k, 0], out=out[:, k])
+        out[:, k] += y * R[k, 1]
+        out[:, k] += z * R[k, 2]
+        out[:, k] += t[k]
+    return out
