@@ -310,7 +310,10 @@ def tally(state: RunState, det: Detection, config: Config) -> None:
     if score.column_cut > 0 or score.mask.any():
         cut = state.column_cut
         state.column_cut = score.column_cut if cut is None else min(cut, score.column_cut)
-    if work is not None and not work.vouched:
+    grid = score.method == PX4SLP  # reads no terrain map: the maps' noise limits did not gate it
+    if grid and det.selection is not None and det.selection.site is None:
+        state.grid_reason = det.selection.reason
+    if not grid and work is not None and not work.vouched:
         state.unvouched += 1
         worst = state.worst_unvouched
         if worst is None or work.altitude_m > worst.altitude_m:
