@@ -108,6 +108,16 @@ def test_noise_above_the_std_threshold_makes_every_cell_not_landable(seed: int) 
     assert quiet.land[5:-5, 5:-5].all()
 
 
+@pytest.mark.parametrize(("slope_deg", "landable"), [(11.0, True), (12.0, False)])
+def test_the_vote_is_an_implicit_slope_limit(slope_deg: float, landable: bool) -> None:
+    """A ramp along x: cells two columns apart (0.5 m) differ by 0.5 tan(slope), over 0.1 m from 11.3 deg;
+    then 8 of the 11 columns (88 > 70 neighbours) differ. The per-cell std stays ~0.015 m."""
+    xy = lattice(step_m=0.02)
+    st = update(None, cloud(xy[:, 0] * np.tan(np.radians(slope_deg)), xy), ORIGIN, 0, P)
+    assert np.sqrt(st.variance[5:-5, 5:-5]).max() < 0.02
+    assert st.land[5:-5, 5:-5].all() if landable else not st.land[5:-5, 5:-5].any()
+
+
 def test_too_few_points_in_a_cell_is_not_landable() -> None:
     xy = lattice(step_m=0.05)   # 25 points a cell, n_points_threshold is 100
     st = update(None, cloud(np.zeros(len(xy)), xy), ORIGIN, 0, P)
