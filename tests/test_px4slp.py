@@ -243,6 +243,7 @@ def test_compare_three_methods_through_the_cli(field_5m, tmp_path) -> None:
     assert px["status"] == "site" and gt["site"]["safe"] is True
     rows = (out / "compare.csv").read_text().splitlines()
     assert sum(",px4slp," in r for r in rows) == 1
+    assert "safe_landing_planner" in (out / "report.html").read_text()
 
 
 def test_detect_with_px4slp_and_bad_method_names(field_5m, tmp_path) -> None:
