@@ -129,11 +129,14 @@ def landable(counter: np.ndarray, mean: np.ndarray, variance: np.ndarray, p: Px4
     s = p.smoothing_size
     if s <= 0:
         return land
-    k = 2 * s + 1
-    land_win = np.lib.stride_tricks.sliding_window_view(np.pad(land.astype(np.int32), s), (k, k))
-    mean_win = np.lib.stride_tricks.sliding_window_view(np.pad(mean, s), (k, k))  # padding: mean 0, as upstream
-    n_land = land_win.sum(axis=(2, 3))
-    n_diff = (np.abs(mean[:, :, None, None] - mean_win) > p.mean_diff_thr_m).sum(axis=(2, 3))
+    k, n = 2 * s + 1, land.shape[0]
+    pad_land, pad_mean = np.pad(land.astype(np.int32), s), np.pad(mean, s)  # padding: mean 0, as upstream
+    n_land = np.zeros(land.shape, np.int64)
+    n_diff = np.zeros(land.shape, np.int64)
+    for dk in range(k):  # one row of the window at a time: n x n x k values, not n x n x k x k (s is up to 100)
+        n_land += np.lib.stride_tricks.sliding_window_view(pad_land[dk:dk + n], k, axis=1).sum(axis=2)
+        row = np.lib.stride_tricks.sliding_window_view(pad_mean[dk:dk + n], k, axis=1)
+        n_diff += (np.abs(mean[:, :, None] - row) > p.mean_diff_thr_m).sum(axis=2)
     return (n_land > p.min_n_land_cells) & (n_diff <= p.max_n_mean_diff_cells)
 
 
