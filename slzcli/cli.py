@@ -511,7 +511,7 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="One recording: its run folder (default runs/<name>). Several, or a quoted glob pattern: "
                    "the folder for one run folder each plus summary.json and summary.csv (default runs/).")
-@click.option("--method", type=click.Choice(["fuzzy", "bayes"]), default=None,
+@click.option("--method", type=click.Choice(["fuzzy", "bayes", "px4slp"]), default=None,
               help="Fusion method (default: scoring.method).")
 @click.option("--force", is_flag=True, help="Replace finished runs (only the files slz writes in a run folder): "
               "redo one done for the same config and inputs, or replace one of another config.")

@@ -1,4 +1,5 @@
-"""``slz compare``: the fuzzy score against the Bayes baseline on the same frames (issue 8, BASELINE.md).
+"""``slz compare``: the fuzzy score against the Bayes baseline (issue 8, BASELINE.md) and the PX4-Avoidance
+grid planner (issue 21, PX4SLP.md) on the same frames.
 
 Only the fusion may differ. SLAM tracks every frame ONCE and the four terrain maps are
 computed ONCE per detection frame; each method then scores, masks and selects on those
@@ -24,7 +25,8 @@ Decisions:
   frame: both methods share it, so no alignment is needed. After a SLAM map reset two
   committed sites may lie in different map segments (unrelated frames): no distance then.
 - Times are per detection frame: ``slam`` is the tracking time of that frame, ``maps`` the
-  shared map time (counted for each method, as each would pay it alone), ``frame`` the sum
+  shared map time (counted for each method, as each would pay it alone; 0 for px4slp, which reads
+  no terrain map: its grid update from the depth points is its ``score``), ``frame`` the sum
   of slam, maps, score, mask and select. Frames that are only tracked are not in ``frame``.
 """
 
@@ -58,7 +60,7 @@ from slzcli.pipeline import (
     tally,
     tracked_frames,
 )
-from slzcli.scoring import SCORERS
+from slzcli.scoring import METHODS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
 from slzcli.sources.presets import with_noise_prior
@@ -162,8 +164,8 @@ def resolve_methods(methods: tuple[str, ...] | list[str], key: str = "--methods"
     out: list[str] = []
     for m in methods:
         m = m.strip()
-        if m not in SCORERS:
-            raise ConfigError(key, f"unknown method {m!r}; known: {', '.join(SCORERS)}")
+        if m not in METHODS:
+            raise ConfigError(key, f"unknown method {m!r}; known: {', '.join(METHODS)}")
         if m not in out:
             out.append(m)
     if len(out) < 2:

@@ -197,10 +197,28 @@ class BayesCfg:
 
 
 @schema
+class Px4SlpCfg:  # the ranges of upstream's SafeLandingPlannerNode.cfg / WaypointGeneratorNode.cfg
+    grid_size_m: float = rng(1, 20)
+    cell_size_m: float = rng(0.1, 10)
+    n_points_threshold: float = rng(0, 5000)
+    std_dev_threshold_m: float = rng(0, 1)
+    smoothing_size: int = rng(-1, 100)
+    mean_diff_thr_m: float = rng(0, 1)
+    max_n_mean_diff_cells: int = rng(0, 100)
+    min_n_land_cells: int = rng(0, 100)
+    alpha: float = rng(0, 1)
+    beta: float = rng(0, 1)
+    can_land_thr: float = rng(0, 1)
+    smoothing_land_cell: int = rng(0, 100)
+    warm_start: bool
+
+
+@schema
 class ScoringCfg:
-    method: Literal["fuzzy", "bayes"]
+    method: Literal["fuzzy", "bayes", "px4slp"]
     fuzzy: FuzzyCfg
     bayes: BayesCfg
+    px4slp: Px4SlpCfg
 
 
 @schema

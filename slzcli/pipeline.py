@@ -41,7 +41,7 @@ import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import ExitStack, closing
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +55,7 @@ from slzcli.evaluate.truth import TruthEvaluator
 from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
+from slzcli.landing.px4slp import grid_site
 from slzcli.landing.select import Candidate, SelectParams, Site, select_site
 from slzcli.outputs import output_dir, results_mcap, run_folder
 from slzcli.outputs.background import BackgroundWriter
@@ -62,6 +63,8 @@ from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
+from slzcli.scoring.px4slp import NAME as PX4SLP
+from slzcli.scoring.px4slp import Px4SlpMemory, Px4SlpPlanner
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
@@ -73,7 +76,7 @@ from slzcli.terrain.limits import limit_reason
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.timeout import StageLimit
-from slzcli.types import Detection, Frame, TerrainMaps
+from slzcli.types import Detection, Frame, ScoreMap, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
@@ -221,25 +224,34 @@ def run_state(tracker: Tracker, config: Config, spool: Path | None = None) -> Ru
 # ----------------------------------------------------------------------------- fusion
 @dataclass(frozen=True)
 class Fusion:
-    """One method's step from terrain maps to a site: score -> mask -> site, without state.
+    """One method's step from terrain maps to a site: score -> mask -> site.
 
-    The same frame, pose, maps and map points give the same Detection, whatever came before;
-    what a run accumulates is added by ``tally``. ``slz compare`` runs one per method on the
-    same maps and points.
+    fuzzy and bayes have no state: the same frame, pose, maps and map points give the same
+    Detection, whatever came before; what a run accumulates is added by ``tally``. px4slp (the
+    PX4 grid planner) low-passes its grid over the frames, as upstream does: that state is its
+    ``memory``, one per Fusion (so per recording and method), reset at a new map segment.
+    ``slz compare`` runs one per method on the same maps and points.
     """
 
     config: Config
     method: str
-    scorer: Scorer
+    scorer: Scorer | Px4SlpPlanner
     params: SelectParams
+    memory: Px4SlpMemory | None = field(default=None, compare=False)
 
     @classmethod
     def of(cls, config: Config, method: str) -> Fusion:
+        if method == PX4SLP:
+            return cls(config, method, Px4SlpPlanner.from_config(config), select_params(config, method),
+                       Px4SlpMemory())
         return cls(config, method, get_scorer(config, method), select_params(config, method))
 
     def __call__(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
                  points: MapPoints | None, segment: int) -> Detection:
         """Score, mask and (with a pose, map points and maps that vouch) the site of one frame."""
+        if isinstance(self.scorer, Px4SlpPlanner):
+            assert self.memory is not None
+            return grid_detection(self.scorer, self.memory, self.config, frame, T_world_camera, maps, points, segment)
         t: dict[str, float] = {"maps": maps_ms}
         t0 = time.perf_counter()
         raw = self.scorer(maps)
@@ -256,6 +268,39 @@ class Fusion:
                                     self.params, edge_distance_m=edge)
         t["select"] = _lap(t0)
         return Detection(frame, T_world_camera, maps, score, points, selection, edge, t, segment)
+
+
+def grid_detection(planner: Px4SlpPlanner, memory: Px4SlpMemory, config: Config, frame: Frame,
+                   T_world_camera: np.ndarray | None, maps: TerrainMaps, points: MapPoints | None,
+                   segment: int) -> Detection:
+    """px4slp on one frame: grid update from the frame's depth points and pose, pixel mask, the planner's site.
+
+    No terrain map is read but the edge distance (reported, not tested): the ``maps`` time is 0, the
+    grid update is the ``score`` stage. Without a pose the grid is not updated (upstream needs the
+    vehicle's position) and nothing is land-able. slz's noise limits do not gate it (upstream has none).
+    """
+    t: dict[str, float] = {"maps": 0.0}
+    shape = frame.depth_m.shape
+    if T_world_camera is None:
+        empty = ScoreMap(planner.name, np.zeros(shape, np.float32), np.zeros(shape, bool))
+        return Detection(frame, None, maps, empty, points, None, maps.edge_distance_m,
+                         {**t, "score": 0.0, "mask": 0.0, "select": 0.0}, segment)
+    t0 = time.perf_counter()
+    state, cells = planner.step(memory, frame.depth_m, frame.intrinsics, T_world_camera, segment)
+    t["score"] = _lap(t0)
+    t0 = time.perf_counter()
+    score, mask = planner.pixels(state, cells)
+    t["mask"] = _lap(t0)
+    t0 = time.perf_counter()
+    selection = None
+    if points is not None:
+        p = planner.params
+        selection = grid_site(state.hysteresis, state.mean, state.position, p.cell_size_m, p.smoothing_land_cell,
+                              p.can_land_thr, points.xyz_world, T_world_camera, frame.K, mask,
+                              (config.uav.footprint_m[0], config.uav.footprint_m[1]), maps.edge_distance_m)
+    t["select"] = _lap(t0)
+    return Detection(frame, T_world_camera, maps, ScoreMap(planner.name, score, mask), points, selection,
+                     maps.edge_distance_m, t, segment)
 
 
 def detect_frame(frame: Frame, T_world_camera: np.ndarray | None, tracker: Tracker, fusion: Fusion,
@@ -287,7 +332,10 @@ def tally(state: RunState, det: Detection, config: Config) -> None:
     if score.column_cut > 0 or score.mask.any():
         cut = state.column_cut
         state.column_cut = score.column_cut if cut is None else min(cut, score.column_cut)
-    if work is not None and not work.vouched:
+    grid = score.method == PX4SLP  # reads no terrain map: the maps' noise limits did not gate it
+    if grid and det.selection is not None and det.selection.site is None:
+        state.grid_reason = det.selection.reason
+    if not grid and work is not None and not work.vouched:
         state.unvouched += 1
         worst = state.worst_unvouched
         if worst is None or work.altitude_m > worst.altitude_m:
@@ -382,7 +430,7 @@ class RunOptions:
     """How to run a recording, beside its config; not in the config hash (they do not change results).
 
     force: replace a finished run in the run folder (redo it for the same key, replace one of
-    another key; only the files a run writes are replaced). method: fuzzy | bayes (None:
+    another key; only the files a run writes are replaced). method: fuzzy | bayes | px4slp (None:
     scoring.method). timeout_s: bound on each stage in wall time (``--timeout``; None: none).
     """
 
