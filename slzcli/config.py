@@ -101,6 +101,16 @@ class IntrinsicsCheckCfg:
 
 
 @schema
+class WindowCfg:
+    start_s: float | None = rng(0)
+    end_s: float | None = rng(0, lo_open=True)
+    start_stamp_s: float | None = rng(0)
+    end_stamp_s: float | None = rng(0, lo_open=True)
+    stride: int = rng(1)
+    max_frames: int = rng(0)
+
+
+@schema
 class SourcesCfg:
     topics: Topics
     intrinsics: IntrinsicsCheckCfg
@@ -114,6 +124,7 @@ class SourcesCfg:
     max_depth_m: float = rng(0)
     min_image_px: tuple[int, ...] = rng(1, n=2)
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
+    window: WindowCfg
 
 
 @schema
