@@ -24,6 +24,7 @@ import click
 from slzcli import __version__
 from slzcli.config import Config, OutputLevel, dump, load_config
 from slzcli.errors import SlzError
+from slzcli.outputs.summary_json import envelope
 
 if TYPE_CHECKING:
     from slzcli.synth.flight import PathKind
@@ -639,18 +640,40 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     rows = result.rows
     for r in rows:
         _warn_slam_maps(r.get("summary"))
+    # --json names paths as the user gave them (the run folders and summary files keep absolute ones)
+    given = {str(p.absolute()): str(p) for p in paths}
+    given_run = {str(t.run_dir): str(output) if output is not None and not is_batch else str(batch_dir / t.run_dir.name)
+                 for t in tasks}
     if not is_batch:
         row = rows[0]
         if row["status"] == "failed":
             raise SlzError(row["error"])
-        return {"run": row["run"], **row["summary"]}, _detect_text(Path(row["run"]), row["summary"])
+        s = row["summary"]
+        out = {"run": given_run.get(row["run"], row["run"]), **s, "source": given.get(s["source"], s["source"])}
+        t = s.get("timings_ms") or {}
+        if s.get("method") in t:  # "score" as in slz compare; the method's own key stays for older scripts
+            out["timings_ms"] = {**t, "score": t[s["method"]]}
+        return envelope("detect", out), _detect_text(Path(row["run"]), s)
     failed = [r for r in rows if r["status"] == "failed"]
     if failed:
         raise SlzError(f"{len(failed)} of {len(rows)} recordings failed (first: {failed[0]['error']}); "
                        f"status of each in {batch_dir / 'summary.csv'}")
     totals = {**result.totals(), "summary_files": [str(p) for p in result.summary_files]}
-    runs = [{k: v for k, v in r.items() if k != "summary"} for r in rows]
-    return {"batch": totals, "runs": runs}, _batch_text(totals, rows)
+    runs = [_batch_row(r, given, given_run) for r in rows]
+    return envelope("batch", {"batch": totals, "runs": runs}), _batch_text(totals, rows)
+
+
+def _batch_row(r: dict[str, Any], given: dict[str, str], given_run: dict[str, str]) -> dict[str, Any]:
+    """A batch row of ``--json``: the paths as given, ``source`` as in detect and compare, the run's
+    no-site reason and ground-truth figures when it has them."""
+    row = {k: v for k, v in r.items() if k != "summary"}
+    source = given.get(str(r["recording"]), str(r["recording"]))
+    row.update(recording=source, source=source, run=given_run.get(str(r["run"]), r["run"]))
+    s = r.get("summary") or {}
+    row["reason"] = s.get("reason")
+    if s.get("ground_truth") is not None:
+        row["ground_truth"] = s["ground_truth"]
+    return row
 
 
 def _slam_maps(s: dict[str, Any] | None) -> int:
@@ -805,7 +828,10 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
         if _slam_maps(r) > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
-    return summary, text_table(summary, str(out))
+    for r in summary.get("recordings", []):
+        for m in (r.get("methods") or {}).values():
+            m.setdefault("site_world", (m.get("site") or {}).get("center_world"))
+    return envelope("compare", summary), text_table(summary, str(out))
 
 
 # --- commands end (new commands go above this line) ---

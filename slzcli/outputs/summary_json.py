@@ -53,7 +53,7 @@ def envelope(command: str, summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def error_object(message: str, exit_code: int, err: BaseException | None = None) -> dict[str, Any]:
-    """``{"schema_version", "error": {"message", "exit_code", "kind", "file"?, "key"?}}``: a failure under ``--json``."""
+    """A failure under ``--json``: ``{"schema_version", "error": {"message", "exit_code", "kind", "file", "key"}}``."""
     body: dict[str, Any] = {"message": message, "exit_code": exit_code,
                             "kind": "usage" if err is None else type(err).__name__}
     path, key = getattr(err, "path", None), getattr(err, "key", None)
