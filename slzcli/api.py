@@ -83,6 +83,7 @@ def _run_frames(frames: Iterator[Frame], opened: tuple[Any, ...] | None, config:
     from slzcli.evaluate.truth import TruthEvaluator
     from slzcli.slam import get_backend
     from slzcli.sources import RecordingInfo
+    from slzcli.sources.window import no_frames_reason
     from slzcli.summary import summarise
 
     t_start = time.perf_counter()
@@ -120,7 +121,7 @@ def _run_frames(frames: Iterator[Frame], opened: tuple[Any, ...] | None, config:
                 truth.detection(d)
         state.frames = tracker.frames
         if state.frames == 0:
-            raise DatasetError(path, "no RGB-D frame could be read")
+            raise DatasetError(path, no_frames_reason(rec.report))
         committed = pipeline.commit_site(state.sites.sites, pipeline.commit_radius_m(config))
         if opened is None:
             assert first is not None

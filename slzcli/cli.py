@@ -647,7 +647,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     if not is_batch:
         row = rows[0]
         if row["status"] == "failed":
-            raise SlzError(row["error"])
+            raise _given_paths(SlzError(row["error"]), row.get("error_detail"), {**given, **given_run})
         s = row["summary"]
         out = {"run": given_run.get(row["run"], row["run"]), **s, "source": given.get(s["source"], s["source"])}
         t = s.get("timings_ms") or {}
@@ -661,6 +661,18 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     totals = {**result.totals(), "summary_files": [str(p) for p in result.summary_files]}
     runs = [_batch_row(r, given, given_run) for r in rows]
     return envelope("batch", {"batch": totals, "runs": runs}), _batch_text(totals, rows)
+
+
+def _given_paths(err: SlzError, detail: dict[str, str] | None, given: dict[str, str]) -> SlzError:
+    """A run's error with the absolute paths the workers used named as the user gave them."""
+    text, detail = str(err), dict(detail or {})
+    for absolute, as_given in sorted(given.items(), key=lambda kv: -len(kv[0])):
+        text = text.replace(absolute, as_given)
+        if detail.get("file") == absolute:
+            detail["file"] = as_given
+    out = SlzError(text)
+    out.detail = detail  # type: ignore[attr-defined]  # read by outputs/summary_json.error_object
+    return out
 
 
 def _batch_row(r: dict[str, Any], given: dict[str, str], given_run: dict[str, str]) -> dict[str, Any]:

@@ -61,6 +61,7 @@ from slzcli.pipeline import (
 from slzcli.scoring import SCORERS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
+from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunState, no_site_reason, site_truth
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
@@ -211,7 +212,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
                 if progress is not None:
                     progress(tracker.frames, info.expected_frames)
     if tracker.frames == 0:
-        raise DatasetError(path, "no RGB-D frame could be read")
+        raise DatasetError(path, no_frames_reason(rec.report))
     check_same_inputs({m: r.inputs for m, r in runs.items()})
     return _summarise(path, config, methods, runs, tracker, noise, truth, map_curves, map_means, agreement,
                       time.perf_counter() - t_start)

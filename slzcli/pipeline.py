@@ -63,6 +63,7 @@ from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
+from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.limits import limit_reason
@@ -417,7 +418,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
                     results.write_detection(d)
         state.frames = tracker.frames
         if state.frames == 0:
-            raise DatasetError(path, "no RGB-D frame could be read")
+            raise DatasetError(path, no_frames_reason(rec.report))
         with limit.stage("writing the run folder"):
             committed = commit_site(state.sites.sites, commit_radius_m(config))
             results.write_run(committed)

@@ -53,7 +53,11 @@ def envelope(command: str, summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def error_object(message: str, exit_code: int, err: BaseException | None = None) -> dict[str, Any]:
-    """A failure under ``--json``: ``{"schema_version", "error": {"message", "exit_code", "kind", "file", "key"}}``."""
+    """A failure under ``--json``: ``{"schema_version", "error": {"message", "exit_code", "kind", "file", "key"}}``.
+
+    ``err`` None: a usage error. An error may carry ``detail`` ({"kind", "file", "key"}) when it was
+    raised elsewhere (a batch worker) and only its text and detail came back.
+    """
     body: dict[str, Any] = {"message": message, "exit_code": exit_code,
                             "kind": "usage" if err is None else type(err).__name__}
     path, key = getattr(err, "path", None), getattr(err, "key", None)
@@ -61,4 +65,7 @@ def error_object(message: str, exit_code: int, err: BaseException | None = None)
         body["file"] = path
     if isinstance(key, str) and key:
         body["key"] = key
+    detail = getattr(err, "detail", None)
+    if isinstance(detail, dict):
+        body.update({k: str(v) for k, v in detail.items() if k in ("kind", "file", "key")})
     return {"schema_version": SCHEMA_VERSION, "error": body}

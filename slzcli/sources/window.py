@@ -132,3 +132,11 @@ class WindowFilter:
                 "end_stamp_s": w.end_stamp_s, "stride": w.stride, "max_frames": w.max_frames,
                 "first_stamp_ns": self.first_ns, "read": self.kept, "before_start": self.before,
                 "after_end": self.after, "between_strides": self.strided, "over_max_frames": self.over_max}
+
+
+def no_frames_reason(report: Any) -> str:
+    """Why a recording gave no frame: the pairing report's window note when the window left every pair out."""
+    notes = [n for n in getattr(report, "notes", ()) if n.startswith("window ")]
+    if getattr(report, "outside_window", 0) and notes:
+        return f"no RGB-D frame in the window ({notes[-1]})"
+    return "no RGB-D frame could be read"
