@@ -17,6 +17,9 @@ from slzcli.config import WindowCfg
 from slzcli.errors import ConfigError
 
 NS_PER_S = 1_000_000_000
+# A stamp this close to a bound counts as on it: seconds in a float resolve 0.24 us at today's epoch
+# stamps (2^31 s), so "@1700000000.166666665" cannot be held exactly; 1 us is far below any frame period.
+BOUND_TOLERANCE_NS = 1_000
 
 
 def check_window(w: WindowCfg) -> None:
@@ -87,10 +90,10 @@ class WindowFilter:
         if self.first_ns is None:
             self.first_ns = stamp_ns
         lo, hi = self._bounds()
-        if lo is not None and stamp_ns < lo:
+        if lo is not None and stamp_ns < lo - BOUND_TOLERANCE_NS:
             self.before += 1
             return False
-        if hi is not None and stamp_ns >= hi:
+        if hi is not None and stamp_ns >= hi - BOUND_TOLERANCE_NS:
             self.after += 1
             return False
         if self.window.max_frames and self.kept >= self.window.max_frames:
