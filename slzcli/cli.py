@@ -136,13 +136,13 @@ def _echo_json_error(message: str, exit_code: int, err: BaseException | None) ->
 
 
 def _check_overrides(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> tuple[str, ...]:
-    """``--set`` items that are not ``KEY=VALUE`` with a dotted key and a YAML value are usage errors (exit 2);
-    whether the key exists and the value fits is the config's to say (exit 1, naming the key)."""
-    from slzcli.config import parse_override
+    """``--set`` items that are not ``KEY=VALUE`` with a dotted key are usage errors (exit 2); whether the
+    key exists and the value parses and fits is the config's to say (exit 1, naming the key)."""
+    from slzcli.config import split_override
 
     for item in value:
         try:
-            parse_override(item)
+            split_override(item)
         except SlzError as err:
             raise click.BadParameter(str(err)) from None
     return value

@@ -711,14 +711,21 @@ def _load_yaml_file(path: Path) -> Any:
         raise ConfigError("", "not a usable config: nested too deeply for the YAML parser", source=str(path)) from err
 
 
-def parse_override(item: str) -> tuple[str, Any]:
-    """``a.b=v`` -> (``a.b``, YAML-parsed ``v``)."""
+def split_override(item: str) -> tuple[str, str]:
+    """``a.b=v`` -> (``a.b``, ``v`` unparsed); ConfigError when it is not KEY=VALUE with a dotted key
+    (the CLI makes this a usage error, exit 2; a value the YAML parser refuses stays a config error)."""
     if "=" not in item:
         raise ConfigError(item, "--set needs KEY=VALUE, e.g. --set mask.threshold=0.6")
     key, _, text = item.partition("=")
     key = key.strip()
     if not re.fullmatch(r"[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*", key):
         raise ConfigError(key or item, "not a dotted key path")  # name what was typed, even an empty key
+    return key, text
+
+
+def parse_override(item: str) -> tuple[str, Any]:
+    """``a.b=v`` -> (``a.b``, YAML-parsed ``v``)."""
+    key, text = split_override(item)
     try:
         value = safe_yaml_load(text) if text.strip() else ""
     except YamlLimitError as err:
