@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import jsonschema
+import jsonschema  # type: ignore[import-untyped]  # no stubs in the lint extra (types-jsonschema)
 import pytest
 from conftest import GAUSSIAN, REPO, synth_recording
 
