@@ -994,4 +994,6 @@ def _yaml_scalar(value: Any) -> str:
         return json.dumps(value) if value == "" or not re.fullmatch(r"[\w./-]+", value) else value
     if isinstance(value, bool):
         return "true" if value else "false"
+    if value is None:  # an optional key left unset (sources.window.start_s)
+        return "null"
     return repr(value) if isinstance(value, float) else str(value)
