@@ -22,11 +22,11 @@ from typing import TYPE_CHECKING, Any
 
 from slzcli.config import Config, load_config
 from slzcli.errors import DatasetError
-from slzcli.types import Frame, PairingReport, RunResult
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # numpy comes with these: imported at the first call, so `import slzcli.cli` stays light
     from slzcli.pipeline import TrackedFrame
     from slzcli.timeout import StageLimit
+    from slzcli.types import Frame, RunResult
 
 __all__ = ["detect", "load_config"]
 FRAMES_SOURCE = "<frames>"  # the source named in a result made from frames in memory
@@ -61,6 +61,8 @@ def detect(source: str | Path | Iterable[Frame], config: Config | None = None, o
 
 def _read_run(out: Path) -> RunResult:
     """The RunResult of a run folder ``slz detect`` wrote (``committed``: None, it is not stored)."""
+    from slzcli.types import RunResult
+
     run = json.loads((out / "run.json").read_text())
     landing = json.loads((out / "landing.json").read_text())
     slam = run["summary"].get("slam") or {}
@@ -85,6 +87,7 @@ def _run_frames(frames: Iterator[Frame], opened: tuple[Any, ...] | None, config:
     from slzcli.sources import RecordingInfo
     from slzcli.sources.window import no_frames_reason
     from slzcli.summary import summarise
+    from slzcli.types import PairingReport
 
     t_start = time.perf_counter()
     truth = None

@@ -22,7 +22,8 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from slzcli import __version__
-from slzcli.config import Config, OutputLevel, dump, load_config
+from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
+from slzcli.config import Config, OutputLevel, dump
 from slzcli.errors import SlzError
 from slzcli.outputs.summary_json import envelope
 

@@ -97,10 +97,14 @@ def test_load_config_layers_a_file_and_overrides(tmp_path: Path) -> None:
 
 
 def test_import_slzcli_is_light() -> None:
+    """The package and the command line import without numpy, OpenCV or SLAM (they load on first use)."""
     code = ("import sys, slzcli; heavy = [m for m in ('numpy', 'cv2', 'open3d', 'click') if m in sys.modules]; "
-            "print(heavy); slzcli.detect; print('numpy' in sys.modules)")
+            "print(heavy); slzcli.detect, slzcli.Frame; print('numpy' in sys.modules)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split("\n")[:2] == ["[]", "True"]
+    proc = subprocess.run([sys.executable, "-c", "import sys, slzcli.cli; print('numpy' in sys.modules)"],
+                          capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "False", proc.stdout + proc.stderr
     with pytest.raises(AttributeError):
         slzcli.no_such_name  # noqa: B018
