@@ -323,7 +323,9 @@ def config_group() -> None:
 @common_options
 def config_dump(config: Config) -> tuple[dict[str, Any], str]:
     """Print the resolved config (defaults + --config + --set), every key commented."""
-    return config.to_dict(), dump(config).rstrip("\n")
+    from slzcli.outputs.summary_json import Exact
+
+    return Exact(config.to_dict()), dump(config).rstrip("\n")  # --json unrounded: values must round-trip
 
 
 @main.command("info")

@@ -143,6 +143,12 @@ def test_rounded_keeps_ints_bools_and_non_finite() -> None:
     assert out["a"] == [1, True, None, "s", 0.3] and math.isnan(out["b"][0]) and out["b"][1] == 2**70
 
 
+def test_config_dump_json_is_not_rounded(runner) -> None:
+    """Config values round-trip: --json of config dump is exact, not rounded like the summaries."""
+    res = runner.invoke(main, ["config", "dump", "--set", "camera.fx=462.13708496093753", "--json"])
+    assert res.exit_code == 0 and json.loads(res.stdout)["camera"]["fx"] == 462.13708496093753
+
+
 def test_the_schema_file_is_packaged() -> None:
     text = (REPO / "pyproject.toml").read_text()
     assert '"schemas/*.json"' in text and schema_path().is_file()

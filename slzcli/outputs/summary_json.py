@@ -36,8 +36,14 @@ def round_float(x: float) -> float:
     return float(f"{x:.{SIGNIFICANT}g}")
 
 
+class Exact(dict[str, Any]):
+    """A JSON object printed unrounded: values a user feeds back (``slz config dump --json``) must round-trip."""
+
+
 def rounded(obj: Any) -> Any:
     """``obj`` with every float (in dicts, lists, tuples) rounded by ``round_float``; ints and bools kept."""
+    if isinstance(obj, Exact):
+        return obj
     if isinstance(obj, float):
         return round_float(obj)
     if isinstance(obj, dict):
