@@ -843,9 +843,6 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
         if _slam_maps(r) > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
-    for r in summary.get("recordings", []):
-        for m in (r.get("methods") or {}).values():
-            m.setdefault("site_world", (m.get("site") or {}).get("center_world"))
     return envelope("compare", summary), text_table(summary, str(out))
 
 

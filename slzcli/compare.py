@@ -305,6 +305,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         entry: dict[str, Any] = {
             "method": m, "detections": st.detections, "sites_found": len(st.sites.sites), "status": rec["status"],
             "reason": rec.get("reason"), "timings_ms": timing,
+            "site_world": None if committed is None else rec["site"]["center_world"],  # as slz detect names it
             "site": None if committed is None else {
                 "frame": rec["frame"]["index"], "stamp_ns": rec["frame"]["stamp_ns"],
                 "center_world": rec["site"]["center_world"], "center_camera": rec["site"]["center_camera"],
