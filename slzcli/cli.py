@@ -82,6 +82,27 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+def camera_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``--camera NAME``: the camera preset (configs/camera/NAME.yaml, auto or none), as ``--set camera.preset=NAME``.
+
+    Put it above ``@common_options``: it becomes the last override, so it wins over --set and --config.
+    """
+    from slzcli.config import CONFIG_DIR
+
+    names = ["auto", "none", *sorted(p.stem for p in (CONFIG_DIR / "camera").glob("*.yaml"))]
+
+    @click.option("--camera", "camera", type=click.Choice(names), default=None,
+                  help="Camera preset: topic layout, intrinsics without CameraInfo, noise prior "
+                       "(default: camera.preset, auto = guessed; slz info says which).")
+    @functools.wraps(fn)
+    def wrapper(camera: str | None, overrides: tuple[str, ...] = (), **kwargs: Any) -> Any:
+        if camera is not None:
+            overrides = (*overrides, f"camera.preset={camera}")
+        return fn(overrides=overrides, **kwargs)
+
+    return wrapper
+
+
 # The longest line slz prints for one error or warning: messages bound the values they quote
 # (errors.short_repr); this is the net under any that does not (a third-party error's text).
 MAX_LINE_CHARS = 2000
@@ -331,6 +352,7 @@ def config_dump(config: Config) -> tuple[dict[str, Any], str]:
 @main.command("info")
 @click.argument("bag", type=click.Path(path_type=Path, readable=False))
 @window_options
+@camera_option
 @common_options
 def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: WindowBound | None,
              stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
@@ -618,6 +640,7 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
                 "frame, the final write) runs longer than this; it fails naming the stage, leaves no run folder, "
                 "and a batch goes on. Default: no limit.")
 @window_options
+@camera_option
 @common_options
 def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None, method: str | None,
                force: bool, workers: int | None, scheduler: str | None, outputs: OutputLevel | None,
@@ -795,6 +818,8 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
                      + ("" if noise.get("detections_not_vouched", 0) == 0 else
                         f"; {noise['detections_not_vouched']} detection frame(s) could not vouch"))
     write = f", write {t['write']:.1f} ms" if "write" in t else ""  # a run.json from before write was summarised
+    if "write_wait" in t:  # the writer runs beside the loop: what it cost the loop is the wait
+        write += f" in the background (the loop waited {t['write_wait']:.1f} ms)"
     lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, "
                  f"mask {t['mask']:.1f} ms, slam {t['slam']:.1f} ms, select {t['select']:.1f} ms{write} (medians)")
     gt = s.get("ground_truth")
@@ -824,6 +849,7 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
                 "write) runs longer than this; the comparison fails naming the stage and leaves no output folder. "
                 "Default: no limit.")
 @window_options
+@camera_option
 @common_options
 def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, output: Path | None,
                 variants: bool, force: bool, timeout_s: float | None, win_start: WindowBound | None,

@@ -83,6 +83,7 @@ class CameraCfg:
     width: int = rng(1)
     height: int = rng(1)
     mount: Mount
+    preset: str
 
 
 @schema
@@ -91,6 +92,7 @@ class Topics:
     depth: str
     camera_info: str
     pose: str
+    depth_info: str
 
 
 @schema
@@ -125,6 +127,7 @@ class SourcesCfg:
     min_image_px: tuple[int, ...] = rng(1, n=2)
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
     window: WindowCfg
+    read_ahead_frames: int = rng(0, 64)
 
 
 @schema
@@ -515,6 +518,7 @@ class SlamCfg:
     backend: Literal["auto", "orbslam3", "odometry", "recorded"]
     vocabulary: str
     points_topic: str
+    track_ahead: bool
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
     orbslam3: OrbSlam3Cfg
@@ -537,6 +541,7 @@ class OutputCfg:
     reverse_colormap: bool
     results_mcap: bool
     mask_cloud_stride_px: int = rng(1, 256)
+    write_queue: int = rng(0, 64)
 
 
 @schema
@@ -894,6 +899,14 @@ _FLIPPED = {"<": ">", "<=": ">="}
 _WEIGHT_KEYS = ("uav.mass_kg", "control.gravity_m_s2")
 
 
+def _check_preset(name: str, source: str | None) -> None:
+    """``camera.preset`` names a file of ``configs/camera/`` (or is auto / none)."""
+    names = sorted(p.stem for p in (CONFIG_DIR / "camera").glob("*.yaml"))
+    if name not in ("auto", "none", *names):
+        raise ConfigError("camera.preset", f"no camera preset {name!r} (choices: auto, none, {', '.join(names)})",
+                          source)
+
+
 def validate_pairs(config: Config, source: str | None = None, changed: frozenset[str] = frozenset()) -> None:
     """Refuse values that are fine alone but contradict each other, naming both keys.
 
@@ -905,6 +918,7 @@ def validate_pairs(config: Config, source: str | None = None, changed: frozenset
             if large in changed and small not in changed:
                 raise ConfigError(large, f"must be {_FLIPPED[rel]} {small} ({why}); got {b:g} and {a:g}", source)
             raise ConfigError(small, f"must be {rel} {large} ({why}); got {a:g} and {b:g}", source)
+    _check_preset(config.camera.preset, source)
     uav, weight = config.uav, config.uav.mass_kg * config.control.gravity_m_s2
     weight_key = next((k for k in _WEIGHT_KEYS if k in changed), None)
     for thrust, ok, what, effect in (("uav.thrust_max_n", uav.thrust_max_n > weight, "exceed", "hover"),
