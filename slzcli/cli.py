@@ -22,8 +22,10 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from slzcli import __version__
-from slzcli.config import Config, OutputLevel, dump, load_config
+from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
+from slzcli.config import Config, OutputLevel, dump
 from slzcli.errors import SlzError
+from slzcli.outputs.summary_json import envelope
 
 if TYPE_CHECKING:
     from slzcli.synth.flight import PathKind
@@ -37,7 +39,7 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
 
     @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path, readable=False),
                   help="YAML file layered over configs/default.yaml.")
-    @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+    @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", callback=_check_overrides,
                   help="Override one key, e.g. --set mask.threshold=0.6 (repeatable).")
     @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object.")
     @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
@@ -49,9 +51,12 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
             with _sigterm_interrupts():
                 config = load_config(config_file, overrides)
                 result = fn(config=config, **kwargs)
+        except click.ClickException:  # a usage error found after parsing (exit 2): click prints it
+            warned.flush()
+            raise
         except SlzError as err:
             warned.flush()
-            _fail(str(err))
+            _fail(str(err), err if as_json else None)
         except KeyboardInterrupt:
             warned.flush()
             click.echo("slz: interrupted", err=True)
@@ -64,13 +69,15 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
             warned.flush()
             if verbose >= 2:
                 raise
-            _fail(f"internal error ({type(err).__name__}: {err}); rerun with -vv for the traceback")
+            _fail(f"internal error ({type(err).__name__}: {err}); rerun with -vv for the traceback", err if as_json
+                  else None)
         warned.flush()
         if result is not None:
             summary, text = result
             from slzcli.outputs.files import json_text  # strict JSON: NaN/inf become null
+            from slzcli.outputs.summary_json import rounded
 
-            click.echo(json_text(summary, indent=None) if as_json else text)
+            click.echo(json_text(rounded(summary), indent=None) if as_json else text)
 
     return wrapper
 
@@ -134,9 +141,53 @@ def _sigterm_interrupts() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _fail(message: str) -> None:
-    click.echo(f"slz: error: {one_line(message)}", err=True)
+def _fail(message: str, json_err: BaseException | None = None) -> None:
+    """One line on stderr, exit 1; under ``--json`` (``json_err`` given) also the error object on stdout."""
+    line = one_line(message)
+    click.echo(f"slz: error: {line}", err=True)
+    if json_err is not None:
+        _echo_json_error(line, 1, json_err)
     sys.exit(1)
+
+
+def _echo_json_error(message: str, exit_code: int, err: BaseException | None) -> None:
+    from slzcli.outputs.files import json_text
+    from slzcli.outputs.summary_json import error_object
+
+    click.echo(json_text(error_object(message, exit_code, err), indent=None))
+
+
+def _check_overrides(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> tuple[str, ...]:
+    """``--set`` items that are not ``KEY=VALUE`` with a dotted key are usage errors (exit 2); whether the
+    key exists and the value parses and fits is the config's to say (exit 1, naming the key)."""
+    from slzcli.config import split_override
+
+    for item in value:
+        try:
+            split_override(item)
+        except SlzError as err:
+            raise click.BadParameter(str(err)) from None
+    return value
+
+
+class _SlzGroup(click.Group):
+    """The ``slz`` group: under ``--json`` a usage error (exit 2) is also the error object on stdout."""
+
+    def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
+             standalone_mode: bool = True, **extra: Any) -> Any:
+        argv = list(sys.argv[1:] if args is None else args)
+        if "--json" not in argv or not standalone_mode:
+            return super().main(argv, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            rv = super().main(argv, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.ClickException as err:
+            err.show()
+            _echo_json_error(one_line(err.format_message()), err.exit_code, None)
+            sys.exit(err.exit_code)
+        except click.exceptions.Abort:
+            click.echo("Aborted!", err=True)
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
 
 
 class _WarningLines:
@@ -188,8 +239,71 @@ def _setup_logging(verbose: int) -> _WarningLines:
     return handler
 
 
+# ----------------------------------------------------------------------------- the time window
+WindowBound = tuple[str, float]  # ("offset" | "stamp", seconds)
+
+
+def _time_bound(ctx: click.Context, param: click.Parameter, value: str | None) -> WindowBound | None:
+    """``--start/--end``: seconds after the first frame (``12.5``), or a stamp on the recording's clock
+    (``@1712345678.25``, seconds; the ``@`` as in ``date -d @SECONDS``)."""
+    if value is None:
+        return None
+    kind, text = ("stamp", value[1:]) if value.startswith("@") else ("offset", value)
+    try:
+        seconds = float(text)
+    except ValueError:
+        raise click.BadParameter(f"expected seconds (e.g. 12.5) or @STAMP (e.g. @1712345678.25), got {value!r}") \
+            from None
+    if not math.isfinite(seconds) or seconds < 0:
+        raise click.BadParameter(f"must be a finite number of seconds >= 0, got {value!r}")
+    return kind, seconds
+
+
+def window_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--start, --end, --stride, --max-frames: the part of a recording read (config sources.window)."""
+    for option in reversed([
+        click.option("--start", "win_start", callback=_time_bound, metavar="S|@STAMP",
+                     help="Read from this many seconds after the first frame, or from stamp @STAMP (s, the "
+                          "recording's clock). Sets sources.window.start_s / start_stamp_s."),
+        click.option("--end", "win_end", callback=_time_bound, metavar="S|@STAMP",
+                     help="Stop before this many seconds after the first frame, or before stamp @STAMP."),
+        click.option("--stride", type=click.IntRange(1), default=None, metavar="N",
+                     help="Read every Nth colour/depth pair in the window (sources.window.stride)."),
+        click.option("--max-frames", type=click.IntRange(1), default=None, metavar="N",
+                     help="Stop after N frames read (sources.window.max_frames)."),
+    ]):
+        fn = option(fn)
+    return fn
+
+
+def _windowed(config: Config, start: WindowBound | None, end: WindowBound | None, stride: int | None,
+              max_frames: int | None) -> Config:
+    """``config`` with the window options in sources.window (so they are in run.json and the rerun key)."""
+    w = config.sources.window
+    changes: dict[str, Any] = {}
+    for name, bound in (("start", start), ("end", end)):
+        if bound is not None:
+            kind, seconds = bound
+            changes[f"{name}_s"] = seconds if kind == "offset" else None
+            changes[f"{name}_stamp_s"] = seconds if kind == "stamp" else None
+    if stride is not None:
+        changes["stride"] = stride
+    if max_frames is not None:
+        changes["max_frames"] = max_frames
+    if not changes:
+        return config
+    w = dataclasses.replace(w, **changes)
+    if start is not None and end is not None and start[0] == end[0] and end[1] <= start[1]:
+        raise click.BadParameter(f"--end must be later than --start ({end[1]:g} <= {start[1]:g} s)",
+                                 param_hint="'--end'")
+    from slzcli.sources.window import check_window
+
+    check_window(w)
+    return dataclasses.replace(config, sources=dataclasses.replace(config.sources, window=w))
+
+
 # ----------------------------------------------------------------------------- commands
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=_SlzGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="slz")
 def main() -> None:
     """slz: safe landing zones from recorded RGB-D flights (ROS 1/2 bags, MCAP, TUM folders)."""
@@ -230,18 +344,24 @@ def config_group() -> None:
 @common_options
 def config_dump(config: Config) -> tuple[dict[str, Any], str]:
     """Print the resolved config (defaults + --config + --set), every key commented."""
-    return config.to_dict(), dump(config).rstrip("\n")
+    from slzcli.outputs.summary_json import Exact
+
+    return Exact(config.to_dict()), dump(config).rstrip("\n")  # --json unrounded: values must round-trip
 
 
 @main.command("info")
 @click.argument("bag", type=click.Path(path_type=Path, readable=False))
+@window_options
 @camera_option
 @common_options
-def info_cmd(config: Config, bag: Path) -> tuple[dict[str, Any], str]:
-    """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames."""
+def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: WindowBound | None,
+             stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
+    """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames
+    (within --start/--end/--stride/--max-frames when given)."""
     from slzcli.sources import open_recording
     from slzcli.sources.info_text import info_text
 
+    config = _windowed(config, win_start, win_end, stride, max_frames)
     with open_recording(bag, config) as rec:
         info = rec.info()
     return info.to_dict(), info_text(info)
@@ -526,15 +646,18 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 @timeout_option("Stop a recording when one stage (opening it, reading, SLAM, detection or writing of one "
                 "frame, the final write) runs longer than this; it fails naming the stage, leaves no run folder, "
                 "and a batch goes on. Default: no limit.")
+@window_options
 @camera_option
 @common_options
 def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None, method: str | None,
                force: bool, workers: int | None, scheduler: str | None, outputs: OutputLevel | None,
-               timeout_s: float | None) -> tuple[dict[str, Any], str]:
+               timeout_s: float | None, win_start: WindowBound | None, win_end: WindowBound | None,
+               stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
     """Maps, fuzzy score, mask, SLAM map points and the landing site of each recording (paths or globs)."""
     from slzcli import batch
     from slzcli.pipeline import RunOptions
 
+    config = _windowed(config, win_start, win_end, stride, max_frames)
     if outputs is not None:  # a config value: it is in run.json's config and the rerun key
         config = dataclasses.replace(config, output=dataclasses.replace(config.output, level=outputs))
 
@@ -550,18 +673,52 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     rows = result.rows
     for r in rows:
         _warn_slam_maps(r.get("summary"))
+    # --json names paths as the user gave them (the run folders and summary files keep absolute ones)
+    given = {str(p.absolute()): str(p) for p in paths}
+    given_run = {str(t.run_dir): str(output) if output is not None and not is_batch else str(batch_dir / t.run_dir.name)
+                 for t in tasks}
     if not is_batch:
         row = rows[0]
         if row["status"] == "failed":
-            raise SlzError(row["error"])
-        return {"run": row["run"], **row["summary"]}, _detect_text(Path(row["run"]), row["summary"])
+            raise _given_paths(SlzError(row["error"]), row.get("error_detail"), {**given, **given_run})
+        s = row["summary"]
+        out = {"run": given_run.get(row["run"], row["run"]), **s, "source": given.get(s["source"], s["source"])}
+        t = s.get("timings_ms") or {}
+        if s.get("method") in t:  # "score" as in slz compare; the method's own key stays for older scripts
+            out["timings_ms"] = {**t, "score": t[s["method"]]}
+        return envelope("detect", out), _detect_text(Path(row["run"]), s)
     failed = [r for r in rows if r["status"] == "failed"]
     if failed:
         raise SlzError(f"{len(failed)} of {len(rows)} recordings failed (first: {failed[0]['error']}); "
                        f"status of each in {batch_dir / 'summary.csv'}")
     totals = {**result.totals(), "summary_files": [str(p) for p in result.summary_files]}
-    runs = [{k: v for k, v in r.items() if k != "summary"} for r in rows]
-    return {"batch": totals, "runs": runs}, _batch_text(totals, rows)
+    runs = [_batch_row(r, given, given_run) for r in rows]
+    return envelope("batch", {"batch": totals, "runs": runs}), _batch_text(totals, rows)
+
+
+def _given_paths(err: SlzError, detail: dict[str, str] | None, given: dict[str, str]) -> SlzError:
+    """A run's error with the absolute paths the workers used named as the user gave them."""
+    text, detail = str(err), dict(detail or {})
+    for absolute, as_given in sorted(given.items(), key=lambda kv: -len(kv[0])):
+        text = text.replace(absolute, as_given)
+        if detail.get("file") == absolute:
+            detail["file"] = as_given
+    out = SlzError(text)
+    out.detail = detail  # type: ignore[attr-defined]  # read by outputs/summary_json.error_object
+    return out
+
+
+def _batch_row(r: dict[str, Any], given: dict[str, str], given_run: dict[str, str]) -> dict[str, Any]:
+    """A batch row of ``--json``: the paths as given, ``source`` as in detect and compare, the run's
+    no-site reason and ground-truth figures when it has them."""
+    row = {k: v for k, v in r.items() if k != "summary"}
+    source = given.get(str(r["recording"]), str(r["recording"]))
+    row.update(recording=source, source=source, run=given_run.get(str(r["run"]), r["run"]))
+    s = r.get("summary") or {}
+    row["reason"] = s.get("reason")
+    if s.get("ground_truth") is not None:
+        row["ground_truth"] = s["ground_truth"]
+    return row
 
 
 def _slam_maps(s: dict[str, Any] | None) -> int:
@@ -698,13 +855,17 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
 @timeout_option("Stop when one stage (opening a recording, reading, SLAM or detection of one frame, the final "
                 "write) runs longer than this; the comparison fails naming the stage and leaves no output folder. "
                 "Default: no limit.")
+@window_options
 @camera_option
 @common_options
 def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, output: Path | None,
-                variants: bool, force: bool, timeout_s: float | None) -> tuple[dict[str, Any], str]:
+                variants: bool, force: bool, timeout_s: float | None, win_start: WindowBound | None,
+                win_end: WindowBound | None, stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
     """Fuzzy vs Bayes on the same frames and SLAM points: time, agreement, accuracy against ground truth."""
     from slzcli.compare import compare, recording_name
     from slzcli.outputs.report import text_table
+
+    config = _windowed(config, win_start, win_end, stride, max_frames)
 
     out = output or Path("runs") / f"compare_{recording_name(recordings[0])}"
     chosen = tuple(methods.split(",")) if methods is not None else None
@@ -715,7 +876,7 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
         if _slam_maps(r) > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
-    return summary, text_table(summary, str(out))
+    return envelope("compare", summary), text_table(summary, str(out))
 
 
 # --- commands end (new commands go above this line) ---

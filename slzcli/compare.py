@@ -64,6 +64,7 @@ from slzcli.scoring import METHODS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
 from slzcli.sources.presets import with_noise_prior
+from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunState, no_site_reason, site_truth
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
@@ -215,7 +216,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
                 if progress is not None:
                     progress(tracker.frames, info.expected_frames)
     if tracker.frames == 0:
-        raise DatasetError(path, "no RGB-D frame could be read")
+        raise DatasetError(path, no_frames_reason(rec.report))
     check_same_inputs({m: r.inputs for m, r in runs.items()})
     return _summarise(path, config, methods, runs, tracker, noise, truth, map_curves, map_means, agreement,
                       time.perf_counter() - t_start)
@@ -308,6 +309,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         entry: dict[str, Any] = {
             "method": m, "detections": st.detections, "sites_found": len(st.sites.sites), "status": rec["status"],
             "reason": rec.get("reason"), "timings_ms": timing,
+            "site_world": None if committed is None else rec["site"]["center_world"],  # as slz detect names it
             "site": None if committed is None else {
                 "frame": rec["frame"]["index"], "stamp_ns": rec["frame"]["stamp_ns"],
                 "center_world": rec["site"]["center_world"], "center_camera": rec["site"]["center_camera"],

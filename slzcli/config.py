@@ -103,6 +103,16 @@ class IntrinsicsCheckCfg:
 
 
 @schema
+class WindowCfg:
+    start_s: float | None = rng(0)
+    end_s: float | None = rng(0, lo_open=True)
+    start_stamp_s: float | None = rng(0)
+    end_stamp_s: float | None = rng(0, lo_open=True)
+    stride: int = rng(1)
+    max_frames: int = rng(0)
+
+
+@schema
 class SourcesCfg:
     topics: Topics
     intrinsics: IntrinsicsCheckCfg
@@ -116,6 +126,7 @@ class SourcesCfg:
     max_depth_m: float = rng(0)
     min_image_px: tuple[int, ...] = rng(1, n=2)
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
+    window: WindowCfg
     read_ahead_frames: int = rng(0, 64)
 
 
@@ -751,14 +762,21 @@ def _load_yaml_file(path: Path) -> Any:
         raise ConfigError("", "not a usable config: nested too deeply for the YAML parser", source=str(path)) from err
 
 
-def parse_override(item: str) -> tuple[str, Any]:
-    """``a.b=v`` -> (``a.b``, YAML-parsed ``v``)."""
+def split_override(item: str) -> tuple[str, str]:
+    """``a.b=v`` -> (``a.b``, ``v`` unparsed); ConfigError when it is not KEY=VALUE with a dotted key
+    (the CLI makes this a usage error, exit 2; a value the YAML parser refuses stays a config error)."""
     if "=" not in item:
         raise ConfigError(item, "--set needs KEY=VALUE, e.g. --set mask.threshold=0.6")
     key, _, text = item.partition("=")
     key = key.strip()
     if not re.fullmatch(r"[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*", key):
         raise ConfigError(key or item, "not a dotted key path")  # name what was typed, even an empty key
+    return key, text
+
+
+def parse_override(item: str) -> tuple[str, Any]:
+    """``a.b=v`` -> (``a.b``, YAML-parsed ``v``)."""
+    key, text = split_override(item)
     try:
         value = safe_yaml_load(text) if text.strip() else ""
     except YamlLimitError as err:
@@ -1036,4 +1054,6 @@ def _yaml_scalar(value: Any) -> str:
         return json.dumps(value) if value == "" or not re.fullmatch(r"[\w./-]+", value) else value
     if isinstance(value, bool):
         return "true" if value else "false"
+    if value is None:  # an optional key left unset (sources.window.start_s)
+        return "null"
     return repr(value) if isinstance(value, float) else str(value)

@@ -70,6 +70,7 @@ from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
 from slzcli.sources.presets import with_noise_prior
 from slzcli.sources.read_ahead import read_ahead
+from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.limits import limit_reason
@@ -497,7 +498,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
                 writer.submit(f"frame {d.frame.index}", write_frame, d)
         state.frames = tracker.frames
         if state.frames == 0:
-            raise DatasetError(path, "no RGB-D frame could be read")
+            raise DatasetError(path, no_frames_reason(rec.report))
         with limit.stage("writing the run folder"):
             writer.close()  # every frame written before the run's own files and results.mcap's end
             committed = commit_site(state.sites.sites, commit_radius_m(config))

@@ -169,7 +169,7 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
         "depth_limits": landing.get("site", {}).get("depth_limits") or noise.get("not_vouched"),
         "pairing": {"paired": report.paired, "unpaired_color": report.unpaired_color,
                     "unpaired_depth": report.unpaired_depth, "undecodable": report.undecodable,
-                    "notes": list(report.notes)},
+                    "outside_window": report.outside_window, "notes": list(report.notes)},
     }
     if truth is not None:
         summary["ground_truth"] = truth.summary(st.trajectory.poses(), st.trajectory.segments().tolist(),

@@ -140,6 +140,7 @@ class PairingReport:
     without_pose: int = 0
     undecodable: int = 0
     notes: tuple[str, ...] = field(default_factory=tuple)
+    outside_window: int = 0  # pairs left out by sources.window (--start/--end/--stride/--max-frames)
 
 
 @dataclass(frozen=True, eq=False)

@@ -45,6 +45,7 @@ from slzcli.sources.topics import (
 )
 from slzcli.sources.undistort import distortion_problem, has_distortion
 from slzcli.sources.validate import StampCounts, intrinsics_problem, size_problem, stamp_problem
+from slzcli.sources.window import WindowFilter
 from slzcli.types import Frame, Intrinsics, MapCloud, PairingReport, StreamInfo
 
 log = logging.getLogger(__name__)
@@ -320,6 +321,7 @@ class MessageRecording(Recording):
         info_failed = False
         first = last = None
         stamps = {"color": StampCounts(), "depth": StampCounts()}
+        win = WindowFilter(self.config.sources.window)  # info counts the frames within the window
         for msg in self._wrap(self.log.messages(())):
             c = counts.setdefault(msg.topic, [0, 0, 0])
             c[1] = msg.log_ns if c[0] == 0 else min(c[1], msg.log_ns)
@@ -335,7 +337,8 @@ class MessageRecording(Recording):
                     undecodable += 1
                     continue
                 if stamped is not None:
-                    pairer.push(role, stamped[0], msg.data)
+                    for pair in pairer.push(role, stamped[0], msg.data):
+                        win.keep(pair.stamp_ns)
             elif msg.topic == ch.camera_info.topic and intrinsics is None:
                 try:
                     intrinsics = self._check_info(msg.topic, decode.decode_camera_info(
@@ -344,7 +347,8 @@ class MessageRecording(Recording):
                     if not info_failed:
                         log.warning("%s: CameraInfo on %s not decodable: %s", self.path, msg.topic, err)
                     info_failed = True
-        pairer.flush()
+        for pair in pairer.flush():
+            win.keep(pair.stamp_ns)
         streams = tuple(StreamInfo(t, self._topics.get(t, "?"), c[0], c[1] if c[0] else None, c[2] if c[0] else None)
                         for t, c in sorted(counts.items()))
         source = f"CameraInfo on {ch.camera_info.topic}" if intrinsics is not None else ""
@@ -359,7 +363,7 @@ class MessageRecording(Recording):
         stamp_lines = self._stamp_report(ch, stamps, pairer)
         for line in stamp_lines:
             log.warning("%s: %s", self.path, line)
-        report = self._report(pairer, 0, undecodable, tuple(stamp_lines))
+        report = self._report(pairer, 0, undecodable, tuple(stamp_lines), win)
         return RecordingInfo(str(self.path), self.log.format, ((last or 0) - (first or 0)) * 1e-9, streams,
                              ch.all(), intrinsics, source, report,
                              tuple(self.log.warnings) + tuple(self.camera_warnings), self.preset.name,
@@ -377,12 +381,15 @@ class MessageRecording(Recording):
         return k, "config camera section"
 
     def _report(self, pairer: StreamPairer, without_pose: int, undecodable: int,
-                notes: tuple[str, ...]) -> PairingReport:
+                notes: tuple[str, ...], win: WindowFilter) -> PairingReport:
         extra: tuple[str, ...] = ()
         if pairer.duplicates:
             extra += (f"{pairer.duplicates} duplicated colour/depth message(s) (same topic and stamp) were dropped",)
-        return PairingReport(pairer.paired, pairer.unpaired["color"], pairer.unpaired["depth"], without_pose,
-                             undecodable, tuple(notes) + extra + tuple(self.log.warnings))
+        window_note = win.note()
+        extra += (window_note,) if window_note else ()
+        return PairingReport(pairer.paired - win.left_out, pairer.unpaired["color"], pairer.unpaired["depth"],
+                             without_pose, undecodable, tuple(notes) + extra + tuple(self.log.warnings),
+                             win.left_out)
 
     # ------------------------------------------------------------------ frames
     def frames(self) -> Iterator[Frame]:
@@ -411,6 +418,7 @@ class MessageRecording(Recording):
         # A frame waits until no pose (nor cloud) within the pose tolerance of its stamp can still arrive.
         has_pose = ch.pose.topic is not None or state.clouds is not None
         stamps = {"color": StampCounts(), "depth": StampCounts()}
+        win = WindowFilter(self.config.sources.window)  # pairs outside it are never decoded
         for msg in self._wrap(self.log.messages(topics)):
             if msg.topic in (ch.color.topic, ch.depth.topic):
                 is_color = msg.topic == ch.color.topic
@@ -424,7 +432,8 @@ class MessageRecording(Recording):
                 stamp, frame_id = stamped
                 if is_color and poses.camera_frame is None:
                     poses.camera_frame = cfg.pose_frame or frame_id
-                pending.extend(pairer.push("color" if is_color else "depth", stamp, msg))
+                pending.extend(p for p in pairer.push("color" if is_color else "depth", stamp, msg)
+                               if win.keep(p.stamp_ns))
                 newest = stamp if newest is None else max(newest, stamp)
             elif msg.topic == ch.camera_info.topic:
                 try:
@@ -449,7 +458,9 @@ class MessageRecording(Recording):
                 poses.track.prune(min(keep) - tol_pose)
                 if state.clouds is not None:
                     state.clouds.prune(min(keep) - tol_pose)
-        pending.extend(pairer.flush())
+            if not pending and win.done():  # pairs come out in stamp order: none to come is in the window
+                break
+        pending.extend(p for p in pairer.flush() if win.keep(p.stamp_ns))
         while pending:
             frame = self._decode(pending.popleft(), state, poses)
             if frame is not None:
@@ -460,7 +471,7 @@ class MessageRecording(Recording):
             state.note(f"{state.clouds.late} map cloud(s) on {points_topic} were logged later than "
                        "sources.reorder_window_ms after the images of their time and went to no frame")
         notes = tuple(state.notes) + tuple(self._stamp_report(ch, stamps, pairer))
-        self.report = self._report(pairer, state.without_pose, state.n_undecodable, notes)
+        self.report = self._report(pairer, state.without_pose, state.n_undecodable, notes, win)
         if self.log.warnings:
             log.warning("%s: %d frames recovered (%s)", self.path, state.yielded, "; ".join(self.log.warnings))
         if state.yielded == 0 and state.first_error is not None:

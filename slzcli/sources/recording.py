@@ -52,7 +52,8 @@ class RecordingInfo:
             "frames": self.pairing.paired,
             "pairing": {"paired": self.pairing.paired, "unpaired_color": self.pairing.unpaired_color,
                         "unpaired_depth": self.pairing.unpaired_depth, "without_pose": self.pairing.without_pose,
-                        "undecodable": self.pairing.undecodable, "notes": list(self.pairing.notes)},
+                        "undecodable": self.pairing.undecodable, "outside_window": self.pairing.outside_window,
+                        "notes": list(self.pairing.notes)},
             "warnings": list(self.warnings),
         }
 

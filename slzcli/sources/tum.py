@@ -33,6 +33,7 @@ from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import PoseTrack, pair_stamps
 from slzcli.sources.undistort import distortion_problem, has_distortion
 from slzcli.sources.validate import intrinsics_problem, pose_problem, size_problem, stamp_problem
+from slzcli.sources.window import WindowFilter
 from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
 
 log = logging.getLogger(__name__)
@@ -191,8 +192,15 @@ class TumRecording(Recording):
 
     def _report(self, without_pose: int, undecodable: int, notes: tuple[str, ...] = ()) -> PairingReport:
         n = len(self._pairs)
-        return PairingReport(n, len(self._rgb) - n, len(self._depth) - n, without_pose, undecodable,
-                             tuple(self._notes) + notes)
+        read, win = self._windowed()
+        window_note = win.note()
+        return PairingReport(len(read), len(self._rgb) - n, len(self._depth) - n, without_pose, undecodable,
+                             tuple(self._notes) + notes + ((window_note,) if window_note else ()), win.left_out)
+
+    def _windowed(self) -> tuple[list[tuple[int, int]], WindowFilter]:
+        """The pairs within sources.window (the lists are in memory: every pair is judged, none decoded)."""
+        win = WindowFilter(self.config.sources.window)
+        return [p for p in self._pairs if win.keep(self._rgb[p[0]][0])], win
 
     def _within_pixel_bound(self, rgb_name: str, depth_name: str, too_large: list[str]) -> bool:
         """Check both images' declared sizes (file headers) before reading them; warn once, then count."""
@@ -243,7 +251,7 @@ class TumRecording(Recording):
         first_error = ""
         too_large: list[str] = []   # the files skipped for their size (one warning, then counted)
         assert self._intr is not None
-        for i, j in self._pairs:
+        for i, j in self._windowed()[0]:
             stamp, rgb_name = self._rgb[i]
             if not self._within_pixel_bound(rgb_name, self._depth[j][1], too_large):
                 undecodable += 1
@@ -270,7 +278,7 @@ class TumRecording(Recording):
                 without_pose += 1
             yield Frame(index, stamp, rgb, depth, intr, pose, str(self.path))
             index += 1
-        notes = ((f"{undecodable - len(too_large)} of {len(self._pairs)} frame(s) not readable "
+        notes = ((f"{undecodable - len(too_large)} of {len(self._windowed()[0])} frame(s) not readable "
                   f"(first: {first_error})",) if undecodable > len(too_large) else ())
         self.report = self._report(without_pose, undecodable, notes)
         if too_large:
