@@ -526,6 +526,8 @@ class OutputCfg:
     reverse_colormap: bool
     results_mcap: bool
     mask_cloud_stride_px: int = rng(1, 256)
+    map_frame: str
+    progress_every_s: float = rng(0)
 
 
 @schema

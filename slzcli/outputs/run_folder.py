@@ -111,15 +111,29 @@ def write_run(run_dir: Path, result: RunResult, sites: SiteLog, trajectory: Pose
     sites.write_csv(run_dir / "sites.csv")
     write_trajectories(run_dir, trajectory, result.primary_segment)
     keyframes.write_npz(run_dir / "keyframes.npz")
-    write_points_ply(run_dir / "points.ply", points_by_role(sites, keyframes, result.committed, result.points_segment))
+    write_points_ply(run_dir / "points.ply", *points_by_role(sites, keyframes, result.committed, result.points_segment))
     files.write_json(run_dir / "run.json", result.run)
 
 
 def points_by_role(sites: SiteLog, keyframes: KeyframeLog, committed: dict[str, Any] | None,
-                   segment: int | None) -> dict[str, np.ndarray]:
-    """points.ply roles; ``segment``: only that map segment's map points (None: all, a run of one segment)."""
+                   segment: int | None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """points.ply roles and the clusters of the kept points (the committed detection's k-means labels);
+    ``segment``: only that map segment's map points (None: all, a run of one segment)."""
     roles: dict[str, np.ndarray] = {"map": keyframes.map_xyz(segment)}
+    clusters: dict[str, np.ndarray] = {}
     if committed is not None:
         roles["kept"], roles["chosen"] = sites.points(committed)
+        clusters["kept"] = sites.kept_clusters(committed)
+        labels = clusters["kept"][_rows_in(roles["kept"], roles["chosen"])]
+        clusters["chosen"] = np.full(len(roles["chosen"]), labels[0] if len(labels) else -1)
         roles["corner"] = np.asarray(committed["site"].corners_world)
-    return roles
+    return roles, clusters
+
+
+def _rows_in(xyz: np.ndarray, subset: np.ndarray) -> np.ndarray:
+    """Which rows of ``xyz`` (N,3) are rows of ``subset`` (exact coordinates)."""
+    if len(xyz) == 0 or len(subset) == 0:
+        return np.zeros(len(xyz), bool)
+    rows = np.ascontiguousarray(np.asarray(xyz, np.float64)).view([("", np.float64)] * 3).ravel()
+    sub = np.ascontiguousarray(np.asarray(subset, np.float64)).view([("", np.float64)] * 3).ravel()
+    return np.isin(rows, sub)
