@@ -73,13 +73,13 @@ def test_per_frame_heat_maps_have_a_colour_bar_and_the_mask_a_legend(run) -> Non
     jet = cv2.applyColorMap(np.array([[255], [0]], np.uint8), cv2.COLORMAP_JET)[:, 0]  # 1 then 0
     for name in (*MAPS, "score"):
         img = cv2.imread(str(folder / f"{name}.png"), cv2.IMREAD_COLOR)
-        assert img.shape == (h, w + images.BAR_WIDTH_PX, 3), name
+        assert img is not None and img.shape == (h, w + images.BAR_WIDTH_PX, 3), name
         # the bar runs from JET(1) at the top to JET(0) at the bottom (default colour convention)
         assert np.abs(img[top, column].astype(int) - jet[0]).max() <= 12, name
         assert np.abs(img[bottom, column].astype(int) - jet[1]).max() <= 12, name
         assert img[:, w:].any(axis=2).sum() > 0.05 * h * images.BAR_WIDTH_PX  # not an empty strip
     m = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_UNCHANGED)
-    assert m.shape == (h, w + images.LEGEND_WIDTH_PX)
+    assert m is not None and m.shape == (h, w + images.LEGEND_WIDTH_PX)
     assert np.array_equal(m[:, :w], mask.astype(np.uint8) * 255)  # the mask's pixels are unchanged
 
 
