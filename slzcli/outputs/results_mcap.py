@@ -290,7 +290,7 @@ def point_cloud(writer: RecordingWriter, xyz: np.ndarray, frame_id: str, stamp: 
 
 def site_markers(writer: RecordingWriter, site: Any, rgba: tuple[float, ...], label: str, stamp: int,
                  ns: str, world: str = MAP_FRAME) -> Any:
-    """The site as three markers in ``world`` (its segment's): the closed Eq. 10 square, a centre sphere, a label."""
+    """The site as three markers in ``world`` (a map segment's frame): the Eq. 10 square, a centre sphere, a label."""
     t = writer.typestore.types
     gm = "geometry_msgs/msg/"
     colour = t["std_msgs/msg/ColorRGBA"](*map(float, rgba))
