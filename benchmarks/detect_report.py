@@ -43,13 +43,13 @@ def run_level(rec: Path, out: Path, level: str, repeats: int, overrides: list[st
         assert path is not None
         return path
 
-    run_folder.write_detect_report = timed  # type: ignore[assignment]
+    run_folder.write_detect_report = timed
     try:
         t0 = time.perf_counter()
         s = detect_recording(rec, config, out, RunOptions(force=True))
         wall = time.perf_counter() - t0 - 1e-3 * sum(samples[1:])   # the run with one report, as a user has it
     finally:
-        run_folder.write_detect_report = original  # type: ignore[assignment]
+        run_folder.write_detect_report = original
     med = statistics.median(samples)
     return {"level": level, "detections": s["detections"], "report_median_ms": round(med, 1),
             "report_max_ms": round(max(samples), 1), "run_wall_s": round(wall, 2),
