@@ -661,7 +661,7 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
     frames = {"summary": "", "maps": ", frames/ (maps.npz, overlay.png)", "all": ", frames/"}.get(
         s.get("outputs", "all"), ", frames/")
     mcap = ", results.mcap" if (out / "results.mcap").exists() else ""
-    lines.append(f"  results: {out}/ (landing.json, run.json, sites.csv, points.ply{mcap}{frames})")
+    lines.append(f"  results: {out}/ (report.html, landing.json, run.json, sites.csv, points.ply{mcap}{frames})")
     return "\n".join(lines)
 
 

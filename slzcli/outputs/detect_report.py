@@ -2,11 +2,11 @@
 
 Sections: the result (site or why not), the paper's Figure 5 panel for one frame (the four
 terrain maps, the score and the mask, the slope and the overlay, with colour bars and units),
-the trajectory from above with the sites, the table of every site found, each detection's
+the trajectory from above with the sites (SVG), the table of every site found, each detection's
 overlay, the stage times. Built at the end of the run from what the run already holds or has
 written (the RunResult, the site log, the pose log, frames/NNNNNN/maps.npz and overlay.png):
-only two figures are drawn (the panel for the committed site's frame, or the last detection
-frame without a site, and the trajectory); overlays are linked, not copied. At
+one panel is drawn (for the committed site's frame, or the last detection frame without a
+site), with OpenCV from one maps.npz; overlays are linked, not copied. At
 ``--outputs summary`` there are no frame files: the page says so and shows the rest.
 """
 
@@ -14,25 +14,27 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
+import cv2
 import numpy as np
 
+from slzcli.outputs import images
 from slzcli.outputs.files import write_text
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
 from slzcli.types import RunResult
 
-DPI = 80   # figures are for a screen; the values are in maps.npz
+# Display only (no result depends on these): the Figure 5 tiles' width and title band, tiles per row, the
+# trajectory drawing's size and margin (px). Drawn with OpenCV and SVG, not matplotlib: a matplotlib panel of
+# eight images took 20-30 s on the shared 2-core machine (benchmarks/detect_report.py), longer than the run.
+TILE_WIDTH_PX = 320
+TITLE_BAND_PX = 24
+TILES_PER_ROW = 4
+SVG_WIDTH_PX, SVG_HEIGHT_PX, SVG_MARGIN_PX = 640, 480, 34
 MAP_TITLES = {"depth_variance": "depth variance", "flatness": "flatness", "inclination": "inclination",
               "steepness": "steepness"}
-UNITLESS = "map value (dimensionless), 1 = good"
 SECTIONS = ("result", "figure5", "trajectory", "sites", "detections", "timings")
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:24px auto;max-width:1200px;color:#222}
@@ -57,7 +59,8 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
              f"{html.escape(Path(s['source']).name)}</title><style>{CSS}</style></head><body>",
              f"<h1>slz detect: {html.escape(Path(s['source']).name)}</h1>",
              _result(s, landing),
-             _figure5(run_dir, panel_frame, committed is not None and committed["frame"].index == panel_frame, level),
+             _figure5(run_dir, panel_frame, committed is not None and committed["frame"].index == panel_frame, level,
+                      bool(result.run.get("config", {}).get("output", {}).get("reverse_colormap", False))),
              _trajectory(trajectory, sites, committed, result.primary_segment),
              _site_table(sites, committed),
              _detections(run_dir, detection_frames, sites, committed, level),
@@ -92,7 +95,7 @@ def _result(s: dict[str, Any], landing: dict[str, Any]) -> str:
             "<a href=trajectory.tum>trajectory.tum</a>.</p>")
 
 
-def _figure5(run_dir: Path, index: int | None, is_site: bool, level: str) -> str:
+def _figure5(run_dir: Path, index: int | None, is_site: bool, level: str, reverse: bool) -> str:
     head = "<h2 id=figure5>Terrain maps, score and mask (the paper's Figure 5)</h2>"
     folder = None if index is None else run_dir / "frames" / f"{index:06d}"
     if folder is None or not (folder / "maps.npz").is_file():
@@ -100,67 +103,122 @@ def _figure5(run_dir: Path, index: int | None, is_site: bool, level: str) -> str
             f"frame folders are not written at --outputs {html.escape(level)}"
         return head + f"<p class=note>Not drawn: {why}.</p>"
     with np.load(folder / "maps.npz") as z:
-        arrays = {k: np.asarray(z[k], np.float32) if z[k].dtype != bool else z[k] for k in z.files}
-    overlay = _read_rgb(folder / "overlay.png")
-    fig, axes = plt.subplots(2, 4, figsize=(16, 6.4))
-    valid = arrays.get("valid")
-    for ax, name in zip(axes[0], MAP_TITLES, strict=True):
-        _heat(fig, ax, _hide(arrays[name], valid), MAP_TITLES[name], UNITLESS, 0.0, 1.0)
-    _heat(fig, axes[1][0], _hide(arrays["score"], valid), "fused score", "score (dimensionless), 1 = safe", 0.0, 1.0)
-    mask = arrays["mask"].astype(float)
-    im = axes[1][1].imshow(mask, cmap="gray", vmin=0, vmax=1, interpolation="nearest")
-    cb = fig.colorbar(im, ax=axes[1][1], fraction=0.035, pad=0.02, ticks=[0, 1])
-    cb.ax.set_yticklabels(["unsafe", "safe"])
-    axes[1][1].set_title(f"landing mask ({100 * float(np.mean(mask)):.0f} % safe)", fontsize=10)
-    slope = arrays.get("slope_deg")
-    if slope is not None:
-        finite = slope[np.isfinite(slope)]
-        top = float(np.percentile(finite, 99)) if finite.size else 1.0
-        _heat(fig, axes[1][2], slope, "surface slope", "deg from level", 0.0, max(top, 1.0), cmap="viridis")
+        arrays = {k: z[k] for k in z.files}
+    valid = arrays["valid"]
+    h, w = valid.shape
+    scale = min(1.0, TILE_WIDTH_PX / w)
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+
+    def small(img: np.ndarray) -> np.ndarray:
+        return cv2.resize(img, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_NEAREST)
+
+    def heat(values: np.ndarray, lo: str = "0 bad", hi: str = "1 good") -> np.ndarray:
+        v = np.asarray(values, np.float32)
+        return images.with_colour_bar(small(images.heatmap_bgr(v, reverse=reverse, valid=valid)), reverse=reverse,
+                                      low=lo, high=hi)
+
+    tiles = [(MAP_TITLES[n], heat(arrays[n])) for n in MAP_TITLES]
+    tiles.append(("fused score", heat(arrays["score"])))
+    mask = np.asarray(arrays["mask"], bool)
+    tiles.append((f"landing mask ({100 * float(mask.mean()):.0f} % safe)",
+                  cv2.cvtColor(images.with_mask_legend(small(images.mask_png(mask))), cv2.COLOR_GRAY2BGR)))
+    slope = np.asarray(arrays.get("slope_deg", np.full((h, w), np.nan)), np.float32)
+    finite = slope[np.isfinite(slope) & valid]
+    top = max(float(np.percentile(finite, 99)), 1.0) if finite.size else 1.0
+    tiles.append(("surface slope (deg from level)", images.with_colour_bar(
+        small(images.heatmap_bgr(np.clip(slope / top, 0.0, 1.0), valid=valid & np.isfinite(slope))),
+        low="0 deg", high=f"{top:.0f} deg")))
+    overlay = cv2.imread(str(folder / "overlay.png"), cv2.IMREAD_COLOR) if (folder / "overlay.png").is_file() else None
     if overlay is not None:
-        axes[1][3].imshow(overlay)
-        axes[1][3].set_title("mask, SLAM points, site (overlay.png)", fontsize=10)
-    for ax in axes.ravel():
-        ax.set_xticks([])
-        ax.set_yticks([])
-        if not ax.images:
-            ax.set_axis_off()
-    fig.suptitle(f"frame {index}" + (" (the committed site's)" if is_site else " (the last detection frame)"),
-                 fontsize=12)
-    fig.tight_layout()
-    return (head + "<p class=note>Maps in [0, 1] with 1 = good for landing (METHOD.md 2.3); black = no depth. "
-            f"Values: <a href='frames/{index:06d}/maps.npz'>maps.npz</a>.</p>" + _png(fig, f"Figure 5, frame {index}"))
+        tiles.append(("mask, SLAM points, site", cv2.resize(overlay, size, interpolation=cv2.INTER_AREA)))
+    panel = _mosaic(tiles, TILES_PER_ROW)
+    ok, buf = cv2.imencode(".png", panel, [cv2.IMWRITE_PNG_COMPRESSION, images.PNG_LEVEL])
+    if not ok:
+        return head + "<p class=note>Not drawn: PNG encoding failed.</p>"
+    which = "the committed site's frame" if is_site else "the last detection frame (no site was committed)"
+    return (head + f"<p class=note>Frame {index}, {which}. Maps and score in [0, 1] (dimensionless), 1 = good for "
+            "landing (METHOD.md 2.3), colour bar beside each; black = no depth. Slope in degrees from level. Values: "
+            f"<a href='frames/{index:06d}/maps.npz'>maps.npz</a>.</p>"
+            f'<img alt="Figure 5, frame {index}" src="data:image/png;base64,{_b64(buf)}">')
+
+
+def _b64(buf: np.ndarray) -> str:
+    return base64.b64encode(buf.tobytes()).decode()
+
+
+def _mosaic(tiles: list[tuple[str, np.ndarray]], per_row: int) -> np.ndarray:
+    """Tiles (BGR) with a title band each, in rows of ``per_row``, padded to one size."""
+    th = max(t.shape[0] for _, t in tiles)
+    tw = max(t.shape[1] for _, t in tiles)
+    cells = []
+    for title, tile in tiles:
+        cell = np.full((th + TITLE_BAND_PX, tw, 3), 255, np.uint8)
+        cell[TITLE_BAND_PX:TITLE_BAND_PX + tile.shape[0], :tile.shape[1]] = tile
+        cv2.putText(cell, title, (4, TITLE_BAND_PX - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        cells.append(cell)
+    blank = np.full_like(cells[0], 255)
+    rows = [np.hstack(cells[i:i + per_row] + [blank] * (per_row - len(cells[i:i + per_row])))
+            for i in range(0, len(cells), per_row)]
+    return np.vstack(rows)
 
 
 def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, segment: int | None) -> str:
+    """The camera path, every site and the committed square from above, as inline SVG (no rendering cost)."""
     head = "<h2 id=trajectory>Trajectory from above</h2>"
-    poses = [(p, k) for p, k in zip(log.poses(), log.segments(), strict=True) if p is not None]
-    if segment is not None:
-        poses = [(p, k) for p, k in poses if k == segment]
+    poses = [p for p, k in zip(log.poses(), log.segments(), strict=True)
+             if p is not None and (segment is None or k == segment)]
     if not poses:
         return head + "<p class=note>No frame was tracked: no trajectory.</p>"
-    xyz = np.array([p[:3, 3] for p, _ in poses])
-    fig, ax = plt.subplots(figsize=(7.5, 6.0))
-    ax.plot(xyz[:, 0], xyz[:, 1], "-", color="0.3", lw=1.2, label="camera")
-    ax.plot(xyz[0, 0], xyz[0, 1], "o", color="tab:green", label="first frame")
+    path = np.array([p[:2, 3] for p in poses])
     found = [e for e in sites.sites if segment is None or e["segment"] == segment]
-    if found:
-        c = np.array([e["site"].center_world for e in found])
-        ok = np.array([e["site"].accepted for e in found])
-        ax.plot(c[ok, 0], c[ok, 1], ".", color="tab:blue", ms=7, label="site of a detection (accepted)")
-        ax.plot(c[~ok, 0], c[~ok, 1], "x", color="tab:orange", ms=6, label="site of a detection (not accepted)")
-    if committed is not None:
-        sq = np.asarray(committed["site"].corners_world)[[0, 1, 3, 2, 0]]
-        ax.fill(sq[:, 0], sq[:, 1], color="tab:red", alpha=0.35, label="committed site (Eq. 10 square)")
-        ax.plot(sq[:, 0], sq[:, 1], "-", color="tab:red", lw=1.5)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+    centres = np.array([e["site"].center_world[:2] for e in found]).reshape(-1, 2)
+    accepted = np.array([e["site"].accepted for e in found], bool)
+    square = np.asarray(committed["site"].corners_world)[[0, 1, 3, 2], :2] if committed is not None else \
+        np.zeros((0, 2))
+    everything = np.vstack([path, centres, square])
+    lo, hi = everything.min(axis=0), everything.max(axis=0)
+    span = max(float(np.max(hi - lo)), 1.0)
+    lo, hi = lo - 0.08 * span, hi + 0.08 * span
+    m = SVG_MARGIN_PX
+    scale = min((SVG_WIDTH_PX - 2 * m) / (hi[0] - lo[0]), (SVG_HEIGHT_PX - 2 * m) / (hi[1] - lo[1]))
+
+    def px(xy: np.ndarray) -> np.ndarray:  # metres -> SVG pixels, y up
+        return np.stack([m + (xy[..., 0] - lo[0]) * scale, SVG_HEIGHT_PX - m - (xy[..., 1] - lo[1]) * scale], axis=-1)
+
+    def pts(xy: np.ndarray) -> str:
+        return " ".join(f"{x:.1f},{y:.1f}" for x, y in px(xy))
+
+    step = _nice_step(span / 6)
+    grid = []
+    for axis in (0, 1):
+        for v in np.arange(np.ceil(lo[axis] / step) * step, hi[axis], step):
+            a = np.array([[v, lo[1]], [v, hi[1]]]) if axis == 0 else np.array([[lo[0], v], [hi[0], v]])
+            (x1, y1), (x2, y2) = px(a)
+            grid.append(f"<line x1='{x1:.1f}' y1='{y1:.1f}' x2='{x2:.1f}' y2='{y2:.1f}' stroke='#ddd'/>")
+            tx, ty = (x1, SVG_HEIGHT_PX - m + 14) if axis == 0 else (4, y1 + 4)
+            grid.append(f"<text x='{tx:.1f}' y='{ty:.1f}' font-size='11' fill='#555'>{v:g}</text>")
+    parts = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{SVG_WIDTH_PX}' height='{SVG_HEIGHT_PX}' "
+             "style='border:1px solid #ddd;background:#fff'>", *grid,
+             f"<text x='{SVG_WIDTH_PX / 2:.0f}' y='{SVG_HEIGHT_PX - 4}' font-size='12'>x (m)</text>",
+             "<text x='4' y='14' font-size='12'>y (m)</text>"]
+    if len(square):
+        parts.append(f"<polygon points='{pts(square)}' fill='red' fill-opacity='0.35' stroke='red'/>")
+    parts.append(f"<polyline points='{pts(path)}' fill='none' stroke='#444' stroke-width='1.5'/>")
+    (x0, y0), = px(path[:1])
+    parts.append(f"<circle cx='{x0:.1f}' cy='{y0:.1f}' r='5' fill='green'/>")
+    for (x, y), ok in zip(px(centres), accepted, strict=True):
+        parts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='3.5' fill='{'#1f77b4' if ok else 'orange'}'/>")
+    parts.append("</svg>")
     note = f" (SLAM map segment {segment})" if segment is not None else ""
-    return head + f"<p class=note>Camera positions and sites in the run's world frame{note}, top view.</p>" + \
-        _png(fig, "trajectory")
+    return (head + f"<p class=note>Top view of the run's world frame{note}, metres: camera path (grey, green dot = "
+            "first frame), the site of each detection (blue: passed the acceptance test, orange: not), the "
+            "committed site's Eq. 10 square (red).</p>" + "".join(parts))
+
+
+def _nice_step(raw: float) -> float:
+    """1, 2 or 5 times a power of ten, at least ``raw`` (grid lines in metres)."""
+    p = 10.0 ** np.floor(np.log10(max(raw, 1e-9)))
+    return float(next(k * p for k in (1, 2, 5, 10) if k * p >= raw))
 
 
 def _site_table(sites: SiteLog, committed: dict[str, Any] | None) -> str:
@@ -221,35 +279,3 @@ def _detection_frames(run_dir: Path) -> list[int]:
     if not folder.is_dir():
         return []
     return sorted(int(p.name) for p in folder.iterdir() if p.is_dir() and p.name.isdigit())
-
-
-def _hide(values: np.ndarray, valid: np.ndarray | None) -> np.ndarray:
-    """Pixels without depth as NaN (drawn black)."""
-    v = np.asarray(values, np.float32)
-    return v if valid is None else np.where(valid, v, np.nan)
-
-
-def _heat(fig: Any, ax: Any, values: np.ndarray, title: str, unit: str, lo: float, hi: float,
-          cmap: str = "jet") -> None:
-    colours = plt.get_cmap(cmap).copy()
-    colours.set_bad("black")
-    im = ax.imshow(values, cmap=colours, vmin=lo, vmax=hi, interpolation="nearest")
-    cb = fig.colorbar(im, ax=ax, fraction=0.035, pad=0.02)
-    cb.set_label(unit, fontsize=8)
-    cb.ax.tick_params(labelsize=7)
-    ax.set_title(title, fontsize=10)
-
-
-def _read_rgb(path: Path) -> np.ndarray | None:
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
-    return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-
-
-def _png(fig: Any, alt: str) -> str:
-    """The figure inlined as a PNG (the page opens alone, without a server)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
-    plt.close(fig)
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
