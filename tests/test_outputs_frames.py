@@ -151,7 +151,7 @@ def test_slam_poses_are_linked_on_the_first_frame(with_tf, synth, tmp_path) -> N
     np.testing.assert_allclose(link[2] @ slz[0], truth[0], atol=1e-6)
     err = [float(np.linalg.norm((link[2] @ T)[:3, 3] - G[:3, 3])) for T, G in zip(slz, truth, strict=True)]
     # Measured (max over the 4 frames, synth seeds 0-3): 0.019, 0.021, 0.024, 0.037 m; bound 0.1 m (2.7x the
-    # worst). A wrong or inverted link is metres off (the camera flies ~10 m above the origin of slz's map).
+    # worst). A wrong or inverted link is metres off (slz's map starts at the first camera, ~10 m up in odom).
     assert max(err) < 0.1, err
 
 
