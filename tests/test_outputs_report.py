@@ -51,9 +51,9 @@ def test_report_has_every_section_and_its_links_resolve(run) -> None:
     overlays = [u for u in links(page) if u.endswith("overlay.png")]
     summary = json.loads((out / "run.json").read_text())["summary"]
     assert len(set(overlays)) == summary["detections"] > 0  # every detection's overlay, linked not copied
-    # The Figure 5 panel: one inlined PNG, 2 rows of 4 tiles (maps, score, mask, slope, overlay) with titles.
+    # The Figure 5 panel: one inlined JPEG, 2 rows of 4 tiles (maps, score, mask, slope, overlay) with titles.
     figures = [cv2.imdecode(np.frombuffer(base64.b64decode(b), np.uint8), cv2.IMREAD_COLOR)
-               for b in re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", page)]
+               for b in re.findall(r"data:image/jpeg;base64,([A-Za-z0-9+/=]+)", page)]
     assert len(figures) == 1 and figures[0] is not None
     tile_h = 240 + 24   # 640x480 frames drawn 320 px wide, under a 24 px title band
     assert figures[0].shape[0] == 2 * tile_h and figures[0].shape[1] >= 4 * 320

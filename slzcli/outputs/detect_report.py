@@ -33,6 +33,9 @@ TILE_WIDTH_PX = 320
 TITLE_BAND_PX = 24
 TILES_PER_ROW = 4
 SVG_WIDTH_PX, SVG_HEIGHT_PX, SVG_MARGIN_PX = 640, 480, 34
+# The panel is a picture (the values are in maps.npz): JPEG at this quality is ~1/4 of the PNG's bytes and encodes
+# faster; project decision.
+PANEL_JPEG_QUALITY = 85
 MAP_TITLES = {"depth_variance": "depth variance", "flatness": "flatness", "inclination": "inclination",
               "steepness": "steepness"}
 SECTIONS = ("result", "figure5", "trajectory", "sites", "detections", "timings")
@@ -104,42 +107,43 @@ def _figure5(run_dir: Path, index: int | None, is_site: bool, level: str, revers
         return head + f"<p class=note>Not drawn: {why}.</p>"
     with np.load(folder / "maps.npz") as z:
         arrays = {k: z[k] for k in z.files}
-    valid = arrays["valid"]
-    h, w = valid.shape
+    h, w = arrays["valid"].shape
     scale = min(1.0, TILE_WIDTH_PX / w)
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
 
-    def small(img: np.ndarray) -> np.ndarray:
-        return cv2.resize(img, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_NEAREST)
+    def small(a: np.ndarray) -> np.ndarray:  # every array to the tile size first: 1/4 of the pixels to colour
+        kind = np.uint8 if a.dtype == bool else np.float32
+        return cv2.resize(np.asarray(a, kind), size, interpolation=cv2.INTER_NEAREST)
 
-    def heat(values: np.ndarray, lo: str = "0 bad", hi: str = "1 good") -> np.ndarray:
-        v = np.asarray(values, np.float32)
-        return images.with_colour_bar(small(images.heatmap_bgr(v, reverse=reverse, valid=valid)), reverse=reverse,
-                                      low=lo, high=hi)
+    valid = small(arrays["valid"]).astype(bool)
+
+    def heat(values: np.ndarray) -> np.ndarray:
+        return images.with_colour_bar(images.heatmap_bgr(small(values), reverse=reverse, valid=valid),
+                                      reverse=reverse)
 
     tiles = [(MAP_TITLES[n], heat(arrays[n])) for n in MAP_TITLES]
     tiles.append(("fused score", heat(arrays["score"])))
-    mask = np.asarray(arrays["mask"], bool)
-    tiles.append((f"landing mask ({100 * float(mask.mean()):.0f} % safe)",
-                  cv2.cvtColor(images.with_mask_legend(small(images.mask_png(mask))), cv2.COLOR_GRAY2BGR)))
-    slope = np.asarray(arrays.get("slope_deg", np.full((h, w), np.nan)), np.float32)
+    mask = small(arrays["mask"]).astype(bool)
+    tiles.append((f"landing mask ({100 * float(np.mean(arrays['mask'])):.0f} % safe)",
+                  cv2.cvtColor(images.with_mask_legend(images.mask_png(mask)), cv2.COLOR_GRAY2BGR)))
+    slope = small(arrays.get("slope_deg", np.full((h, w), np.nan)))
     finite = slope[np.isfinite(slope) & valid]
     top = max(float(np.percentile(finite, 99)), 1.0) if finite.size else 1.0
     tiles.append(("surface slope (deg from level)", images.with_colour_bar(
-        small(images.heatmap_bgr(np.clip(slope / top, 0.0, 1.0), valid=valid & np.isfinite(slope))),
+        images.heatmap_bgr(np.clip(slope / top, 0.0, 1.0), valid=valid & np.isfinite(slope)),
         low="0 deg", high=f"{top:.0f} deg")))
     overlay = cv2.imread(str(folder / "overlay.png"), cv2.IMREAD_COLOR) if (folder / "overlay.png").is_file() else None
     if overlay is not None:
         tiles.append(("mask, SLAM points, site", cv2.resize(overlay, size, interpolation=cv2.INTER_AREA)))
     panel = _mosaic(tiles, TILES_PER_ROW)
-    ok, buf = cv2.imencode(".png", panel, [cv2.IMWRITE_PNG_COMPRESSION, images.PNG_LEVEL])
+    ok, buf = cv2.imencode(".jpg", panel, [cv2.IMWRITE_JPEG_QUALITY, PANEL_JPEG_QUALITY])
     if not ok:
-        return head + "<p class=note>Not drawn: PNG encoding failed.</p>"
+        return head + "<p class=note>Not drawn: JPEG encoding failed.</p>"
     which = "the committed site's frame" if is_site else "the last detection frame (no site was committed)"
     return (head + f"<p class=note>Frame {index}, {which}. Maps and score in [0, 1] (dimensionless), 1 = good for "
             "landing (METHOD.md 2.3), colour bar beside each; black = no depth. Slope in degrees from level. Values: "
             f"<a href='frames/{index:06d}/maps.npz'>maps.npz</a>.</p>"
-            f'<img alt="Figure 5, frame {index}" src="data:image/png;base64,{_b64(buf)}">')
+            f'<img alt="Figure 5, frame {index}" src="data:image/jpeg;base64,{_b64(buf)}">')
 
 
 def _b64(buf: np.ndarray) -> str:
