@@ -649,6 +649,8 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
                      + ("" if noise.get("detections_not_vouched", 0) == 0 else
                         f"; {noise['detections_not_vouched']} detection frame(s) could not vouch"))
     write = f", write {t['write']:.1f} ms" if "write" in t else ""  # a run.json from before write was summarised
+    if "write_wait" in t:  # the writer runs beside the loop: what it cost the loop is the wait
+        write += f" in the background (the loop waited {t['write_wait']:.1f} ms)"
     lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, "
                  f"mask {t['mask']:.1f} ms, slam {t['slam']:.1f} ms, select {t['select']:.1f} ms{write} (medians)")
     gt = s.get("ground_truth")

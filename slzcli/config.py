@@ -114,6 +114,7 @@ class SourcesCfg:
     max_depth_m: float = rng(0)
     min_image_px: tuple[int, ...] = rng(1, n=2)
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
+    read_ahead_frames: int = rng(0, 64)
 
 
 @schema
@@ -504,6 +505,7 @@ class SlamCfg:
     backend: Literal["auto", "orbslam3", "odometry", "recorded"]
     vocabulary: str
     points_topic: str
+    track_ahead: bool
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
     orbslam3: OrbSlam3Cfg
@@ -528,6 +530,7 @@ class OutputCfg:
     mask_cloud_stride_px: int = rng(1, 256)
     map_frame: str
     progress_every_s: float = rng(0)
+    write_queue: int = rng(0, 64)
 
 
 @schema

@@ -40,7 +40,7 @@ import logging
 import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import ExitStack
+from contextlib import ExitStack, closing
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -57,12 +57,15 @@ from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
 from slzcli.landing.select import Candidate, SelectParams, Site, select_site
 from slzcli.outputs import output_dir, results_mcap, run_folder
+from slzcli.outputs.background import BackgroundWriter
+from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
+from slzcli.sources.read_ahead import read_ahead
 from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.limits import limit_reason
@@ -134,6 +137,7 @@ class Tracker:
         self.frames = 0
         self.align: dict[int, np.ndarray] = {}  # T_world_slam of each map segment, from its first pose
         self._segment = 0  # map segment of the latest frame
+        self._t_submit = 0.0  # when the frame being tracked was submitted
         self._points: MapPoints | None = None  # the latest keyframe's map points (of the current segment)
 
     @property
@@ -168,10 +172,27 @@ class Tracker:
 
     def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
         """SLAM on one frame: the gravity-aligned pose and whether it is a keyframe with map points."""
+        self.submit(frame)
+        return self.collect(frame)
+
+    def submit(self, frame: Frame) -> None:
+        """Start tracking ``frame``: a backend in a worker process tracks it while this process computes."""
+        self._t_submit = time.perf_counter()
+        self.slam.submit(frame)
+
+    def collect(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
+        """The submitted frame's gravity-aligned pose and whether it is a keyframe with map points.
+
+        Timed as ``slam`` (the tracking time where it ran: the worker's own for ORB-SLAM3) and ``slam_wait``
+        (how long this process waited for it, less when the worker tracked while the maps were computed)."""
         slam = self.slam
-        with self.timer.stage("slam"):
-            result = slam.track(frame)
-            points = slam.keyframe() if result.is_keyframe else None
+        t0 = time.perf_counter()
+        result = slam.collect()
+        points = slam.keyframe() if result.is_keyframe else None
+        waited = _lap(t0)
+        own = slam.last_track_ms()
+        self.timer.add("slam", _lap(self._t_submit) if own is None else own)
+        self.timer.add("slam_wait", waited)
         if result.segment != self._segment:  # a new map: the old map's points are in another frame
             self._segment, self._points = result.segment, None
         T = self._world(result.T_world_camera, self._segment)
@@ -397,9 +418,20 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         state = run_state(tracker, config, tmp / SPOOL_DIR)
         noise = state.noise
         assert noise is not None
+        # Files are written off the compute path, in order (results.mcap's poses too): closed before
+        # results.mcap, dropped unwritten on an error (``outputs/background.py``).
+        writer = stack.enter_context(BackgroundWriter(config.output.write_queue))
 
         def tracked(frame: Frame, T: np.ndarray | None) -> None:  # every frame, before its detection
-            results.write_pose(frame.stamp_ns, T, tracker.segment, frame.T_world_camera)
+            writer.submit(f"the pose of frame {frame.index}", results.write_pose, frame.stamp_ns, T, tracker.segment,
+                          frame.T_world_camera)
+
+        def write_frame(d: Detection) -> None:  # in the writer thread
+            with state.timer.stage("write"):
+                overlay = detection_overlay_bgr(d) if config.output.level != "summary" or config.output.results_mcap \
+                    else None
+                run_folder.write_detection(tmp, d, config, overlay)
+                results.write_detection(d, overlay)
 
         def done(frame: Frame) -> None:  # every frame, after its detection went to the sinks
             if truth is not None:
@@ -409,17 +441,17 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
 
         frames = each_frame(tracked_frames(path, rec, tracker, limit), tracked, done)
         for d in detect(frames, tracker, Fusion.of(config, method), noise, limit):
-            with limit.stage(f"writing frame {d.frame.index}"):  # the sinks: tables, ground truth, files
-                tally(state, d, config)
-                if truth is not None:
-                    truth.detection(d)
-                with state.timer.stage("write"):
-                    run_folder.write_detection(tmp, d, config)
-                    results.write_detection(d)
+            tally(state, d, config)  # the sinks: tables, ground truth, files
+            if truth is not None:
+                truth.detection(d)
+            with limit.stage(f"writing {writer.busy_with() or f'frame {d.frame.index}'}"), \
+                    state.timer.stage("write_wait"):  # waits only while the writer's queue is full
+                writer.submit(f"frame {d.frame.index}", write_frame, d)
         state.frames = tracker.frames
         if state.frames == 0:
             raise DatasetError(path, "no RGB-D frame could be read")
         with limit.stage("writing the run folder"):
+            writer.close()  # every frame written before the run's own files and results.mcap's end
             committed = commit_site(state.sites.sites, commit_radius_m(config))
             results.write_run(committed)
             result = summarise(path, config, method, info, rec.report, state, tracker.slam_name,
@@ -468,17 +500,33 @@ def tracked_frames(path: Path, rec: Any, tracker: Tracker, limit: StageLimit) ->
     and ``slz compare`` so both read, track and choose detection frames the same way.
     """
     config = tracker.config
+    with closing(read_ahead(rec.frames(), config.sources.read_ahead_frames)) as frames:  # decoded in a thread
+        yield from _track_each(path, frames, tracker, limit)
+
+
+def _track_each(path: Path, frames: Iterator[Frame], tracker: Tracker, limit: StageLimit) -> Iterator[TrackedFrame]:
+    config = tracker.config
     every = config.landing.every_nth_frame
-    frames = iter(rec.frames())
-    while True:
-        with limit.stage(f"reading frame {tracker.frames}"):
+    read = 0
+
+    def next_frame() -> Frame | None:  # read, checked and handed to SLAM (a worker process starts on it)
+        nonlocal read
+        with limit.stage(f"reading frame {read}"):
             frame = next(frames, None)
-        if frame is None:
-            return
-        check_frame_size(path, frame, config.sources.min_image_px)
+        if frame is not None:
+            read += 1
+            check_frame_size(path, frame, config.sources.min_image_px)
+            tracker.submit(frame)
+        return frame
+
+    ahead = config.slam.track_ahead
+    frame = next_frame()
+    while frame is not None:
         with limit.stage(f"SLAM on frame {frame.index}"):
-            T, is_keyframe = tracker.track(frame)
+            T, is_keyframe = tracker.collect(frame)
+        after = next_frame() if ahead else None  # tracked (in a SLAM worker) while frame's detection runs
         yield frame, T, (is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0)
+        frame = after if ahead else next_frame()
 
 
 def each_frame(frames: Iterable[TrackedFrame], before: Callable[[Frame, np.ndarray | None], None],

@@ -69,7 +69,8 @@ def stage_timings(timing: dict[str, dict[str, float]], method: str) -> dict[str,
     return {"maps": med.get("maps", 0.0), method: med.get("score", 0.0), "mask": med.get("mask", 0.0),
             "slam": med.get("slam", 0.0), "select": med.get("select", 0.0),
             "total": round(sum(med.get(k, 0.0) for k in PER_FRAME_STAGES), 3),
-            "write": med.get("write", 0.0)}  # a detection frame's files (output.level) + results.mcap; not in total
+            "write": med.get("write", 0.0),  # a detection frame's files (output.level) + results.mcap; not in total
+            "write_wait": med.get("write_wait", 0.0)}  # of which the main loop waited (the writer runs beside it)
 
 
 def world_frame_text(slam_name: str, poses_are_recorded: bool, table: list[Segment], primary: int | None) -> str:
