@@ -316,7 +316,7 @@ def test_tracker_failure_below_the_size_floor_is_named_not_internal(runner: CliR
 # ----------------------------------------------------------------------------- issue 15: stamps, topics, poses
 def warnings_of(stderr: str) -> list[str]:
     lines = stderr.splitlines()
-    assert all(ln.startswith(("slz: WARNING:", "slz: error:")) for ln in lines), stderr  # one line each
+    assert all(ln.startswith(("slz: WARNING:", "slz: error:", PROGRESS)) for ln in lines), stderr  # one line each
     return [ln for ln in lines if ln.startswith("slz: WARNING:")]
 
 
