@@ -666,7 +666,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     tasks = batch.plan(paths, output, batch=is_batch)
     batch_dir = output or Path("runs")
     summary_dir = batch_dir if is_batch else None
-    with _BatchDisplay(is_batch) as show:
+    with _BatchDisplay(is_batch, config.output.progress_every_s) as show:
         result = batch.run_batch(tasks, config, workers=workers or batch.default_workers(), scheduler=scheduler,
                                  options=RunOptions(force, method, timeout_s), summary_dir=summary_dir,
                                  on_progress=show)
@@ -763,12 +763,16 @@ def _batch_text(t: dict[str, Any], rows: list[dict[str, Any]]) -> str:
 
 class _BatchDisplay:
     """Batch progress on stderr: a rich bar on a terminal (recordings done, frames, frames/s);
-    otherwise, for a batch, one plain line per finished recording."""
+    otherwise (a log, a pipe, CI) a plain line at most every ``every_s`` seconds while frames advance
+    (``output.progress_every_s``), and for a batch one line per finished recording."""
 
-    def __init__(self, lines: bool) -> None:
+    def __init__(self, lines: bool, every_s: float = 0.0) -> None:
         self.lines = lines
+        self.every_s = every_s
         self.bar: Any = None
         self.task: Any = None
+        self.shown_s: float | None = None  # elapsed time of the last plain progress line
+        self.shown_frames = 0
 
     def __enter__(self) -> Callable[[Any], None]:
         if sys.stderr.isatty():
@@ -786,7 +790,14 @@ class _BatchDisplay:
             if self.task is None:
                 self.task = self.bar.add_task("detect", total=p.total, frames=0, fps=0.0)
             self.bar.update(self.task, completed=p.done, frames=p.frames, fps=p.frames_per_s)
-        elif self.lines and p.row is not None:
+            return
+        if p.row is None and p.frames > self.shown_frames and \
+                (self.shown_s is None or p.elapsed_s - self.shown_s >= self.every_s):
+            self.shown_s, self.shown_frames = p.elapsed_s, p.frames
+            of = f" ({p.done}/{p.total} recordings done)" if p.total > 1 else ""
+            click.echo(f"slz: detect: {p.frames} frames in {p.elapsed_s:.1f} s, {p.frames_per_s:.1f} frames/s{of}",
+                       err=True)
+        if self.lines and p.row is not None:
             r = p.row
             what = r["status"] + (" (skipped: done before)" if r.get("skipped") else "")
             if r["status"] == "failed":
@@ -839,7 +850,7 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
     frames = {"summary": "", "maps": ", frames/ (maps.npz, overlay.png)", "all": ", frames/"}.get(
         s.get("outputs", "all"), ", frames/")
     mcap = ", results.mcap" if (out / "results.mcap").exists() else ""
-    lines.append(f"  results: {out}/ (landing.json, run.json, sites.csv, points.ply{mcap}{frames})")
+    lines.append(f"  results: {out}/ (report.html, landing.json, run.json, sites.csv, points.ply{mcap}{frames})")
     return "\n".join(lines)
 
 

@@ -587,6 +587,8 @@ class OutputCfg:
     reverse_colormap: bool
     results_mcap: bool
     mask_cloud_stride_px: int = rng(1, 256)
+    map_frame: str
+    progress_every_s: float = rng(0)
     write_queue: int = rng(0, 64)
 
 

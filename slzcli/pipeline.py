@@ -365,7 +365,8 @@ def record(sites: SiteLog, det: Detection) -> None:
         assert det.points is not None  # a site is chosen among the map points
         pts = det.points.xyz_world
         limits = det.maps.work.as_dict() if det.maps.work is not None else None
-        sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits, det.segment)
+        sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits, det.segment,
+                       kept_cluster=sel.labels[sel.kept])
 
 
 def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
@@ -460,7 +461,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             truth = None if gt is None else TruthEvaluator(gt)  # a sink: detection never reads the truth
             rec, info, clouds = open_inputs(path, config, stack)
             config = with_noise_prior(config, info.camera_preset)  # the camera preset's depth noise prior
-        results = results_mcap.open_results(tmp, config)
+        results = results_mcap.open_results(tmp, config, rec.recorded_frames())
         stack.enter_context(results)   # __enter__ returns the writer itself
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         slam = stack.enter_context(get_backend(config, has_poses, clouds=clouds))
@@ -473,7 +474,8 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         writer = stack.enter_context(BackgroundWriter(config.output.write_queue))
 
         def tracked(frame: Frame, T: np.ndarray | None) -> None:  # every frame, before its detection
-            writer.submit(f"the pose of frame {frame.index}", results.write_pose, frame.stamp_ns, T, tracker.segment)
+            writer.submit(f"the pose of frame {frame.index}", results.write_pose, frame.stamp_ns, T, tracker.segment,
+                          frame.T_world_camera)
 
         def write_frame(d: Detection) -> None:  # in the writer thread
             with state.timer.stage("write"):

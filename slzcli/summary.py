@@ -20,7 +20,7 @@ from slzcli import __version__
 from slzcli.config import Config
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
-from slzcli.outputs.results_mcap import frame_ids
+from slzcli.outputs.results_mcap import MAP_FRAME, map_frame_of
 from slzcli.outputs.run_folder import landing_record
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog, trajectory_files
@@ -88,12 +88,12 @@ def world_frame_text(slam_name: str, poses_are_recorded: bool, table: list[Segme
 
 
 def slam_summary(slam_name: str, table: list[Segment], primary: int | None,
-                 tum_files: dict[int, str]) -> dict[str, Any]:
+                 tum_files: dict[int, str], map_frame: str = MAP_FRAME) -> dict[str, Any]:
     """run.json ``summary.slam``: how many maps the backend started and what each one holds."""
     return {"backend": slam_name, "maps": len(table), "segment": primary, "segments": [
         {"segment": s.segment, "frames_tracked": s.frames_tracked, "first_frame": s.first_frame,
          "last_frame": s.last_frame, "keyframes": s.keyframes, "trajectory": tum_files.get(s.segment),
-         "mcap_frame": frame_ids(s.segment)[0]} for s in table]}
+         "mcap_frame": map_frame_of(s.segment, map_frame)} for s in table]}
 
 
 def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
@@ -162,7 +162,7 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
         "source": str(source), "method": method, "frames": st.frames, "detections": st.detections,
         "status": landing["status"], "site_world": landing.get("site", {}).get("center_world"),
         "reason": landing.get("reason"), "slam_backend": slam_name, "tracking": st.tracking,
-        "slam": slam_summary(slam_name, table, primary, trajectory_files(st.trajectory)),
+        "slam": slam_summary(slam_name, table, primary, trajectory_files(st.trajectory), config.output.map_frame),
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
         "outputs": config.output.level,
         "depth_noise": noise,

@@ -302,3 +302,25 @@ class RunResult:
     @property
     def summary(self) -> dict[str, Any]:
         return self.run["summary"]
+
+
+# ----------------------------------------------------------------------------- frame ids of a recording
+@dataclass(frozen=True, eq=False)
+class RecordedFrames:
+    """The recording's own frame ids that results.mcap ties slz's frames to (``sources.tf``).
+
+    camera: the colour image's ``header.frame_id`` (its optical frame), "" when the recording has none
+    (TUM folders). camera_root, T_root_camera: the top of the camera's chain in ``/tf_static``
+    (e.g. ``camera_link``) and the transform to it; "" and None when the camera is in no static
+    chain. pose_frame: the frame the recorded camera poses are in (a PoseStamped's or Odometry's
+    ``header.frame_id``, the root of the /tf chain), "" without recorded poses. tf_places_camera:
+    the recorded poses come from ``/tf``, so the recording's own tree places the camera.
+    static_chain: the /tf_static edges (parent, child, T_parent_child) from the camera up to camera_root.
+    """
+
+    camera: str = ""
+    camera_root: str = ""
+    T_root_camera: np.ndarray | None = None
+    static_chain: tuple[tuple[str, str, np.ndarray], ...] = ()
+    pose_frame: str = ""
+    tf_places_camera: bool = False

@@ -94,9 +94,10 @@ def test_fusion_keeps_no_state(recording, method) -> None:
 
 
 def _tree(run: Path) -> dict[str, bytes]:
-    """The files of a run folder that do not hold timings (run.json, landing.json and results.mcap carry them)."""
+    """The files of a run folder that do not hold timings (run.json, landing.json, results.mcap and report.html
+    carry them)."""
     return {str(p.relative_to(run)): p.read_bytes() for p in sorted(run.rglob("*"))
-            if p.is_file() and p.name not in {"run.json", "landing.json", "results.mcap"}}
+            if p.is_file() and p.name not in {"run.json", "landing.json", "results.mcap", "report.html"}}
 
 
 def test_overlapping_the_stages_changes_no_result(runner, recording, tmp_path) -> None:

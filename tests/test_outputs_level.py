@@ -23,7 +23,8 @@ from slzcli.outputs.recording import RecordingWriter
 
 EVERY = ("--set", "slam.backend=odometry", "--set", "landing.detect_on=every_nth",
          "--set", "landing.every_nth_frame=1")
-RUN_FILES = {"run.json", "landing.json", "sites.csv", "points.ply", "trajectory.tum", "keyframes.npz", "results.mcap"}
+RUN_FILES = {"run.json", "landing.json", "sites.csv", "points.ply", "trajectory.tum", "keyframes.npz", "results.mcap",
+             "report.html"}
 HEATMAPS = {"depth_variance.png", "flatness.png", "inclination.png", "steepness.png", "score.png", "mask.png"}
 FRAME_FILES = {"summary": None, "maps": {"maps.npz", "overlay.png"}, "all": {"maps.npz", "overlay.png", *HEATMAPS}}
 # float16 keeps 11 significant bits: a value v comes back within |v| * 2**-11 (round to nearest); the

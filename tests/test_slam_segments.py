@@ -205,15 +205,17 @@ def test_two_maps_stay_apart_in_every_output(two_maps, flight, tmp_path) -> None
     # keyframes.npz knows each keyframe's segment; points.ply's map points are the site's segment's.
     kf = np.load(out / "keyframes.npz")
     assert kf["kf_segment"].tolist() == [0] * LOST + [1] * (FRAMES - LOST - 1)
-    assert _ply_grey_points(out / "points.ply") == int(np.sum(kf["kf_segment"][kf["point_kf"]] == k))
+    mine = kf["point_xyz_world"][kf["kf_segment"][kf["point_kf"]] == k]
+    assert _ply_map_points(out / "points.ply") == len(np.unique(mine, axis=0))  # each map point once
 
-    # results.mcap: map K's poses, clouds and site in world_K / camera_K (world / camera for map 0).
+    # results.mcap: map K's poses, clouds and site in map_K / <camera>_K (map / the recording's camera for map 0).
     frames = _mcap_frames(out / "results.mcap")
-    assert frames["/tf"] == [("world", "camera")] * LOST + [("world_1", "camera_1")] * (FRAMES - LOST - 1)
-    assert frames["/slz/camera_pose"] == [("world", "")] * LOST + [("world_1", "")] * (FRAMES - LOST - 1)
-    assert frames["/slz/mask"] == [("camera", "")] * LOST + [("camera_1", "")] * (FRAMES - LOST - 1)
-    assert frames["/slz/map_points"] == [("world", "")] * LOST + [("world_1", "")] * (FRAMES - LOST - 1)
-    assert frames["/slz/landing_site"] == [("world_1", "")]
+    cam, cam1 = "camera_color_optical_frame", "camera_color_optical_frame_1"
+    assert frames["/tf"] == [("map", cam)] * LOST + [("map_1", cam1)] * (FRAMES - LOST - 1)
+    assert frames["/slz/camera_pose"] == [("map", "")] * LOST + [("map_1", "")] * (FRAMES - LOST - 1)
+    assert frames["/slz/mask"] == [(cam, "")] * LOST + [(cam1, "")] * (FRAMES - LOST - 1)
+    assert frames["/slz/map_points"] == [("map", "")] * LOST + [("map_1", "")] * (FRAMES - LOST - 1)
+    assert frames["/slz/landing_site"] == [("map_1", "")]
 
 
 def test_a_new_map_never_uses_the_old_maps_points(monkeypatch, flight, tmp_path) -> None:
@@ -253,12 +255,11 @@ def test_cli_says_how_many_maps_and_warns_once(two_maps, flight, tmp_path, runne
     assert json.loads(res.stdout)["slam"]["maps"] == 2 and len(res.stderr.strip().splitlines()) == 1
 
 
-def _ply_grey_points(path: Path) -> int:
-    data = path.read_bytes()
-    head, body = data.split(b"end_header\n", 1)
-    n = int(next(ln for ln in head.decode().splitlines() if ln.startswith("element vertex")).split()[-1])
-    v = np.frombuffer(body, np.dtype([("xyz", "<f4", 3), ("rgb", "u1", 3)]), count=n)
-    return int(np.sum(np.all(v["rgb"] == (153, 153, 153), axis=1)))
+def _ply_map_points(path: Path) -> int:
+    """The map points of a points.ply (every role but the square's corners)."""
+    from slzcli.outputs.points import ROLES, read_points_ply
+
+    return int(np.sum(read_points_ply(path)["role"] != ROLES.index("corner")))
 
 
 def _mcap_frames(path: Path) -> dict[str, list[tuple[str, str]]]:

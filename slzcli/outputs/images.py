@@ -29,6 +29,49 @@ def heatmap_bgr(values: np.ndarray, *, reverse: bool = False, valid: np.ndarray 
     return img
 
 
+# The colour bar beside a per-frame heat map (frames/NNNNNN/<map>.png at --outputs all): display only, no result
+# depends on these. Width in px, the gradient column inside it, text scale of cv2.FONT_HERSHEY_SIMPLEX.
+BAR_WIDTH_PX = 64
+BAR_GRADIENT_PX = 16
+BAR_MARGIN_PX = 6
+BAR_TEXT_SCALE = 0.4
+LEGEND_WIDTH_PX = 88
+
+
+def _label(img: np.ndarray, text: str, x: int, y: int) -> None:
+    cv2.putText(img, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, BAR_TEXT_SCALE, (255, 255, 255), 1, cv2.LINE_AA)
+
+
+def with_colour_bar(img: np.ndarray, *, reverse: bool = False, low: str = "0 bad", high: str = "1 good") -> np.ndarray:
+    """A heat map (``heatmap_bgr``) with its colour bar to the right: the JET scale from 0 (bottom) to 1 (top),
+    labelled; ``reverse`` as in ``heatmap_bgr`` (the bar shows the colours the map was drawn with)."""
+    h = img.shape[0]
+    strip = np.zeros((h, BAR_WIDTH_PX, 3), np.uint8)
+    top, bottom = BAR_MARGIN_PX + 8, h - BAR_MARGIN_PX - 8
+    values = np.linspace(1.0, 0.0, max(bottom - top, 2), dtype=np.float32)[:, None]  # top = 1
+    column = heatmap_bgr(np.repeat(values, BAR_GRADIENT_PX, axis=1), reverse=reverse)
+    strip[top:top + len(values), BAR_MARGIN_PX:BAR_MARGIN_PX + BAR_GRADIENT_PX] = column
+    x = BAR_MARGIN_PX + BAR_GRADIENT_PX + 3
+    _label(strip, high.split()[0], x, top + 4)
+    _label(strip, " ".join(high.split()[1:]), x, top + 16)
+    _label(strip, low.split()[0], x, bottom)
+    _label(strip, " ".join(low.split()[1:]), x, bottom - 12)
+    return np.hstack([img, strip])
+
+
+def with_mask_legend(mask_img: np.ndarray) -> np.ndarray:
+    """mask.png (255 safe, 0 unsafe) with a legend strip to the right, still one grey channel."""
+    h = mask_img.shape[0]
+    strip = np.full((h, LEGEND_WIDTH_PX), 64, np.uint8)
+    for row, (value, text) in enumerate(((255, "safe"), (0, "unsafe"))):
+        y = BAR_MARGIN_PX + 20 * row
+        strip[y:y + 12, BAR_MARGIN_PX:BAR_MARGIN_PX + 12] = value
+        cv2.rectangle(strip, (BAR_MARGIN_PX, y), (BAR_MARGIN_PX + 11, y + 11), 160, 1)
+        cv2.putText(strip, text, (BAR_MARGIN_PX + 18, y + 10), cv2.FONT_HERSHEY_SIMPLEX, BAR_TEXT_SCALE, 255, 1,
+                    cv2.LINE_AA)
+    return np.hstack([mask_img, strip])
+
+
 def overlay_bgr(rgb: np.ndarray, mask: np.ndarray, alpha: float = 0.45) -> np.ndarray:
     """The colour image with safe pixels tinted green and the rest red (blended in uint8, rounded)."""
     bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)

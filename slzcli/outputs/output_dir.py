@@ -195,7 +195,7 @@ def _commit(tmp: Path, path: Path, kind: Kind, new: list[str]) -> None:
 
 # ----------------------------------------------------------------------------- the kinds
 DETECT_NAMES = ("run.json", "landing.json", "sites.csv", "points.ply", "trajectory.tum", "keyframes.npz",
-                "results.mcap", "frames")
+                "results.mcap", "frames", "report.html")
 COMPARE_NAMES = ("compare.json", "compare.csv", "report.html")
 
 

@@ -1,4 +1,12 @@
-"""points.ply: SLAM map points coloured by their role in the site selection."""
+"""points.ply: the run's SLAM map points, each once, with its role in the site selection and its cluster.
+
+Vertex properties: ``x y z`` (float, metres, the run's world frame), ``red green blue`` (uchar,
+the role's colour, for viewers that show only colour), ``role`` (uchar, ``ROLES``: 0 map point,
+1 under the landing mask, 2 in the chosen cluster, 3 a corner of the Eq. 10 square) and
+``cluster`` (int, the k-means cluster of a point under the mask in the committed detection,
+-1 for the rest). A point that has several roles (every point under the mask is a map point
+too) is written once, with its highest role; points at the same coordinates are one point.
+"""
 
 from __future__ import annotations
 
@@ -8,28 +16,63 @@ import numpy as np
 
 from slzcli.outputs.files import atomic_path
 
+# role byte = position in ROLES (the PLY header comment says the same); a later role outranks an earlier one.
+ROLES = ("map", "kept", "chosen", "corner")
 # RGB: every map point grey, under the mask blue, the chosen cluster green, Eq. 10 corners red.
 ROLE_COLOURS = {"map": (153, 153, 153), "kept": (38, 89, 242), "chosen": (26, 204, 51), "corner": (242, 26, 26)}
-_VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+NO_CLUSTER = -1
+VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+                   ("role", "u1"), ("cluster", "<i4")])
+HEADER = ("ply\nformat binary_little_endian 1.0\n"
+          "comment slz map points, each once: role 0 map point (grey), 1 under the landing mask (blue), "
+          "2 chosen cluster (green), 3 corner of the landing square (red)\n"
+          "comment cluster: k-means cluster of a point under the mask in the committed detection, -1 none\n"
+          "element vertex {n}\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\n"
+          "property uchar green\nproperty uchar blue\nproperty uchar role\nproperty int cluster\nend_header\n")
 
 
-def write_points_ply(path: Path, xyz_by_role: dict[str, np.ndarray]) -> None:
-    """One binary little-endian PLY with a colour per role (see ROLE_COLOURS); roles may be empty.
+def point_vertices(xyz_by_role: dict[str, np.ndarray],
+                   cluster_by_role: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """The PLY vertices (``VERTEX``): each distinct point once with its highest role, in role then input order."""
+    clusters = cluster_by_role or {}
+    xyz_parts, role_parts, cluster_parts = [], [], []
+    for role, v in xyz_by_role.items():
+        xyz = np.asarray(v, np.float64).reshape(-1, 3)
+        xyz_parts.append(xyz)
+        role_parts.append(np.full(len(xyz), ROLES.index(role), np.uint8))
+        c = clusters.get(role)
+        cluster_parts.append(np.full(len(xyz), NO_CLUSTER, np.int32) if c is None else np.asarray(c, np.int32))
+    if not xyz_parts:
+        return np.empty(0, VERTEX)
+    xyz, roles, cluster = np.vstack(xyz_parts), np.concatenate(role_parts), np.concatenate(cluster_parts)
+    # Highest role first, so that np.unique's first occurrence of each coordinate triple is its highest role.
+    by_role = np.argsort(-roles.astype(np.int16), kind="stable")
+    _, first = np.unique(xyz[by_role], axis=0, return_index=True)
+    keep = by_role[first]
+    keep = keep[np.lexsort((keep, roles[keep]))]  # role order, then input order
+    out = np.empty(len(keep), VERTEX)
+    out["x"], out["y"], out["z"] = xyz[keep, 0], xyz[keep, 1], xyz[keep, 2]
+    rgb = np.array([ROLE_COLOURS[r] for r in ROLES], np.uint8)[roles[keep]]
+    out["red"], out["green"], out["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    out["role"], out["cluster"] = roles[keep], cluster[keep]
+    return out
+
+
+def write_points_ply(path: Path, xyz_by_role: dict[str, np.ndarray],
+                     cluster_by_role: dict[str, np.ndarray] | None = None) -> None:
+    """One binary little-endian PLY (see the module docstring); roles may be empty.
 
     Written with numpy rather than Open3D, whose writer refuses an empty cloud (a run with no
-    map points still gets a valid, empty points.ply).
+    map points still gets a valid, empty points.ply) and writes no extra properties.
     """
-    parts = [(np.asarray(v, np.float64).reshape(-1, 3), ROLE_COLOURS[role]) for role, v in xyz_by_role.items()]
-    n = sum(len(xyz) for xyz, _ in parts)
-    vertices = np.empty(n, _VERTEX)
-    i = 0
-    for xyz, colour in parts:  # a handful of roles, each filled vectorised
-        block = vertices[i:i + len(xyz)]
-        block["x"], block["y"], block["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-        block["red"], block["green"], block["blue"] = colour
-        i += len(xyz)
-    header = ("ply\nformat binary_little_endian 1.0\ncomment slz map points: grey map, blue under the mask, "
-              f"green chosen cluster, red landing square\nelement vertex {n}\nproperty float x\nproperty float y\n"
-              "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    vertices = point_vertices(xyz_by_role, cluster_by_role)
     with atomic_path(path) as tmp:
-        tmp.write_bytes(header.encode() + vertices.tobytes())
+        tmp.write_bytes(HEADER.format(n=len(vertices)).encode() + vertices.tobytes())
+
+
+def read_points_ply(path: Path) -> np.ndarray:
+    """The vertices of a points.ply slz wrote (``VERTEX`` fields), for tests and scripts without a PLY library."""
+    data = Path(path).read_bytes()
+    head, body = data.split(b"end_header\n", 1)
+    n = int(next(ln for ln in head.decode().splitlines() if ln.startswith("element vertex")).split()[-1])
+    return np.frombuffer(body, VERTEX, count=n)

@@ -4,13 +4,18 @@ Written while the run goes (one detection at a time, streamed to the MCAP writer
 bounded by one chunk), through the project's one recording writer (``outputs/recording.py``:
 rosbags CDR, schemas from the ROS 2 Humble type store, atomic rename on close).
 
-Topics. Frame ids: ``world`` is the world frame of the first SLAM map segment, ``camera`` the
-optical frame of the colour camera (x right, y down, z forward). After a SLAM map reset the
-poses are in a new, unrelated world frame (``slzcli.slam.segments``): map segment K >= 1 has
-its own pair ``world_K`` -> ``camera_K`` (``frame_ids``), so /tf is a forest of one tree per
-segment and nothing is drawn in a frame it is not in; pick the segment's ``world_K`` as the
-3D panel's fixed frame. The committed site is in its segment's frames (run.json
-``summary.slam`` names the run's segment).
+Topics. Frame ids (REP 105; docs/DESIGN.md "results.mcap frames"): ``map`` (``output.map_frame``)
+is slz's SLAM map, the world frame of the first map segment; camera messages keep the recording's
+optical frame id (the colour image's ``header.frame_id``; ``camera`` when the recording has none).
+When the recording has camera poses (a pose topic slz reads), ``/tf_static`` links ``map`` to the
+frame those poses are in (e.g. ``world``, ``odom``), aligned on the first frame that has both
+poses; a recording whose ``/tf`` places the camera keeps doing so (slz publishes no second parent
+for it), otherwise slz's ``/tf`` places it (through the camera's ``/tf_static`` chain, copied).
+After a SLAM map reset the poses are in a new, unrelated world frame (``slzcli.slam.segments``):
+map segment K >= 1 has its own ``map_K`` (and, where slz places the camera, ``<camera>_K``), with
+its own link when there are recorded poses; without them /tf is a forest of one tree per segment
+and nothing is drawn in a frame it is not in. The committed site is in its segment's frames
+(run.json ``summary.slam`` names the run's segment).
 
     /slz/color                      sensor_msgs/Image rgb8       every detection frame
     /slz/camera_info                sensor_msgs/CameraInfo       of the depth image the maps are on
@@ -19,21 +24,25 @@ segment and nothing is drawn in a frame it is not in; pick the segment's ``world
     /slz/score                      sensor_msgs/Image mono8      round(255 * score)
     /slz/overlay                    sensor_msgs/Image rgb8       mask tint, SLAM points, Eq. 10 square
     /slz/mask                       sensor_msgs/PointCloud2      safe pixels back-projected (camera)
-    /slz/map_points                 sensor_msgs/PointCloud2      the keyframe's SLAM map points (world)
-    /slz/candidates                 sensor_msgs/PointCloud2      map points under the mask (world),
+    /slz/map_points                 sensor_msgs/PointCloud2      the keyframe's SLAM map points (map)
+    /slz/candidates                 sensor_msgs/PointCloud2      map points under the mask (map),
                                                                  field ``cluster`` = k-means label
     /slz/site                       visualization_msgs/MarkerArray   this detection's site and square
     /slz/landing_site               visualization_msgs/MarkerArray   the committed site (landing.json)
-    /slz/camera_pose                geometry_msgs/PoseStamped    every tracked frame (world)
-    /tf                             tf2_msgs/TFMessage           world -> camera (world_K -> camera_K in
-                                                                 map segment K), every tracked frame
+    /slz/camera_pose                geometry_msgs/PoseStamped    every tracked frame (map)
+    /tf                             tf2_msgs/TFMessage           map -> camera (map_K -> camera_K in map
+                                                                 segment K), every tracked frame, unless
+                                                                 the recording's /tf places the camera
+    /tf_static                      tf2_msgs/TFMessage           <pose frame> -> map_K once per segment;
+                                                                 the camera's static chain (copied)
 
 Images are mono8 so that a script gets the values back (value = byte / 255); the overlay is
-the picture to look at. Frames without a pose have no /tf, so their clouds stay in ``camera``.
+the picture to look at. Frames without a pose have no /tf, so their clouds stay in the camera frame.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -42,12 +51,15 @@ import cv2
 import numpy as np
 
 from slzcli.config import Config
-from slzcli.geometry import back_project_every
+from slzcli.errors import ConfigError
+from slzcli.geometry import Pose, back_project_every, invert_pose
 from slzcli.outputs.overlay import detection_overlay_bgr
-from slzcli.outputs.recording import CAMERA_INFO, IMAGE, RecordingWriter, TopicLayout
+from slzcli.outputs.recording import CAMERA_INFO, IMAGE, POSE_TYPES, RecordingWriter, TopicLayout
+from slzcli.types import RecordedFrames
 
-WORLD_FRAME = "world"
-CAMERA_FRAME = "camera"
+log = logging.getLogger(__name__)
+MAP_FRAME = "map"  # REP 105; output.map_frame
+CAMERA_FRAME = "camera"  # the camera's frame id when the recording names none (TUM folders)
 TOPIC = "/slz"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
@@ -66,24 +78,61 @@ MARKER = {"SPHERE": 2, "LINE_STRIP": 4, "TEXT_VIEW_FACING": 9}  # visualization_
 MARKER_ADD = 0
 
 
-def frame_ids(segment: int) -> tuple[str, str]:
-    """(world, camera) frame ids of a SLAM map segment: ``world``/``camera`` for the first, ``_K`` suffixed after."""
-    if segment == 0:
-        return WORLD_FRAME, CAMERA_FRAME
-    return f"{WORLD_FRAME}_{segment}", f"{CAMERA_FRAME}_{segment}"
+def map_frame_of(segment: int, map_frame: str = MAP_FRAME) -> str:
+    """The frame id of a SLAM map segment's world: ``map`` for the first, ``map_K`` after a reset."""
+    return map_frame if segment == 0 else f"{map_frame}_{segment}"
+
+
+def frame_ids(segment: int, map_frame: str = MAP_FRAME, camera: str = CAMERA_FRAME) -> tuple[str, str]:
+    """(map, camera) frame ids of a SLAM map segment where slz places the camera: ``_K`` suffixed after the first."""
+    return map_frame_of(segment, map_frame), camera if segment == 0 else f"{camera}_{segment}"
+
+
+def check_map_frame(name: str) -> str:
+    """``output.map_frame``: a tf frame id (no spaces, no leading '/'), ConfigError otherwise."""
+    if not name or name != name.strip() or " " in name or name.startswith("/"):
+        raise ConfigError("output.map_frame", f"{name!r} is not a tf frame id (non-empty, no spaces, no leading /)")
+    return name
 
 
 class ResultsMcap:
-    """An open ``results.mcap``: poses and per-detection messages as they come, the committed site at the end."""
+    """An open ``results.mcap``: poses and per-detection messages as they come, the committed site at the end.
 
-    def __init__(self, path: Path, config: Config) -> None:
+    ``frames``: the recording's own frame ids (``Recording.recorded_frames``), which the camera
+    keeps and the map is linked to (module docstring).
+    """
+
+    def __init__(self, path: Path, config: Config, frames: RecordedFrames | None = None) -> None:
         self.path = Path(path)
         self.stride_px = config.output.mask_cloud_stride_px
-        self.writer = RecordingWriter(self.path, "mcap", layout=TopicLayout(frame_id=CAMERA_FRAME))
+        self.rec = frames or RecordedFrames()
+        self.map_frame = check_map_frame(config.output.map_frame)
+        self.camera = self.rec.camera or CAMERA_FRAME
+        self.links: dict[int, np.ndarray] = {}  # map segment -> T_<pose frame>_<map_K>, as written to /tf_static
+        self.link_parent = self.rec.pose_frame
+        taken = {self.rec.camera, self.rec.camera_root, self.rec.pose_frame, *(e[0] for e in self.rec.static_chain)}
+        if self.map_frame in taken:
+            log.warning("%s: the recording has its own frame %r: slz's map is not linked to it (set output.map_frame "
+                        "to another name, e.g. slz_map)", self.path.parent.name, self.map_frame)
+            self.link_parent = ""
+        self.writer = RecordingWriter(self.path, "mcap", layout=TopicLayout(frame_id=self.camera))
 
     def __enter__(self) -> ResultsMcap:
         self.writer.open()
+        self._static_chain()
         return self
+
+    def frame_ids(self, segment: int) -> tuple[str, str]:
+        """(map, camera) frame ids of the messages of one map segment (the camera's: see the module docstring)."""
+        if self.rec.tf_places_camera:
+            return map_frame_of(segment, self.map_frame), self.camera
+        return frame_ids(segment, self.map_frame, self.camera)
+
+    def _static_chain(self) -> None:
+        """The camera's /tf_static chain from the recording, the same edges (so no frame gets a second parent)."""
+        if self.rec.tf_places_camera or not self.rec.static_chain:
+            return
+        self._tf("/tf_static", 0, [(parent, child, T) for parent, child, T in self.rec.static_chain])
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
@@ -94,7 +143,7 @@ class ResultsMcap:
         """The images, clouds and site markers of one detection (a ``pipeline.Detection``); ``overlay``: its
         overlay when the caller drew it already (overlay.png is the same picture)."""
         frame, stamp = det.frame, det.frame.stamp_ns
-        world, camera = frame_ids(det.segment)
+        world, camera = self.frame_ids(det.segment)
         self._image("color", frame.rgb, "rgb8", stamp, camera)
         h, w = det.score.mask.shape
         self._raw("camera_info", CAMERA_INFO, self._camera_info(frame.intrinsics.scaled(w, h), stamp, camera), stamp)
@@ -120,14 +169,41 @@ class ResultsMcap:
             self._markers("site", site, colour, label, stamp, world)
 
     # ------------------------------------------------------------------ end of run
-    def write_pose(self, stamp: int, T: np.ndarray | None, segment: int = 0) -> None:
+    def write_pose(self, stamp: int, T: np.ndarray | None, segment: int = 0,
+                   recorded: np.ndarray | None = None) -> None:
         """The camera pose of one tracked frame (PoseStamped and /tf, in its map segment's frames), as it is
-        tracked: the file stays in time order and a long run holds no list of poses to write at its end."""
+        tracked: the file stays in time order and a long run holds no list of poses to write at its end.
+
+        ``recorded``: the frame's recorded camera pose in the recording's pose frame; the first one of a
+        segment fixes that segment's link ``<pose frame> -> map_K`` on /tf_static.
+        """
         if T is None:
             return
-        world, camera = frame_ids(segment)
+        world, camera = self.frame_ids(segment)
         self.writer.write_pose(f"{TOPIC}/camera_pose", stamp, T, "PoseStamped", world, camera)
-        self.writer.write_pose("/tf", stamp, T, "tf", world, camera)
+        if recorded is not None and self.link_parent and segment not in self.links:
+            self.links[segment] = np.asarray(recorded, np.float64) @ invert_pose(T)
+            self._tf("/tf_static", stamp, [(self.link_parent, world, self.links[segment])])
+        if self.rec.tf_places_camera:
+            return
+        if segment == 0 and self.rec.T_root_camera is not None:  # the root of the camera's static chain
+            self.writer.write_pose("/tf", stamp, T @ invert_pose(self.rec.T_root_camera), "tf", world,
+                                   self.rec.camera_root)
+        else:
+            self.writer.write_pose("/tf", stamp, T, "tf", world, camera)
+
+    def _tf(self, topic: str, stamp: int, edges: list[tuple[str, str, np.ndarray]]) -> None:
+        """One TFMessage of (parent, child, T_parent_child) transforms."""
+        t = self.writer.typestore.types
+        gm = "geometry_msgs/msg/"
+        out = []
+        for parent, child, T in edges:
+            q = Pose.from_matrix(np.asarray(T, np.float64)).as_quat()
+            tr = t[gm + "Transform"](translation=t[gm + "Vector3"](*map(float, T[:3, 3])),
+                                     rotation=t[gm + "Quaternion"](*map(float, q)))
+            out.append(t[gm + "TransformStamped"](header=self.writer.header(stamp, parent), child_frame_id=child,
+                                                  transform=tr))
+        self.writer.write_raw(topic, POSE_TYPES["tf"], t[POSE_TYPES["tf"]](transforms=out), stamp)
 
     def write_run(self, committed: dict[str, Any] | None) -> None:
         """The committed site (known at the end of the run)."""
@@ -136,7 +212,7 @@ class ResultsMcap:
             label = (f"landing site: score {site.score:.2f}, seen in {committed['support']} of "
                      f"{committed['detections']} detections")
             self._markers("landing_site", site, COMMITTED_RGBA, label, committed["frame"].stamp_ns,
-                          frame_ids(committed["segment"])[0])
+                          self.frame_ids(committed["segment"])[0])
 
     # ------------------------------------------------------------------ messages
     def _raw(self, name: str, msgtype: str, msg: Any, stamp: int) -> None:
@@ -177,16 +253,20 @@ class NoResults:
     def write_detection(self, det: Any, overlay: np.ndarray | None = None) -> None:
         return None
 
-    def write_pose(self, stamp: int, T: np.ndarray | None, segment: int = 0) -> None:
+    def write_pose(self, stamp: int, T: np.ndarray | None, segment: int = 0,
+                   recorded: np.ndarray | None = None) -> None:
         return None
 
     def write_run(self, committed: dict[str, Any] | None) -> None:
         return None
 
 
-def open_results(run_dir: Path, config: Config) -> ResultsMcap | NoResults:
+def open_results(run_dir: Path, config: Config, frames: RecordedFrames | None = None) -> ResultsMcap | NoResults:
     """The results writer of a run folder (use it as a context manager: aborted on an exception)."""
-    return ResultsMcap(Path(run_dir) / "results.mcap", config) if config.output.results_mcap else NoResults()
+    if not config.output.results_mcap:
+        return NoResults()
+    return ResultsMcap(Path(run_dir) / "results.mcap", config, frames)
+
 
 
 # ----------------------------------------------------------------------------- message builders
@@ -211,8 +291,8 @@ def point_cloud(writer: RecordingWriter, xyz: np.ndarray, frame_id: str, stamp: 
 
 
 def site_markers(writer: RecordingWriter, site: Any, rgba: tuple[float, ...], label: str, stamp: int,
-                 ns: str, world: str = WORLD_FRAME) -> Any:
-    """The site as three markers in ``world`` (its segment's): the closed Eq. 10 square, a centre sphere, a label."""
+                 ns: str, world: str = MAP_FRAME) -> Any:
+    """The site as three markers in ``world`` (a map segment's frame): the Eq. 10 square, a centre sphere, a label."""
     t = writer.typestore.types
     gm = "geometry_msgs/msg/"
     colour = t["std_msgs/msg/ColorRGBA"](*map(float, rgba))

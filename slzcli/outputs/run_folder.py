@@ -1,9 +1,10 @@
 """The run folder of ``slz detect`` (DESIGN.md "Run folder") and the ``landing.json`` contract.
 
-Files: run.json, landing.json, sites.csv, points.ply, trajectory.tum (and trajectory.seg<K>.tum
+Files: run.json, landing.json, sites.csv, points.ply, report.html, trajectory.tum (and trajectory.seg<K>.tum
 after a SLAM map reset), keyframes.npz,
 frames/NNNNNN/ by ``output.level``: nothing (summary), maps.npz + overlay.png (maps, the default),
-+ {depth_variance,flatness,inclination,steepness,score,mask}.png (all).
++ {depth_variance,flatness,inclination,steepness,score,mask}.png (all; the heat maps with a colour bar
+to their right, the mask with a safe/unsafe legend: the values are in maps.npz); report.html (``detect_report``).
 Everything here writes into the temporary run folder the pipeline hands it; the folder is
 put in place only when all of it is written (``output_dir.build``: only the names a run
 writes, ``output_dir.DETECT_NAMES``, are ever replaced; ``ibvs/`` and a user's files stay).
@@ -26,6 +27,7 @@ import numpy as np
 
 from slzcli.config import Config
 from slzcli.outputs import files, images
+from slzcli.outputs.detect_report import write_detect_report
 from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.points import write_points_ply
 from slzcli.outputs.site_log import SiteLog
@@ -68,9 +70,11 @@ def write_detection(run_dir: Path, det: Any, config: Config, overlay: np.ndarray
     reverse = config.output.reverse_colormap
     valid = det.maps.valid
     for name, values in det.maps.as_dict().items():
-        images.write_png(folder / f"{name}.png", images.heatmap_bgr(values, reverse=reverse, valid=valid))
-    images.write_png(folder / "score.png", images.heatmap_bgr(det.score.score, reverse=reverse, valid=valid))
-    images.write_png(folder / "mask.png", images.mask_png(det.score.mask))
+        heat = images.heatmap_bgr(values, reverse=reverse, valid=valid)
+        images.write_png(folder / f"{name}.png", images.with_colour_bar(heat, reverse=reverse))
+    images.write_png(folder / "score.png", images.with_colour_bar(
+        images.heatmap_bgr(det.score.score, reverse=reverse, valid=valid), reverse=reverse))
+    images.write_png(folder / "mask.png", images.with_mask_legend(images.mask_png(det.score.mask)))
 
 
 def landing_record(source: Path, method: str, committed: dict[str, Any] | None, world_frame: str,
@@ -109,20 +113,36 @@ def landing_record(source: Path, method: str, committed: dict[str, Any] | None, 
 
 def write_run(run_dir: Path, result: RunResult, sites: SiteLog, trajectory: PoseLog, keyframes: KeyframeLog) -> None:
     """Everything but the per-frame folders: landing.json, sites.csv, trajectory*.tum, keyframes.npz, points.ply,
-    run.json (in that order; the folder is put in place only after all of them)."""
+    report.html, run.json (in that order; the folder is put in place only after all of them). The report links
+    and reads the frame folders: they must be written (not queued) by now."""
     files.write_json(run_dir / "landing.json", result.landing)
     sites.write_csv(run_dir / "sites.csv")
     write_trajectories(run_dir, trajectory, result.primary_segment)
     keyframes.write_npz(run_dir / "keyframes.npz")
-    write_points_ply(run_dir / "points.ply", points_by_role(sites, keyframes, result.committed, result.points_segment))
+    write_points_ply(run_dir / "points.ply", *points_by_role(sites, keyframes, result.committed, result.points_segment))
+    write_detect_report(run_dir, result, sites, trajectory, str(result.summary.get("outputs")))
     files.write_json(run_dir / "run.json", result.run)
 
 
 def points_by_role(sites: SiteLog, keyframes: KeyframeLog, committed: dict[str, Any] | None,
-                   segment: int | None) -> dict[str, np.ndarray]:
-    """points.ply roles; ``segment``: only that map segment's map points (None: all, a run of one segment)."""
+                   segment: int | None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """points.ply roles and the clusters of the kept points (the committed detection's k-means labels);
+    ``segment``: only that map segment's map points (None: all, a run of one segment)."""
     roles: dict[str, np.ndarray] = {"map": keyframes.map_xyz(segment)}
+    clusters: dict[str, np.ndarray] = {}
     if committed is not None:
         roles["kept"], roles["chosen"] = sites.points(committed)
+        clusters["kept"] = sites.kept_clusters(committed)
+        labels = clusters["kept"][_rows_in(roles["kept"], roles["chosen"])]
+        clusters["chosen"] = np.full(len(roles["chosen"]), labels[0] if len(labels) else -1)
         roles["corner"] = np.asarray(committed["site"].corners_world)
-    return roles
+    return roles, clusters
+
+
+def _rows_in(xyz: np.ndarray, subset: np.ndarray) -> np.ndarray:
+    """Which rows of ``xyz`` (N,3) are rows of ``subset`` (exact coordinates)."""
+    if len(xyz) == 0 or len(subset) == 0:
+        return np.zeros(len(xyz), bool)
+    rows = np.ascontiguousarray(np.asarray(xyz, np.float64)).view([("", np.float64)] * 3).ravel()
+    sub = np.ascontiguousarray(np.asarray(subset, np.float64)).view([("", np.float64)] * 3).ravel()
+    return np.isin(rows, sub)

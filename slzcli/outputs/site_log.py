@@ -20,7 +20,7 @@ from slzcli.outputs.files import ArraySpool, atomic_path, naming_write_errors
 
 SITE_COLUMNS = ("frame", "stamp_ns", "cluster", "points", "x", "y", "z", "normal_variance", "extent_x_m",
                 "extent_y_m", "qualifies", "reason", "chosen", "segment")
-POINT_SPEC = {"xyz": (np.float64, (3,)), "site": (np.int64, ()), "chosen": (np.bool_, ())}
+POINT_SPEC = {"xyz": (np.float64, (3,)), "site": (np.int64, ()), "chosen": (np.bool_, ()), "cluster": (np.int64, ())}
 
 
 class SiteLog:
@@ -35,6 +35,7 @@ class SiteLog:
         self.sites: list[dict[str, Any]] = []
         self._rows: list[dict[str, Any]] = []
         self._points: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._clusters: dict[int, np.ndarray] = {}
         self._spool = ArraySpool(self.folder / "site_points", POINT_SPEC) if self.folder is not None else None
         self._csv = self.folder / "sites.csv" if self.folder is not None else None
         if self._csv is not None:
@@ -50,17 +51,22 @@ class SiteLog:
             csv.DictWriter(fh, fieldnames=SITE_COLUMNS, lineterminator="\n").writerows(rows)
 
     def add_site(self, frame: Any, site: Any, kept_xyz: np.ndarray, chosen_xyz: np.ndarray,
-                 limits: dict[str, Any] | None = None, segment: int = 0) -> None:
+                 limits: dict[str, Any] | None = None, segment: int = 0,
+                 kept_cluster: np.ndarray | None = None) -> None:
         """``limits``: what the depth noise of the site's frame let the maps see (``Working.as_dict``);
-        ``segment``: the SLAM map segment whose world frame the site is in."""
+        ``segment``: the SLAM map segment whose world frame the site is in; ``kept_cluster``: the k-means
+        cluster of each kept point (None: -1 for all)."""
         i = len(self.sites)
         self.sites.append({"frame": frame, "site": site, "id": i, "limits": limits, "segment": segment})
+        kept, chosen = np.asarray(kept_xyz).reshape(-1, 3), np.asarray(chosen_xyz).reshape(-1, 3)
+        labels = np.full(len(kept), -1, np.int64) if kept_cluster is None else np.asarray(kept_cluster, np.int64)
         if self._spool is None:
             self._points[i] = (np.asarray(kept_xyz), np.asarray(chosen_xyz))
+            self._clusters[i] = labels
             return
-        kept, chosen = np.asarray(kept_xyz).reshape(-1, 3), np.asarray(chosen_xyz).reshape(-1, 3)
         self._spool.append(xyz=np.vstack([kept, chosen]), site=np.full(len(kept) + len(chosen), i),
-                           chosen=np.r_[np.zeros(len(kept), bool), np.ones(len(chosen), bool)])
+                           chosen=np.r_[np.zeros(len(kept), bool), np.ones(len(chosen), bool)],
+                           cluster=np.r_[labels, np.full(len(chosen), -1, np.int64)])
 
     def points(self, entry: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
         """(kept_xyz, chosen_xyz) of one site of ``sites``."""
@@ -70,6 +76,14 @@ class SiteLog:
         mine = np.load(self._spool.npy("site"), mmap_mode="r") == entry["id"]
         chosen = np.load(self._spool.npy("chosen"), mmap_mode="r")
         return np.array(xyz[mine & ~chosen]), np.array(xyz[mine & chosen])
+
+    def kept_clusters(self, entry: dict[str, Any]) -> np.ndarray:
+        """The k-means cluster of each kept point of one site of ``sites`` (in the order of ``points``)."""
+        if self._spool is None:
+            return self._clusters[entry["id"]]
+        mine = np.load(self._spool.npy("site"), mmap_mode="r") == entry["id"]
+        chosen = np.load(self._spool.npy("chosen"), mmap_mode="r")
+        return np.array(np.load(self._spool.npy("cluster"), mmap_mode="r")[mine & ~chosen])
 
     def write_csv(self, path: Path) -> None:
         """sites.csv: every candidate of every detection and why it did or did not qualify."""

@@ -25,7 +25,7 @@ import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError, SlzError
-from slzcli.sources import decode
+from slzcli.sources import decode, tf
 from slzcli.sources.clouds import CloudBuffer
 from slzcli.sources.color_camera import ALIGNED, DepthToColor, extrinsics, same_camera, to_color_camera
 from slzcli.sources.image_limits import FrameTooLarge
@@ -46,7 +46,7 @@ from slzcli.sources.topics import (
 from slzcli.sources.undistort import distortion_problem, has_distortion
 from slzcli.sources.validate import StampCounts, intrinsics_problem, size_problem, stamp_problem
 from slzcli.sources.window import WindowFilter
-from slzcli.types import Frame, Intrinsics, MapCloud, PairingReport, StreamInfo
+from slzcli.types import Frame, Intrinsics, MapCloud, PairingReport, RecordedFrames, StreamInfo
 
 log = logging.getLogger(__name__)
 NS_PER_MS = 1_000_000
@@ -488,6 +488,27 @@ class MessageRecording(Recording):
             return MapCloud(decode.stamp_ns(m.header), xyz, ids)
         except DecodeError as err:
             raise DatasetError(self.path, f"{msg.topic}: {err}") from err
+
+    def recorded_frames(self) -> RecordedFrames:
+        """The recording's camera, static tf chain and pose frame ids (``sources.tf``), in short passes."""
+        ch = self._need_choices()
+        camera = self._first_color_frame_id() or ""
+        static = tf.static_tree(self._decoded(TF_STATIC)) if TF_STATIC in self._topics else {}
+        pose_frame = ""
+        if ch.pose.topic and ch.pose_type == TF:
+            pose_frame = tf.tf_root(self._decoded(ch.pose.topic), static, self.cfg.pose_frame or camera)
+        elif ch.pose.topic:
+            pose_frame = tf.first_pose_frame(self._decoded(ch.pose.topic))
+        return tf.recorded_frames(camera, static, pose_frame, ch.pose_type == TF)
+
+    def _decoded(self, topic: str) -> Iterator[Any]:
+        """The deserialised messages of one topic (undecodable ones skipped), closed when left early."""
+        with closing(self._wrap(self.log.messages([topic]))) as messages:
+            for msg in messages:
+                try:
+                    yield self.log.deserialize(msg.topic, msg.data)
+                except DecodeError:
+                    continue
 
     def _first_color_frame_id(self) -> str | None:
         """The colour header's frame_id, read from the first colour message (for tf composition)."""

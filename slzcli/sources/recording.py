@@ -9,7 +9,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
+from slzcli.types import Frame, Intrinsics, PairingReport, RecordedFrames, StreamChoice, StreamInfo
 
 
 @dataclass(frozen=True)
@@ -84,6 +84,10 @@ class Recording(abc.ABC):
     @abc.abstractmethod
     def info(self) -> RecordingInfo:
         """Topics, choices and pair count from one pass over stamps (no image decoding)."""
+
+    def recorded_frames(self) -> RecordedFrames:
+        """The recording's own frame ids (camera, tf, poses); none for a format without them (TUM)."""
+        return RecordedFrames()
 
     @abc.abstractmethod
     def frames(self) -> Iterator[Frame]:

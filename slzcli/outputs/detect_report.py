@@ -1,0 +1,285 @@
+"""report.html of a ``slz detect`` run folder: one static page to read a run without a viewer.
+
+Sections: the result (site or why not), the paper's Figure 5 panel for one frame (the four
+terrain maps, the score and the mask, the slope and the overlay, with colour bars and units),
+the trajectory from above with the sites (SVG), the table of every site found, each detection's
+overlay, the stage times. Built at the end of the run from what the run already holds or has
+written (the RunResult, the site log, the pose log, frames/NNNNNN/maps.npz and overlay.png):
+one panel is drawn (for the committed site's frame, or the last detection frame without a
+site), with OpenCV from one maps.npz; overlays are linked, not copied. At
+``--outputs summary`` there are no frame files: the page says so and shows the rest.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from slzcli.outputs import images
+from slzcli.outputs.files import write_text
+from slzcli.outputs.site_log import SiteLog
+from slzcli.outputs.trajectory import PoseLog
+from slzcli.types import RunResult
+
+# Display only (no result depends on these): the Figure 5 tiles' width and title band, tiles per row, the
+# trajectory drawing's size and margin (px). Drawn with OpenCV and SVG, not matplotlib: a matplotlib panel of
+# eight images took 20-30 s on the shared 2-core machine (benchmarks/detect_report.py), longer than the run.
+TILE_WIDTH_PX = 320
+TITLE_BAND_PX = 24
+TILES_PER_ROW = 4
+SVG_WIDTH_PX, SVG_HEIGHT_PX, SVG_MARGIN_PX = 640, 480, 34
+# The panel is a picture (the values are in maps.npz): JPEG at this quality is ~1/4 of the PNG's bytes and encodes
+# faster; project decision.
+PANEL_JPEG_QUALITY = 85
+MAP_TITLES = {"depth_variance": "depth variance", "flatness": "flatness", "inclination": "inclination",
+              "steepness": "steepness"}
+SECTIONS = ("result", "figure5", "trajectory", "sites", "detections", "timings")
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:24px auto;max-width:1200px;color:#222}
+h1{font-size:22px;margin-bottom:4px} h2{font-size:18px;margin-top:28px;border-bottom:1px solid #ccc}
+p.note{color:#555;font-size:13px;max-width:950px}
+table{border-collapse:collapse;font-size:12.5px;margin:8px 0}
+td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}
+th{background:#f1f1f1} tr.committed td{background:#e5f0ff;font-weight:600} td.l{text-align:left}
+img{max-width:100%;border:1px solid #ddd} .grid{display:flex;flex-wrap:wrap;gap:8px}
+.grid figure{margin:0;width:236px;font-size:12px} .grid img{width:236px}
+"""
+
+
+def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajectory: PoseLog, level: str) -> Path:
+    """report.html in ``run_dir`` (the temporary run folder: links are relative, so they hold after the rename)."""
+    run_dir = Path(run_dir)
+    s, landing, committed = result.summary, result.landing, result.committed
+    detection_frames = _detection_frames(run_dir)
+    panel_frame = committed["frame"].index if committed is not None else \
+        (detection_frames[-1] if detection_frames else None)
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>slz detect: "
+             f"{html.escape(Path(s['source']).name)}</title><style>{CSS}</style></head><body>",
+             f"<h1>slz detect: {html.escape(Path(s['source']).name)}</h1>",
+             _result(s, landing),
+             _figure5(run_dir, panel_frame, committed is not None and committed["frame"].index == panel_frame, level,
+                      bool(result.run.get("config", {}).get("output", {}).get("reverse_colormap", False))),
+             _trajectory(trajectory, sites, committed, result.primary_segment),
+             _site_table(sites, committed),
+             _detections(run_dir, detection_frames, sites, committed, level),
+             _timings(s),
+             "</body></html>"]
+    path = run_dir / "report.html"
+    write_text(path, "\n".join(p for p in parts if p))
+    return path
+
+
+# ----------------------------------------------------------------------------- sections
+def _result(s: dict[str, Any], landing: dict[str, Any]) -> str:
+    if landing["status"] == "site":
+        site = landing["site"]
+        x, y, z = site["center_world"]
+        sup = site["support"]
+        acc = site["acceptance"]
+        what = (f"<b>Landing site</b> at ({x:.2f}, {y:.2f}, {z:.2f}) m, score {site['score']:.2f}, confirmed by "
+                f"{sup['detections_agreeing']} of {sup['detections_with_site']} detections with a site; acceptance "
+                f"test {'passed' if acc['passed'] else 'NOT passed: ' + html.escape(str(acc['reason']))}, "
+                f"tilt {acc['tilt_deg']:.1f} deg.")
+        gt = site.get("ground_truth")
+        if gt:
+            what += f" Ground truth: {'safe' if gt.get('safe') else 'NOT safe'}."
+    else:
+        what = f"<b>No safe site</b>: {html.escape(str(landing.get('reason')))}"
+    return (f"<h2 id=result>Result</h2><p>{what}</p><p class=note>{html.escape(s['source'])}: {s['frames']} frames, "
+            f"{s['detections']} detection frames, method {html.escape(s['method'])}, SLAM "
+            f"{html.escape(s['slam_backend'])}, outputs {html.escape(str(s.get('outputs')))}. Positions are in "
+            f"{html.escape(landing['world_frame'])} (metres, z up). Files: <a href=landing.json>landing.json</a>, "
+            "<a href=run.json>run.json</a>, <a href=sites.csv>sites.csv</a>, <a href=points.ply>points.ply</a>, "
+            "<a href=trajectory.tum>trajectory.tum</a>.</p>")
+
+
+def _figure5(run_dir: Path, index: int | None, is_site: bool, level: str, reverse: bool) -> str:
+    head = "<h2 id=figure5>Terrain maps, score and mask (the paper's Figure 5)</h2>"
+    folder = None if index is None else run_dir / "frames" / f"{index:06d}"
+    if folder is None or not (folder / "maps.npz").is_file():
+        why = "no detection frame" if index is None else \
+            f"frame folders are not written at --outputs {html.escape(level)}"
+        return head + f"<p class=note>Not drawn: {why}.</p>"
+    with np.load(folder / "maps.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    h, w = arrays["valid"].shape
+    scale = min(1.0, TILE_WIDTH_PX / w)
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+
+    def small(a: np.ndarray) -> np.ndarray:  # every array to the tile size first: 1/4 of the pixels to colour
+        kind = np.uint8 if a.dtype == bool else np.float32
+        return cv2.resize(np.asarray(a, kind), size, interpolation=cv2.INTER_NEAREST)
+
+    valid = small(arrays["valid"]).astype(bool)
+
+    def heat(values: np.ndarray) -> np.ndarray:
+        return images.with_colour_bar(images.heatmap_bgr(small(values), reverse=reverse, valid=valid),
+                                      reverse=reverse)
+
+    tiles = [(MAP_TITLES[n], heat(arrays[n])) for n in MAP_TITLES]
+    tiles.append(("fused score", heat(arrays["score"])))
+    mask = small(arrays["mask"]).astype(bool)
+    tiles.append((f"landing mask ({100 * float(np.mean(arrays['mask'])):.0f} % safe)",
+                  cv2.cvtColor(images.with_mask_legend(images.mask_png(mask)), cv2.COLOR_GRAY2BGR)))
+    slope = small(arrays.get("slope_deg", np.full((h, w), np.nan)))
+    finite = slope[np.isfinite(slope) & valid]
+    top = max(float(np.percentile(finite, 99)), 1.0) if finite.size else 1.0
+    tiles.append(("surface slope (deg from level)", images.with_colour_bar(
+        images.heatmap_bgr(np.clip(slope / top, 0.0, 1.0), valid=valid & np.isfinite(slope)),
+        low="0 deg", high=f"{top:.0f} deg")))
+    overlay = cv2.imread(str(folder / "overlay.png"), cv2.IMREAD_COLOR) if (folder / "overlay.png").is_file() else None
+    if overlay is not None:
+        tiles.append(("mask, SLAM points, site", cv2.resize(overlay, size, interpolation=cv2.INTER_AREA)))
+    panel = _mosaic(tiles, TILES_PER_ROW)
+    ok, buf = cv2.imencode(".jpg", panel, [cv2.IMWRITE_JPEG_QUALITY, PANEL_JPEG_QUALITY])
+    if not ok:
+        return head + "<p class=note>Not drawn: JPEG encoding failed.</p>"
+    which = "the committed site's frame" if is_site else "the last detection frame (no site was committed)"
+    return (head + f"<p class=note>Frame {index}, {which}. Maps and score in [0, 1] (dimensionless), 1 = good for "
+            "landing (METHOD.md 2.3), colour bar beside each; black = no depth. Slope in degrees from level. Values: "
+            f"<a href='frames/{index:06d}/maps.npz'>maps.npz</a>.</p>"
+            f'<img alt="Figure 5, frame {index}" src="data:image/jpeg;base64,{_b64(buf)}">')
+
+
+def _b64(buf: np.ndarray) -> str:
+    return base64.b64encode(buf.tobytes()).decode()
+
+
+def _mosaic(tiles: list[tuple[str, np.ndarray]], per_row: int) -> np.ndarray:
+    """Tiles (BGR) with a title band each, in rows of ``per_row``, padded to one size."""
+    th = max(t.shape[0] for _, t in tiles)
+    tw = max(t.shape[1] for _, t in tiles)
+    cells = []
+    for title, tile in tiles:
+        cell = np.full((th + TITLE_BAND_PX, tw, 3), 255, np.uint8)
+        cell[TITLE_BAND_PX:TITLE_BAND_PX + tile.shape[0], :tile.shape[1]] = tile
+        cv2.putText(cell, title, (4, TITLE_BAND_PX - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        cells.append(cell)
+    blank = np.full_like(cells[0], 255)
+    rows = [np.hstack(cells[i:i + per_row] + [blank] * (per_row - len(cells[i:i + per_row])))
+            for i in range(0, len(cells), per_row)]
+    return np.vstack(rows)
+
+
+def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, segment: int | None) -> str:
+    """The camera path, every site and the committed square from above, as inline SVG (no rendering cost)."""
+    head = "<h2 id=trajectory>Trajectory from above</h2>"
+    poses = [p for p, k in zip(log.poses(), log.segments(), strict=True)
+             if p is not None and (segment is None or k == segment)]
+    if not poses:
+        return head + "<p class=note>No frame was tracked: no trajectory.</p>"
+    path = np.array([p[:2, 3] for p in poses])
+    found = [e for e in sites.sites if segment is None or e["segment"] == segment]
+    centres = np.array([e["site"].center_world[:2] for e in found]).reshape(-1, 2)
+    accepted = np.array([e["site"].accepted for e in found], bool)
+    square = np.asarray(committed["site"].corners_world)[[0, 1, 3, 2], :2] if committed is not None else \
+        np.zeros((0, 2))
+    everything = np.vstack([path, centres, square])
+    lo, hi = everything.min(axis=0), everything.max(axis=0)
+    span = max(float(np.max(hi - lo)), 1.0)
+    lo, hi = lo - 0.08 * span, hi + 0.08 * span
+    m = SVG_MARGIN_PX
+    scale = min((SVG_WIDTH_PX - 2 * m) / (hi[0] - lo[0]), (SVG_HEIGHT_PX - 2 * m) / (hi[1] - lo[1]))
+
+    def px(xy: np.ndarray) -> np.ndarray:  # metres -> SVG pixels, y up
+        return np.stack([m + (xy[..., 0] - lo[0]) * scale, SVG_HEIGHT_PX - m - (xy[..., 1] - lo[1]) * scale], axis=-1)
+
+    def pts(xy: np.ndarray) -> str:
+        return " ".join(f"{x:.1f},{y:.1f}" for x, y in px(xy))
+
+    step = _nice_step(span / 6)
+    grid = []
+    for axis in (0, 1):
+        for v in np.arange(np.ceil(lo[axis] / step) * step, hi[axis], step):
+            a = np.array([[v, lo[1]], [v, hi[1]]]) if axis == 0 else np.array([[lo[0], v], [hi[0], v]])
+            (x1, y1), (x2, y2) = px(a)
+            grid.append(f"<line x1='{x1:.1f}' y1='{y1:.1f}' x2='{x2:.1f}' y2='{y2:.1f}' stroke='#ddd'/>")
+            tx, ty = (x1, SVG_HEIGHT_PX - m + 14) if axis == 0 else (4, y1 + 4)
+            grid.append(f"<text x='{tx:.1f}' y='{ty:.1f}' font-size='11' fill='#555'>{v:g}</text>")
+    parts = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{SVG_WIDTH_PX}' height='{SVG_HEIGHT_PX}' "
+             "style='border:1px solid #ddd;background:#fff'>", *grid,
+             f"<text x='{SVG_WIDTH_PX / 2:.0f}' y='{SVG_HEIGHT_PX - 4}' font-size='12'>x (m)</text>",
+             "<text x='4' y='14' font-size='12'>y (m)</text>"]
+    if len(square):
+        parts.append(f"<polygon points='{pts(square)}' fill='red' fill-opacity='0.35' stroke='red'/>")
+    parts.append(f"<polyline points='{pts(path)}' fill='none' stroke='#444' stroke-width='1.5'/>")
+    (x0, y0), = px(path[:1])
+    parts.append(f"<circle cx='{x0:.1f}' cy='{y0:.1f}' r='5' fill='green'/>")
+    for (x, y), ok in zip(px(centres), accepted, strict=True):
+        parts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='3.5' fill='{'#1f77b4' if ok else 'orange'}'/>")
+    parts.append("</svg>")
+    note = f" (SLAM map segment {segment})" if segment is not None else ""
+    return (head + f"<p class=note>Top view of the run's world frame{note}, metres: camera path (grey, green dot = "
+            "first frame), the site of each detection (blue: passed the acceptance test, orange: not), the "
+            "committed site's Eq. 10 square (red).</p>" + "".join(parts))
+
+
+def _nice_step(raw: float) -> float:
+    """1, 2 or 5 times a power of ten, at least ``raw`` (grid lines in metres)."""
+    p = 10.0 ** np.floor(np.log10(max(raw, 1e-9)))
+    return float(next(k * p for k in (1, 2, 5, 10) if k * p >= raw))
+
+
+def _site_table(sites: SiteLog, committed: dict[str, Any] | None) -> str:
+    head = "<h2 id=sites>Sites found</h2>"
+    if not sites.sites:
+        return head + "<p class=note>No detection frame gave a site.</p>"
+    cols = ("frame", "map", "x m", "y m", "z m", "score", "accepted", "reason", "tilt deg", "edge m",
+            "normal var", "extent m", "points")
+    chosen = None if committed is None else committed["id"]
+    rows = []
+    for e in sites.sites:
+        st = e["site"]
+        x, y, z = st.center_world
+        cells = [str(e["frame"].index), str(e["segment"]), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}", f"{st.score:.2f}",
+                 "yes" if st.accepted else "no", st.acceptance_reason or "", f"{st.tilt_deg:.1f}",
+                 "n/a" if st.edge_clearance_m is None else f"{st.edge_clearance_m:.2f}",
+                 f"{st.normal_variance:.2e}", f"{st.extent_m[0]:.2f} x {st.extent_m[1]:.2f}", str(st.cluster_points)]
+        tds = "".join(f"<td{' class=l' if i == 7 else ''}>{html.escape(c)}</td>" for i, c in enumerate(cells))
+        rows.append(f"<tr{' class=committed' if e['id'] == chosen else ''}>{tds}</tr>")
+    th = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    return (head + "<p class=note>One row per detection frame that gave a site; the committed site (landing.json) "
+            "is highlighted. Every candidate cluster is in sites.csv.</p>"
+            f"<table><tr>{th}</tr>{''.join(rows)}</table>")
+
+
+def _detections(run_dir: Path, frames: list[int], sites: SiteLog, committed: dict[str, Any] | None,
+                level: str) -> str:
+    head = "<h2 id=detections>Detections</h2>"
+    if not frames:
+        return head + f"<p class=note>No frame folders at --outputs {html.escape(level)}.</p>"
+    by_frame = {e["frame"].index: e["site"] for e in sites.sites}
+    site_frame = None if committed is None else committed["frame"].index
+    figs = []
+    for i in frames:
+        link = f"frames/{i:06d}/overlay.png"
+        st = by_frame.get(i)
+        what = "no site" if st is None else f"site {st.score:.2f}" + ("" if st.accepted else " (not accepted)")
+        mark = " <b>committed</b>" if i == site_frame else ""
+        figs.append(f"<figure><a href='{link}'><img loading=lazy src='{link}' alt='frame {i}'></a>"
+                    f"<figcaption>frame {i}: {html.escape(what)}{mark}</figcaption></figure>")
+    return (head + "<p class=note>Each detection frame's overlay (mask tint green/red, SLAM points white, under "
+            "the mask blue, chosen cluster green, Eq. 10 square red); click for full size.</p>"
+            f"<div class=grid>{''.join(figs)}</div>")
+
+
+def _timings(s: dict[str, Any]) -> str:
+    t = s.get("timings_ms") or {}
+    rows = [(k, v) for k, v in t.items() if isinstance(v, int | float)]
+    if not rows:
+        return ""
+    body = "".join(f"<tr><td class=l>{html.escape(k)}</td><td>{v:.1f}</td></tr>" for k, v in rows)
+    return f"<h2 id=timings>Time per stage</h2><table><tr><th>stage</th><th>ms</th></tr>{body}</table>"
+
+
+# ----------------------------------------------------------------------------- helpers
+def _detection_frames(run_dir: Path) -> list[int]:
+    folder = run_dir / "frames"
+    if not folder.is_dir():
+        return []
+    return sorted(int(p.name) for p in folder.iterdir() if p.is_dir() and p.name.isdigit())
