@@ -169,8 +169,8 @@ def plan_min_filter(score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsi
         return np.zeros(score.shape, np.float32)
     e1, e2 = plan_axes(up_camera)
     x, y = _along(p, e1), _along(p, e2)             # float64 plan coordinates, NaN where no depth
-    x0, y0 = float(np.min(x, where=ok, initial=np.inf)), float(np.min(y, where=ok, initial=np.inf))
-    span = max(float(np.max(x, where=ok, initial=-np.inf)) - x0, float(np.max(y, where=ok, initial=-np.inf)) - y0)
+    x0, y0 = float(np.fmin.reduce(x, axis=None)), float(np.fmin.reduce(y, axis=None))   # fmin skips the NaN
+    span = max(float(np.fmax.reduce(x, axis=None)) - x0, float(np.fmax.reduce(y, axis=None)) - y0)
     cell = side_m / cells_per_side
     cell = max(cell, span / math.sqrt(MAX_PLAN_CELLS))
     ix, iy = _cell_index(x, x0, cell, ok), _cell_index(y, y0, cell, ok)
@@ -199,10 +199,10 @@ def plan_min_filter(score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsi
 
 def _along(p: CameraPoints, axis: np.ndarray) -> np.ndarray:
     """The points' float64 coordinate along a unit ``axis`` (NaN where no depth)."""
-    out = p.x.astype(np.float64)
-    out *= axis[0]
-    out += p.y.astype(np.float64) * axis[1]
-    out += p.z.astype(np.float64) * axis[2]
+    a = np.asarray(axis, dtype=np.float64)
+    out = np.multiply(p.x, a[0])                     # float32 x float64 scalar: float64, no copy first
+    out += np.multiply(p.y, a[1])
+    out += np.multiply(p.z, a[2])
     return out
 
 
