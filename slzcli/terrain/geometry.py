@@ -199,14 +199,20 @@ def plane_residual_var(inv_depth: np.ndarray, valid: np.ndarray, window_px: int,
     sw, sww = corr(w, one, one), corr(w * w, one, one)
     swu, swv = corr(w, t, one), corr(w, one, t)
     nn = np.maximum(n, 1.0)
-    ss = sww - sw * sw / nn - swu * swu / full_ctt - swv * swv / full_ctt   # full windows: u, v centred
     partial = ok & (n < full_n - 0.5)
     idx = np.flatnonzero(partial)
     if idx.size:
         def at(img: np.ndarray) -> np.ndarray:
             return np.take(img.reshape(-1), idx).astype(np.float64, copy=False)
 
-        cn, cw, cww, cwu, cwv = at(n), at(sw), at(sww), at(swu), at(swv)
+        cn, cw, cww, cwu, cwv = at(n), at(sw), at(sww), at(swu), at(swv)   # before the sums are reused below
+    # full windows (u, v centred): ss = sww - sw sw / nn - swu swu / ctt - swv swv / ctt, the same
+    # operations in the same order, in place (each 640x480 float64 temporary costs its page faults)
+    ss = sww
+    ss -= np.divide(np.multiply(sw, sw, out=sw), nn, out=sw)
+    ss -= np.divide(np.multiply(swu, swu, out=swu), full_ctt, out=swu)
+    ss -= np.divide(np.multiply(swv, swv, out=swv), full_ctt, out=swv)
+    if idx.size:
         su, sv = at(corr_mask(t, one)), at(corr_mask(one, t))
         suu, svv, suv = at(corr_mask(t * t, one)), at(corr_mask(one, t * t)), at(corr_mask(t, t))
         mu, mv = su / cn, sv / cn                       # centre the regressors on the valid pixels
@@ -219,7 +225,8 @@ def plane_residual_var(inv_depth: np.ndarray, valid: np.ndarray, window_px: int,
         pv = (cuu * xv - cuv * xu) / det
         np.put(ss, idx, cww - cw * cw / cn - pu * xu - pv * xv)
         ok.reshape(-1)[idx[~good]] = False
-    var = np.maximum(ss, 0.0) / nn
+    var = np.maximum(ss, 0.0, out=ss)
+    var /= nn
     return var.astype(np.float32), ok
 
 
