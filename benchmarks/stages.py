@@ -226,11 +226,12 @@ def time_case(cores: list[Core], case: Case, runs: int) -> dict[str, Any]:
         samples: dict[str, dict[str, list[dict[str, float]]]] = {c.name: {"cpu": [], "wall": []} for c in cores}
         outputs = {}
         first = None
+        # the tracker is a run's state: the first pass of a frame updates it, each repeat updates a
+        # copy of it as it was before the frame, so every pass sees the noise the run would have
+        before = {c.name: _copy_tracker(trackers[c.name]) for c in cores}
         for r in range(runs + 1):
             for c in cores:
-                # the tracker is a run's state: only the first pass of a frame updates it, the
-                # repeats use a copy so the frame's noise stays what the run would have
-                tracker = trackers[c.name] if r == 0 else _copy_tracker(trackers[c.name])
+                tracker = trackers[c.name] if r == 0 else _copy_tracker(before[c.name])
                 cpu, wall, outputs[c.name] = run_frame(c, frame, case.config, scorers[c.name], tracker)
                 if r == 1 and c is cores[0]:
                     first = outputs[c.name]
