@@ -80,7 +80,7 @@ demo: $(STAMP)
 	@echo "  *.preview.png, scenes/*.preview.png   contact sheets: colour, depth, object ids, true safe area"
 
 bench: $(STAMP)
-	for b in read synth terrain scoring masks slam ibvs; do $(BIN)/python benchmarks/$$b.py || exit 1; done
+	for b in read synth terrain scoring masks stages slam ibvs; do $(BIN)/python benchmarks/$$b.py || exit 1; done
 
 clean:
 	rm -rf $(VENV) $(LATEST) runs .pytest_cache .mypy_cache .ruff_cache

@@ -179,3 +179,24 @@ def test_level_ground_at_10_m_under_heavy_white_noise_scores_safe_and_a_kerb_doe
     # measured over seeds 0-2: 100 % of the far ground safe, 0 % within 1 m of the kerb (limits 90 %, 0 within 0.3 m)
     assert sm.mask[rows][:, far].mean() > 0.9
     assert not sm.mask[rows][:, np.abs(x - 2.0) < 0.8].any()
+
+
+# ----------------------------------------------------------------------------- fast forms, same bits
+def test_pyramid_sums_and_quantum_match_their_direct_forms() -> None:
+    """The 2 x 2 block sums equal numpy's reshape-sum bit for bit, and the depth quantum the gathered
+    minimum, on float32 depth with holes and on odd-sized crops."""
+    from slzcli.terrain.noise import _sum_2x2, depth_quantum_m
+
+    rng = np.random.default_rng(3)
+    for shape in ((480, 640), (241, 333), (60, 80)):
+        a = (rng.random(shape) * 7).astype(np.float32)
+        h, w = shape[0] // 2 * 2, shape[1] // 2 * 2
+        np.testing.assert_array_equal(_sum_2x2(a[:h, :w]), a[:h, :w].reshape(h // 2, 2, w // 2, 2).sum(axis=(1, 3)))
+        depth = np.round(a * 1000) / np.float32(1000)
+        depth[rng.random(shape) < 0.1] = np.nan
+        valid = np.isfinite(depth) & (depth > 0)
+        both = valid[:, 1:] & valid[:, :-1]
+        dz = np.abs(depth[:, 1:] - depth[:, :-1])[both]
+        assert depth_quantum_m(depth, valid) == float(dz[dz > 0].min())
+    flat = np.full((20, 30), 2.0, np.float32)
+    assert depth_quantum_m(flat, np.isfinite(flat)) == 0.0

@@ -524,3 +524,61 @@ def test_cli_dump_shows_scoring_keys(runner):
     assert res.exit_code == 0
     fuzzy_cfg = __import__("json").loads(res.stdout)["scoring"]["fuzzy"]
     assert fuzzy_cfg["lut_levels"] == 13 and fuzzy_cfg["evaluator"] == "compiled"
+
+
+# ----------------------------------------------------------------------------- plan filter, whole-frame form
+def _plan_min_filter_gathered(score: np.ndarray, depth: np.ndarray, intr: Intrinsics, up: np.ndarray,
+                              side_m: float, cells: float) -> np.ndarray:
+    """The plan filter as first written (issue 18's 'before'): valid points gathered into an N x 3 float64 copy."""
+    import math
+
+    import cv2
+
+    from slzcli.scoring.mask import MAX_PLAN_CELLS, min_filter, plan_axes
+    from slzcli.terrain.geometry import back_project
+
+    pts = back_project(depth, intr).reshape(-1, 3)
+    ok = np.isfinite(pts[:, 2])
+    out = np.zeros(score.size, np.float32)
+    e1, e2 = plan_axes(up)
+    p = pts[ok].astype(np.float64)
+    x, y = p @ e1, p @ e2
+    x0, y0 = float(x.min()), float(y.min())
+    cell = max(side_m / cells, max(float(x.max()) - x0, float(y.max()) - y0) / math.sqrt(MAX_PLAN_CELLS))
+    ix, iy = ((x - x0) / cell).astype(np.int64), ((y - y0) / cell).astype(np.int64)
+    nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
+    worst = np.full(ny * nx, np.inf, np.float32)
+    flat = iy * nx + ix
+    np.minimum.at(worst, flat, score.reshape(-1)[ok].astype(np.float32))
+    raster = worst.reshape(ny, nx)
+    seen = np.isfinite(raster)
+    gap = ~seen & (cv2.boxFilter(seen.view(np.uint8), cv2.CV_16U, (3, 3), normalize=False,
+                                 borderType=cv2.BORDER_CONSTANT) >= 5)
+    big = np.float32(np.finfo(np.float32).max)
+    near = cv2.erode(np.where(seen, raster, big), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                     borderValue=float(big))
+    raster = np.where(seen, raster, np.where(gap, near, np.float32(0)))
+    n = max(1, 2 * math.ceil((side_m / cell - 1) / 2) + 1)
+    out[ok] = min_filter(raster.astype(np.float32), n, n).reshape(-1)[flat]
+    return out.reshape(score.shape)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_plan_filter_whole_frame_equals_the_gathered_form(seed: int) -> None:
+    """The whole-frame plan filter (spare cell for pixels without depth, shared camera points) gives the
+    same values as the gathered N x 3 form on an oblique, holed, noisy frame; with or without points."""
+    from slzcli.scoring.mask import camera_points, plan_min_filter
+
+    rng = np.random.default_rng(seed)
+    intr = Intrinsics(462.137, 462.137, 320.0, 240.0, 640, 480)
+    rows = np.arange(480, dtype=np.float32)[:, None]
+    depth = (4.0 + rows * 0.004 + rng.normal(0, 0.02, (480, 640))).astype(np.float32)   # a tilted view
+    depth[rng.random(depth.shape) < 0.05] = np.nan
+    depth[100:160, 200:300] = 0.0                                                         # a hole
+    score = rng.random(depth.shape).astype(np.float32)
+    up = np.array([0.05, -0.5, -0.86])
+    want = _plan_min_filter_gathered(score, depth, intr, up, 0.856, 8.0)
+    got = plan_min_filter(score, depth, intr, up, 0.856, 8.0)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(plan_min_filter(score, depth, intr, up, 0.856, 8.0,
+                                                  points=camera_points(depth, intr)), want)

@@ -15,7 +15,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.errors import ConfigError
 from slzcli.scoring import bayes, closed_form, fuzzy, lut
-from slzcli.scoring.mask import column_in_view, landing_mask
+from slzcli.scoring.mask import camera_points, column_in_view, landing_mask
 from slzcli.scoring.rules import RuleBase, did_you_mean, load_rules
 from slzcli.terrain.geometry import fit_intrinsics
 from slzcli.terrain.limits import Working
@@ -132,15 +132,17 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     ``up_camera``: world up in the camera frame, for ``mask.clearance: plan`` (without it: image).
     """
     mc = config.mask
-    plan = None
+    plan = points = None
     if mc.clearance == "plan" and up_camera is not None:
         plan = (fit_intrinsics(intrinsics, np.asarray(depth_m).shape), up_camera, mc.plan_cells_per_footprint)
+        points = camera_points(depth_m, plan[0])          # once, for the plan filter and the column
     sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
-                      mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan, margin_m=config.uav.margin_m)
+                      mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan, margin_m=config.uav.margin_m,
+                      points=points)
     if plan is not None:   # the final descent's column must have been in view (control.desired_depth_m hover)
         before = int(sm.mask.sum())
-        np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], config.control.desired_depth_m),
-                       out=sm.mask)
+        np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], config.control.desired_depth_m,
+                                               points=points), out=sm.mask)
         if before:
             sm = ScoreMap(sm.method, sm.score, sm.mask, 1.0 - int(sm.mask.sum()) / before)
     if work is None:

@@ -24,11 +24,12 @@ unsafe): a site must fit inside the view.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from slzcli.terrain.geometry import back_project, median_depth_m, window_px
+from slzcli.terrain.geometry import fit_intrinsics, median_depth_m, pixel_rays, valid_depth, window_px
 from slzcli.types import Intrinsics, ScoreMap
 
 _GAP_NEIGHBOURS = 5        # an unobserved cell with at least this many observed 8-neighbours is a sampling gap
@@ -71,11 +72,12 @@ def smooth(score: np.ndarray, sigma_x_px: float, sigma_y_px: float) -> np.ndarra
 def landing_mask(method: str, score: np.ndarray, depth_m: np.ndarray, fx: float, fy: float,
                  footprint_m: tuple[float, ...], margin_factor: float, threshold: float,
                  smooth_m: float = 0.0, *, plan: tuple[Intrinsics, np.ndarray, float] | None = None,
-                 margin_m: float = 0.0) -> ScoreMap:
+                 margin_m: float = 0.0, points: CameraPoints | None = None) -> ScoreMap:
     """ScoreMap(method, score, mask): mask = min-filtered score > threshold (all False without depth).
 
     ``plan``: (intrinsics, world up in the camera frame, cells per footprint side) takes the minimum
-    in plan view (``plan_min_filter``); None, the paper's square window in the image.
+    in plan view (``plan_min_filter``); None, the paper's square window in the image. ``points``: the
+    frame's ``camera_points``, when already made (the plan filter needs them).
 
     ``smooth_m`` > 0 first blurs the score with a Gaussian of that sigma on the ground: the
     minimum over a footprint of ~1000 pixels is otherwise the worst single pixel, which at
@@ -91,13 +93,36 @@ def landing_mask(method: str, score: np.ndarray, depth_m: np.ndarray, fx: float,
         score_in = score
     side_m = margin_factor * max(footprint_m) + 2.0 * margin_m
     if plan is not None:   # (intrinsics, world up in the camera, cells per footprint side)
-        filtered = plan_min_filter(score_in, depth_m, plan[0], plan[1], side_m, plan[2])
+        filtered = plan_min_filter(score_in, depth_m, plan[0], plan[1], side_m, plan[2], points=points)
     else:
         filtered = min_filter(score_in, window_px(side_m, fx, depth), window_px(side_m, fy, depth))
     return ScoreMap(method, score, filtered > threshold)
 
 
-def column_in_view(depth_m: np.ndarray, intrinsics: Intrinsics, up_camera: np.ndarray, height_m: float) -> np.ndarray:
+@dataclass(frozen=True, eq=False)
+class CameraPoints:
+    """Eq. 1 as three float32 planes (X, Y, Z; NaN where no depth) and the validity: the column rule
+    and the plan filter both need them, so ``mask_score`` back-projects once (planes, not an
+    H x W x 3 image: every use below is per coordinate)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    valid: np.ndarray
+
+
+def camera_points(depth_m: np.ndarray, intrinsics: Intrinsics) -> CameraPoints:
+    """The same values as ``back_project`` (z rx, z ry, z in float32), one plane per coordinate."""
+    depth = np.asarray(depth_m)
+    intr = fit_intrinsics(intrinsics, depth.shape)
+    rx, ry = pixel_rays(intr)
+    valid = valid_depth(depth)
+    z = np.where(valid, depth, np.float32(np.nan)).astype(np.float32, copy=False)
+    return CameraPoints(np.multiply(z, rx), np.multiply(z, ry), z, valid)
+
+
+def column_in_view(depth_m: np.ndarray, intrinsics: Intrinsics, up_camera: np.ndarray, height_m: float, *,
+                   points: CameraPoints | None = None) -> np.ndarray:
     """Pixels whose column up to ``height_m`` above them projects into the image.
 
     The UAV comes down that column in its final descent; what stands in it is only known where
@@ -105,17 +130,18 @@ def column_in_view(depth_m: np.ndarray, intrinsics: Intrinsics, up_camera: np.nd
     the way to the border has its 2 m column outside): a tree crown out of the frame can overhang
     ground that looks open (synth playground at 5 m: mask precision 0.77 without this, 0.96 with).
     The footprint's clearance around the column is the plan filter's business, not repeated here.
+    ``points``: ``camera_points`` of the frame, when already made.
     """
-    pts = back_project(depth_m, intrinsics)
+    p = camera_points(depth_m, intrinsics) if points is None else points
     u = np.asarray(up_camera, dtype=np.float32) / np.float32(np.linalg.norm(up_camera))
-    top = pts + np.float32(height_m) * u
+    lift = np.float32(height_m) * u
     with np.errstate(invalid="ignore", divide="ignore"):
-        z = top[..., 2]
-        cu = intrinsics.fx * top[..., 0] / z + intrinsics.cx
-        cv_ = intrinsics.fy * top[..., 1] / z + intrinsics.cy
+        z = p.z + lift[2]
+        cu = intrinsics.fx * (p.x + lift[0]) / z + intrinsics.cx
+        cv_ = intrinsics.fy * (p.y + lift[1]) / z + intrinsics.cy
         inside = ((z > 0) & (cu >= -0.5) & (cu <= intrinsics.width - 0.5)
                   & (cv_ >= -0.5) & (cv_ <= intrinsics.height - 0.5))
-    return inside & np.isfinite(pts[..., 2])
+    return inside & p.valid
 
 
 def plan_axes(up_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -131,27 +157,32 @@ def plan_axes(up_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def plan_min_filter(score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, up_camera: np.ndarray,
-                    side_m: float, cells_per_side: float) -> np.ndarray:
-    """Per pixel: the worst score within the side_m square around it in plan view (0 where unknown)."""
-    pts = back_project(depth_m, intrinsics).reshape(-1, 3)
-    ok = np.isfinite(pts[:, 2])
-    out = np.zeros(score.size, np.float32)
+                    side_m: float, cells_per_side: float, *, points: CameraPoints | None = None) -> np.ndarray:
+    """Per pixel: the worst score within the side_m square around it in plan view (0 where unknown).
+
+    Whole-frame arrays throughout (pixels without depth go to one spare cell that reads 0) rather
+    than gathering the valid points: the gathers and the N x 3 float64 copy were most of its time.
+    """
+    p = camera_points(depth_m, intrinsics) if points is None else points
+    ok = p.valid
     if not ok.any():
-        return out.reshape(score.shape)
+        return np.zeros(score.shape, np.float32)
     e1, e2 = plan_axes(up_camera)
-    p = pts[ok].astype(np.float64)
-    x, y = p @ e1, p @ e2
-    x0, y0 = float(x.min()), float(y.min())
+    x, y = _along(p, e1), _along(p, e2)             # float64 plan coordinates, NaN where no depth
+    x0, y0 = float(np.fmin.reduce(x, axis=None)), float(np.fmin.reduce(y, axis=None))   # fmin skips the NaN
+    span = max(float(np.fmax.reduce(x, axis=None)) - x0, float(np.fmax.reduce(y, axis=None)) - y0)
     cell = side_m / cells_per_side
-    span = max(float(x.max()) - x0, float(y.max()) - y0)
     cell = max(cell, span / math.sqrt(MAX_PLAN_CELLS))
-    ix = ((x - x0) / cell).astype(np.int64)
-    iy = ((y - y0) / cell).astype(np.int64)
+    ix, iy = _cell_index(x, x0, cell, ok), _cell_index(y, y0, cell, ok)
     nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
-    worst = np.full(ny * nx, np.inf, np.float32)
-    flat = iy * nx + ix
-    np.minimum.at(worst, flat, score.reshape(-1)[ok].astype(np.float32))
-    raster = worst.reshape(ny, nx)
+    spare = ny * nx                                  # the cell of every pixel without depth
+    flat = iy
+    flat *= nx
+    flat += ix
+    np.copyto(flat, spare, where=~ok)
+    worst = np.full(spare + 1, np.inf, np.float32)
+    np.minimum.at(worst, flat.reshape(-1), np.ascontiguousarray(score, np.float32).reshape(-1))
+    raster = worst[:spare].reshape(ny, nx)
     seen = np.isfinite(raster)
     seen_u8 = seen.view(np.uint8)
     neighbours = cv2.boxFilter(seen_u8, cv2.CV_16U, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
@@ -161,6 +192,23 @@ def plan_min_filter(score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsi
                              borderValue=float(big))
     raster = np.where(seen, raster, np.where(gap, nearby_worst, np.float32(0)))
     n = max(1, 2 * math.ceil((side_m / cell - 1) / 2) + 1)
-    cleared = min_filter(raster.astype(np.float32), n, n)
-    out[ok] = cleared.reshape(-1)[flat]
-    return out.reshape(score.shape)
+    cleared = np.zeros(spare + 1, np.float32)        # the spare cell stays 0: no depth is unsafe
+    cleared[:spare] = min_filter(raster.astype(np.float32), n, n).reshape(-1)
+    return np.take(cleared, flat)
+
+
+def _along(p: CameraPoints, axis: np.ndarray) -> np.ndarray:
+    """The points' float64 coordinate along a unit ``axis`` (NaN where no depth)."""
+    a = np.asarray(axis, dtype=np.float64)
+    out = np.multiply(p.x, a[0])                     # float32 x float64 scalar: float64, no copy first
+    out += np.multiply(p.y, a[1])
+    out += np.multiply(p.z, a[2])
+    return out
+
+
+def _cell_index(coord: np.ndarray, origin: float, cell: float, ok: np.ndarray) -> np.ndarray:
+    """int32 cell of each coordinate from ``origin`` (0 where not ``ok``); overwrites ``coord``."""
+    coord -= origin
+    coord /= cell
+    np.copyto(coord, 0.0, where=~ok)
+    return coord.astype(np.int32)

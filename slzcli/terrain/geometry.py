@@ -183,26 +183,38 @@ def plane_residual_var(inv_depth: np.ndarray, valid: np.ndarray, window_px: int,
     full_n = float(k * k)
     full_ctt = float(k * (t * t).sum())
     w = np.where(valid, inv_depth, 0.0).astype(np.float64)
-    m = valid.astype(np.float64)
+    m8 = valid.view(np.uint8)
 
     def corr(img: np.ndarray, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
         return cv2.sepFilter2D(img, cv2.CV_64F, kx, ky, borderType=cv2.BORDER_CONSTANT)
 
-    n = corr(m, one, one)
+    def corr_mask(kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
+        # window sums of the 0/1 mask times integer weights are small integers, exact in float32:
+        # the same values as the float64 sums at half the cost
+        return cv2.sepFilter2D(m8, cv2.CV_32F, kx.astype(np.float32), ky.astype(np.float32),
+                               borderType=cv2.BORDER_CONSTANT)
+
+    n = cv2.boxFilter(m8, cv2.CV_32F, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT).astype(np.float64)
     ok = valid & (n >= max(4.0, min_valid_fraction * full_n) - 0.5)
     sw, sww = corr(w, one, one), corr(w * w, one, one)
     swu, swv = corr(w, t, one), corr(w, one, t)
     nn = np.maximum(n, 1.0)
-    ss = sww - sw * sw / nn - swu * swu / full_ctt - swv * swv / full_ctt   # full windows: u, v centred
     partial = ok & (n < full_n - 0.5)
     idx = np.flatnonzero(partial)
     if idx.size:
         def at(img: np.ndarray) -> np.ndarray:
-            return np.take(img.reshape(-1), idx)
+            return np.take(img.reshape(-1), idx).astype(np.float64, copy=False)
 
-        cn, cw, cww, cwu, cwv = at(n), at(sw), at(sww), at(swu), at(swv)
-        su, sv = at(corr(m, t, one)), at(corr(m, one, t))
-        suu, svv, suv = at(corr(m, t * t, one)), at(corr(m, one, t * t)), at(corr(m, t, t))
+        cn, cw, cww, cwu, cwv = at(n), at(sw), at(sww), at(swu), at(swv)   # before the sums are reused below
+    # full windows (u, v centred): ss = sww - sw sw / nn - swu swu / ctt - swv swv / ctt, the same
+    # operations in the same order, in place (each 640x480 float64 temporary costs its page faults)
+    ss = sww
+    ss -= np.divide(np.multiply(sw, sw, out=sw), nn, out=sw)
+    ss -= np.divide(np.multiply(swu, swu, out=swu), full_ctt, out=swu)
+    ss -= np.divide(np.multiply(swv, swv, out=swv), full_ctt, out=swv)
+    if idx.size:
+        su, sv = at(corr_mask(t, one)), at(corr_mask(one, t))
+        suu, svv, suv = at(corr_mask(t * t, one)), at(corr_mask(one, t * t)), at(corr_mask(t, t))
         mu, mv = su / cn, sv / cn                       # centre the regressors on the valid pixels
         cuu, cvv, cuv = suu - su * mu, svv - sv * mv, suv - su * mv
         xu, xv = cwu - cw * mu, cwv - cw * mv
@@ -213,7 +225,8 @@ def plane_residual_var(inv_depth: np.ndarray, valid: np.ndarray, window_px: int,
         pv = (cuu * xv - cuv * xu) / det
         np.put(ss, idx, cww - cw * cw / cn - pu * xu - pv * xv)
         ok.reshape(-1)[idx[~good]] = False
-    var = np.maximum(ss, 0.0) / nn
+    var = np.maximum(ss, 0.0, out=ss)
+    var /= nn
     return var.astype(np.float32), ok
 
 

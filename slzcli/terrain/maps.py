@@ -438,6 +438,13 @@ def _upsample(values: np.ndarray, ok: np.ndarray, worst: float, shape: tuple[int
     return out
 
 
+def _nan_to_zero(values: np.ndarray, finite: np.ndarray | None = None) -> np.ndarray:
+    """NaN -> 0 in place (``finite``: ``np.isfinite(values)`` when known). The values are finite or NaN
+    here, so this is ``np.nan_to_num(values, nan=0.0)`` without its two infinity passes."""
+    np.copyto(values, np.float32(0), where=np.isnan(values) if finite is None else ~finite)
+    return values
+
+
 def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | None,
                  gravity_camera: np.ndarray, cfg: TerrainCfg, work: Working | None = None,
                  noise: DepthNoise | None = None) -> TerrainMaps:
@@ -485,15 +492,15 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
     rough = _upsample(rough, rough_ok, 10.0 * cfg.depth_variance.s0_m, shape, valid)
     psi = _upsample(psi, np.isfinite(psi), math.pi / 2, shape, valid)
     curvature = _upsample(pca.curvature, np.isfinite(pca.curvature), 1.0 / 3.0, shape, valid)
-    edge_m = np.nan_to_num(_upsample(edge_m, db.valid, 0.0, shape, valid), nan=0.0)
+    edge_m = _nan_to_zero(_upsample(edge_m, db.valid, 0.0, shape, valid))
     if block == 1:
         edge_px_full = edge_px
     else:
-        edge_px_full = np.nan_to_num(_upsample(edge_px * np.float32(block), db.valid, 0.0, shape, valid), nan=0.0)
+        edge_px_full = _nan_to_zero(_upsample(edge_px * np.float32(block), db.valid, 0.0, shape, valid))
     slope_deg = np.multiply(psi, np.float32(180.0 / math.pi))
     rough_ok_full = np.isfinite(rough)
     return TerrainMaps(
-        depth_variance=_roughness_map(np.nan_to_num(rough, nan=0.0), rough_ok_full, cfg.depth_variance),
+        depth_variance=_roughness_map(_nan_to_zero(rough, rough_ok_full), rough_ok_full, cfg.depth_variance),
         flatness=_flatness(edge_px_full, edge_m, valid, cfg.flatness),
         edge_distance_m=edge_m,
         inclination=inclination_map(curvature, cfg.inclination),

@@ -32,6 +32,7 @@ from slzcli.config import NoiseEstimateCfg
 MAD_TO_SIGMA = 1.482602218505602       # sigma of a normal distribution / its median absolute deviation
 _RESIDUAL_SCALE = math.sqrt(8.0 / 9.0)  # std of (x - mean of its 3 x 3 window) / std of x, white noise
 SCALES_PX = (1, 2, 4, 8, 16)            # block sides of the pyramid, px (each level halves the last)
+_WINDOW = np.ones((3, 3), np.uint8)     # the residual's window
 
 
 @dataclass(frozen=True)
@@ -86,11 +87,20 @@ def _residual_mad(w: np.ndarray, ok: np.ndarray, min_count: int) -> tuple[float,
     """Robust std of (w - mean of its 3 x 3 window) over pixels whose whole window is in ``ok``."""
     wf = np.where(ok, w, np.float32(0)).astype(np.float32, copy=False)
     mean = cv2.blur(wf, (3, 3), borderType=cv2.BORDER_CONSTANT)
-    inside = cv2.blur(ok.astype(np.float32), (3, 3), borderType=cv2.BORDER_CONSTANT) > 1.0 - 1e-6
-    r = (wf - mean)[inside]
+    # the whole 3 x 3 window in ok (outside the image is not): an erosion of the 0/1 mask
+    inside = cv2.erode(ok.view(np.uint8), _WINDOW, borderType=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
+    r = np.subtract(wf, mean, out=mean)[inside]
     if r.size < min_count:
         return math.nan, int(r.size)
     return MAD_TO_SIGMA * float(np.median(np.abs(r))) / _RESIDUAL_SCALE, int(r.size)
+
+
+def _sum_2x2(a: np.ndarray) -> np.ndarray:
+    """Sums of 2 x 2 blocks (even sides), added in the order ``reshape(h/2, 2, w/2, 2).sum(axis=(1, 3))``
+    adds them, (a00 + a01) + (a10 + a11) (checked bit for bit), without its slow strided reduction."""
+    out = a[0::2, 0::2] + a[0::2, 1::2]
+    out += a[1::2, 0::2] + a[1::2, 1::2]
+    return out
 
 
 def depth_quantum_m(depth_m: np.ndarray, valid: np.ndarray) -> float:
@@ -98,9 +108,10 @@ def depth_quantum_m(depth_m: np.ndarray, valid: np.ndarray) -> float:
     millimetres), ~0 for continuous depth. Sparse steps of exactly one unit are invisible to the
     MAD above, but on an oblique floor they line up into contour terraces an edge detector sees."""
     both = valid[:, 1:] & valid[:, :-1]
-    dz = np.abs(depth_m[:, 1:] - depth_m[:, :-1])[both]
-    pos = dz[dz > 0]
-    return float(pos.min()) if pos.size else 0.0
+    dz = np.abs(depth_m[:, 1:] - depth_m[:, :-1])
+    np.logical_and(both, dz > 0, out=both)
+    step = float(np.min(dz, where=both, initial=np.inf))   # no gathers: a where-reduction
+    return step if math.isfinite(step) else 0.0
 
 
 def estimate_noise(depth_m: np.ndarray, cfg: NoiseEstimateCfg) -> DepthNoise | None:
@@ -132,8 +143,7 @@ def estimate_noise(depth_m: np.ndarray, cfg: NoiseEstimateCfg) -> DepthNoise | N
         if h < 6 or wd < 6:
             out.extend(out[-1] for _ in SCALES_PX[level + 1:])
             break
-        w = w[:h, :wd].reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
-        count = count[:h, :wd].reshape(h // 2, 2, wd // 2, 2).sum(axis=(1, 3))
+        w, count = _sum_2x2(w[:h, :wd]), _sum_2x2(count[:h, :wd])
     # Each level is a band-pass of the noise (wavelengths ~2-6 blocks): what a map working at
     # that scale sees. A coarser level may read higher than white noise would (correlated error,
     # or terrain the median did not reject): both make the maps more careful, never less.
