@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from slzcli import __version__
-from slzcli.config import Config, OutputLevel, dump, load_config
+from slzcli.config import Config, OutputLevel, dump, layer_sources, load_config
 from slzcli.errors import SlzError
 
 if TYPE_CHECKING:
@@ -32,9 +32,23 @@ log = logging.getLogger("slzcli")
 
 
 # ----------------------------------------------------------------------------- shared plumbing
-def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """--config, --set, --json and -v on every command; the resolved Config is passed as ``config``."""
+LAYERS = "slz.config_layers"  # click context meta key: (profile, config file, --set items) as given
 
+
+def _layers() -> tuple[str | None, Path | None, tuple[str, ...]]:
+    layers: tuple[str | None, Path | None, tuple[str, ...]] = click.get_current_context().meta[LAYERS]
+    return layers
+
+
+def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--profile, --config, --set, --json and -v on every command; the resolved Config is passed as ``config``.
+
+    The layers as given are kept in the click context (``LAYERS``) for commands that resolve more
+    than one config (``config dump``'s sources, ``compare --profiles``)."""
+
+    @click.option("--profile", "profile", default=None, metavar="NAME",
+                  help="Named profile layered between configs/default.yaml and --config (configs/profiles/NAME.yaml; "
+                       "e.g. paper: the paper as published).")
     @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path, readable=False),
                   help="YAML file layered over configs/default.yaml.")
     @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
@@ -42,12 +56,13 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object.")
     @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
     @functools.wraps(fn)
-    def wrapper(config_file: Path | None, overrides: tuple[str, ...], as_json: bool, verbose: int,
-                **kwargs: Any) -> None:
+    def wrapper(profile: str | None, config_file: Path | None, overrides: tuple[str, ...], as_json: bool,
+                verbose: int, **kwargs: Any) -> None:
         warned = _setup_logging(verbose)
+        click.get_current_context().meta[LAYERS] = (profile, config_file, overrides)
         try:
             with _sigterm_interrupts():
-                config = load_config(config_file, overrides)
+                config = load_config(config_file, overrides, profile)
                 result = fn(config=config, **kwargs)
         except SlzError as err:
             warned.flush()
@@ -208,8 +223,9 @@ def config_group() -> None:
 @config_group.command("dump")
 @common_options
 def config_dump(config: Config) -> tuple[dict[str, Any], str]:
-    """Print the resolved config (defaults + --config + --set), every key commented."""
-    return config.to_dict(), dump(config).rstrip("\n")
+    """Print the resolved config (defaults + --profile + --config + --set), every key commented with its source."""
+    profile, config_file, overrides = _layers()
+    return config.to_dict(), dump(config, layer_sources(profile, config_file, overrides)).rstrip("\n")
 
 
 @main.command("info")
@@ -657,7 +673,10 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
 @main.command("compare")
 @click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path, readable=False))
 @click.option("--methods", default=None, metavar="A,B", help="Methods to compare (default: compare.methods, "
-              "fuzzy,bayes).")
+              "fuzzy,bayes). With --profiles: the one method every profile uses (default: each profile's).")
+@click.option("--profiles", default=None, metavar="A,B", help="Compare profiles instead of methods, e.g. "
+              "paper,default: each a whole config (SLAM, maps, fusion) over the same frames, "
+              "layered under --config and --set.")
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="Output folder (default runs/compare_<first recording>).")
 @click.option("--variants", is_flag=True, help="Also re-render each synth recording's scene in the variants of "
@@ -667,13 +686,18 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
                 "write) runs longer than this; the comparison fails naming the stage and leaves no output folder. "
                 "Default: no limit.")
 @common_options
-def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, output: Path | None,
-                variants: bool, force: bool, timeout_s: float | None) -> tuple[dict[str, Any], str]:
-    """Fuzzy vs Bayes on the same frames and SLAM points: time, agreement, accuracy against ground truth."""
+def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, profiles: str | None,
+                output: Path | None, variants: bool, force: bool,
+                timeout_s: float | None) -> tuple[dict[str, Any], str]:
+    """Fuzzy vs Bayes on the same frames and SLAM points: time, agreement, accuracy against ground truth.
+
+    With --profiles: whole configs (e.g. the paper as published against slz's defaults) on the same recordings."""
     from slzcli.compare import compare, recording_name
     from slzcli.outputs.report import text_table
 
     out = output or Path("runs") / f"compare_{recording_name(recordings[0])}"
+    if profiles is not None:
+        return _compare_profiles(recordings, profiles, methods, out, variants, force, timeout_s)
     chosen = tuple(methods.split(",")) if methods is not None else None
     with _progress("compare") as progress:
         summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=progress,
@@ -683,6 +707,29 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
     return summary, text_table(summary, str(out))
+
+
+def _compare_profiles(recordings: tuple[Path, ...], profiles: str, methods: str | None, out: Path, variants: bool,
+                      force: bool, timeout_s: float | None) -> tuple[dict[str, Any], str]:
+    """``slz compare --profiles``: each profile's config with the command's --config and --set over it."""
+    from slzcli.compare import compare_profiles, profile_table
+    from slzcli.errors import ConfigError
+
+    if variants:
+        raise ConfigError("--variants", "not available with --profiles (compare profiles on the variant recordings)")
+    method = None
+    if methods is not None:
+        chosen = [m.strip() for m in methods.split(",") if m.strip()]
+        if len(chosen) != 1:
+            raise ConfigError("--methods", "with --profiles give one method (each profile is compared, not methods)")
+        method = chosen[0]
+    _, config_file, overrides = _layers()
+    names = list(dict.fromkeys(n.strip() for n in profiles.split(",") if n.strip()))
+    configs = {n: load_config(config_file, overrides, n) for n in names}
+    with _progress("compare") as progress:
+        summary = compare_profiles(list(recordings), configs, out, method, force=force, progress=progress,
+                                   timeout_s=timeout_s)
+    return summary, profile_table(summary["rows"]) + f"\n  results: {out}/ (compare.json, compare.csv)"
 
 
 # --- commands end (new commands go above this line) ---

@@ -110,6 +110,8 @@ def _roughness_m(d: _Depth, cfg: DepthVarianceCfg, noise_a_per_m: float) -> tupl
     sigma_w = a is the same at every range and a plane is exact; its expected share of the
     residual variance, a^2 (n - 3) / n, is subtracted, then s = z^2 sigma_w in metres.
     """
+    if cfg.statistic == "std":
+        return _local_std_m(d, cfg)
     inv = np.zeros(d.depth.shape, np.float32)
     np.divide(np.float32(1.0), d.depth, out=inv, where=d.valid)
     var, ok = plane_residual_var(inv, d.valid, cfg.kernel_px, cfg.min_valid_fraction)
@@ -121,6 +123,22 @@ def _roughness_m(d: _Depth, cfg: DepthVarianceCfg, noise_a_per_m: float) -> tupl
     z2 = np.multiply(d.filled, d.filled)
     s *= z2
     return s, ok
+
+
+def _local_std_m(d: _Depth, cfg: DepthVarianceCfg) -> tuple[np.ndarray, np.ndarray]:
+    """(s, ok): Alg. 1 lines 1-4 as printed, s = sqrt|blur(D^2) - blur(D)^2| over kernel_px (the paper's
+    statistic, ``statistic: std``): no plane removed, no noise removed. Means over the window's valid
+    pixels only, and a window with less than min_valid_fraction of them is not ok (no bleeding of holes)."""
+    side = (cfg.kernel_px, cfg.kernel_px)
+    count = cv2.boxFilter(d.valid.astype(np.float32), -1, side, normalize=False, borderType=cv2.BORDER_REPLICATE)
+    sum1 = cv2.boxFilter(d.filled, -1, side, normalize=False, borderType=cv2.BORDER_REPLICATE)
+    sum2 = cv2.boxFilter(d.filled * d.filled, -1, side, normalize=False, borderType=cv2.BORDER_REPLICATE)
+    ok = d.valid & (count >= np.float32(cfg.min_valid_fraction * cfg.kernel_px * cfg.kernel_px))
+    n = np.maximum(count, np.float32(1.0))
+    mu1 = sum1 / n
+    s = np.sqrt(np.abs(sum2 / n - mu1 * mu1))
+    s[~ok] = 0.0
+    return s.astype(np.float32, copy=False), ok
 
 
 def _depth_variance(d: _Depth, cfg: DepthVarianceCfg, noise_a_per_m: float = 0.0) -> np.ndarray:
