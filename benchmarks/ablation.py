@@ -15,11 +15,12 @@ variant: mask precision and recall (pixels summed over its detection frames), wh
 is truly safe, SLAM ATE (m, against the true poses) and the median time per detection frame (SLAM + maps +
 score + mask + select, ms, same process, same machine).
 
-The flight: the paper's monocular SLAM must initialise, which needs parallax between frames; the default
-synth hover (0.3 m drift over 12 s at 20 Hz) gives none and monocular ORB-SLAM3 never initialises on it
-(measured on parking_lot at 5 m: 60 of 60 frames NOT_INITIALIZED; every 2nd frame, i.e. 10 Hz with the
-same drift: initialised at frame 16). So the cells fly a 1 m drift over 6 s at ``--rate`` 10 Hz; a cell
-where monocular SLAM still does not initialise is reported as such (no detections), not dropped.
+The flight: monocular SLAM needs parallax between frames to initialise; the default synth hover (0.3 m
+drift over 12 s) gives little, so the cells fly a 1 m drift over 6 s at ``--rate`` 10 Hz. Measured with
+pyorbslam3 on parking_lot at 5 m (1000 features, 8 levels, 1.2): a 20 Hz render of that flight never
+initialised (60 of 60 frames), every 2nd frame of the same render did (frame 16, 0.8 s), and six 10 Hz
+renders (three seeds, no colour noise, gaussian depth, playground) did not in 24 frames. A cell where it
+does not is reported as such (no keyframe, no detection), not dropped.
 Writes benchmarks/results/ablation.json after every cell and prints a table.
 """
 
@@ -74,25 +75,44 @@ DECISIONS: dict[str, list[str]] = {
 }
 
 
-def variants(decisions: list[str]) -> dict[str, tuple[str | None, list[str]]]:
+def variants(decisions: list[str], leave_one_out: bool = False) -> dict[str, tuple[str | None, list[str]]]:
     """name -> (profile, --set items): the paper; the paper with RGB-D SLAM (``paper_rgbd``, the base of the
-    other decisions, see the module docstring); that base plus each other decision; the default (all)."""
+    other decisions, see the module docstring); that base plus each other decision; the default (all); with
+    ``leave_one_out`` also the default with each decision back at the paper's value (what it buys among the rest)."""
     out: dict[str, tuple[str | None, list[str]]] = {"paper": ("paper", [])}
     base = DECISIONS["slam_rgbd"] if "slam_rgbd" in decisions else []
     if base:
         out["paper_rgbd"] = ("paper", base)
     out.update({f"+{d}": ("paper", base + DECISIONS[d]) for d in decisions if d != "slam_rgbd"})
     out["default"] = (None, [])
+    if leave_one_out:
+        out.update({f"default-{d}": (None, revert(d)) for d in decisions if d != "slam_rgbd"})
     return out
 
 
-def run_variants(path: Path, decisions: list[str], base: list[str]) -> list[dict[str, Any]]:
+def revert(decision: str) -> list[str]:
+    """The --set items that switch ``decision`` back to the paper's values over the default config."""
+    from slzcli.config import load_config
+
+    paper = load_config(profile="paper")
+    out = []
+    for item in DECISIONS[decision]:
+        key = item.partition("=")[0]
+        node: Any = paper
+        for part in key.split("."):
+            node = getattr(node, part)
+        out.append(f"{key}={node}")
+    return out
+
+
+def run_variants(path: Path, decisions: list[str], base: list[str], leave_one_out: bool = False
+                 ) -> list[dict[str, Any]]:
     """Every variant over one recording, in this process (times comparable within the cell)."""
     from slzcli.compare import compare_recording, profile_row
     from slzcli.config import load_config
 
     rows = []
-    for name, (profile, items) in variants(decisions).items():
+    for name, (profile, items) in variants(decisions, leave_one_out).items():
         cfg = load_config(None, base + items, profile)
         t0 = time.perf_counter()
         try:
@@ -106,7 +126,7 @@ def run_variants(path: Path, decisions: list[str], base: list[str]) -> list[dict
 
 
 def run_cell(scene: str, altitude: float, sensor: str, seed: int, frames: int, rate: float, decisions: list[str],
-             tmp: str) -> list[dict[str, Any]]:
+             tmp: str, leave_one_out: bool = False) -> list[dict[str, Any]]:
     from slzcli.config import load_config
     from slzcli.synth.record import SynthOptions, scenario_start, synthesize
     from slzcli.synth.scenes import load_scene
@@ -115,7 +135,7 @@ def run_cell(scene: str, altitude: float, sensor: str, seed: int, frames: int, r
     x, y, _ = scenario_start(cfg, load_scene(scene).scenario)
     path = Path(tmp) / f"{scene}_{altitude:g}_{sensor}_{seed}.mcap"
     synthesize(path, SynthOptions(scene, frames, rate, "hover", seed, (x, y, altitude)), cfg)
-    rows = run_variants(path, decisions, [])
+    rows = run_variants(path, decisions, [], leave_one_out)
     for r in rows:
         r.update(scene=scene, altitude_m=altitude, sensor=sensor, seed=seed)
     path.unlink(missing_ok=True)
@@ -166,6 +186,7 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=10.0)
     ap.add_argument("--decisions", default=",".join(DECISIONS))
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--leave-one-out", action="store_true", help="Also the default with each decision switched back.")
     ap.add_argument("--recordings", nargs="*", type=Path, help="Run the variants on these recordings instead.")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "ablation.json")
     args = ap.parse_args()
@@ -185,7 +206,7 @@ def main() -> None:
 
     if args.recordings:
         for p in args.recordings:
-            for r in run_variants(p, decisions, []):
+            for r in run_variants(p, decisions, [], args.leave_one_out):
                 rows.append(r)
                 print_row(r)
             save()
@@ -195,7 +216,8 @@ def main() -> None:
         run.update(cells=[list(c) for c in cells])
         fresh: dict[str, Any] = {"max_tasks_per_child": 1} if sys.version_info >= (3, 11) else {}
         with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(args.workers, **fresh) as pool:
-            futures = [pool.submit(run_cell, s, z, sensor, seed, args.frames, args.rate, decisions, tmp)
+            futures = [pool.submit(run_cell, s, z, sensor, seed, args.frames, args.rate, decisions, tmp,
+                                   args.leave_one_out)
                        for s, z, sensor, seed in cells]
             for cell, fut in zip(cells, futures, strict=True):
                 try:
