@@ -40,8 +40,9 @@ BASE = ("synth.sensor.model=gaussian", "landing.detect_on=every_nth", "landing.e
         "slam.backend=odometry")
 
 
-def legacy_write_detection(run_dir: Path, det: Any, config: Any) -> None:
-    """The frame writer before the output level: 7 PNGs at zlib level 3 and a deflated maps.npz."""
+def legacy_write_detection(run_dir: Path, det: Any, config: Any, *_overlay: Any) -> None:
+    """The frame writer before the output level: 7 PNGs at zlib level 3 and a deflated maps.npz (it draws its own
+    overlay, as it did)."""
     folder = run_dir / "frames" / f"{det.frame.index:06d}"
     reverse, valid = config.output.reverse_colormap, det.maps.valid
 
@@ -95,6 +96,7 @@ def run_variant(rec: Path, out: Path, overrides: list[str], legacy: bool) -> dic
     timing = json.loads((out / "run.json").read_text())["timings"]
     sizes = folder_bytes(out)
     return {"detections": s["detections"], "write_stage_median_ms": round(timing["write"]["median_ms"], 2),
+            "write_wait_median_ms": round(timing.get("write_wait", {}).get("median_ms", float("nan")), 2),
             "frame_writer_median_ms": round(statistics.median(writer_ms), 2),
             "compute_median_ms": s["timings_ms"]["total"],
             "bytes_per_frame_folder": int(statistics.median(sizes)), "wall_s": round(wall, 3)}
@@ -121,13 +123,16 @@ def main() -> None:
             for name, (extra, legacy) in variants.items():
                 rows[name].append(run_variant(rec, Path(tmp) / f"run_{name}", [*args.overrides, *extra], legacy))
     table = {}
-    print(f"{'variant':<14} {'det':>4} {'write ms':>9} {'writer ms':>10} {'compute ms':>11} {'bytes/frame':>12} "
-          f"{'wall s':>7}")
+    print(f"{'variant':<14} {'det':>4} {'write ms':>9} {'waited ms':>9} {'writer ms':>10} {'compute ms':>11} "
+          f"{'write/compute':>13} {'bytes/frame':>12} {'wall s':>7}")
     for name, runs in rows.items():
         med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
         table[name] = {**med, "runs": runs}
+        ratio = med["write_stage_median_ms"] / med["compute_median_ms"]
+        table[name]["write_over_compute"] = round(ratio, 3)
         print(f"{name:<14} {med['detections']:>4.0f} {med['write_stage_median_ms']:>9.1f} "
-              f"{med['frame_writer_median_ms']:>10.1f} {med['compute_median_ms']:>11.1f} "
+              f"{med['write_wait_median_ms']:>9.1f} {med['frame_writer_median_ms']:>10.1f} "
+              f"{med['compute_median_ms']:>11.1f} {ratio:>13.2f} "
               f"{med['bytes_per_frame_folder']:>12,.0f} {med['wall_s']:>7.2f}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"frames": args.frames, "repeats": args.repeats, "base": list(BASE),

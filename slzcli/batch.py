@@ -158,6 +158,17 @@ class FrameTick:
             self.done = done
 
 
+def error_detail(err: SlzError) -> dict[str, str]:
+    """The failed row's error as ``--json`` names it: the error's class and the file or key it concerns."""
+    detail = {"kind": type(err).__name__}
+    path, key = getattr(err, "path", None), getattr(err, "key", None)
+    if isinstance(path, str):
+        detail["file"] = path
+    if isinstance(key, str) and key:
+        detail["key"] = key
+    return detail
+
+
 def run_task(task: Task, config: Config, options: RunOptions,
              progress: Callable[[int, int | None], None] | None = None) -> dict[str, Any]:
     """One recording -> its row: ``detect_recording`` under the run folder's lock; errors become rows."""
@@ -171,6 +182,7 @@ def run_task(task: Task, config: Config, options: RunOptions,
             summary = detect_recording(task.recording, config, task.run_dir, options, progress)
     except SlzError as err:
         return {**row, "status": "failed", "skipped": False, "error": " ".join(str(err).split()),
+                "error_detail": error_detail(err),
                 "wall_s": round(time.perf_counter() - t0, 3), "peak_rss_mb": _peak_rss_mb()}
     except Exception as err:  # a bug: reported in the row, the batch goes on
         log.debug("internal error on %s", task.recording, exc_info=True)

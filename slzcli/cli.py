@@ -22,8 +22,10 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from slzcli import __version__
-from slzcli.config import Config, OutputLevel, dump, layer_sources, load_config
+from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
+from slzcli.config import Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
+from slzcli.outputs.summary_json import envelope
 
 if TYPE_CHECKING:
     from slzcli.synth.flight import PathKind
@@ -51,7 +53,7 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
                        "e.g. paper: the paper as published).")
     @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path, readable=False),
                   help="YAML file layered over configs/default.yaml.")
-    @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+    @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", callback=_check_overrides,
                   help="Override one key, e.g. --set mask.threshold=0.6 (repeatable).")
     @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object.")
     @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
@@ -64,9 +66,12 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
             with _sigterm_interrupts():
                 config = load_config(config_file, overrides, profile)
                 result = fn(config=config, **kwargs)
+        except click.ClickException:  # a usage error found after parsing (exit 2): click prints it
+            warned.flush()
+            raise
         except SlzError as err:
             warned.flush()
-            _fail(str(err))
+            _fail(str(err), err if as_json else None)
         except KeyboardInterrupt:
             warned.flush()
             click.echo("slz: interrupted", err=True)
@@ -79,13 +84,36 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
             warned.flush()
             if verbose >= 2:
                 raise
-            _fail(f"internal error ({type(err).__name__}: {err}); rerun with -vv for the traceback")
+            _fail(f"internal error ({type(err).__name__}: {err}); rerun with -vv for the traceback", err if as_json
+                  else None)
         warned.flush()
         if result is not None:
             summary, text = result
             from slzcli.outputs.files import json_text  # strict JSON: NaN/inf become null
+            from slzcli.outputs.summary_json import rounded
 
-            click.echo(json_text(summary, indent=None) if as_json else text)
+            click.echo(json_text(rounded(summary), indent=None) if as_json else text)
+
+    return wrapper
+
+
+def camera_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``--camera NAME``: the camera preset (configs/camera/NAME.yaml, auto or none), as ``--set camera.preset=NAME``.
+
+    Put it above ``@common_options``: it becomes the last override, so it wins over --set and --config.
+    """
+    from slzcli.config import CONFIG_DIR
+
+    names = ["auto", "none", *sorted(p.stem for p in (CONFIG_DIR / "camera").glob("*.yaml"))]
+
+    @click.option("--camera", "camera", type=click.Choice(names), default=None,
+                  help="Camera preset: topic layout, intrinsics without CameraInfo, noise prior "
+                       "(default: camera.preset, auto = guessed; slz info says which).")
+    @functools.wraps(fn)
+    def wrapper(camera: str | None, overrides: tuple[str, ...] = (), **kwargs: Any) -> Any:
+        if camera is not None:
+            overrides = (*overrides, f"camera.preset={camera}")
+        return fn(overrides=overrides, **kwargs)
 
     return wrapper
 
@@ -128,9 +156,53 @@ def _sigterm_interrupts() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _fail(message: str) -> None:
-    click.echo(f"slz: error: {one_line(message)}", err=True)
+def _fail(message: str, json_err: BaseException | None = None) -> None:
+    """One line on stderr, exit 1; under ``--json`` (``json_err`` given) also the error object on stdout."""
+    line = one_line(message)
+    click.echo(f"slz: error: {line}", err=True)
+    if json_err is not None:
+        _echo_json_error(line, 1, json_err)
     sys.exit(1)
+
+
+def _echo_json_error(message: str, exit_code: int, err: BaseException | None) -> None:
+    from slzcli.outputs.files import json_text
+    from slzcli.outputs.summary_json import error_object
+
+    click.echo(json_text(error_object(message, exit_code, err), indent=None))
+
+
+def _check_overrides(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> tuple[str, ...]:
+    """``--set`` items that are not ``KEY=VALUE`` with a dotted key are usage errors (exit 2); whether the
+    key exists and the value parses and fits is the config's to say (exit 1, naming the key)."""
+    from slzcli.config import split_override
+
+    for item in value:
+        try:
+            split_override(item)
+        except SlzError as err:
+            raise click.BadParameter(str(err)) from None
+    return value
+
+
+class _SlzGroup(click.Group):
+    """The ``slz`` group: under ``--json`` a usage error (exit 2) is also the error object on stdout."""
+
+    def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
+             standalone_mode: bool = True, **extra: Any) -> Any:
+        argv = list(sys.argv[1:] if args is None else args)
+        if "--json" not in argv or not standalone_mode:
+            return super().main(argv, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            rv = super().main(argv, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.ClickException as err:
+            err.show()
+            _echo_json_error(one_line(err.format_message()), err.exit_code, None)
+            sys.exit(err.exit_code)
+        except click.exceptions.Abort:
+            click.echo("Aborted!", err=True)
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
 
 
 class _WarningLines:
@@ -182,8 +254,71 @@ def _setup_logging(verbose: int) -> _WarningLines:
     return handler
 
 
+# ----------------------------------------------------------------------------- the time window
+WindowBound = tuple[str, float]  # ("offset" | "stamp", seconds)
+
+
+def _time_bound(ctx: click.Context, param: click.Parameter, value: str | None) -> WindowBound | None:
+    """``--start/--end``: seconds after the first frame (``12.5``), or a stamp on the recording's clock
+    (``@1712345678.25``, seconds; the ``@`` as in ``date -d @SECONDS``)."""
+    if value is None:
+        return None
+    kind, text = ("stamp", value[1:]) if value.startswith("@") else ("offset", value)
+    try:
+        seconds = float(text)
+    except ValueError:
+        raise click.BadParameter(f"expected seconds (e.g. 12.5) or @STAMP (e.g. @1712345678.25), got {value!r}") \
+            from None
+    if not math.isfinite(seconds) or seconds < 0:
+        raise click.BadParameter(f"must be a finite number of seconds >= 0, got {value!r}")
+    return kind, seconds
+
+
+def window_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--start, --end, --stride, --max-frames: the part of a recording read (config sources.window)."""
+    for option in reversed([
+        click.option("--start", "win_start", callback=_time_bound, metavar="S|@STAMP",
+                     help="Read from this many seconds after the first frame, or from stamp @STAMP (s, the "
+                          "recording's clock). Sets sources.window.start_s / start_stamp_s."),
+        click.option("--end", "win_end", callback=_time_bound, metavar="S|@STAMP",
+                     help="Stop before this many seconds after the first frame, or before stamp @STAMP."),
+        click.option("--stride", type=click.IntRange(1), default=None, metavar="N",
+                     help="Read every Nth colour/depth pair in the window (sources.window.stride)."),
+        click.option("--max-frames", type=click.IntRange(1), default=None, metavar="N",
+                     help="Stop after N frames read (sources.window.max_frames)."),
+    ]):
+        fn = option(fn)
+    return fn
+
+
+def _windowed(config: Config, start: WindowBound | None, end: WindowBound | None, stride: int | None,
+              max_frames: int | None) -> Config:
+    """``config`` with the window options in sources.window (so they are in run.json and the rerun key)."""
+    w = config.sources.window
+    changes: dict[str, Any] = {}
+    for name, bound in (("start", start), ("end", end)):
+        if bound is not None:
+            kind, seconds = bound
+            changes[f"{name}_s"] = seconds if kind == "offset" else None
+            changes[f"{name}_stamp_s"] = seconds if kind == "stamp" else None
+    if stride is not None:
+        changes["stride"] = stride
+    if max_frames is not None:
+        changes["max_frames"] = max_frames
+    if not changes:
+        return config
+    w = dataclasses.replace(w, **changes)
+    if start is not None and end is not None and start[0] == end[0] and end[1] <= start[1]:
+        raise click.BadParameter(f"--end must be later than --start ({end[1]:g} <= {start[1]:g} s)",
+                                 param_hint="'--end'")
+    from slzcli.sources.window import check_window
+
+    check_window(w)
+    return dataclasses.replace(config, sources=dataclasses.replace(config.sources, window=w))
+
+
 # ----------------------------------------------------------------------------- commands
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=_SlzGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="slz")
 def main() -> None:
     """slz: safe landing zones from recorded RGB-D flights (ROS 1/2 bags, MCAP, TUM folders)."""
@@ -224,18 +359,26 @@ def config_group() -> None:
 @common_options
 def config_dump(config: Config) -> tuple[dict[str, Any], str]:
     """Print the resolved config (defaults + --profile + --config + --set), every key commented with its source."""
+    from slzcli.outputs.summary_json import Exact
+
     profile, config_file, overrides = _layers()
-    return config.to_dict(), dump(config, layer_sources(profile, config_file, overrides)).rstrip("\n")
+    # --json unrounded: values must round-trip
+    return Exact(config.to_dict()), dump(config, layer_sources(profile, config_file, overrides)).rstrip("\n")
 
 
 @main.command("info")
 @click.argument("bag", type=click.Path(path_type=Path, readable=False))
+@window_options
+@camera_option
 @common_options
-def info_cmd(config: Config, bag: Path) -> tuple[dict[str, Any], str]:
-    """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames."""
+def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: WindowBound | None,
+             stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
+    """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames
+    (within --start/--end/--stride/--max-frames when given)."""
     from slzcli.sources import open_recording
     from slzcli.sources.info_text import info_text
 
+    config = _windowed(config, win_start, win_end, stride, max_frames)
     with open_recording(bag, config) as rec:
         info = rec.info()
     return info.to_dict(), info_text(info)
@@ -268,8 +411,9 @@ def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path) -> t
 def _start_floats(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[float, ...] | None:
     if value is None:
         return None
-    if ctx.params.get("scenario") is not None:
-        raise click.BadParameter("give --scenario or --start, not both")
+    others = [f"--{k}" for k in ("scenario", "start", "offset") if k != param.name and ctx.params.get(k) is not None]
+    if others:
+        raise click.BadParameter(f"give one start: --{param.name} or {others[0]}, not both")
     try:
         values = tuple(float(v) for v in value.split(","))
     except ValueError:
@@ -303,23 +447,28 @@ def land_group() -> None:
 @click.option("--scenario", type=click.IntRange(1, 4), help="Paper start (world frame): 1 (0,0,10), "
               "2 (-3,12,9), 3 (0,0,7), 4 (0,0,10) m.")
 @click.option("--start", callback=_start_floats, metavar="X,Y,Z[,YAW]",
-              help="Start as an offset from the site centre (m, world x/y/up; yaw deg). Default: control.sim.start_m.")
+              help="Start position in the run's world frame (m, ENU as in slz synth --start; yaw deg from +x, "
+              "counter-clockwise).")
+@click.option("--offset", callback=_start_floats, metavar="X,Y,Z[,YAW]",
+              help="Start as an offset from the site centre (m, world x/y/up; yaw deg). "
+              "Default: control.sim.start_offset_m (the paper's scenario 1 geometry).")
 @click.option("--runs", type=click.IntRange(1), default=1, show_default=True,
               help="Monte Carlo runs over start scatter, pose noise and gusts.")
 @click.option("--seed", type=click.IntRange(0), default=None, help="Seed of the noise (and of the start scatter); "
               "default control.noise.seed.")
 @common_options
 def land_simulate(config: Config, run: Path, output: Path | None, scenario: int | None,
-                  start: tuple[float, ...] | None, runs: int, seed: int | None) -> tuple[dict[str, Any], str]:
+                  start: tuple[float, ...] | None, offset: tuple[float, ...] | None, runs: int,
+                  seed: int | None) -> tuple[dict[str, Any], str]:
     """Simulate the image-moment IBVS descent onto the site of RUN/landing.json (METHOD 2.6-2.9)."""
     from slzcli.control import montecarlo
     from slzcli.control.simulate import check_target, resolve_start, simulate
-    from slzcli.errors import ConfigError
     from slzcli.outputs import ibvs as ibvs_out
     from slzcli.outputs import ibvs_plots
 
-    if scenario is not None and start is not None:  # when --start came first on the command line
-        raise ConfigError("--start", "give --scenario or --start, not both")
+    if sum(v is not None for v in (scenario, start, offset)) > 1:  # whatever order they came in
+        from slzcli.errors import ConfigError
+        raise ConfigError("--start", "give one of --scenario, --start or --offset, not both")
     from slzcli import bounds
 
     bounds.check(bounds.simulation_sizes(config, runs))
@@ -327,7 +476,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
     target = check_target(ibvs_out.landing_path(run), target, config.uav.footprint_m,
                           config.control.sim.target_tolerance)
     out = output or ibvs_out.landing_path(run).parent / "ibvs"
-    start_world = resolve_start(target, config, scenario, start)
+    start_world = resolve_start(target, config, scenario, start, offset)
     cam = config.camera
     if runs == 1:
         result = simulate(target, start_world[None], config, log=True, seed=seed)
@@ -340,7 +489,8 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
         s = metrics
         text = (f"{'landed' if s['success'] else 'FAILED'} ({s['reason']}) after {s['landing_time_s']} s; "
                 f"stabilisation {s['stabilisation_time_s']} s, final feature error {s['final_feature_error_px']} px, "
-                f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg -> {out}")
+                f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg; phases (s) "
+                f"{s['phases_s']}, {s['recoveries']} recoveries -> {out}")
         return summary, text
     mc_seed = config.control.noise.seed if seed is None else seed
     with _remove_if_left_empty(out), ibvs_out.montecarlo_rows(out) as add_rows, \
@@ -498,7 +648,7 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="One recording: its run folder (default runs/<name>). Several, or a quoted glob pattern: "
                    "the folder for one run folder each plus summary.json and summary.csv (default runs/).")
-@click.option("--method", type=click.Choice(["fuzzy", "bayes"]), default=None,
+@click.option("--method", type=click.Choice(["fuzzy", "bayes", "px4slp"]), default=None,
               help="Fusion method (default: scoring.method).")
 @click.option("--force", is_flag=True, help="Replace finished runs (only the files slz writes in a run folder): "
               "redo one done for the same config and inputs, or replace one of another config.")
@@ -513,14 +663,18 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 @timeout_option("Stop a recording when one stage (opening it, reading, SLAM, detection or writing of one "
                 "frame, the final write) runs longer than this; it fails naming the stage, leaves no run folder, "
                 "and a batch goes on. Default: no limit.")
+@window_options
+@camera_option
 @common_options
 def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None, method: str | None,
                force: bool, workers: int | None, scheduler: str | None, outputs: OutputLevel | None,
-               timeout_s: float | None) -> tuple[dict[str, Any], str]:
+               timeout_s: float | None, win_start: WindowBound | None, win_end: WindowBound | None,
+               stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
     """Maps, fuzzy score, mask, SLAM map points and the landing site of each recording (paths or globs)."""
     from slzcli import batch
     from slzcli.pipeline import RunOptions
 
+    config = _windowed(config, win_start, win_end, stride, max_frames)
     if outputs is not None:  # a config value: it is in run.json's config and the rerun key
         config = dataclasses.replace(config, output=dataclasses.replace(config.output, level=outputs))
 
@@ -536,18 +690,52 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     rows = result.rows
     for r in rows:
         _warn_slam_maps(r.get("summary"))
+    # --json names paths as the user gave them (the run folders and summary files keep absolute ones)
+    given = {str(p.absolute()): str(p) for p in paths}
+    given_run = {str(t.run_dir): str(output) if output is not None and not is_batch else str(batch_dir / t.run_dir.name)
+                 for t in tasks}
     if not is_batch:
         row = rows[0]
         if row["status"] == "failed":
-            raise SlzError(row["error"])
-        return {"run": row["run"], **row["summary"]}, _detect_text(Path(row["run"]), row["summary"])
+            raise _given_paths(SlzError(row["error"]), row.get("error_detail"), {**given, **given_run})
+        s = row["summary"]
+        out = {"run": given_run.get(row["run"], row["run"]), **s, "source": given.get(s["source"], s["source"])}
+        t = s.get("timings_ms") or {}
+        if s.get("method") in t:  # "score" as in slz compare; the method's own key stays for older scripts
+            out["timings_ms"] = {**t, "score": t[s["method"]]}
+        return envelope("detect", out), _detect_text(Path(row["run"]), s)
     failed = [r for r in rows if r["status"] == "failed"]
     if failed:
         raise SlzError(f"{len(failed)} of {len(rows)} recordings failed (first: {failed[0]['error']}); "
                        f"status of each in {batch_dir / 'summary.csv'}")
     totals = {**result.totals(), "summary_files": [str(p) for p in result.summary_files]}
-    runs = [{k: v for k, v in r.items() if k != "summary"} for r in rows]
-    return {"batch": totals, "runs": runs}, _batch_text(totals, rows)
+    runs = [_batch_row(r, given, given_run) for r in rows]
+    return envelope("batch", {"batch": totals, "runs": runs}), _batch_text(totals, rows)
+
+
+def _given_paths(err: SlzError, detail: dict[str, str] | None, given: dict[str, str]) -> SlzError:
+    """A run's error with the absolute paths the workers used named as the user gave them."""
+    text, detail = str(err), dict(detail or {})
+    for absolute, as_given in sorted(given.items(), key=lambda kv: -len(kv[0])):
+        text = text.replace(absolute, as_given)
+        if detail.get("file") == absolute:
+            detail["file"] = as_given
+    out = SlzError(text)
+    out.detail = detail  # type: ignore[attr-defined]  # read by outputs/summary_json.error_object
+    return out
+
+
+def _batch_row(r: dict[str, Any], given: dict[str, str], given_run: dict[str, str]) -> dict[str, Any]:
+    """A batch row of ``--json``: the paths as given, ``source`` as in detect and compare, the run's
+    no-site reason and ground-truth figures when it has them."""
+    row = {k: v for k, v in r.items() if k != "summary"}
+    source = given.get(str(r["recording"]), str(r["recording"]))
+    row.update(recording=source, source=source, run=given_run.get(str(r["run"]), r["run"]))
+    s = r.get("summary") or {}
+    row["reason"] = s.get("reason")
+    if s.get("ground_truth") is not None:
+        row["ground_truth"] = s["ground_truth"]
+    return row
 
 
 def _slam_maps(s: dict[str, Any] | None) -> int:
@@ -654,6 +842,8 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
                      + ("" if noise.get("detections_not_vouched", 0) == 0 else
                         f"; {noise['detections_not_vouched']} detection frame(s) could not vouch"))
     write = f", write {t['write']:.1f} ms" if "write" in t else ""  # a run.json from before write was summarised
+    if "write_wait" in t:  # the writer runs beside the loop: what it cost the loop is the wait
+        write += f" in the background (the loop waited {t['write_wait']:.1f} ms)"
     lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, "
                  f"mask {t['mask']:.1f} ms, slam {t['slam']:.1f} ms, select {t['select']:.1f} ms{write} (medians)")
     gt = s.get("ground_truth")
@@ -685,19 +875,26 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
 @timeout_option("Stop when one stage (opening a recording, reading, SLAM or detection of one frame, the final "
                 "write) runs longer than this; the comparison fails naming the stage and leaves no output folder. "
                 "Default: no limit.")
+@window_options
+@camera_option
 @common_options
 def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, profiles: str | None,
-                output: Path | None, variants: bool, force: bool,
-                timeout_s: float | None) -> tuple[dict[str, Any], str]:
+                output: Path | None, variants: bool, force: bool, timeout_s: float | None,
+                win_start: WindowBound | None, win_end: WindowBound | None, stride: int | None,
+                max_frames: int | None) -> tuple[dict[str, Any], str]:
     """Fuzzy vs Bayes on the same frames and SLAM points: time, agreement, accuracy against ground truth.
 
     With --profiles: whole configs (e.g. the paper as published against slz's defaults) on the same recordings."""
     from slzcli.compare import compare, recording_name
     from slzcli.outputs.report import text_table
 
+    config = _windowed(config, win_start, win_end, stride, max_frames)
+
     out = output or Path("runs") / f"compare_{recording_name(recordings[0])}"
     if profiles is not None:
-        return _compare_profiles(recordings, profiles, methods, out, variants, force, timeout_s)
+        window = functools.partial(_windowed, start=win_start, end=win_end, stride=stride,
+                                   max_frames=max_frames)
+        return _compare_profiles(recordings, profiles, methods, out, variants, force, timeout_s, window)
     chosen = tuple(methods.split(",")) if methods is not None else None
     with _progress("compare") as progress:
         summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=progress,
@@ -706,11 +903,12 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
         if _slam_maps(r) > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
-    return summary, text_table(summary, str(out))
+    return envelope("compare", summary), text_table(summary, str(out))
 
 
 def _compare_profiles(recordings: tuple[Path, ...], profiles: str, methods: str | None, out: Path, variants: bool,
-                      force: bool, timeout_s: float | None) -> tuple[dict[str, Any], str]:
+                      force: bool, timeout_s: float | None,
+                      window: Callable[[Config], Config]) -> tuple[dict[str, Any], str]:
     """``slz compare --profiles``: each profile's config with the command's --config and --set over it."""
     from slzcli.compare import compare_profiles, profile_table
     from slzcli.errors import ConfigError
@@ -725,7 +923,7 @@ def _compare_profiles(recordings: tuple[Path, ...], profiles: str, methods: str 
         method = chosen[0]
     _, config_file, overrides = _layers()
     names = list(dict.fromkeys(n.strip() for n in profiles.split(",") if n.strip()))
-    configs = {n: load_config(config_file, overrides, n) for n in names}
+    configs = {n: window(load_config(config_file, overrides, n)) for n in names}  # the same frame window each
     with _progress("compare") as progress:
         summary = compare_profiles(list(recordings), configs, out, method, force=force, progress=progress,
                                    timeout_s=timeout_s)

@@ -1,4 +1,5 @@
-"""``slz compare``: the fuzzy score against the Bayes baseline on the same frames (issue 8, BASELINE.md).
+"""``slz compare``: the fuzzy score against the Bayes baseline (issue 8, BASELINE.md) and the PX4-Avoidance
+grid planner (issue 21, PX4SLP.md) on the same frames.
 
 Only the fusion may differ. SLAM tracks every frame ONCE and the four terrain maps are
 computed ONCE per detection frame; each method then scores, masks and selects on those
@@ -24,7 +25,8 @@ Decisions:
   frame: both methods share it, so no alignment is needed. After a SLAM map reset two
   committed sites may lie in different map segments (unrelated frames): no distance then.
 - Times are per detection frame: ``slam`` is the tracking time of that frame, ``maps`` the
-  shared map time (counted for each method, as each would pay it alone), ``frame`` the sum
+  shared map time (counted for each method, as each would pay it alone; 0 for px4slp, which reads
+  no terrain map: its grid update from the depth points is its ``score``), ``frame`` the sum
   of slam, maps, score, mask and select. Frames that are only tracked are not in ``frame``.
 """
 
@@ -58,9 +60,11 @@ from slzcli.pipeline import (
     tally,
     tracked_frames,
 )
-from slzcli.scoring import SCORERS
+from slzcli.scoring import METHODS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
+from slzcli.sources.presets import with_noise_prior
+from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunState, no_site_reason, site_truth
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
@@ -161,8 +165,8 @@ def resolve_methods(methods: tuple[str, ...] | list[str], key: str = "--methods"
     out: list[str] = []
     for m in methods:
         m = m.strip()
-        if m not in SCORERS:
-            raise ConfigError(key, f"unknown method {m!r}; known: {', '.join(SCORERS)}")
+        if m not in METHODS:
+            raise ConfigError(key, f"unknown method {m!r}; known: {', '.join(METHODS)}")
         if m not in out:
             out.append(m)
     if len(out) < 2:
@@ -189,6 +193,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
         with limit.stage("opening the recording"):
             truth = ground_truth_of(path, config)
             rec, info, clouds = open_inputs(path, config, stack)
+            config = with_noise_prior(config, info.camera_preset)  # the camera preset's depth noise prior
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         with get_backend(config, has_poses, clouds=clouds) as slam:
             tracker = Tracker(config, slam)
@@ -211,7 +216,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
                 if progress is not None:
                     progress(tracker.frames, info.expected_frames)
     if tracker.frames == 0:
-        raise DatasetError(path, "no RGB-D frame could be read")
+        raise DatasetError(path, no_frames_reason(rec.report))
     check_same_inputs({m: r.inputs for m, r in runs.items()})
     return _summarise(path, config, methods, runs, tracker, noise, truth, map_curves, map_means, agreement,
                       time.perf_counter() - t_start)
@@ -304,6 +309,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         entry: dict[str, Any] = {
             "method": m, "detections": st.detections, "sites_found": len(st.sites.sites), "status": rec["status"],
             "reason": rec.get("reason"), "timings_ms": timing,
+            "site_world": None if committed is None else rec["site"]["center_world"],  # as slz detect names it
             "site": None if committed is None else {
                 "frame": rec["frame"]["index"], "stamp_ns": rec["frame"]["stamp_ns"],
                 "center_world": rec["site"]["center_world"], "center_camera": rec["site"]["center_camera"],
@@ -532,8 +538,8 @@ def compare_profiles(paths: list[Path], configs: dict[str, Config], out_dir: Pat
 
     if len(configs) < 2:
         raise ConfigError("--profiles", f"give at least two different profiles to compare, got {', '.join(configs)}")
-    if method is not None and method not in SCORERS:
-        raise ConfigError("--methods", f"unknown method {method!r}; known: {', '.join(SCORERS)}")
+    if method is not None and method not in METHODS:
+        raise ConfigError("--methods", f"unknown method {method!r}; known: {', '.join(METHODS)}")
     for p in paths:
         if not Path(p).exists():
             raise DatasetError(p, "no such file or folder")

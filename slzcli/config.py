@@ -85,6 +85,7 @@ class CameraCfg:
     width: int = rng(1)
     height: int = rng(1)
     mount: Mount
+    preset: str
 
 
 @schema
@@ -93,6 +94,7 @@ class Topics:
     depth: str
     camera_info: str
     pose: str
+    depth_info: str
 
 
 @schema
@@ -100,6 +102,16 @@ class IntrinsicsCheckCfg:
     min_fov_deg: float = rng(0, 180, lo_open=True)
     max_fov_deg: float = rng(0, 180, lo_open=True)
     aspect_tolerance: float = rng(0, 1)
+
+
+@schema
+class WindowCfg:
+    start_s: float | None = rng(0)
+    end_s: float | None = rng(0, lo_open=True)
+    start_stamp_s: float | None = rng(0)
+    end_stamp_s: float | None = rng(0, lo_open=True)
+    stride: int = rng(1)
+    max_frames: int = rng(0)
 
 
 @schema
@@ -116,6 +128,8 @@ class SourcesCfg:
     max_depth_m: float = rng(0)
     min_image_px: tuple[int, ...] = rng(1, n=2)
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
+    window: WindowCfg
+    read_ahead_frames: int = rng(0, 64)
 
 
 @schema
@@ -197,10 +211,28 @@ class BayesCfg:
 
 
 @schema
+class Px4SlpCfg:  # the ranges of upstream's SafeLandingPlannerNode.cfg / WaypointGeneratorNode.cfg
+    grid_size_m: float = rng(1, 20)
+    cell_size_m: float = rng(0.1, 10)
+    n_points_threshold: float = rng(0, 5000)
+    std_dev_threshold_m: float = rng(0, 1)
+    smoothing_size: int = rng(-1, 100)
+    mean_diff_thr_m: float = rng(0, 1)
+    max_n_mean_diff_cells: int = rng(0, 100)
+    min_n_land_cells: int = rng(0, 100)
+    alpha: float = rng(0, 1)
+    beta: float = rng(0, 1)
+    can_land_thr: float = rng(0, 1)
+    smoothing_land_cell: int = rng(0, 100)
+    warm_start: bool
+
+
+@schema
 class ScoringCfg:
-    method: Literal["fuzzy", "bayes"]
+    method: Literal["fuzzy", "bayes", "px4slp"]
     fuzzy: FuzzyCfg
     bayes: BayesCfg
+    px4slp: Px4SlpCfg
 
 
 @schema
@@ -260,7 +292,7 @@ class SimCfg:
     timeout_s: float = rng(0, lo_open=True)
     abort_tilt_deg: float = rng(0, 180, lo_open=True)
     success_radius_m: float = rng(0, lo_open=True)
-    start_m: tuple[float, ...] = rng(n=3)
+    start_offset_m: tuple[float, ...] = rng(n=3)
     target_tolerance: float = rng(0, 0.5, lo_open=True)
     max_steps_per_run: int = rng(1)
 
@@ -301,6 +333,30 @@ class MonteCarloCfg:
 
 
 @schema
+class TunedGainsCfg:
+    K_e: tuple[float, ...] = rng(0, lo_open=True, n=3)
+    K_i: tuple[float, ...] = rng(0, n=3)
+    K_p: tuple[float, ...] = rng(0, lo_open=True, n=3)
+
+
+@schema
+class ApproachCfg:
+    enabled: bool
+    view_margin: float = rng(0, 0.45)
+    min_height_m: float = rng(0, lo_open=True)
+    speed_m_s: float = rng(0, lo_open=True)
+    climb_speed_m_s: float = rng(0, lo_open=True)
+    k_pos_1_s: float = rng(0, lo_open=True)
+    k_vel_1_s: float = rng(0, lo_open=True)
+
+
+@schema
+class DisturbanceCfg:
+    observer: bool
+    bandwidth_rad_s: float = rng(0, lo_open=True)
+
+
+@schema
 class ControlCfg:
     K_e: tuple[float, ...] = rng(0, lo_open=True, n=3)
     K_i: tuple[float, ...] = rng(0, n=3)
@@ -315,6 +371,10 @@ class ControlCfg:
     max_tilt_cmd_deg: float = rng(0, 89, lo_open=True)
     integral_zone_px: float = rng(0)
     yaw_symmetry_deg: float = rng(0, 360)
+    gain_set: Literal["paper", "tuned"]
+    tuned: TunedGainsCfg
+    approach: ApproachCfg
+    disturbance: DisturbanceCfg
     sim: SimCfg
     noise: NoiseCfg
     wind: WindCfg
@@ -511,6 +571,7 @@ class SlamCfg:
     backend: Literal["auto", "orbslam3", "odometry", "recorded"]
     vocabulary: str
     points_topic: str
+    track_ahead: bool
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
     orbslam3: OrbSlam3Cfg
@@ -533,6 +594,7 @@ class OutputCfg:
     reverse_colormap: bool
     results_mcap: bool
     mask_cloud_stride_px: int = rng(1, 256)
+    write_queue: int = rng(0, 64)
 
 
 @schema
@@ -792,14 +854,21 @@ def _load_yaml_file(path: Path) -> Any:
         raise ConfigError("", "not a usable config: nested too deeply for the YAML parser", source=str(path)) from err
 
 
-def parse_override(item: str) -> tuple[str, Any]:
-    """``a.b=v`` -> (``a.b``, YAML-parsed ``v``)."""
+def split_override(item: str) -> tuple[str, str]:
+    """``a.b=v`` -> (``a.b``, ``v`` unparsed); ConfigError when it is not KEY=VALUE with a dotted key
+    (the CLI makes this a usage error, exit 2; a value the YAML parser refuses stays a config error)."""
     if "=" not in item:
         raise ConfigError(item, "--set needs KEY=VALUE, e.g. --set mask.threshold=0.6")
     key, _, text = item.partition("=")
     key = key.strip()
     if not re.fullmatch(r"[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*", key):
         raise ConfigError(key or item, "not a dotted key path")  # name what was typed, even an empty key
+    return key, text
+
+
+def parse_override(item: str) -> tuple[str, Any]:
+    """``a.b=v`` -> (``a.b``, YAML-parsed ``v``)."""
+    key, text = split_override(item)
     try:
         value = safe_yaml_load(text) if text.strip() else ""
     except YamlLimitError as err:
@@ -968,6 +1037,14 @@ _FLIPPED = {"<": ">", "<=": ">="}
 _WEIGHT_KEYS = ("uav.mass_kg", "control.gravity_m_s2")
 
 
+def _check_preset(name: str, source: str | None) -> None:
+    """``camera.preset`` names a file of ``configs/camera/`` (or is auto / none)."""
+    names = sorted(p.stem for p in (CONFIG_DIR / "camera").glob("*.yaml"))
+    if name not in ("auto", "none", *names):
+        raise ConfigError("camera.preset", f"no camera preset {name!r} (choices: auto, none, {', '.join(names)})",
+                          source)
+
+
 def validate_pairs(config: Config, source: str | None = None, changed: frozenset[str] = frozenset()) -> None:
     """Refuse values that are fine alone but contradict each other, naming both keys.
 
@@ -979,6 +1056,7 @@ def validate_pairs(config: Config, source: str | None = None, changed: frozenset
             if large in changed and small not in changed:
                 raise ConfigError(large, f"must be {_FLIPPED[rel]} {small} ({why}); got {b:g} and {a:g}", source)
             raise ConfigError(small, f"must be {rel} {large} ({why}); got {a:g} and {b:g}", source)
+    _check_preset(config.camera.preset, source)
     uav, weight = config.uav, config.uav.mass_kg * config.control.gravity_m_s2
     weight_key = next((k for k in _WEIGHT_KEYS if k in changed), None)
     for thrust, ok, what, effect in (("uav.thrust_max_n", uav.thrust_max_n > weight, "exceed", "hover"),
@@ -1073,4 +1151,6 @@ def _yaml_scalar(value: Any) -> str:
         return json.dumps(value) if value == "" or not re.fullmatch(r"[\w./-]+", value) else value
     if isinstance(value, bool):
         return "true" if value else "false"
+    if value is None:  # an optional key left unset (sources.window.start_s)
+        return "null"
     return repr(value) if isinstance(value, float) else str(value)

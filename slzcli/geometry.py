@@ -154,6 +154,15 @@ def fit_intrinsics(intrinsics: Intrinsics, shape: tuple[int, int]) -> Intrinsics
     return intrinsics.scaled(w, h)
 
 
+def back_project_every(depth_m: np.ndarray, intrinsics: Intrinsics, stride_px: int) -> np.ndarray:
+    """``back_project(depth_m, intrinsics)[::stride_px, ::stride_px]``, without computing the pixels it drops."""
+    intr = fit_intrinsics(intrinsics, depth_m.shape)
+    sub = depth_m[::stride_px, ::stride_px]
+    s = float(stride_px)  # pixel u' of the strided grid is pixel s u' of the image: exact, not a resize
+    return back_project(sub, Intrinsics(intr.fx / s, intr.fy / s, intr.cx / s, intr.cy / s, sub.shape[1],
+                                        sub.shape[0], intr.distortion_model, intr.distortion))
+
+
 def back_project(depth_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """Eq. 1: the organised point image (H x W x 3, float32, camera frame), NaN where no depth."""
     intr = fit_intrinsics(intrinsics, depth_m.shape)

@@ -40,8 +40,8 @@ import logging
 import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import ExitStack
-from dataclasses import dataclass, replace
+from contextlib import ExitStack, closing
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -55,21 +55,29 @@ from slzcli.evaluate.truth import TruthEvaluator
 from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
+from slzcli.landing.px4slp import grid_site
 from slzcli.landing.select import Candidate, SelectParams, Site, select_site
 from slzcli.outputs import output_dir, results_mcap, run_folder
+from slzcli.outputs.background import BackgroundWriter
+from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
+from slzcli.scoring.px4slp import NAME as PX4SLP
+from slzcli.scoring.px4slp import Px4SlpMemory, Px4SlpPlanner
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
+from slzcli.sources.presets import with_noise_prior
+from slzcli.sources.read_ahead import read_ahead
+from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.limits import limit_reason
 from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.timeout import StageLimit
-from slzcli.types import Detection, Frame, TerrainMaps
+from slzcli.types import Detection, Frame, ScoreMap, TerrainMaps
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
@@ -134,6 +142,7 @@ class Tracker:
         self.frames = 0
         self.align: dict[int, np.ndarray] = {}  # T_world_slam of each map segment, from its first pose
         self._segment = 0  # map segment of the latest frame
+        self._t_submit = 0.0  # when the frame being tracked was submitted
         self._points: MapPoints | None = None  # the latest keyframe's map points (of the current segment)
 
     @property
@@ -168,10 +177,27 @@ class Tracker:
 
     def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
         """SLAM on one frame: the gravity-aligned pose and whether it is a keyframe with map points."""
+        self.submit(frame)
+        return self.collect(frame)
+
+    def submit(self, frame: Frame) -> None:
+        """Start tracking ``frame``: a backend in a worker process tracks it while this process computes."""
+        self._t_submit = time.perf_counter()
+        self.slam.submit(frame)
+
+    def collect(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
+        """The submitted frame's gravity-aligned pose and whether it is a keyframe with map points.
+
+        Timed as ``slam`` (the tracking time where it ran: the worker's own for ORB-SLAM3) and ``slam_wait``
+        (how long this process waited for it, less when the worker tracked while the maps were computed)."""
         slam = self.slam
-        with self.timer.stage("slam"):
-            result = slam.track(frame)
-            points = slam.keyframe() if result.is_keyframe else None
+        t0 = time.perf_counter()
+        result = slam.collect()
+        points = slam.keyframe() if result.is_keyframe else None
+        waited = _lap(t0)
+        own = slam.last_track_ms()
+        self.timer.add("slam", _lap(self._t_submit) if own is None else own)
+        self.timer.add("slam_wait", waited)
         if result.segment != self._segment:  # a new map: the old map's points are in another frame
             self._segment, self._points = result.segment, None
         T = self._world(result.T_world_camera, self._segment)
@@ -199,25 +225,34 @@ def run_state(tracker: Tracker, config: Config, spool: Path | None = None) -> Ru
 # ----------------------------------------------------------------------------- fusion
 @dataclass(frozen=True)
 class Fusion:
-    """One method's step from terrain maps to a site: score -> mask -> site, without state.
+    """One method's step from terrain maps to a site: score -> mask -> site.
 
-    The same frame, pose, maps and map points give the same Detection, whatever came before;
-    what a run accumulates is added by ``tally``. ``slz compare`` runs one per method on the
-    same maps and points.
+    fuzzy and bayes have no state: the same frame, pose, maps and map points give the same
+    Detection, whatever came before; what a run accumulates is added by ``tally``. px4slp (the
+    PX4 grid planner) low-passes its grid over the frames, as upstream does: that state is its
+    ``memory``, one per Fusion (so per recording and method), reset at a new map segment.
+    ``slz compare`` runs one per method on the same maps and points.
     """
 
     config: Config
     method: str
-    scorer: Scorer
+    scorer: Scorer | Px4SlpPlanner
     params: SelectParams
+    memory: Px4SlpMemory | None = field(default=None, compare=False)
 
     @classmethod
     def of(cls, config: Config, method: str) -> Fusion:
+        if method == PX4SLP:
+            return cls(config, method, Px4SlpPlanner.from_config(config), select_params(config, method),
+                       Px4SlpMemory())
         return cls(config, method, get_scorer(config, method), select_params(config, method))
 
     def __call__(self, frame: Frame, T_world_camera: np.ndarray | None, maps: TerrainMaps, maps_ms: float,
                  points: MapPoints | None, segment: int) -> Detection:
         """Score, mask and (with a pose, map points and maps that vouch) the site of one frame."""
+        if isinstance(self.scorer, Px4SlpPlanner):
+            assert self.memory is not None
+            return grid_detection(self.scorer, self.memory, self.config, frame, T_world_camera, maps, points, segment)
         t: dict[str, float] = {"maps": maps_ms}
         t0 = time.perf_counter()
         raw = self.scorer(maps)
@@ -234,6 +269,39 @@ class Fusion:
                                     self.params, edge_distance_m=edge)
         t["select"] = _lap(t0)
         return Detection(frame, T_world_camera, maps, score, points, selection, edge, t, segment)
+
+
+def grid_detection(planner: Px4SlpPlanner, memory: Px4SlpMemory, config: Config, frame: Frame,
+                   T_world_camera: np.ndarray | None, maps: TerrainMaps, points: MapPoints | None,
+                   segment: int) -> Detection:
+    """px4slp on one frame: grid update from the frame's depth points and pose, pixel mask, the planner's site.
+
+    No terrain map is read but the edge distance (reported, not tested): the ``maps`` time is 0, the
+    grid update is the ``score`` stage. Without a pose the grid is not updated (upstream needs the
+    vehicle's position) and nothing is land-able. slz's noise limits do not gate it (upstream has none).
+    """
+    t: dict[str, float] = {"maps": 0.0}
+    shape = frame.depth_m.shape
+    if T_world_camera is None:
+        empty = ScoreMap(planner.name, np.zeros(shape, np.float32), np.zeros(shape, bool))
+        return Detection(frame, None, maps, empty, points, None, maps.edge_distance_m,
+                         {**t, "score": 0.0, "mask": 0.0, "select": 0.0}, segment)
+    t0 = time.perf_counter()
+    state, cells = planner.step(memory, frame.depth_m, frame.intrinsics, T_world_camera, segment)
+    t["score"] = _lap(t0)
+    t0 = time.perf_counter()
+    score, mask = planner.pixels(state, cells)
+    t["mask"] = _lap(t0)
+    t0 = time.perf_counter()
+    selection = None
+    if points is not None:
+        p = planner.params
+        selection = grid_site(state.hysteresis, state.mean, state.position, p.cell_size_m, p.smoothing_land_cell,
+                              p.can_land_thr, points.xyz_world, T_world_camera, frame.K, mask,
+                              (config.uav.footprint_m[0], config.uav.footprint_m[1]), maps.edge_distance_m)
+    t["select"] = _lap(t0)
+    return Detection(frame, T_world_camera, maps, ScoreMap(planner.name, score, mask), points, selection,
+                     maps.edge_distance_m, t, segment)
 
 
 def detect_frame(frame: Frame, T_world_camera: np.ndarray | None, tracker: Tracker, fusion: Fusion,
@@ -265,7 +333,10 @@ def tally(state: RunState, det: Detection, config: Config) -> None:
     if score.column_cut > 0 or score.mask.any():
         cut = state.column_cut
         state.column_cut = score.column_cut if cut is None else min(cut, score.column_cut)
-    if work is not None and not work.vouched:
+    grid = score.method == PX4SLP  # reads no terrain map: the maps' noise limits did not gate it
+    if grid and det.selection is not None and det.selection.site is None:
+        state.grid_reason = det.selection.reason
+    if not grid and work is not None and not work.vouched:
         state.unvouched += 1
         worst = state.worst_unvouched
         if worst is None or work.altitude_m > worst.altitude_m:
@@ -366,7 +437,7 @@ class RunOptions:
     """How to run a recording, beside its config; not in the config hash (they do not change results).
 
     force: replace a finished run in the run folder (redo it for the same key, replace one of
-    another key; only the files a run writes are replaced). method: fuzzy | bayes (None:
+    another key; only the files a run writes are replaced). method: fuzzy | bayes | px4slp (None:
     scoring.method). timeout_s: bound on each stage in wall time (``--timeout``; None: none).
     """
 
@@ -394,6 +465,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             gt = ground_truth_of(path, config)
             truth = None if gt is None else TruthEvaluator(gt)  # a sink: detection never reads the truth
             rec, info, clouds = open_inputs(path, config, stack)
+            config = with_noise_prior(config, info.camera_preset)  # the camera preset's depth noise prior
         results = results_mcap.open_results(tmp, config)
         stack.enter_context(results)   # __enter__ returns the writer itself
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
@@ -402,9 +474,19 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         state = run_state(tracker, config, tmp / SPOOL_DIR)
         noise = state.noise
         assert noise is not None
+        # Files are written off the compute path, in order (results.mcap's poses too): closed before
+        # results.mcap, dropped unwritten on an error (``outputs/background.py``).
+        writer = stack.enter_context(BackgroundWriter(config.output.write_queue))
 
         def tracked(frame: Frame, T: np.ndarray | None) -> None:  # every frame, before its detection
-            results.write_pose(frame.stamp_ns, T, tracker.segment)
+            writer.submit(f"the pose of frame {frame.index}", results.write_pose, frame.stamp_ns, T, tracker.segment)
+
+        def write_frame(d: Detection) -> None:  # in the writer thread
+            with state.timer.stage("write"):
+                overlay = detection_overlay_bgr(d) if config.output.level != "summary" or config.output.results_mcap \
+                    else None
+                run_folder.write_detection(tmp, d, config, overlay)
+                results.write_detection(d, overlay)
 
         def done(frame: Frame) -> None:  # every frame, after its detection went to the sinks
             if truth is not None:
@@ -414,17 +496,17 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
 
         frames = each_frame(tracked_frames(path, rec, tracker, limit), tracked, done)
         for d in detect(frames, tracker, Fusion.of(config, method), noise, limit):
-            with limit.stage(f"writing frame {d.frame.index}"):  # the sinks: tables, ground truth, files
-                tally(state, d, config)
-                if truth is not None:
-                    truth.detection(d)
-                with state.timer.stage("write"):
-                    run_folder.write_detection(tmp, d, config)
-                    results.write_detection(d)
+            tally(state, d, config)  # the sinks: tables, ground truth, files
+            if truth is not None:
+                truth.detection(d)
+            with limit.stage(f"writing {writer.busy_with() or f'frame {d.frame.index}'}"), \
+                    state.timer.stage("write_wait"):  # waits only while the writer's queue is full
+                writer.submit(f"frame {d.frame.index}", write_frame, d)
         state.frames = tracker.frames
         if state.frames == 0:
-            raise DatasetError(path, "no RGB-D frame could be read")
+            raise DatasetError(path, no_frames_reason(rec.report))
         with limit.stage("writing the run folder"):
+            writer.close()  # every frame written before the run's own files and results.mcap's end
             committed = commit_site(state.sites.sites, commit_radius_m(config), config.landing.commit)
             results.write_run(committed)
             result = summarise(path, config, method, info, rec.report, state, tracker.slam_name,
@@ -473,17 +555,33 @@ def tracked_frames(path: Path, rec: Any, tracker: Tracker, limit: StageLimit) ->
     and ``slz compare`` so both read, track and choose detection frames the same way.
     """
     config = tracker.config
+    with closing(read_ahead(rec.frames(), config.sources.read_ahead_frames)) as frames:  # decoded in a thread
+        yield from _track_each(path, frames, tracker, limit)
+
+
+def _track_each(path: Path, frames: Iterator[Frame], tracker: Tracker, limit: StageLimit) -> Iterator[TrackedFrame]:
+    config = tracker.config
     every = config.landing.every_nth_frame
-    frames = iter(rec.frames())
-    while True:
-        with limit.stage(f"reading frame {tracker.frames}"):
+    read = 0
+
+    def next_frame() -> Frame | None:  # read, checked and handed to SLAM (a worker process starts on it)
+        nonlocal read
+        with limit.stage(f"reading frame {read}"):
             frame = next(frames, None)
-        if frame is None:
-            return
-        check_frame_size(path, frame, config.sources.min_image_px)
+        if frame is not None:
+            read += 1
+            check_frame_size(path, frame, config.sources.min_image_px)
+            tracker.submit(frame)
+        return frame
+
+    ahead = config.slam.track_ahead
+    frame = next_frame()
+    while frame is not None:
         with limit.stage(f"SLAM on frame {frame.index}"):
-            T, is_keyframe = tracker.track(frame)
+            T, is_keyframe = tracker.collect(frame)
+        after = next_frame() if ahead else None  # tracked (in a SLAM worker) while frame's detection runs
         yield frame, T, (is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0)
+        frame = after if ahead else next_frame()
 
 
 def each_frame(frames: Iterable[TrackedFrame], before: Callable[[Frame, np.ndarray | None], None],

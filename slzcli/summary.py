@@ -50,6 +50,7 @@ class RunState:
     worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
     unvouched_reason: str = ""         # limits.limit_reason of that frame
     column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
+    grid_reason: str = ""              # px4slp: why its latest detection frame gave no site (docs/PX4SLP.md)
 
 
 def versions() -> dict[str, str]:
@@ -69,7 +70,8 @@ def stage_timings(timing: dict[str, dict[str, float]], method: str) -> dict[str,
     return {"maps": med.get("maps", 0.0), method: med.get("score", 0.0), "mask": med.get("mask", 0.0),
             "slam": med.get("slam", 0.0), "select": med.get("select", 0.0),
             "total": round(sum(med.get(k, 0.0) for k in PER_FRAME_STAGES), 3),
-            "write": med.get("write", 0.0)}  # a detection frame's files (output.level) + results.mcap; not in total
+            "write": med.get("write", 0.0),  # a detection frame's files (output.level) + results.mcap; not in total
+            "write_wait": med.get("write_wait", 0.0)}  # of which the main loop waited (the writer runs beside it)
 
 
 def world_frame_text(slam_name: str, poses_are_recorded: bool, table: list[Segment], primary: int | None) -> str:
@@ -101,6 +103,8 @@ def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
     if st.detections_without_depth == st.detections:
         return (f"no valid depth in any of the {st.detections} detection frames (all NaN or 0): check the depth "
                 "topic's encoding, sources.depth_unit_16u_m and sources.max_depth_m")
+    if st.grid_reason:  # px4slp: the grid planner's own reason; slz's noise limits do not gate it
+        return f"{st.grid_reason} (the last of {st.detections} detection frames without a site)"
     if st.unvouched and st.unvouched == st.detections:
         return st.unvouched_reason
     if not keyframes:
@@ -165,7 +169,7 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
         "depth_limits": landing.get("site", {}).get("depth_limits") or noise.get("not_vouched"),
         "pairing": {"paired": report.paired, "unpaired_color": report.unpaired_color,
                     "unpaired_depth": report.unpaired_depth, "undecodable": report.undecodable,
-                    "notes": list(report.notes)},
+                    "outside_window": report.outside_window, "notes": list(report.notes)},
     }
     if truth is not None:
         summary["ground_truth"] = truth.summary(st.trajectory.poses(), st.trajectory.segments().tolist(),

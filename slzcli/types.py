@@ -140,6 +140,7 @@ class PairingReport:
     without_pose: int = 0
     undecodable: int = 0
     notes: tuple[str, ...] = field(default_factory=tuple)
+    outside_window: int = 0  # pairs left out by sources.window (--start/--end/--stride/--max-frames)
 
 
 @dataclass(frozen=True, eq=False)
@@ -255,6 +256,11 @@ class SimResult:
     starts_world: np.ndarray     # (N, 4) x, y, z, yaw_deg (ENU)
     sim_time_s: float
     log: dict[str, np.ndarray] | None
+    handover_time_s: np.ndarray  # first hand-over to IBVS (0: the square was in view at the start)
+    approach_time_s: np.ndarray  # time spent in each phase: approach, IBVS, touch-down descent
+    ibvs_time_s: np.ndarray
+    descent_time_s: np.ndarray
+    recoveries: np.ndarray       # (N,) int: corners lost during IBVS and found again by the approach
 
     def metrics(self, i: int = 0) -> dict[str, Any]:
         """One run's metrics as plain JSON values (NaN -> None)."""
@@ -270,6 +276,9 @@ class SimResult:
             "touchdown_error_m": num(self.touchdown_error_m), "touchdown_speed_m_s": num(self.touchdown_speed_m_s),
             "max_tilt_deg": num(self.max_tilt_deg), "landing_time_s": num(self.landing_time_s),
             "start_world": [round(float(v), 6) for v in self.starts_world[i]],
+            "handover_time_s": num(self.handover_time_s), "recoveries": int(self.recoveries[i]),
+            "phases_s": {"approach": num(self.approach_time_s), "ibvs": num(self.ibvs_time_s),
+                         "descent": num(self.descent_time_s)},
         }
 
 

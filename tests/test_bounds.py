@@ -260,7 +260,7 @@ def test_monte_carlo_rows_are_streamed_with_progress_lines(tmp_path: Path, runne
 
     run = tmp_path / "RUN"
     write_landing(run)
-    res = runner.invoke(main, ["land", "simulate", str(run), "--start", "0,0,3", "--runs", "5", "--json",
+    res = runner.invoke(main, ["land", "simulate", str(run), "--offset", "0,0,3", "--runs", "5", "--json",
                                "--set", "control.sim.timeout_s=1", "--set", "control.montecarlo.chunk_runs=2"])
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["runs"] == 5
@@ -284,7 +284,7 @@ def test_sigterm_stops_a_monte_carlo_batch_and_leaves_no_table(tmp_path: Path) -
     run = tmp_path / "RUN"
     write_landing(run)
     before = set(run.iterdir())
-    proc = _slz_subprocess(["land", "simulate", str(run), "--start", "0,0,3", "--runs", "100000",
+    proc = _slz_subprocess(["land", "simulate", str(run), "--offset", "0,0,3", "--runs", "100000",
                             "--set", "control.montecarlo.chunk_runs=2"], tmp_path)
     assert proc.stderr is not None
     first = proc.stderr.readline()          # the first chunk is done: the batch is under way

@@ -113,7 +113,7 @@ def test_cli_bad_config_is_one_line_exit_1(runner, tmp_path: Path) -> None:
     res = runner.invoke(main, ["config", "dump", "--config", str(tmp_path / "missing.yaml")])
     assert res.exit_code == 1 and "missing.yaml" in res.stderr
     res = runner.invoke(main, ["config", "dump", "--set", "novalue"])
-    assert res.exit_code == 1 and "KEY=VALUE" in res.stderr
+    assert res.exit_code == 2 and "KEY=VALUE" in res.stderr  # not KEY=VALUE: a usage error
 
 
 @pytest.mark.parametrize("old", ["terrain.steepness.slope_limit_deg", "landing.max_tilt_deg"])

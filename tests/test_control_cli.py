@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from slzcli.cli import main
@@ -121,3 +122,38 @@ def test_usage_errors_exit_2(tmp_path: Path, runner: CliRunner) -> None:
     assert runner.invoke(main, ["land", "simulate", str(run), "--scenario", "1", "--start", "0,0,3"]).exit_code == 2
     result = runner.invoke(main, ["land", "simulate", str(run), "--start", "0,0,3", "--scenario", "1"])
     assert result.exit_code in (1, 2) and "not both" in result.output
+    result = runner.invoke(main, ["land", "simulate", str(run), "--offset", "0,0,3", "--start", "1,-0.5,3.1"])
+    assert result.exit_code in (1, 2) and "not both" in result.output
+
+
+def test_start_is_absolute_offset_is_from_the_site_and_yaw_is_enu_everywhere(tmp_path: Path,
+                                                                             runner: CliRunner) -> None:
+    """--start means a world position as in `slz synth`; --offset is from the site (1.0, -0.5, 0.1).
+    The start yaw of metrics.json and the first yaw of trajectory.csv are one convention (ENU)."""
+    run = tmp_path / "RUN"
+    write_landing(run)
+    sets = ["--set", "control.sim.timeout_s=0.5", "--json"]
+    a = runner.invoke(main, ["land", "simulate", str(run), "--start", "1.4,-0.8,3.1,35", "-o", str(tmp_path / "a"),
+                             *sets])
+    b = runner.invoke(main, ["land", "simulate", str(run), "--offset", "0.4,-0.3,3,35", "-o", str(tmp_path / "b"),
+                             *sets])
+    assert a.exit_code == 0 and b.exit_code == 0, a.output + b.output
+    start_a, start_b = json.loads(a.output)["start_world"], json.loads(b.output)["start_world"]
+    assert start_a == pytest.approx([1.4, -0.8, 3.1, 35.0]) and start_b == pytest.approx(start_a)
+    rows = (tmp_path / "a" / "trajectory.csv").read_text().splitlines()
+    head, first = rows[0].split(","), [float(v) for v in rows[1].split(",")]
+    assert first[head.index("yaw_deg")] == pytest.approx(35.0, abs=1e-6)
+    assert first[head.index("x_m")] == pytest.approx(1.4) and first[head.index("z_m")] == pytest.approx(3.1)
+
+
+def test_montecarlo_names_every_failure_including_outside_the_radius(tmp_path: Path, runner: CliRunner) -> None:
+    run = tmp_path / "RUN"
+    write_landing(run)
+    # A 1 mm success radius: every landing is outside it (touch-down errors are cm under 2 cm pose noise).
+    result = runner.invoke(main, ["land", "simulate", str(run), "--offset", "0,0,3", "--runs", "3", "--seed", "1",
+                                  "--set", "control.sim.success_radius_m=0.001", "--json"])
+    assert result.exit_code == 0, result.output
+    s = json.loads(result.output)
+    assert s["success_rate"] == 0.0 and s["failures"] == {"outside_radius": 3} == s["reasons"]
+    rows = (run / "ibvs" / "montecarlo_runs.csv").read_text().splitlines()
+    assert all(r.endswith(",outside_radius") for r in rows[1:]) and "approach_time_s" in rows[0]

@@ -91,3 +91,71 @@ def test_fusion_keeps_no_state(recording, method) -> None:
         assert (again.selection is None) == (d.selection is None)
         if d.selection is not None and again.selection is not None:
             assert again.selection.site == d.selection.site
+
+
+def _tree(run: Path) -> dict[str, bytes]:
+    """The files of a run folder that do not hold timings (run.json, landing.json and results.mcap carry them)."""
+    return {str(p.relative_to(run)): p.read_bytes() for p in sorted(run.rglob("*"))
+            if p.is_file() and p.name not in {"run.json", "landing.json", "results.mcap"}}
+
+
+def test_overlapping_the_stages_changes_no_result(runner, recording, tmp_path) -> None:
+    """SLAM one frame ahead and the background writer change when work is done, never what is written."""
+    runs = {}
+    for name, sets in {"overlapped": (), "sequential": ("slam.track_ahead=false", "output.write_queue=0")}.items():
+        out = tmp_path / name
+        args = ["detect", str(recording), "-o", str(out), "--set", "slam.backend=odometry",
+                "--set", "landing.detect_on=every_nth", "--set", "landing.every_nth_frame=1"]
+        for s in sets:
+            args += ["--set", s]
+        res = runner.invoke(main, args)
+        assert res.exit_code == 0, res.output + res.stderr
+        landing = json.loads((out / "landing.json").read_text())
+        landing.pop("timings_ms")
+        summary = json.loads((out / "run.json").read_text())["summary"]
+        runs[name] = (landing, summary["detections"], summary["ground_truth"], _tree(out))
+    a, b = runs["overlapped"], runs["sequential"]
+    assert a[1] == b[1] == FRAMES  # every frame a detection: every write went through the writer
+    assert a[0] == b[0] and a[2] == b[2]
+    assert a[3].keys() == b[3].keys() and any(k.endswith("maps.npz") for k in a[3])
+    assert a[3] == b[3]
+
+
+def test_slam_is_handed_the_next_frame_before_this_frames_detection(recording, monkeypatch) -> None:
+    """track_ahead: frame n+1 goes to the backend (a worker process starts on it) before frame n is detected."""
+    import slzcli.pipeline as pipeline
+
+    events: list[str] = []
+    real_detect = pipeline.detect_frame
+
+    def detect_frame(frame, *args):
+        events.append(f"detect {frame.index}")
+        return real_detect(frame, *args)
+
+    monkeypatch.setattr(pipeline, "detect_frame", detect_frame)
+    config = load_config(None, ["slam.backend=odometry", "landing.detect_on=every_nth", "landing.every_nth_frame=1"])
+    limit = StageLimit(None, str(recording))
+    with ExitStack() as stack:
+        rec, _, _ = open_inputs(recording, config, stack)
+        slam = stack.enter_context(get_backend(config, False))
+        real_submit, real_collect = slam.submit, slam.collect
+        def submit(frame):
+            events.append(f"submit {frame.index}")
+            real_submit(frame)
+
+        def collect():
+            events.append("collect")
+            return real_collect()
+
+        monkeypatch.setattr(slam, "submit", submit)
+        monkeypatch.setattr(slam, "collect", collect)
+        tracker = Tracker(config, slam)
+        state = run_state(tracker, config)
+        assert state.noise is not None
+        list(detect(tracked_frames(recording, rec, tracker, limit), tracker, Fusion.of(config, "fuzzy"),
+                    state.noise, limit))
+    want = ["submit 0", "collect"]
+    for i in range(FRAMES):
+        want += [f"submit {i + 1}"] if i + 1 < FRAMES else []
+        want += [f"detect {i}"] + (["collect"] if i + 1 < FRAMES else [])
+    assert events == want

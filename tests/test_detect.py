@@ -88,7 +88,7 @@ def test_bayes_method_and_land_simulate_read_the_contract(runner, recordings, tm
     out = tmp_path / "run"
     summary = detect(runner, recordings["parking_lot"], out, "--method", "bayes")
     assert summary["method"] == "bayes" and "bayes" in summary["timings_ms"]
-    res = runner.invoke(main, ["land", "simulate", str(out), "--start", "1,-1,8", "--json"])
+    res = runner.invoke(main, ["land", "simulate", str(out), "--offset", "1,-1,8", "--json"])
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["success"] is True
 

@@ -31,7 +31,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1] / "slzcli"
 
 DETECTION = ("pipeline", "summary", "compare", "batch")  # the run machinery: detect, summarise, compare, batch
-COMMANDS = ("cli",)
+COMMANDS = ("cli", "api")  # the entry points: the command line and the Python API
 RULES: dict[str, tuple[str, ...]] = {
     # package: packages (slzcli.<name>, module or subpackage) it must not import
     "outputs": ("pipeline", "summary", "evaluate", "landing", "slam", "terrain", "control", "compare", "batch",

@@ -82,9 +82,9 @@ def test_maps_npz_gives_back_the_arrays_to_the_documented_precision(flight, tmp_
     seen = []
     write = run_folder.write_detection
 
-    def keep(run, det, cfg) -> None:
+    def keep(run, det, cfg, *rest) -> None:
         seen.append(det)
-        write(run, det, cfg)
+        write(run, det, cfg, *rest)
 
     monkeypatch.setattr(run_folder, "write_detection", keep)
     out = tmp_path / "run"

@@ -69,10 +69,12 @@ def camera_pixels(corners_ned: np.ndarray, R_IC: np.ndarray, t_IC: np.ndarray,
     return uv, z
 
 
-def in_image(uv: np.ndarray, depth: np.ndarray, cam: CameraModel) -> np.ndarray:
-    """(N,) True when all four corners are in front of the camera and inside the image."""
-    ok: np.ndarray = ((depth > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= cam.width)
-                      & (uv[..., 1] >= 0) & (uv[..., 1] <= cam.height))
+def in_image(uv: np.ndarray, depth: np.ndarray, cam: CameraModel,
+             margin_px: np.ndarray | tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """(N,) True when all four corners are in front of the camera and inside the image (``margin_px`` (u, v) in)."""
+    mu, mv = margin_px[0], margin_px[1]
+    ok: np.ndarray = ((depth > 0) & (uv[..., 0] >= mu) & (uv[..., 0] <= cam.width - mu)
+                      & (uv[..., 1] >= mv) & (uv[..., 1] <= cam.height - mv))
     return np.all(ok, axis=1)
 
 

@@ -43,7 +43,7 @@ from slzcli.config import Config
 
 @dataclass(frozen=True)
 class Gains:
-    """Table 3 gains plus the project's yaw damping and tilt limit."""
+    """Table 3 (or control.tuned) gains plus the project's yaw damping and tilt limit."""
 
     K_e: np.ndarray
     K_i: np.ndarray
@@ -58,7 +58,8 @@ class Gains:
     @classmethod
     def from_config(cls, config: Config) -> Gains:
         c = config.control
-        return cls(np.array(c.K_e, float), np.array(c.K_i, float), np.array(c.K_p, float), c.k_psi, c.k_psi_d,
+        g = c.tuned if c.gain_set == "tuned" else c   # control.gain_set: the project's tuned gains or paper T3
+        return cls(np.array(g.K_e, float), np.array(g.K_i, float), np.array(g.K_p, float), c.k_psi, c.k_psi_d,
                    (c.beta[0], c.beta[1]), (c.mu[0], c.mu[1]), c.desired_depth_m, np.deg2rad(c.max_tilt_cmd_deg))
 
 

@@ -16,7 +16,7 @@ from slzcli.control.simulate import SimResult, Target, sample_starts, simulate
 
 PERCENTILES = (5, 50, 95)
 SUMMARY_FIELDS = ("stabilisation_time_s", "settling_time_s", "switch_time_s", "final_feature_error_px",
-                  "touchdown_error_m", "landing_time_s", "max_tilt_deg")
+                  "touchdown_error_m", "landing_time_s", "max_tilt_deg", "approach_time_s", "recoveries")
 
 
 def batch_config(config: Config) -> Config:
@@ -83,23 +83,33 @@ def summarise(result: SimResult) -> dict[str, Any]:
     n = len(result.reason)
     out: dict[str, Any] = {"runs": n, "success_rate": float(result.success.mean()) if n else math.nan,
                            "successes": int(result.success.sum()),
-                           "reasons": dict(Counter(str(r) for r in result.reason))}
+                           "reasons": dict(Counter(str(r) for r in result.reason)),
+                           "failures": dict(Counter(str(r) for r, ok in zip(result.reason, result.success, strict=True)
+                                                    if not ok))}
     for name in SUMMARY_FIELDS:
-        vals = getattr(result, name)
+        vals = np.asarray(getattr(result, name), float)
         vals = vals[np.isfinite(vals)]
         out[name] = {"count": int(vals.size), "mean": float(vals.mean()) if vals.size else None,
                      **{f"p{p}": (float(np.percentile(vals, p)) if vals.size else None) for p in PERCENTILES}}
+    # Where the UAV really touches down around the site (every touch-down, inside the radius or not):
+    # `slz detect --set uav.margin_m=<this>` makes a site's clearance cover it (README, METHOD 2.9).
+    out["landing_dispersion_p95_m"] = out["touchdown_error_m"]["p95"]
     return out
 
 
 def table(summary: dict[str, Any]) -> str:
     """The aggregate as a small fixed-width text table."""
     lines = [f"runs {summary['runs']}  success {summary['successes']} ({100 * summary['success_rate']:.1f} %)  "
-             f"reasons {summary['reasons']}",
+             f"failures {summary['failures'] or 'none'}",
              f"{'metric':<24}{'n':>6}{'mean':>10}" + "".join(f"{'p' + str(p):>10}" for p in PERCENTILES)]
     for name in SUMMARY_FIELDS:
         s = summary[name]
         cells = [s["mean"], *(s[f"p{p}"] for p in PERCENTILES)]
         lines.append(f"{name:<24}{s['count']:>6}" + "".join(f"{'-' if v is None else format(v, '.3f'):>10}"
                                                              for v in cells))
+    p95 = summary.get("landing_dispersion_p95_m")
+    if p95 is not None:
+        margin = math.ceil(p95 * 100) / 100
+        lines.append(f"landing dispersion p95 {p95:.3f} m: `slz detect --set uav.margin_m={margin:g}` keeps that "
+                     "much clearance around a site")
     return "\n".join(lines)

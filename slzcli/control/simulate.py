@@ -38,7 +38,8 @@ from slzcli.types import SimResult as SimResult  # shared with outputs/ibvs*.py
 from slzcli.types import Target as Target
 
 REASONS = ("running", "touchdown", "site_not_in_view", "corners_lost", "tilt_limit", "ground_contact",
-           "timeout")
+           "timeout", "outside_radius")
+"""Why a run ended. ``outside_radius``: touched down farther than ``success_radius_m`` from the site centre."""
 _CODE = {name: i for i, name in enumerate(REASONS)}
 SCENARIOS = {1: (0.0, 0.0, 10.0), 2: (-3.0, 12.0, 9.0), 3: (0.0, 0.0, 7.0), 4: (0.0, 0.0, 10.0)}
 """Paper sec. 3 start positions (m, world frame of the paper's Gazebo worlds)."""
@@ -69,6 +70,9 @@ NOISE_COLUMNS = {"drift": slice(0, 3), "yaw_drift": slice(3, 4), "position": sli
                  "velocity": slice(10, 13), "gust": slice(13, 15)}
 """Columns of one control step's standard normals (``noise.FlightNoise`` rows) and what each drives."""
 NOISE_WIDTH = 15
+IBVS, DESCENT, APPROACH = 0, 1, 2
+PHASES = ("ibvs", "descent", "approach")
+"""Phase codes of the log's ``phase`` column (trajectory.csv) and their names."""
 _HOVER_Q = np.array([0.0, 0.0, 1.0])  # q_d at the hover (paper: q_d = (0, 0, 1))
 METRIC_KEYS = ("stab", "settle", "final_px", "final_yaw", "td_err", "td_speed", "t_end")
 
@@ -83,6 +87,7 @@ class _Setup:
     gains: ibvs.Gains
     wind: dyn.Wind
     center_world: np.ndarray
+    center_ned: np.ndarray
     corners: np.ndarray          # (4, 3) NED
     a_d: float                   # desired feature area at the hover
     px_scale: np.ndarray         # feature error -> pixel-equivalent
@@ -94,6 +99,7 @@ class _Setup:
     pos_rw: float                # m per step, position drift
     yaw_rw: float                # rad per step, yaw drift
     att_sigma: float             # rad
+    margin_px: np.ndarray        # (2,) hand-over margin inside the image edges (u, v), px
 
     @property
     def sim(self) -> SimCfg:
@@ -115,6 +121,7 @@ class _Truth:
     tilt: np.ndarray
     pix: np.ndarray
     visible: np.ndarray
+    in_margin: np.ndarray        # visible with control.approach.view_margin to spare (hand-over to IBVS)
     uv_true: np.ndarray
     q_true: np.ndarray
 
@@ -127,6 +134,9 @@ class _Estimate:
     q: np.ndarray
     q_psi: np.ndarray
     v_v: np.ndarray
+    p: np.ndarray                # estimated position (NED)
+    v: np.ndarray                # estimated camera velocity (NED)
+    yaw_v: np.ndarray            # estimated yaw of the virtual camera
     drift: np.ndarray            # random-walk states after this step
     yaw_drift: np.ndarray
 
@@ -158,6 +168,7 @@ def simulate(target: Target, starts_world: np.ndarray, config: Config, *, log: b
     starts = np.atleast_2d(np.asarray(starts_world, float))
     n = starts.shape[0]
     noise = FlightNoise(config.control.noise.seed if seed is None else seed, n, NOISE_WIDTH, first_run)
+    approach_on = config.control.approach.enabled
 
     x = dyn.State.at_rest(dyn.enu_to_ned(starts[:, :3]), dyn.yaw_enu_to_ned(np.deg2rad(starts[:, 3]))).vector()
     e_i = np.zeros((n, 3))
@@ -167,6 +178,7 @@ def simulate(target: Target, starts_world: np.ndarray, config: Config, *, log: b
     phase = np.zeros(n, int)
     code = np.zeros(n, int)
     t_switch = np.full(n, np.nan)
+    t_handover = np.full(n, np.nan)
     last_above = np.zeros(n)
     last_above_settle = np.zeros(n)
     e_px_start = np.zeros(n)
@@ -174,6 +186,10 @@ def simulate(target: Target, starts_world: np.ndarray, config: Config, *, log: b
     held = np.zeros(n)
     out = {k: np.full(n, np.nan) for k in METRIC_KEYS}
     max_tilt = np.zeros(n)
+    phase_time = np.zeros((n, len(PHASES)))
+    recoveries = np.zeros(n, int)
+    goal_z = np.zeros(n)                 # approach altitude (NED z) of each run
+    obs = _Observer(np.zeros((n, 3)), np.zeros((n, 3)))
     qpsi_d = np.full(n, math.radians(config.control.yaw_feature_deg))
     prev_att_d: np.ndarray | None = None
     torque = np.zeros((n, 3))
@@ -190,45 +206,103 @@ def simulate(target: Target, starts_world: np.ndarray, config: Config, *, log: b
         max_tilt = np.where(running, np.maximum(max_tilt, tr.tilt), max_tilt)
         est = _estimate(tr, drift, yaw_drift, z, s)
         drift, yaw_drift = est.drift, est.yaw_drift
+
+        # Approach <-> IBVS: out of view (with the margin) at the start or lost on the way -> approach;
+        # back in view with the margin -> IBVS from a fresh start (integral, switch filter, hold).
+        if approach_on:
+            lost = running & ((phase == IBVS) & ~tr.visible if k else ~tr.in_margin)
+            found = running & (phase == APPROACH) & tr.in_margin
+            recoveries += (lost & (k > 0)).astype(int)
+            goal_z = np.where(lost, np.minimum(tr.p[:, 2], s.ground_z_ned + s.config.uav.size_m[2] / 2
+                                               - s.config.control.approach.min_height_m), goal_z)
+            phase = np.where(lost, APPROACH, np.where(found, IBVS, phase))
+        else:
+            lost = found = np.zeros(n, bool)
+        enter_ibvs = running & (phase == IBVS) & ((k == 0) | found)
+        first_entry = enter_ibvs & np.isnan(t_handover)
+        t_handover = np.where(first_entry, t, t_handover)
+        e_i = np.where((lost | found)[:, None], 0.0, e_i)
+        held = np.where(found, 0.0, held)
+        if k == 0:
+            obs = _Observer(est.v.copy(), np.zeros((n, 3)))
+        obs = obs.correct(est.v, s)
+
         q_d, q_d_rate = _desired_features(phase, t, t_switch, s)
-        cmd = _command(tr, est, q_d, q_d_rate, e_i, prev_att_d, torque, qpsi_d, running, k == 0, s)
+        cmd = _command(tr, est, q_d, q_d_rate, e_i, prev_att_d, torque, qpsi_d, running, k == 0, phase, goal_z,
+                       obs.d_hat, s)
         e_i, prev_att_d, torque, qpsi_d = cmd.e_i, cmd.att_d, cmd.torque, cmd.qpsi_d
 
         # Errors in pixels: the estimate (switching, low-passed) and the truth (metrics).
         e_px_true = np.linalg.norm((tr.q_true - _HOVER_Q) * s.px_scale, axis=1)
         yaw_err_true = ft.wrap_angle(ft.yaw_feature(tr.uv_true) - qpsi_d)
-        filt_vec = _filter_error(filt_vec, est.q, k == 0, s)
+        filt_vec = _filter_error(filt_vec, est.q, enter_ibvs, s)
         if log:
             rows.append(_log_row(t, x, tr.roll, tr.pitch, tr.yaw, cmd.thrust, torque, est.q, cmd.e, cmd.e_f, e_i,
-                                 cmd.lyap, tr.q_true, e_px_true, yaw_err_true, tr.pix, est.uv, phase))
+                                 cmd.lyap, tr.q_true, e_px_true, yaw_err_true, tr.pix, est.uv, phase, obs.d_hat))
 
-        ibvs_phase = running & (phase == 0)
-        if k == 0:
-            e_px_start = e_px_true.copy()
+        ibvs_phase = running & (phase == IBVS)
+        e_px_start = np.where(first_entry, e_px_true, e_px_start)
         last_above, last_above_settle = _last_above(last_above, last_above_settle, ibvs_phase, e_px_true,
                                                     e_px_start, t, s)
-        stop = _stop_codes(k, running, ibvs_phase, phase == 1, tr, s)
+        stop = _stop_codes(k, running, ibvs_phase, phase == DESCENT, tr, approach_on, s)
         ending = stop > 0
         code = np.where(ending, stop, code)
         out = _record_end(out, stop, t, tr, s)
 
         switch, held = _switch_due(ibvs_phase, ending, np.linalg.norm(filt_vec, axis=1), held, s)
         if switch.any():
-            phase = np.where(switch, 1, phase)
+            phase = np.where(switch, DESCENT, phase)
             t_switch = np.where(switch, t, t_switch)
             out = _record_switch(out, switch, e_px_true, yaw_err_true, last_above, last_above_settle, s)
         if not (code == 0).any():
             break
+        live = code == 0
+        phase_time[live, phase[live]] += s.dt
 
+        obs = obs.predict(cmd.thrust, tr.r_ib, s)
         x_new, torque = _integrate(x, cmd, torque, tr.yaw, gust, s)
         gust = s.wind.next_gust(gust, s.dt, z[:, NOISE_COLUMNS["gust"]])
         x = np.where((code == 0)[:, None], x_new, x)
 
-    reason = np.array([REASONS[i] for i in code])
+    landed = code == _CODE["touchdown"]
     within = out["td_err"] <= s.sim.success_radius_m
-    return SimResult(reason, (reason == "touchdown") & within, out["stab"], out["settle"], t_switch, out["final_px"],
+    code = np.where(landed & ~within, _CODE["outside_radius"], code)
+    reason = np.array([REASONS[i] for i in code])
+    return SimResult(reason, landed & within, out["stab"], out["settle"], t_switch, out["final_px"],
                      out["final_yaw"], out["td_err"], out["td_speed"], np.degrees(max_tilt), out["t_end"],
-                     starts, t, _stack(rows) if log else None)
+                     starts, t, _stack(rows) if log else None, handover_time_s=t_handover,
+                     approach_time_s=phase_time[:, APPROACH], ibvs_time_s=phase_time[:, IBVS],
+                     descent_time_s=phase_time[:, DESCENT], recoveries=recoveries)
+
+
+@dataclass(frozen=True, eq=False)
+class _Observer:
+    """Disturbance observer on the translational dynamics (``control.disturbance``), NED.
+
+    ``m v' = F_model + d`` with ``F_model = -T b3 + m g e3`` (commanded thrust along the IMU attitude):
+    a second-order observer ``v_hat' = (F_model + d_hat) / m + l1 (v - v_hat)``, ``d_hat' = l2 (v - v_hat)``
+    with both poles at ``bandwidth_rad_s`` (l1 = 2 w, l2 = m w^2) estimates d (gusts, drag) from the
+    SLAM velocity without differentiating it. Off: d_hat stays zero.
+    """
+
+    v_hat: np.ndarray
+    d_hat: np.ndarray
+
+    def correct(self, v_meas: np.ndarray, s: _Setup) -> _Observer:
+        dist = s.config.control.disturbance
+        if not dist.observer:
+            return self
+        w = dist.bandwidth_rad_s
+        innov = v_meas - self.v_hat
+        return _Observer(self.v_hat + s.dt * 2 * w * innov, self.d_hat + s.dt * s.params.mass_kg * w * w * innov)
+
+    def predict(self, thrust: np.ndarray, r_ib: np.ndarray, s: _Setup) -> _Observer:
+        if not s.config.control.disturbance.observer:
+            return self
+        m = s.params.mass_kg
+        force = -thrust[:, None] * r_ib[:, :, 2] + self.d_hat
+        force[:, 2] += m * s.params.gravity
+        return _Observer(self.v_hat + s.dt * force / m, self.d_hat)
 
 
 def _setup(target: Target, config: Config) -> _Setup:
@@ -246,13 +320,15 @@ def _setup(target: Target, config: Config) -> _Setup:
     dt = sim.control_dt_s
     return _Setup(
         config=config, params=dyn.Params.from_config(config), cam=cam, gains=ibvs.Gains.from_config(config),
-        wind=dyn.Wind.from_config(config), center_world=np.asarray(target.center_world, float), corners=corners,
+        wind=dyn.Wind.from_config(config), center_world=np.asarray(target.center_world, float),
+        center_ned=dyn.enu_to_ned(np.asarray(target.center_world, float)), corners=corners,
         a_d=a_d, px_scale=np.array([cam.f, cam.f, r_star]),
         ground_z_ned=-float(target.center_world[2]) - config.uav.size_m[2] / 2,
         dt=dt, n_sub=n_sub, steps=math.ceil(sim.timeout_s / dt),
         alpha=min(1.0, dt / sim.error_filter_s) if sim.error_filter_s > 0 else 1.0,
         pos_rw=nz.position_drift_m_sqrt_s * math.sqrt(dt), yaw_rw=math.radians(nz.yaw_drift_deg_sqrt_s) * math.sqrt(dt),
-        att_sigma=math.radians(nz.attitude_sigma_deg))
+        att_sigma=math.radians(nz.attitude_sigma_deg),
+        margin_px=c.approach.view_margin * np.array([cam.width, cam.height], float))
 
 
 def _truth(x: np.ndarray, s: _Setup) -> _Truth:
@@ -266,11 +342,13 @@ def _truth(x: np.ndarray, s: _Setup) -> _Truth:
     pv_true = ft.virtual_points(s.corners, t_ic, yaw + cam.yaw_on_body)
     uv_true = ft.virtual_pixels(pv_true, cam.f)
     if s.sim.visibility == "real":
-        visible = ft.in_image(pix, depth, cam)
+        seen, seen_depth = pix, depth
     else:
-        visible = ft.in_image(uv_true + np.array([cam.cx, cam.cy]), pv_true[..., 2], cam)
+        seen, seen_depth = uv_true + np.array([cam.cx, cam.cy]), pv_true[..., 2]
+    visible = ft.in_image(seen, seen_depth, cam)
+    in_margin = ft.in_image(seen, seen_depth, cam, s.margin_px)
     return _Truth(p, v, w, r_ib, roll, pitch, yaw, dyn.euler_rates(roll, pitch, w), dyn.tilt(r_ib), pix, visible,
-                  uv_true, ft.features(uv_true, s.a_d, cam.f))
+                  in_margin, uv_true, ft.features(uv_true, s.a_d, cam.f))
 
 
 def _estimate(tr: _Truth, drift: np.ndarray, yaw_drift: np.ndarray, z: np.ndarray, s: _Setup) -> _Estimate:
@@ -289,7 +367,8 @@ def _estimate(tr: _Truth, drift: np.ndarray, yaw_drift: np.ndarray, z: np.ndarra
     v_cam = tr.v + np.einsum("nij,nj->ni", tr.r_ib, np.cross(tr.w, cam.t_BC))
     v_est = v_cam + nz.velocity_sigma_m_s * z[:, col["velocity"]]
     v_v = np.einsum("nji,nj->ni", dyn.rot_z(yaw_v), v_est)
-    return _Estimate(uv, ft.features(uv, s.a_d, cam.f), ft.yaw_feature(uv), v_v, drift, yaw_drift)
+    return _Estimate(uv, ft.features(uv, s.a_d, cam.f), ft.yaw_feature(uv), v_v, p_est, v_est, yaw_v, drift,
+                     yaw_drift)
 
 
 def _desired_features(phase: np.ndarray, t: float, t_switch: np.ndarray, s: _Setup) -> tuple[np.ndarray, np.ndarray]:
@@ -303,10 +382,27 @@ def _desired_features(phase: np.ndarray, t: float, t_switch: np.ndarray, s: _Set
     return q_d, q_d_rate
 
 
+def _approach_force(est: _Estimate, goal_z: np.ndarray, s: _Setup) -> np.ndarray:
+    """Net force (N, 3) in NED flying towards the point above the site on the SLAM pose (approach phase).
+
+    A cascaded P-position / P-velocity law: wanted velocity ``k_pos (goal - p_est)``, its horizontal
+    part limited to ``speed_m_s`` and its vertical part to ``climb_speed_m_s``; force
+    ``m k_vel (v_wanted - v_est)``. The goal is above the site centre at ``goal_z`` (the altitude
+    the run had when it entered the approach, at least ``min_height_m`` above the site).
+    """
+    a = s.config.control.approach
+    goal = np.column_stack([np.repeat(s.center_ned[None, :2], goal_z.shape[0], axis=0), goal_z])
+    v_want = a.k_pos_1_s * (goal - est.p)
+    horiz = np.linalg.norm(v_want[:, :2], axis=1)
+    v_want[:, :2] *= (np.minimum(horiz, a.speed_m_s) / np.maximum(horiz, 1e-12))[:, None]
+    v_want[:, 2] = np.clip(v_want[:, 2], -a.climb_speed_m_s, a.climb_speed_m_s)
+    return s.params.mass_kg * a.k_vel_1_s * (v_want - est.v)
+
+
 def _command(tr: _Truth, est: _Estimate, q_d: np.ndarray, q_d_rate: np.ndarray, e_i: np.ndarray,
              prev_att_d: np.ndarray | None, torque_prev: np.ndarray, qpsi_d: np.ndarray, running: np.ndarray,
-             first: bool, s: _Setup) -> _Command:
-    """The IBVS law (force, thrust and attitude) and the attitude loop (torque) for one control step."""
+             first: bool, phase: np.ndarray, goal_z: np.ndarray, d_hat: np.ndarray, s: _Setup) -> _Command:
+    """The IBVS law (or the approach law) with the disturbance estimate removed, and the attitude loop."""
     c, params, gains, dt = s.config.control, s.params, s.gains, s.dt
     z_star = c.desired_depth_m
     e = est.q - q_d
@@ -321,13 +417,19 @@ def _command(tr: _Truth, est: _Estimate, q_d: np.ndarray, q_d_rate: np.ndarray, 
     e_dot = ibvs.error_rate(est.q, q_d_rate, est.v_v, psi_rate, z_star)
     force_v, e_f = ibvs.control_force(e, e_dot, e_i, psi_rate, psi_acc, params.mass_kg, gains)
     lyap = ibvs.lyapunov(e_f, e_i, gains.K_i)
+    to_v = dyn.rot_z(est.yaw_v)          # V -> inertial; its transpose turns NED forces into V
+    approaching = phase == APPROACH
+    if approaching.any():
+        force_v = np.where(approaching[:, None], np.einsum("nji,nj->ni", to_v, _approach_force(est, goal_z, s)),
+                           force_v)
+    force_v = force_v - np.einsum("nji,nj->ni", to_v, d_hat)   # zero unless control.disturbance.observer
     thrust, roll_d, pitch_d, sat = ibvs.thrust_attitude(force_v, s.cam.yaw_on_body, params.mass_kg, params.gravity,
                                                         params.thrust_min_n, params.thrust_max_n, gains.max_tilt_rad)
     # Anti-windup: integrate only unsaturated and near the hover (integral separation). The
     # transient's e_f = K_e e(0) would otherwise leave a slow K_i mode (~K_i/K_p = 0.02 /s) that
     # holds the error near 1 px for tens of seconds.
     e_px_est = np.linalg.norm((est.q - q_d) * s.px_scale, axis=1)
-    integrate = running & ~sat & (e_px_est < c.integral_zone_px)
+    integrate = running & ~sat & (e_px_est < c.integral_zone_px) & ~approaching
     e_i = e_i + np.where(integrate[:, None], e_f * dt, 0.0)
     att_d = np.stack([roll_d, pitch_d], axis=1)
     att_d_rate = (att_d - prev_att_d) / dt if prev_att_d is not None else np.zeros_like(att_d)
@@ -340,10 +442,12 @@ def _command(tr: _Truth, est: _Estimate, q_d: np.ndarray, q_d_rate: np.ndarray, 
     return _Command(thrust, torque, roll_d, pitch_d, e, e_f, e_i, lyap, att_d, qpsi_d)
 
 
-def _filter_error(filt_vec: np.ndarray, q: np.ndarray, first: bool, s: _Setup) -> np.ndarray:
-    """Low-pass the estimated feature error vector (px-equivalent) for the switch: noise averages out."""
+def _filter_error(filt_vec: np.ndarray, q: np.ndarray, restart: np.ndarray, s: _Setup) -> np.ndarray:
+    """Low-pass the estimated feature error vector (px-equivalent) for the switch: noise averages out.
+
+    ``restart``: runs entering IBVS now start the filter at their current error."""
     e_vec = (q - _HOVER_Q) * s.px_scale
-    return e_vec if first else filt_vec + s.alpha * (e_vec - filt_vec)
+    return np.where(restart[:, None], e_vec, filt_vec + s.alpha * (e_vec - filt_vec))
 
 
 def _last_above(last_above: np.ndarray, last_above_settle: np.ndarray, ibvs_phase: np.ndarray, e_px_true: np.ndarray,
@@ -357,12 +461,16 @@ def _last_above(last_above: np.ndarray, last_above_settle: np.ndarray, ibvs_phas
 
 
 def _stop_codes(k: int, running: np.ndarray, ibvs_phase: np.ndarray, descending: np.ndarray, tr: _Truth,
-                s: _Setup) -> np.ndarray:
-    """Why each run stops at this step (a ``_CODE``), 0 if it goes on; the first condition that holds wins."""
+                approach_on: bool, s: _Setup) -> np.ndarray:
+    """Why each run stops at this step (a ``_CODE``), 0 if it goes on; the first condition that holds wins.
+
+    With the approach phase on, a site out of view or lost corners are not failures (the approach
+    flies back into view)."""
     n = running.shape[0]
     stop = np.zeros(n, int)
-    stop = np.where(running & (k == 0) & ~tr.visible, _CODE["site_not_in_view"], stop)
-    stop = np.where(running & (stop == 0) & ibvs_phase & ~tr.visible, _CODE["corners_lost"], stop)
+    if not approach_on:
+        stop = np.where(running & (k == 0) & ~tr.visible, _CODE["site_not_in_view"], stop)
+        stop = np.where(running & (stop == 0) & ibvs_phase & ~tr.visible, _CODE["corners_lost"], stop)
     stop = np.where(running & (stop == 0) & (tr.tilt > math.radians(s.sim.abort_tilt_deg)), _CODE["tilt_limit"], stop)
     on_ground = tr.p[:, 2] >= s.ground_z_ned
     stop = np.where(running & (stop == 0) & on_ground, np.where(descending, _CODE["touchdown"],
@@ -416,11 +524,12 @@ def _integrate(x: np.ndarray, cmd: _Command, torque: np.ndarray, yaw: np.ndarray
 def _log_row(t: float, x: np.ndarray, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray, thrust: np.ndarray,
              torque: np.ndarray, q: np.ndarray, e: np.ndarray, e_f: np.ndarray, e_i: np.ndarray, lyap: np.ndarray,
              q_true: np.ndarray, e_px_true: np.ndarray, yaw_err: np.ndarray, pix: np.ndarray, uv: np.ndarray,
-             phase: np.ndarray) -> dict[str, np.ndarray]:
+             phase: np.ndarray, d_hat: np.ndarray) -> dict[str, np.ndarray]:
     return {"t": np.full(x.shape[0], t), "p_world": dyn.ned_to_enu(x[:, 0:3]), "v_world": dyn.ned_to_enu(x[:, 3:6]),
             "euler_ned": np.stack([roll, pitch, yaw], axis=1), "w_body": x[:, 10:13].copy(), "thrust": thrust,
             "torque": torque, "q": q, "e_q": e, "e_f": e_f, "e_i": e_i.copy(), "lyapunov": lyap, "q_true": q_true,
-            "e_px_true": e_px_true, "yaw_err_true": yaw_err, "corner_px": pix, "virtual_uv": uv, "phase": phase.copy()}
+            "e_px_true": e_px_true, "yaw_err_true": yaw_err, "corner_px": pix, "virtual_uv": uv, "phase": phase.copy(),
+            "d_hat_world": dyn.ned_to_enu(d_hat)}
 
 
 def _stack(rows: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -449,20 +558,27 @@ def sample_starts(base_world: np.ndarray, runs: int, config: Config, seed: int, 
 
 
 def resolve_start(target: Target, config: Config, scenario: int | None = None,
-                  start: tuple[float, ...] | None = None) -> np.ndarray:
-    """The (4,) world start (x, y, z m, yaw deg; ENU) a user asked for.
+                  start: tuple[float, ...] | None = None, offset: tuple[float, ...] | None = None) -> np.ndarray:
+    """The (4,) world start (x, y, z m, yaw deg; ENU) a user asked for; at most one of the three.
 
-    ``--scenario N``: the paper's start position, absolute in the run's world frame (the paper's
-    scenario starts are world positions; its site for scenario 1 was at (3.24, 3.32, 0.4)).
-    ``--start x,y,z[,yaw]``: an offset from the site centre (world x, y, up; yaw in degrees),
-    because a run's world frame (first camera, odometry) is arbitrary. Neither: the configured
-    offset ``control.sim.start_m`` (10 m above the site).
+    ``--scenario N``: the paper's start position, absolute in the run's world frame (as in ``slz synth``).
+    ``--start x,y,z[,yaw]``: an absolute world position (ENU, the run's world frame), as in ``slz synth``.
+    ``--offset x,y,z[,yaw]``: an offset from the site centre (world x, y, up), since a run's world
+    frame (first camera, odometry) is arbitrary. None: the configured offset
+    ``control.sim.start_offset_m`` (the paper's scenario 1 geometry). Yaw: degrees from world +x,
+    counter-clockwise (ENU), the convention of every slz output.
     """
+    if sum(v is not None for v in (scenario, start, offset)) > 1:
+        raise ConfigError("--start", "give one of --scenario, --start or --offset")
     if scenario is not None:
         if scenario not in SCENARIOS:
             raise ConfigError("--scenario", f"must be one of {sorted(SCENARIOS)}, got {scenario}")
         return np.array([*SCENARIOS[scenario], 0.0])
-    offset = start if start is not None else config.control.sim.start_m
-    if len(offset) not in (3, 4):
-        raise ConfigError("--start", f"expected x,y,z[,yaw], got {len(offset)} values")
-    return start_from_offsets(target, np.array(offset, float))[0]
+    if start is not None:
+        if len(start) not in (3, 4):
+            raise ConfigError("--start", f"expected x,y,z[,yaw], got {len(start)} values")
+        return np.array([*start[:3], start[3] if len(start) > 3 else 0.0], float)
+    off = offset if offset is not None else config.control.sim.start_offset_m
+    if len(off) not in (3, 4):
+        raise ConfigError("--offset", f"expected x,y,z[,yaw], got {len(off)} values")
+    return start_from_offsets(target, np.array(off, float))[0]

@@ -94,10 +94,16 @@ def write_run(out_dir: Path, result: SimResult, metrics: dict[str, Any], cx: flo
     if not log:
         raise ValueError("write_run needs a simulation run with log=True")
     L = {k: v[:, i] for k, v in log.items()}
+    # One yaw convention in every output: ENU, degrees from world +x counter-clockwise (as --start and
+    # metrics.json's start_world); the controller's NED heading (from north, clockwise) is 90 deg - that.
+    # Roll and pitch are the FRD body's (right wing down, nose up positive), which the frame change keeps.
+    euler = np.degrees(L["euler_ned"])
+    euler[:, 2] = (90.0 - euler[:, 2] + 180.0) % 360.0 - 180.0
     traj = _csv(["t_s", "x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg", "vx_m_s", "vy_m_s", "vz_m_s",
-                 "p_rad_s", "q_rad_s", "r_rad_s", "thrust_n", "tau_x_n_m", "tau_y_n_m", "tau_z_n_m", "phase"],
-                [L["t"], L["p_world"], np.degrees(L["euler_ned"]), L["v_world"], L["w_body"], L["thrust"],
-                 L["torque"], L["phase"]])
+                 "p_rad_s", "q_rad_s", "r_rad_s", "thrust_n", "tau_x_n_m", "tau_y_n_m", "tau_z_n_m", "phase",
+                 "dist_x_n", "dist_y_n", "dist_z_n"],
+                [L["t"], L["p_world"], euler, L["v_world"], L["w_body"], L["thrust"],
+                 L["torque"], L["phase"], L["d_hat_world"]])
     corner_cols = [f"{a}{k}_px" for k in range(4) for a in ("u", "v")]
     virt_cols = [f"virtual_{a}{k}_px" for k in range(4) for a in ("u", "v")]
     feats = _csv(["t_s", "q_x", "q_y", "q_z", "e_qx", "e_qy", "e_qz", "e_px_true", "yaw_error_deg", "lyapunov",
@@ -113,7 +119,8 @@ def write_run(out_dir: Path, result: SimResult, metrics: dict[str, Any], cx: flo
 
 
 MC_COLUMNS = ("stabilisation_time_s", "settling_time_s", "switch_time_s", "final_feature_error_px",
-              "touchdown_error_m", "landing_time_s", "max_tilt_deg")
+              "touchdown_error_m", "landing_time_s", "max_tilt_deg", "handover_time_s", "approach_time_s",
+              "ibvs_time_s", "descent_time_s", "recoveries")
 MC_HEADER = ("run", "success", "x0_m", "y0_m", "z0_m", "yaw0_deg", *MC_COLUMNS, "reason")
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from slzcli.outputs.files import atomic_path
 from slzcli.types import FigureFrame
 
-METHOD_COLOURS = {"fuzzy": "tab:red", "bayes": "tab:blue"}
+METHOD_COLOURS = {"fuzzy": "tab:red", "bayes": "tab:blue", "px4slp": "tab:green"}
 MAP_COLOURS = {"depth_variance": "tab:olive", "flatness": "tab:green", "inclination": "tab:purple",
                "steepness": "tab:brown"}
 STAGE_COLOURS = {"slam": "tab:gray", "maps": "tab:green", "score": "tab:orange", "mask": "tab:purple",

@@ -282,6 +282,11 @@ def report_html(summary: dict[str, Any], figures: dict[str, dict[str, Path]], va
              "method is this project's reconstruction of Chatzikalymnios &amp; Moustakas (2022) [16] (BASELINE.md), "
              f"not [16] itself. Config hash {html.escape(summary['config_hash'])}. Pixel figures are micro-averaged "
              "over all detection frames; PR AUC sweeps the score threshold against the ground-truth safe mask.</p>",
+             *(["<p class=note>px4slp is this project's reimplementation of PX4-Avoidance's safe_landing_planner "
+                "grid (PX4SLP.md): it bins the same depth points and poses in a world grid and reads none of the "
+                "maps; its mask is its land-able cells, its score the waypoint generator's per-cell hysteresis, "
+                "its site the first all-land-able disk on its search rays.</p>"] if "px4slp" in summary["methods"]
+               else []),
              "<h2>Summary</h2>", _table(TABLE_HEAD, table_rows(recs))]
     for r in recs + summary["variants"]:
         key = _key(r)

@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 
 from slzcli.config import Config
-from slzcli.geometry import back_project
+from slzcli.geometry import back_project_every
 from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.recording import CAMERA_INFO, IMAGE, RecordingWriter, TopicLayout
 
@@ -90,8 +90,9 @@ class ResultsMcap:
         self.writer.__exit__(exc_type, exc, tb)
 
     # ------------------------------------------------------------------ per detection
-    def write_detection(self, det: Any) -> None:
-        """The images, clouds and site markers of one detection (a ``pipeline.Detection``)."""
+    def write_detection(self, det: Any, overlay: np.ndarray | None = None) -> None:
+        """The images, clouds and site markers of one detection (a ``pipeline.Detection``); ``overlay``: its
+        overlay when the caller drew it already (overlay.png is the same picture)."""
         frame, stamp = det.frame, det.frame.stamp_ns
         world, camera = frame_ids(det.segment)
         self._image("color", frame.rgb, "rgb8", stamp, camera)
@@ -100,8 +101,9 @@ class ResultsMcap:
         for name, values in det.maps.as_dict().items():
             self._image(f"maps/{name}", mono8(values), "mono8", stamp, camera)
         self._image("score", mono8(det.score.score), "mono8", stamp, camera)
-        self._image("overlay", cv2.cvtColor(detection_overlay_bgr(det), cv2.COLOR_BGR2RGB), "rgb8", stamp, camera)
-        xyz_cam = back_project(det.frame.depth_m, frame.intrinsics)[::self.stride_px, ::self.stride_px]
+        bgr = detection_overlay_bgr(det) if overlay is None else overlay
+        self._image("overlay", cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), "rgb8", stamp, camera)
+        xyz_cam = back_project_every(det.frame.depth_m, frame.intrinsics, self.stride_px)
         safe = det.score.mask[::self.stride_px, ::self.stride_px] & np.all(np.isfinite(xyz_cam), axis=2)
         self._cloud("mask", xyz_cam[safe], camera, stamp)
         sel = det.selection
@@ -172,7 +174,7 @@ class NoResults:
     def __exit__(self, *exc: object) -> None:
         return None
 
-    def write_detection(self, det: Any) -> None:
+    def write_detection(self, det: Any, overlay: np.ndarray | None = None) -> None:
         return None
 
     def write_pose(self, stamp: int, T: np.ndarray | None, segment: int = 0) -> None:

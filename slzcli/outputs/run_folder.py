@@ -50,16 +50,19 @@ def detection_arrays(det: Any) -> dict[str, np.ndarray]:
     return {**out, **maps}
 
 
-def write_detection(run_dir: Path, det: Any, config: Config) -> None:
+def write_detection(run_dir: Path, det: Any, config: Config, overlay: np.ndarray | None = None) -> None:
     """One detection frame's folder at ``output.level``: maps.npz and the overlay (Figure 6 style) at
-    ``maps``, the maps, score and mask as heat maps too at ``all``, no folder at ``summary``."""
+    ``maps``, the maps, score and mask as heat maps too at ``all``, no folder at ``summary``.
+
+    ``overlay``: the detection's overlay when the caller drew it already (results.mcap carries it too)."""
     level = config.output.level
     if level == "summary":
         return
     folder = run_dir / "frames" / f"{det.frame.index:06d}"
     arrays = detection_arrays(det)
     files.write_npz_streamed(folder / "maps.npz", arrays, stored=frozenset(arrays))
-    images.write_png(folder / "overlay.png", detection_overlay_bgr(det))
+    images.write_png(folder / "overlay.png", detection_overlay_bgr(det) if overlay is None else overlay,
+                     strategy=images.PHOTO_STRATEGY)
     if level != "all":
         return
     reverse = config.output.reverse_colormap

@@ -103,11 +103,18 @@ class BayesScorer:
 Scorer = FuzzyScorer | BayesScorer
 
 SCORERS: dict[str, type[FuzzyScorer] | type[BayesScorer]] = {"fuzzy": FuzzyScorer, "bayes": BayesScorer}
+# every detection method: the two fusions of the four maps, and the PX4 grid planner (scoring/px4slp.py),
+# which scores depth points binned in the world, not the maps (``pipeline.Fusion`` runs it)
+METHODS: tuple[str, ...] = (*SCORERS, "px4slp")
 
 
 def get_scorer(config: Config, method: str | None = None) -> Scorer:
     """The scorer for ``scoring.method`` (or ``method``, e.g. for ``slz compare``)."""
-    return SCORERS[method or config.scoring.method].from_config(config)
+    name = method or config.scoring.method
+    if name not in SCORERS:
+        raise ConfigError("scoring.method", f"{name!r} does not score the four terrain maps (scorers: "
+                                            f"{', '.join(SCORERS)}); run it through slz detect or slz compare")
+    return SCORERS[name].from_config(config)
 
 
 def score_frame(scorer: Scorer, maps: TerrainMaps, depth_m: np.ndarray, intrinsics: Intrinsics,

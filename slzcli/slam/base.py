@@ -78,6 +78,18 @@ class SlamBackend(Protocol):
         """Consume one frame; the pose of that frame (or None) and whether it became a keyframe."""
         ...
 
+    def submit(self, frame: Frame) -> None:
+        """Hand the next frame over; ``collect`` answers for it. ``track`` is ``submit`` then ``collect``."""
+        ...
+
+    def collect(self) -> TrackResult:
+        """The answer for the frame last submitted (as ``track`` gives it)."""
+        ...
+
+    def last_track_ms(self) -> float | None:
+        """How long the last frame took to track where it was tracked (None: the caller's wait is that time)."""
+        ...
+
     def keyframe(self) -> MapPoints | None:
         """Map points seen by the latest frame if it was a keyframe, else None."""
         ...
@@ -101,6 +113,26 @@ class BackendBase:
     name = "base"
     poses_are_recorded = False
     map_points_from_depth = False
+    _submitted: Frame | None = None
+
+    # A backend that tracks in a worker process overrides submit/collect so that the worker starts on a frame
+    # while the caller computes on the one before (pipeline.tracked_frames); here the work is done in collect.
+    def track(self, frame: Frame) -> TrackResult:  # pragma: no cover - every backend defines it
+        raise NotImplementedError
+
+    def submit(self, frame: Frame) -> None:
+        if self._submitted is not None:
+            raise RuntimeError(f"{self.name}: frame {self._submitted.index} was submitted and never collected")
+        self._submitted = frame
+
+    def collect(self) -> TrackResult:
+        frame, self._submitted = self._submitted, None
+        if frame is None:
+            raise RuntimeError(f"{self.name}: collect() without a submitted frame")
+        return self.track(frame)
+
+    def last_track_ms(self) -> float | None:
+        return None
 
     def close(self) -> None:  # pragma: no cover - overridden where there is something to free
         return None

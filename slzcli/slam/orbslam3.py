@@ -95,6 +95,7 @@ def _worker(conn: Any, vocab_path: str, settings_text: str, sensor: str = "rgbd"
     """Runs in the worker process: owns the native ORB-SLAM3 system, answers track requests."""
     import os
     import tempfile
+    import time
 
     import pyorbslam3 as pos
 
@@ -114,6 +115,7 @@ def _worker(conn: Any, vocab_path: str, settings_text: str, sensor: str = "rgbd"
                 if msg[0] == "close":
                     break
                 _, rgb, depth, t = msg
+                t0 = time.perf_counter()
                 try:
                     r = system.track_monocular(rgb, t) if depth is None else system.track_rgbd(rgb, depth, t)
                 except Exception as err:
@@ -121,7 +123,7 @@ def _worker(conn: Any, vocab_path: str, settings_text: str, sensor: str = "rgbd"
                     continue
                 pts = np.asarray(system.tracked_map_points(), np.float64).reshape(-1, 3)
                 conn.send(("ok", int(r.state), None if r.pose_wc is None else np.asarray(r.pose_wc, np.float64),
-                           int(r.num_tracked_points), pts))
+                           int(r.num_tracked_points), pts, (time.perf_counter() - t0) * 1e3))
         finally:
             system.shutdown()
             conn.send(("closed", None))
@@ -170,6 +172,7 @@ class OrbSlam3Backend(BackendBase):
         self._scales: dict[int, list[float]] = {}   # monocular: per map segment, each frame's measured scale
         self._frames_uninitialised = 0
         self._warned_init = False
+        self._track_ms: float | None = None  # the worker's own time for the last frame
 
     # -- worker plumbing
     def _start(self, frame: Frame) -> None:
@@ -257,6 +260,13 @@ class OrbSlam3Backend(BackendBase):
 
     # -- tracking
     def track(self, frame: Frame) -> TrackResult:
+        self.submit(frame)
+        return self.collect()
+
+    def submit(self, frame: Frame) -> None:
+        """Send the frame to the worker and return at once: it tracks while the caller computes (``collect``)."""
+        if self._submitted is not None:
+            raise RuntimeError(f"orbslam3: frame {self._submitted.index} was submitted and never collected")
         if self._proc is None:
             self._start(frame)
         elif frame.intrinsics != self._intrinsics:
@@ -266,13 +276,22 @@ class OrbSlam3Backend(BackendBase):
         assert self._conn is not None  # _start opened it
         with contextlib.suppress(BrokenPipeError, OSError):  # _recv reports how the worker died
             self._conn.send(("track", np.ascontiguousarray(frame.rgb), depth, frame.stamp_ns * 1e-9))
+        self._submitted = frame
+
+    def last_track_ms(self) -> float | None:
+        return self._track_ms
+
+    def collect(self) -> TrackResult:
+        frame, self._submitted = self._submitted, None
+        if frame is None:
+            raise RuntimeError("orbslam3: collect() without a submitted frame")
         reply = self._recv(f"tracking frame {frame.index} of {frame.source or 'the recording'}",
                            self.cfg.orbslam3.frame_timeout_s)
         if reply[0] == "error":  # the native tracker threw: the worker is alive, the frame is not usable
             h, w = frame.rgb.shape[:2]
             raise SlamWorkerError(f"{frame.source or 'recording'}: ORB-SLAM3 cannot track frame {frame.index} "
                                   f"({w}x{h} px): {reply[1]}; try --set slam.backend=odometry")
-        _, state_code, pose, n_tracked, pts = reply
+        _, state_code, pose, n_tracked, pts, self._track_ms = reply
         state = _STATES.get(state_code, TrackingState.LOST)
         if state is not TrackingState.OK:
             pose = None  # RECENTLY_LOST carries a motion-model guess; not a measurement

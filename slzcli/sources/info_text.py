@@ -22,6 +22,8 @@ def info_text(info: RecordingInfo) -> str:
         rate = f"{s.rate_hz:.2f} Hz" if s.rate_hz is not None else "-"
         rows.append((s.topic, s.msgtype, str(s.count), rate))
     lines += _table(rows)
+    lines += ["", f"camera preset: {info.camera_preset or '(none)'}"
+                  + (f"  ({info.camera_preset_reason})" if info.camera_preset_reason else "")]
     lines += ["", "streams slz uses:"]
     lines += _table([(c.role, c.topic or "(none)", c.reason) for c in info.choices])
     k = info.intrinsics
@@ -29,6 +31,8 @@ def info_text(info: RecordingInfo) -> str:
     if k is not None:
         lines.append(f"  {k.width}x{k.height}  fx {k.fx:.3f}  fy {k.fy:.3f}  cx {k.cx:.3f}  cy {k.cy:.3f}"
                      + (f"  {k.distortion_model} {list(k.distortion)}" if k.distortion_model else ""))
+    if info.depth_to_color:
+        lines.append(f"  depth: {info.depth_to_color}")
     p = info.pairing
     lines += ["", f"RGB-D frames that pair: {p.paired}  (unpaired colour {p.unpaired_color}, "
                   f"unpaired depth {p.unpaired_depth}, unreadable {p.undecodable})"]

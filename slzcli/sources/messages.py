@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import abc
 import logging
+import re
 from collections import deque
 from collections.abc import Collection, Generator, Iterator
 from contextlib import closing
@@ -26,7 +27,9 @@ from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources import decode
 from slzcli.sources.clouds import CloudBuffer
+from slzcli.sources.color_camera import ALIGNED, DepthToColor, extrinsics, same_camera, to_color_camera
 from slzcli.sources.image_limits import FrameTooLarge
+from slzcli.sources.presets import PresetChoice, choose_preset
 from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import Pair, PoseTrack, Stream, StreamPairer
 from slzcli.sources.topics import (
@@ -35,16 +38,24 @@ from slzcli.sources.topics import (
     ODOMETRY,
     POSE_STAMPED,
     TF,
+    TRANSFORM,
     Choices,
     choose_streams,
     normalise_msgtype,
 )
+from slzcli.sources.undistort import distortion_problem, has_distortion
 from slzcli.sources.validate import StampCounts, intrinsics_problem, size_problem, stamp_problem
+from slzcli.sources.window import WindowFilter
 from slzcli.types import Frame, Intrinsics, MapCloud, PairingReport, StreamInfo
 
 log = logging.getLogger(__name__)
 NS_PER_MS = 1_000_000
 TF_STATIC = "/tf_static"
+# How far (log time) past the first image the pre-pass looks for the depth CameraInfo and /tf_static
+# (both are published at start-up, tf_static latched); project decision.
+SETUP_SCAN_NS = 5 * 1_000_000_000
+# A RealSense recorder's depth unit (std_msgs/Float32, metres per count): librealsense's ros-bag format.
+DEPTH_UNITS_TOPIC = re.compile(r"/device_\d+/sensor_\d+/option/Depth_Units/value")
 
 
 @dataclass(frozen=True)
@@ -98,6 +109,10 @@ class MessageRecording(Recording):
         self.choices: Choices | None = None
         self._topics: dict[str, str] = {}
         self._camera_frame: str | None = None
+        self.preset = PresetChoice(None, "")
+        self.camera_warnings: list[str] = []   # fallbacks: each logged once and listed in RecordingInfo.warnings
+        self._d2c: DepthToColor | None = None
+        self._unit: float | None = None
 
     # ------------------------------------------------------------------ open / close
     def open(self) -> None:
@@ -106,10 +121,123 @@ class MessageRecording(Recording):
         if not self._topics:
             why = self.log.warnings[0] if self.log.warnings else "empty or not a recording"
             raise DatasetError(self.path, f"the recording has no readable topics ({why})")
-        self.choices = choose_streams(self._topics, self.cfg, str(self.path), self._peek_encodings())
+        self.preset = choose_preset(self.config.camera.preset, topics=list(self._topics))
+        self.choices = choose_streams(self._topics, self.cfg, str(self.path), self._peek_encodings(),
+                                      self.preset.preset)
 
     def close(self) -> None:
         self.log.close()
+
+    def _warn(self, text: str) -> None:
+        """A fallback: one warning line on stderr and in RecordingInfo.warnings (run.json), however often met."""
+        if text not in self.camera_warnings:
+            self.camera_warnings.append(text)
+            log.warning("%s: %s", self.path, text)
+
+    def _depth_unit_m(self) -> float:
+        """Metres per 16-bit depth count: the recording's own (a RealSense recorder's Depth_Units option),
+        else ``sources.depth_unit_16u_m``."""
+        if self._unit is None:
+            self._unit = self.cfg.depth_unit_16u_m
+            topic = next((t for t in sorted(self._topics) if DEPTH_UNITS_TOPIC.fullmatch(t)), None)
+            if topic is not None:
+                with closing(self._wrap(self.log.messages([topic]))) as messages:
+                    for msg in messages:
+                        try:
+                            value = float(self.log.deserialize(msg.topic, msg.data).data)
+                        except (DecodeError, AttributeError, TypeError, ValueError) as err:
+                            self._warn(f"{topic}: not a depth unit ({err}): sources.depth_unit_16u_m used")
+                            break
+                        if 0 < value < 1:
+                            self._unit = value
+                        else:
+                            self._warn(f"{topic}: depth unit {value!r} m is not usable: sources.depth_unit_16u_m used")
+                        break
+        return self._unit
+
+    def _depth_to_color(self) -> DepthToColor:
+        """How depth reaches the colour grid, decided once from the first messages (warnings for fallbacks)."""
+        if self._d2c is None:
+            self._d2c = self._find_depth_to_color(self._need_choices())
+        return self._d2c
+
+    def _find_depth_to_color(self, ch: Choices) -> DepthToColor:
+        if ch.aligned:
+            return ALIGNED
+        if ch.depth_info.topic is None:
+            self._warn(f"{ch.depth.topic} is not aligned to colour and has no CameraInfo of its own: resized "
+                       "nearest-neighbour to the colour image (geometry approximate); set sources.topics.depth_info")
+            return DepthToColor("resize", describe="resized nearest-neighbour (no depth CameraInfo)")
+        k_depth, k_color, frames, tree, stream_tf = self._scan_setup(ch)
+        if k_depth is None:
+            self._warn(f"no usable CameraInfo on {ch.depth_info.topic}: depth resized nearest-neighbour to the "
+                       "colour image (geometry approximate)")
+            return DepthToColor("resize", describe="resized nearest-neighbour (depth CameraInfo unusable)")
+        problem = distortion_problem(k_depth)
+        if problem is not None:
+            self._warn(f"CameraInfo on {ch.depth_info.topic}: {problem}")
+        T, source = self._depth_extrinsics(ch, frames, tree, stream_tf)
+        if T is None:
+            self._warn(f"no depth->colour extrinsics ({source}): depth reprojected as if both cameras shared "
+                       "one optical centre (off by their baseline); record /tf_static")
+            T, source = np.eye(4), "identity (no extrinsics)"
+        if k_color is not None and same_camera(k_depth, k_color, T):
+            return DepthToColor("aligned", describe=f"depth CameraInfo equals the colour one ({source}): aligned")
+        return DepthToColor("register", k_depth, T, f"registered to colour: {k_depth.width}x{k_depth.height} depth "
+                                                    f"camera, extrinsics from {source}")
+
+    def _depth_extrinsics(self, ch: Choices, frames: dict[str, str], tree: dict[str, tuple[str, np.ndarray]],
+                          stream_tf: dict[str, np.ndarray]) -> tuple[np.ndarray | None, str]:
+        """T_color_depth: the recorder's per-stream extrinsics (RealSense .bag), else /tf_static by frame_id."""
+        prefix = {role: _stream_prefix(topic) for role, topic in (("color", ch.color.topic), ("depth", ch.depth.topic))}
+        ref = {role: T for role, p in prefix.items() if p
+               for topic, T in sorted(stream_tf.items(), reverse=True) if topic.startswith(p + "/tf/")}
+        if "color" in ref and "depth" in ref:
+            # each maps the group's reference stream into the stream (T_stream_ref): librealsense's recorder writes
+            # device::get_extrinsics(stream), the extrinsics from the reference ("pin") stream to the stream
+            return ref["color"] @ np.linalg.inv(ref["depth"]), "the recorded stream extrinsics (.../tf/0)"
+        return extrinsics(tree, frames.get("color", ""), frames.get("depth", ""))
+
+    def _scan_setup(self, ch: Choices) -> tuple[Intrinsics | None, Intrinsics | None, dict[str, str],
+                                                 dict[str, tuple[str, np.ndarray]], dict[str, np.ndarray]]:
+        """One short pass: the first depth and colour CameraInfo, the images' frame ids, /tf_static, and the
+        per-stream extrinsics a RealSense recorder writes. Stops once all are in hand, or SETUP_SCAN_NS of
+        log time after the first image."""
+        stream_topics = [t for t, m in self._topics.items() if normalise_msgtype(m) == TRANSFORM and "/tf/" in t]
+        wanted = {t for t in (ch.depth_info.topic, ch.camera_info.topic, ch.color.topic, ch.depth.topic) if t}
+        wanted |= set(stream_topics) | ({TF_STATIC} if TF_STATIC in self._topics else set())
+        k_depth = k_color = None
+        frames: dict[str, str] = {}
+        tree: dict[str, tuple[str, np.ndarray]] = {}
+        stream_tf: dict[str, np.ndarray] = {}
+        first_image: int | None = None
+        with closing(self._wrap(self.log.messages(sorted(wanted)))) as messages:
+            for msg in messages:
+                try:
+                    if msg.topic in (ch.color.topic, ch.depth.topic):
+                        role = "color" if msg.topic == ch.color.topic else "depth"
+                        frames.setdefault(role, decode.header_stamp(msg.data, self.log.is_ros1(msg.topic))[1])
+                        first_image = msg.log_ns if first_image is None else first_image
+                    elif msg.topic == ch.depth_info.topic and k_depth is None:
+                        k_depth = self._check_info(msg.topic, decode.decode_camera_info(
+                            self.log.deserialize(msg.topic, msg.data)))
+                    elif msg.topic == ch.camera_info.topic and k_color is None:
+                        k_color = decode.decode_camera_info(self.log.deserialize(msg.topic, msg.data))
+                    elif msg.topic == TF_STATIC:
+                        for _, parent, child, T in decode.decode_tf(self.log.deserialize(msg.topic, msg.data)):
+                            tree[child] = (parent, T)
+                    elif msg.topic in stream_topics and msg.topic not in stream_tf:
+                        m = self.log.deserialize(msg.topic, msg.data)
+                        stream_tf[msg.topic] = decode.transform_matrix(m.translation, m.rotation)
+                except DecodeError as err:
+                    self._warn(f"{msg.topic}: {err} (while reading the camera set-up)")
+                have_all = k_depth is not None and len(frames) == 2 and (k_color or not ch.camera_info.topic)
+                if have_all and (len(stream_tf) >= 2 or extrinsics(tree, frames["color"], frames["depth"])[0]
+                                 is not None):
+                    break
+                if first_image is not None and msg.log_ns - first_image > SETUP_SCAN_NS:
+                    break
+        return k_depth, k_color, frames, tree, stream_tf
 
     def _need_choices(self) -> Choices:
         if self.choices is None:
@@ -193,6 +321,7 @@ class MessageRecording(Recording):
         info_failed = False
         first = last = None
         stamps = {"color": StampCounts(), "depth": StampCounts()}
+        win = WindowFilter(self.config.sources.window)  # info counts the frames within the window
         for msg in self._wrap(self.log.messages(())):
             c = counts.setdefault(msg.topic, [0, 0, 0])
             c[1] = msg.log_ns if c[0] == 0 else min(c[1], msg.log_ns)
@@ -208,7 +337,8 @@ class MessageRecording(Recording):
                     undecodable += 1
                     continue
                 if stamped is not None:
-                    pairer.push(role, stamped[0], msg.data)
+                    for pair in pairer.push(role, stamped[0], msg.data):
+                        win.keep(pair.stamp_ns)
             elif msg.topic == ch.camera_info.topic and intrinsics is None:
                 try:
                     intrinsics = self._check_info(msg.topic, decode.decode_camera_info(
@@ -217,30 +347,49 @@ class MessageRecording(Recording):
                     if not info_failed:
                         log.warning("%s: CameraInfo on %s not decodable: %s", self.path, msg.topic, err)
                     info_failed = True
-        pairer.flush()
+        for pair in pairer.flush():
+            win.keep(pair.stamp_ns)
         streams = tuple(StreamInfo(t, self._topics.get(t, "?"), c[0], c[1] if c[0] else None, c[2] if c[0] else None)
                         for t, c in sorted(counts.items()))
-        source = f"CameraInfo on {ch.camera_info.topic}" if intrinsics is not None else "config camera section"
+        source = f"CameraInfo on {ch.camera_info.topic}" if intrinsics is not None else ""
         if intrinsics is None:
-            intrinsics = self._config_intrinsics()
+            intrinsics, source = self._fallback_intrinsics()
+        problem = distortion_problem(intrinsics)
+        if problem is not None:
+            self._warn(f"{source}: {problem}")
+        elif has_distortion(intrinsics):
+            source += f"; {intrinsics.distortion_model} distortion removed from every frame"
+        d2c = self._depth_to_color()
         stamp_lines = self._stamp_report(ch, stamps, pairer)
         for line in stamp_lines:
             log.warning("%s: %s", self.path, line)
-        report = self._report(pairer, 0, undecodable, tuple(stamp_lines))
+        report = self._report(pairer, 0, undecodable, tuple(stamp_lines), win)
         return RecordingInfo(str(self.path), self.log.format, ((last or 0) - (first or 0)) * 1e-9, streams,
-                             ch.all(), intrinsics, source, report, tuple(self.log.warnings))
+                             ch.all(), intrinsics, source, report,
+                             tuple(self.log.warnings) + tuple(self.camera_warnings), self.preset.name,
+                             self.preset.reason, d2c.describe)
 
-    def _config_intrinsics(self) -> Intrinsics:
+    def _fallback_intrinsics(self) -> tuple[Intrinsics, str]:
+        """Intrinsics without a CameraInfo: the camera preset's, else the config camera section (a warning)."""
+        preset = self.preset.preset
+        if preset is not None and preset.intrinsics is not None:
+            return preset.intrinsics, f"camera preset {preset.name} (no CameraInfo)"
         cam = self.config.camera
-        return Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
+        k = Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
+        self._warn(f"no usable CameraInfo: intrinsics from the config camera section (fx {cam.fx:g} px, {cam.width}x"
+                   f"{cam.height}), not this camera's calibration; set camera.fx/fy/cx/cy or --camera NAME")
+        return k, "config camera section"
 
     def _report(self, pairer: StreamPairer, without_pose: int, undecodable: int,
-                notes: tuple[str, ...]) -> PairingReport:
+                notes: tuple[str, ...], win: WindowFilter) -> PairingReport:
         extra: tuple[str, ...] = ()
         if pairer.duplicates:
             extra += (f"{pairer.duplicates} duplicated colour/depth message(s) (same topic and stamp) were dropped",)
-        return PairingReport(pairer.paired, pairer.unpaired["color"], pairer.unpaired["depth"], without_pose,
-                             undecodable, tuple(notes) + extra + tuple(self.log.warnings))
+        window_note = win.note()
+        extra += (window_note,) if window_note else ()
+        return PairingReport(pairer.paired - win.left_out, pairer.unpaired["color"], pairer.unpaired["depth"],
+                             without_pose, undecodable, tuple(notes) + extra + tuple(self.log.warnings),
+                             win.left_out)
 
     # ------------------------------------------------------------------ frames
     def frames(self) -> Iterator[Frame]:
@@ -249,6 +398,9 @@ class MessageRecording(Recording):
         points = self.config.slam.points_topic
         if points and points not in self._topics:
             raise DatasetError(self.path, f"slam.points_topic {points!r} is not in the recording")
+        # Settled before the pass: both read messages of their own, which must not happen inside it.
+        self._depth_to_color()
+        self._depth_unit_m()
         return self._frames(ch, points)
 
     def _frames(self, ch: Choices, points_topic: str) -> Iterator[Frame]:
@@ -266,6 +418,7 @@ class MessageRecording(Recording):
         # A frame waits until no pose (nor cloud) within the pose tolerance of its stamp can still arrive.
         has_pose = ch.pose.topic is not None or state.clouds is not None
         stamps = {"color": StampCounts(), "depth": StampCounts()}
+        win = WindowFilter(self.config.sources.window)  # pairs outside it are never decoded
         for msg in self._wrap(self.log.messages(topics)):
             if msg.topic in (ch.color.topic, ch.depth.topic):
                 is_color = msg.topic == ch.color.topic
@@ -279,7 +432,8 @@ class MessageRecording(Recording):
                 stamp, frame_id = stamped
                 if is_color and poses.camera_frame is None:
                     poses.camera_frame = cfg.pose_frame or frame_id
-                pending.extend(pairer.push("color" if is_color else "depth", stamp, msg))
+                pending.extend(p for p in pairer.push("color" if is_color else "depth", stamp, msg)
+                               if win.keep(p.stamp_ns))
                 newest = stamp if newest is None else max(newest, stamp)
             elif msg.topic == ch.camera_info.topic:
                 try:
@@ -304,7 +458,9 @@ class MessageRecording(Recording):
                 poses.track.prune(min(keep) - tol_pose)
                 if state.clouds is not None:
                     state.clouds.prune(min(keep) - tol_pose)
-        pending.extend(pairer.flush())
+            if not pending and win.done():  # pairs come out in stamp order: none to come is in the window
+                break
+        pending.extend(p for p in pairer.flush() if win.keep(p.stamp_ns))
         while pending:
             frame = self._decode(pending.popleft(), state, poses)
             if frame is not None:
@@ -315,7 +471,7 @@ class MessageRecording(Recording):
             state.note(f"{state.clouds.late} map cloud(s) on {points_topic} were logged later than "
                        "sources.reorder_window_ms after the images of their time and went to no frame")
         notes = tuple(state.notes) + tuple(self._stamp_report(ch, stamps, pairer))
-        self.report = self._report(pairer, state.without_pose, state.n_undecodable, notes)
+        self.report = self._report(pairer, state.without_pose, state.n_undecodable, notes, win)
         if self.log.warnings:
             log.warning("%s: %d frames recovered (%s)", self.path, state.yielded, "; ".join(self.log.warnings))
         if state.yielded == 0 and state.first_error is not None:
@@ -349,7 +505,7 @@ class MessageRecording(Recording):
             max_px = self.cfg.max_image_px
             rgb = decode.decode_color(self.log.deserialize(pair.color.topic, pair.color.data), max_px)
             depth = decode.decode_depth(self.log.deserialize(pair.depth.topic, pair.depth.data),
-                                        self.cfg.depth_unit_16u_m, self.cfg.max_depth_m, max_px)
+                                        self._depth_unit_m(), self.cfg.max_depth_m, max_px)
         except DecodeError as err:
             where = f"{ch.color.topic} / {ch.depth.topic}"
             if isinstance(err, FrameTooLarge):
@@ -357,21 +513,29 @@ class MessageRecording(Recording):
             state.undecodable(self.path, where, err)
             return None
         h, w = rgb.shape[:2]
-        if depth.shape != (h, w):
+        d2c = self._depth_to_color()
+        if depth.shape != (h, w) and d2c.mode != "register":
             state.note(f"depth {depth.shape[1]}x{depth.shape[0]} resized nearest-neighbour to colour {w}x{h} "
-                       f"({ch.depth.topic} is not aligned to colour)")
-            depth = decode.match_depth_to_color(depth, (h, w))
+                       f"({d2c.describe})")
         intr = state.info
         if intr is None:
-            state.note("no CameraInfo before the first frame: intrinsics from the config camera section")
-            intr = self._config_intrinsics()
-            state.info_source = "the config camera section"
+            intr, state.info_source = self._fallback_intrinsics()
+            state.note(f"no CameraInfo before the first frame: intrinsics from the {state.info_source}")
+        problem = distortion_problem(intr)
+        if problem is not None:
+            self._warn(f"{state.info_source}: {problem}")
         problem = size_problem(intr, w, h, self.cfg.intrinsics.aspect_tolerance)
         if problem is not None:
             raise DatasetError(self.path, f"frame {state.yielded} ({ch.color.topic}): {state.info_source}: {problem}")
         if (intr.width, intr.height) != (w, h):
             state.note(f"intrinsics for {intr.width}x{intr.height} scaled to the colour size {w}x{h}")
             intr = intr.scaled(w, h)
+        if d2c.mode == "register" and d2c.k_depth is not None:
+            problem = size_problem(d2c.k_depth, depth.shape[1], depth.shape[0], self.cfg.intrinsics.aspect_tolerance)
+            if problem is not None:
+                raise DatasetError(self.path, f"frame {state.yielded} ({ch.depth.topic}): CameraInfo on "
+                                              f"{ch.depth_info.topic}: {problem}")
+        rgb, depth, intr = to_color_camera(rgb, depth, intr, d2c)
         T = poses.track.at(pair.stamp_ns) if ch.pose.topic else None
         if ch.pose.topic and T is None:
             state.without_pose += 1
@@ -485,6 +649,12 @@ class _PoseSource:
                 self.state.note(f"pose frame {child!r} has no tf link to camera frame {self.camera_frame!r}: "
                                 "its pose is used as the camera pose")
         self.track.add(stamp, T)
+
+
+def _stream_prefix(topic: str | None) -> str:
+    """``/device_0/sensor_0/Depth_0/image/data`` -> ``/device_0/sensor_0/Depth_0`` (a RealSense recorder's
+    stream), else ''."""
+    return topic[: -len("/image/data")] if topic and topic.endswith("/image/data") else ""
 
 
 def _chain_frames(tree: dict[str, tuple[str, np.ndarray]], frame: str) -> set[str]:

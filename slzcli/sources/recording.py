@@ -25,6 +25,9 @@ class RecordingInfo:
     intrinsics_source: str
     pairing: PairingReport
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    camera_preset: str | None = None     # configs/camera/NAME.yaml in use, None: none
+    camera_preset_reason: str = ""
+    depth_to_color: str = ""             # how depth reaches the colour pixel grid (aligned, registered, resized)
 
     @property
     def expected_frames(self) -> int:
@@ -44,10 +47,13 @@ class RecordingInfo:
                 "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height,
                 "distortion_model": k.distortion_model, "distortion": list(k.distortion)},
             "intrinsics_source": self.intrinsics_source,
+            "camera_preset": {"name": self.camera_preset, "reason": self.camera_preset_reason},
+            "depth_to_color": self.depth_to_color,
             "frames": self.pairing.paired,
             "pairing": {"paired": self.pairing.paired, "unpaired_color": self.pairing.unpaired_color,
                         "unpaired_depth": self.pairing.unpaired_depth, "without_pose": self.pairing.without_pose,
-                        "undecodable": self.pairing.undecodable, "notes": list(self.pairing.notes)},
+                        "undecodable": self.pairing.undecodable, "outside_window": self.pairing.outside_window,
+                        "notes": list(self.pairing.notes)},
             "warnings": list(self.warnings),
         }
 

@@ -8,18 +8,22 @@ depth encoding (16UC1, mono16, 32FC1), then ``aligned_depth_to_color`` (same pix
 colour), then raw over compressed;
 camera_info = the CameraInfo beside the depth topic when depth is aligned, else beside
 the colour topic, else any; pose = PoseStamped, then Odometry, then /tf, skipping topics
-named as ground truth unless ``sources.use_ground_truth_pose``.
+named as ground truth unless ``sources.use_ground_truth_pose``. depth_info = the depth stream's
+own CameraInfo (beside the depth topic) when the depth is not aligned to colour: slz registers
+it to the colour camera (registration.py). A camera preset (presets.py) names each role's topic
+first; ``sources.topics.*`` beats both.
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 
 from slzcli.config import SourcesCfg
 from slzcli.errors import DatasetError
 from slzcli.sources.decode import COLOR_ENCODINGS, DEPTH_ENCODINGS
+from slzcli.sources.presets import CameraPreset
 from slzcli.types import StreamChoice
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -28,8 +32,12 @@ CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF = "tf2_msgs/msg/TFMessage"
+TRANSFORM = "geometry_msgs/msg/Transform"   # a RealSense recorder's per-stream extrinsics
 POSE_TYPES = (POSE_STAMPED, ODOMETRY, TF)
 GROUND_TRUTH_TOKENS = {"ground_truth", "groundtruth", "gt"}
+# Depth topic names that say the driver registered the depth to the colour camera (realsense2_camera,
+# openni/openni2 and zed wrappers).
+ALIGNED_NAMES = ("aligned_depth_to_color", "depth_registered", "aligned_depth_to_rgb")
 
 
 def normalise_msgtype(msgtype: str) -> str:
@@ -53,6 +61,9 @@ def namespace(topic: str) -> str:
     return "/".join(parts)
 
 
+ALIGNED_DEPTH_INFO = StreamChoice("depth_info", None, "depth aligned to colour: no depth CameraInfo needed")
+
+
 @dataclass(frozen=True)
 class Choices:
     color: StreamChoice
@@ -60,13 +71,19 @@ class Choices:
     camera_info: StreamChoice
     pose: StreamChoice
     pose_type: str | None
+    depth_info: StreamChoice = ALIGNED_DEPTH_INFO
+    aligned: bool = True     # the depth image is on the colour camera's pixel grid (no registration)
 
     def all(self) -> tuple[StreamChoice, ...]:
-        return (self.color, self.depth, self.camera_info, self.pose)
+        return (self.color, self.depth, self.camera_info, self.depth_info, self.pose)
+
+
+def is_aligned_name(topic: str | None) -> bool:
+    return topic is not None and any(n in topic for n in ALIGNED_NAMES)
 
 
 def choose_streams(topics: Mapping[str, str], cfg: SourcesCfg, path: str,
-                   encodings: Mapping[str, str] | None = None) -> Choices:
+                   encodings: Mapping[str, str] | None = None, preset: CameraPreset | None = None) -> Choices:
     """Pick the topic for every role; DatasetError (naming ``path``) when colour or depth is missing.
 
     ``encodings``: the ``encoding`` of the first message of Image topics, when known; a topic
@@ -75,11 +92,63 @@ def choose_streams(topics: Mapping[str, str], cfg: SourcesCfg, path: str,
     """
     types = {t: normalise_msgtype(m) for t, m in topics.items()}
     enc = dict(encodings or {})
-    color = _pick_color(types, cfg.topics.color, path, enc)
-    depth = _pick_depth(types, cfg.topics.depth, path, exclude=color.topic, encodings=enc)
-    info = _pick_info(types, cfg.topics.camera_info, color.topic, depth.topic, path)
+    color = _with_misfits(_preset_pick(preset, "color", types, (IMAGE, COMPRESSED), cfg.topics.color, enc,
+                                       COLOR_ENCODINGS), lambda: _pick_color(types, cfg.topics.color, path, enc))
+    depth = _with_misfits(_preset_pick(preset, "depth", types, (IMAGE, COMPRESSED), cfg.topics.depth, enc,
+                                       DEPTH_ENCODINGS),
+                          lambda: _pick_depth(types, cfg.topics.depth, path, exclude=color.topic, encodings=enc))
+    by_preset = preset is not None and depth.reason.startswith("preset")
+    aligned = (preset.depth_aligned if by_preset and preset is not None else is_aligned_name(depth.topic)) \
+        and not cfg.topics.depth_info
+    info = _preset_pick(preset, "camera_info", types, (CAMERA_INFO,), cfg.topics.camera_info) \
+        or _pick_info(types, cfg.topics.camera_info, color.topic, depth.topic if aligned else None, path)
+    depth_info = ALIGNED_DEPTH_INFO
+    if not aligned:
+        depth_info = (_override(types, cfg.topics.depth_info, "depth_info", (CAMERA_INFO,), path)
+                      if cfg.topics.depth_info else None) \
+            or _preset_pick(preset, "depth_info", types, (CAMERA_INFO,), "") \
+            or _pick_depth_info(types, depth.topic, info.topic)
     pose = _pick_pose(types, cfg, path)
-    return Choices(color, depth, info, pose, types.get(pose.topic) if pose.topic else None)
+    return Choices(color, depth, info, pose, types.get(pose.topic) if pose.topic else None, depth_info, aligned)
+
+
+def _with_misfits(chosen: StreamChoice | None, generic: Callable[[], StreamChoice]) -> StreamChoice:
+    """The preset's choice (keeping the generic rule's note on topics of the wrong encoding), else the generic one."""
+    if chosen is None:
+        return generic()
+    try:
+        note = generic().reason
+    except DatasetError:
+        return chosen
+    ranked = note[note.find("ranked last"):] if "ranked last" in note else ""
+    return StreamChoice(chosen.role, chosen.topic, "; ".join([chosen.reason] + ([ranked] if ranked else [])))
+
+
+def _preset_pick(preset: CameraPreset | None, role: str, types: Mapping[str, str], allowed: tuple[str, ...],
+                 override: str, encodings: Mapping[str, str] | None = None,
+                 fit: Collection[str] = ()) -> StreamChoice | None:
+    """The preset's topic for a role (None: no preset, an override, or no topic of the right type and, when
+    known, encoding matches)."""
+    if preset is None or override:
+        return None
+    topic = preset.topic_for(role, [t for t, m in types.items() if m in allowed
+                                    and (not fit or _fits(encodings or {}, t, fit))])
+    if topic is None:
+        return None
+    why = f"preset {preset.name} ({preset.topics[role]})"
+    if role == "depth":
+        why += ("; aligned to colour by the driver" if preset.depth_aligned
+                else "; not aligned to colour: registered to it with the depth CameraInfo")
+    return StreamChoice(role, topic, why)
+
+
+def _pick_depth_info(types: Mapping[str, str], depth: str | None, color_info: str | None) -> StreamChoice:
+    """The CameraInfo beside a depth topic that is not aligned to colour (its own intrinsics)."""
+    for t in sorted(types):
+        if types[t] == CAMERA_INFO and t != color_info and depth is not None and namespace(t) == namespace(depth):
+            return StreamChoice("depth_info", t, "beside the depth topic (depth not aligned: registered to colour)")
+    return StreamChoice("depth_info", None, "no CameraInfo beside the depth topic: depth cannot be registered to "
+                                            "colour, it is resized to the colour size (approximate)")
 
 
 def _override(types: Mapping[str, str], topic: str, role: str, allowed: tuple[str, ...], path: str) -> StreamChoice:
@@ -144,12 +213,12 @@ def _pick_depth(types: Mapping[str, str], override: str, path: str, exclude: str
                                  "set sources.topics.depth")
 
     def rank(t: str) -> tuple[int, int, int, str]:
-        return (0 if _fits(encodings, t, DEPTH_ENCODINGS) else 1, 0 if "aligned_depth_to_color" in t else 1,
+        return (0 if _fits(encodings, t, DEPTH_ENCODINGS) else 1, 0 if is_aligned_name(t) else 1,
                 0 if types[t] == IMAGE else 1, t)
 
     best = min(cands, key=rank)
-    why = ["aligned to colour (aligned_depth_to_color preferred)" if "aligned_depth_to_color" in best
-           else "depth in the name; not aligned to colour: resized to the colour size if sizes differ"]
+    why = ["aligned to colour (aligned_depth_to_color preferred)" if is_aligned_name(best)
+           else "depth in the name; not aligned to colour: registered to it with the depth CameraInfo"]
     why.append(f"raw Image {encodings.get(best, '')}".rstrip() if types[best] == IMAGE else "compressedDepth")
     if len(cands) > 1:
         why.append(f"{len(cands) - 1} other candidate(s)")
@@ -164,8 +233,7 @@ def _pick_info(types: Mapping[str, str], override: str, color: str | None, depth
     infos = [t for t, m in types.items() if m == CAMERA_INFO]
     if not infos:
         return StreamChoice("camera_info", None, "no CameraInfo topic: intrinsics from the config camera section")
-    aligned = depth is not None and "aligned_depth_to_color" in depth
-    order = ([("depth", depth)] if aligned else []) + [("colour", color)]
+    order = ([("depth", depth)] if depth is not None else []) + [("colour", color)]
     for label, stream in order:
         if stream is None:
             continue

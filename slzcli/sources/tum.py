@@ -6,7 +6,10 @@ data. Ground truth lines are ``t tx ty tz qx qy qz qw``, the colour camera's opt
 centre in the world; being ground truth, it is used as the pose input only with
 ``sources.use_ground_truth_pose``. TUM has no intrinsics file: an optional
 ``camera.yaml`` in the folder (fx, fy, cx, cy, width, height [, distortion_model,
-distortion]) is read, else the config camera section is used.
+distortion]) is read, else the camera preset's (tum_fr1/2/3: the benchmark's published
+calibration, guessed from a folder name such as rgbd_dataset_freiburg1_xyz, or --camera),
+else the config camera section (with a warning). Distortion is removed from colour and depth
+alike (the depth is registered to the distorted colour image by the camera's driver).
 """
 
 from __future__ import annotations
@@ -23,10 +26,14 @@ import yaml
 from slzcli.config import Config, read_yaml_text, safe_yaml_load
 from slzcli.errors import DatasetError, DecodeError
 from slzcli.sources import decode
+from slzcli.sources.color_camera import ALIGNED, to_color_camera
 from slzcli.sources.image_limits import FrameTooLarge, check_file
+from slzcli.sources.presets import PresetChoice, choose_preset
 from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import PoseTrack, pair_stamps
+from slzcli.sources.undistort import distortion_problem, has_distortion
 from slzcli.sources.validate import intrinsics_problem, pose_problem, size_problem, stamp_problem
+from slzcli.sources.window import WindowFilter
 from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
 
 log = logging.getLogger(__name__)
@@ -94,6 +101,14 @@ class TumRecording(Recording):
         self._intr_source = ""
         self._pairs: list[tuple[int, int]] = []
         self._notes: list[str] = []
+        self.preset = PresetChoice(None, "")
+        self.camera_warnings: list[str] = []
+
+    def _warn(self, text: str) -> None:
+        """A fallback: one warning line on stderr and in RecordingInfo.warnings (run.json)."""
+        if text not in self.camera_warnings:
+            self.camera_warnings.append(text)
+            log.warning("%s: %s", self.path, text)
 
     def open(self) -> None:
         for name in ("rgb.txt", "depth.txt"):
@@ -124,7 +139,13 @@ class TumRecording(Recording):
             raise DatasetError(self.path / "rgb.txt", "no colour images listed")
         if not self._depth:
             raise DatasetError(self.path / "depth.txt", "no depth images listed")
+        self.preset = choose_preset(self.config.camera.preset, folder=self.path)
         self._intr, self._intr_source = self._read_intrinsics()
+        problem = distortion_problem(self._intr)
+        if problem is not None:
+            self._warn(f"{self._intr_source}: {problem}")
+        elif has_distortion(self._intr):
+            self._intr_source += f"; {self._intr.distortion_model} distortion removed from every frame"
         tol = int(self.cfg.sync_tolerance_ms * NS_PER_MS)
         self._pairs = pair_stamps([s for s, _ in self._rgb], [s for s, _ in self._depth], tol)
 
@@ -146,7 +167,13 @@ class TumRecording(Recording):
             if problem is not None:
                 raise DatasetError(cam_file, problem)
             return k, str(cam_file)
+        preset = self.preset.preset
+        if preset is not None and preset.intrinsics is not None:
+            return preset.intrinsics, f"camera preset {preset.name}"
         cam = self.config.camera
+        self._warn(f"no camera.yaml and no camera preset ({self.preset.reason}): intrinsics from the config camera "
+                   f"section (fx {cam.fx:g} px, {cam.width}x{cam.height}), not this camera's calibration; add "
+                   "camera.yaml or use --camera tum_fr1/tum_fr2/tum_fr3")
         return Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height), "config camera section"
 
     def _pose_choice(self) -> StreamChoice:
@@ -165,8 +192,15 @@ class TumRecording(Recording):
 
     def _report(self, without_pose: int, undecodable: int, notes: tuple[str, ...] = ()) -> PairingReport:
         n = len(self._pairs)
-        return PairingReport(n, len(self._rgb) - n, len(self._depth) - n, without_pose, undecodable,
-                             tuple(self._notes) + notes)
+        read, win = self._windowed()
+        window_note = win.note()
+        return PairingReport(len(read), len(self._rgb) - n, len(self._depth) - n, without_pose, undecodable,
+                             tuple(self._notes) + notes + ((window_note,) if window_note else ()), win.left_out)
+
+    def _windowed(self) -> tuple[list[tuple[int, int]], WindowFilter]:
+        """The pairs within sources.window (the lists are in memory: every pair is judged, none decoded)."""
+        win = WindowFilter(self.config.sources.window)
+        return [p for p in self._pairs if win.keep(self._rgb[p[0]][0])], win
 
     def _within_pixel_bound(self, rgb_name: str, depth_name: str, too_large: list[str]) -> bool:
         """Check both images' declared sizes (file headers) before reading them; warn once, then count."""
@@ -196,7 +230,9 @@ class TumRecording(Recording):
             streams.append(stream("groundtruth.txt", self._gt))
         all_stamps = [s for s, _ in self._rgb] + [s for s, _ in self._depth]
         return RecordingInfo(str(self.path), "tum folder", (max(all_stamps) - min(all_stamps)) * 1e-9,
-                             tuple(streams), self._choices(), self._intr, self._intr_source, self._report(0, 0))
+                             tuple(streams), self._choices(), self._intr, self._intr_source, self._report(0, 0),
+                             tuple(self.camera_warnings), self.preset.name, self.preset.reason,
+                             "registered to colour by the camera's driver (TUM)")
 
     def frames(self) -> Iterator[Frame]:
         """The frames (see Recording); a configured points topic is refused here: TUM has no point clouds."""
@@ -215,7 +251,7 @@ class TumRecording(Recording):
         first_error = ""
         too_large: list[str] = []   # the files skipped for their size (one warning, then counted)
         assert self._intr is not None
-        for i, j in self._pairs:
+        for i, j in self._windowed()[0]:
             stamp, rgb_name = self._rgb[i]
             if not self._within_pixel_bound(rgb_name, self._depth[j][1], too_large):
                 undecodable += 1
@@ -236,12 +272,13 @@ class TumRecording(Recording):
                 raise DatasetError(self.path, f"frame {index} ({rgb_name}): {self._intr_source}: {problem}")
             intr = self._intr if (self._intr.width, self._intr.height) == (rgb.shape[1], rgb.shape[0]) \
                 else self._intr.scaled(rgb.shape[1], rgb.shape[0])
+            rgb, depth, intr = to_color_camera(rgb, depth, intr, ALIGNED)
             pose = track.at(stamp) if track is not None else None
             if track is not None and pose is None:
                 without_pose += 1
             yield Frame(index, stamp, rgb, depth, intr, pose, str(self.path))
             index += 1
-        notes = ((f"{undecodable - len(too_large)} of {len(self._pairs)} frame(s) not readable "
+        notes = ((f"{undecodable - len(too_large)} of {len(self._windowed()[0])} frame(s) not readable "
                   f"(first: {first_error})",) if undecodable > len(too_large) else ())
         self.report = self._report(without_pose, undecodable, notes)
         if too_large:

@@ -1,0 +1,141 @@
+"""`slz detect` end to end: frames per second with the stages overlapped against one at a time.
+
+    python benchmarks/throughput.py [--frames 300] [--repeats 2] [--keep DIR] [--backend orbslam3] [--set k=v ...]
+
+Renders one `slz synth` descent (parking_lot, 8 m to 3 m, the default D435-like stereo depth,
+640x480) of ``--seed-frames`` frames, plays it forwards and backwards to ``--frames`` frames,
+then runs the real CLI (`python -m slzcli.cli detect --json`, a fresh process each time:
+start-up, vocabulary load and the final write included) in variants interleaved over
+``--repeats`` rounds, so that a slow spell of a shared machine hits every variant:
+
+- ``sequential``: one frame at a time, files written in the loop (``slam.track_ahead=false``,
+  ``output.write_queue=0``): the reference, measured in the same process as the others;
+- ``overlapped``: the defaults (frame n+1 tracked by the SLAM worker while frame n's maps are
+  computed; files written by the background writer);
+- the same two with every frame a detection (``landing.detect_on=every_nth``,
+  ``landing.every_nth_frame=1``).
+
+Per variant: median frames/s over the process's wall time, median ms per stage from run.json
+(slam is the worker's own time, slam_wait what the main loop waited for it), the ratio
+against its sequential reference, and whether the committed site is the same in every run (it
+must be: overlapping changes when work is done, not what is computed; ORB-SLAM3 itself is not
+bit-reproducible, benchmarks/reproducibility.py). Writes benchmarks/results/throughput.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parent.parent
+RESULTS = REPO / "benchmarks" / "results" / "throughput.json"
+SEQUENTIAL = ("slam.track_ahead=false", "output.write_queue=0")
+EVERY_FRAME = ("landing.detect_on=every_nth", "landing.every_nth_frame=1")
+VARIANTS: dict[str, tuple[str, ...]] = {
+    "sequential": SEQUENTIAL,
+    "overlapped": (),
+    "every frame, sequential": (*EVERY_FRAME, *SEQUENTIAL),
+    "every frame, overlapped": EVERY_FRAME,
+}
+REFERENCE = {"overlapped": "sequential", "every frame, overlapped": "every frame, sequential"}
+
+
+def slz(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "slzcli.cli", *args], cwd=REPO, capture_output=True, text=True,
+                          check=False)
+
+
+def render(folder: Path, frames: int, seed_frames: int) -> Path:
+    """A ``seed_frames`` descent rendered by `slz synth`, played forwards and backwards to ``frames`` frames at
+    15 Hz (tests/long_recording.py: the motion stays continuous, SLAM keeps tracking; rendering 300 stereo frames
+    takes the renderer longer than the benchmark itself)."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from long_recording import write_ping_pong
+
+    from slzcli.config import load_config
+
+    seed = folder / f"descent_{seed_frames}.mcap"
+    if not seed.exists():
+        res = slz("synth", "parking_lot", "-o", str(seed), "--frames", str(seed_frames), "--rate", "15",
+                  "--path", "descent", "--start", "0,0,8")
+        if res.returncode != 0:
+            raise SystemExit(f"synth failed: {res.stderr}")
+    path = folder / f"descent_{seed_frames}_x{frames}.mcap"
+    if not path.exists():
+        write_ping_pong(seed, path, frames, load_config(), rate_hz=15.0)
+    return path
+
+
+def run(recording: Path, out: Path, sets: tuple[str, ...]) -> dict[str, Any]:
+    cmd = ["detect", str(recording), "-o", str(out), "--json", "--force"]
+    for s in sets:
+        cmd += ["--set", s]
+    t0 = time.perf_counter()
+    res = slz(*cmd)
+    wall = time.perf_counter() - t0
+    if res.returncode != 0:
+        raise SystemExit(f"detect failed ({' '.join(sets)}): {res.stderr.strip()}")
+    summary = json.loads(res.stdout)
+    timings = json.loads((out / "run.json").read_text())["timings"]
+    landing = json.loads((out / "landing.json").read_text())
+    site = landing.get("site", {}).get("center_world")
+    return {"frames": summary["frames"], "detections": summary["detections"], "wall_s": round(wall, 3),
+            "fps": round(summary["frames"] / wall, 3), "status": summary["status"],
+            "site": None if site is None else [round(v, 3) for v in site],
+            "stage_ms": {k: round(v["median_ms"], 2) for k, v in timings.items()}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--seed-frames", type=int, default=100, help="frames rendered (then played ping-pong)")
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--backend", default="orbslam3", help="slam.backend of every run")
+    ap.add_argument("--keep", type=Path, help="folder for the recording and runs (kept; reused when present)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[])
+    ap.add_argument("--out", type=Path, default=RESULTS)
+    args = ap.parse_args()
+    work = args.keep or Path(tempfile.mkdtemp(prefix="slz_throughput_"))
+    work.mkdir(parents=True, exist_ok=True)
+    recording = render(work, args.frames, args.seed_frames)
+    base = (f"slam.backend={args.backend}", *args.overrides)
+    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in VARIANTS}
+    for _ in range(args.repeats):
+        for name, sets in VARIANTS.items():
+            rows[name].append(run(recording, work / f"run_{name.replace(', ', '_').replace(' ', '_')}",
+                                  (*base, *sets)))
+    table: dict[str, Any] = {}
+    print(f"{'variant':<26} {'frames':>6} {'det':>4} {'frames/s':>8} {'x ref':>6} {'slam':>6} {'wait':>6} "
+          f"{'maps':>6} {'write':>6} {'waited':>6}  site")
+    for name, runs in rows.items():
+        fps = statistics.median(r["fps"] for r in runs)
+        stages = {k: statistics.median(r["stage_ms"].get(k, float("nan")) for r in runs)
+                  for k in runs[0]["stage_ms"]}
+        sites = {json.dumps(r["site"]) for r in runs}
+        table[name] = {"fps_median": round(fps, 3), "stage_ms_median": stages, "runs": runs,
+                       "same_site_every_run": len(sites) == 1}
+        ref = REFERENCE.get(name)
+        ratio = fps / table[ref]["fps_median"] if ref else 1.0
+        table[name]["ratio_to_reference"] = round(ratio, 3)
+        print(f"{name:<26} {runs[0]['frames']:>6} {runs[0]['detections']:>4} {fps:>8.2f} {ratio:>6.2f} "
+              f"{stages.get('slam', float('nan')):>6.1f} {stages.get('slam_wait', float('nan')):>6.1f} "
+              f"{stages.get('maps', float('nan')):>6.1f} {stages.get('write', float('nan')):>6.1f} "
+              f"{stages.get('write_wait', float('nan')):>6.1f}  {runs[0]['site']}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"frames": args.frames, "repeats": args.repeats, "base": list(base),
+                                    "cpus": os.cpu_count(), "python": platform.python_version(),
+                                    "load_avg_at_end": os.getloadavg(), "variants": table}, indent=2) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
