@@ -23,7 +23,7 @@ import click
 
 from slzcli import __version__
 from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
-from slzcli.config import Config, OutputLevel, dump
+from slzcli.config import Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
 from slzcli.outputs.summary_json import envelope
 
@@ -34,9 +34,23 @@ log = logging.getLogger("slzcli")
 
 
 # ----------------------------------------------------------------------------- shared plumbing
-def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """--config, --set, --json and -v on every command; the resolved Config is passed as ``config``."""
+LAYERS = "slz.config_layers"  # click context meta key: (profile, config file, --set items) as given
 
+
+def _layers() -> tuple[str | None, Path | None, tuple[str, ...]]:
+    layers: tuple[str | None, Path | None, tuple[str, ...]] = click.get_current_context().meta[LAYERS]
+    return layers
+
+
+def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """--profile, --config, --set, --json and -v on every command; the resolved Config is passed as ``config``.
+
+    The layers as given are kept in the click context (``LAYERS``) for commands that resolve more
+    than one config (``config dump``'s sources, ``compare --profiles``)."""
+
+    @click.option("--profile", "profile", default=None, metavar="NAME",
+                  help="Named profile layered between configs/default.yaml and --config (configs/profiles/NAME.yaml; "
+                       "e.g. paper: the paper as published).")
     @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path, readable=False),
                   help="YAML file layered over configs/default.yaml.")
     @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", callback=_check_overrides,
@@ -44,12 +58,13 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object.")
     @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
     @functools.wraps(fn)
-    def wrapper(config_file: Path | None, overrides: tuple[str, ...], as_json: bool, verbose: int,
-                **kwargs: Any) -> None:
+    def wrapper(profile: str | None, config_file: Path | None, overrides: tuple[str, ...], as_json: bool,
+                verbose: int, **kwargs: Any) -> None:
         warned = _setup_logging(verbose)
+        click.get_current_context().meta[LAYERS] = (profile, config_file, overrides)
         try:
             with _sigterm_interrupts():
-                config = load_config(config_file, overrides)
+                config = load_config(config_file, overrides, profile)
                 result = fn(config=config, **kwargs)
         except click.ClickException:  # a usage error found after parsing (exit 2): click prints it
             warned.flush()
@@ -343,10 +358,12 @@ def config_group() -> None:
 @config_group.command("dump")
 @common_options
 def config_dump(config: Config) -> tuple[dict[str, Any], str]:
-    """Print the resolved config (defaults + --config + --set), every key commented."""
+    """Print the resolved config (defaults + --profile + --config + --set), every key commented with its source."""
     from slzcli.outputs.summary_json import Exact
 
-    return Exact(config.to_dict()), dump(config).rstrip("\n")  # --json unrounded: values must round-trip
+    profile, config_file, overrides = _layers()
+    # --json unrounded: values must round-trip
+    return Exact(config.to_dict()), dump(config, layer_sources(profile, config_file, overrides)).rstrip("\n")
 
 
 @main.command("info")
@@ -857,7 +874,10 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
 @main.command("compare")
 @click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path, readable=False))
 @click.option("--methods", default=None, metavar="A,B", help="Methods to compare (default: compare.methods, "
-              "fuzzy,bayes).")
+              "fuzzy,bayes). With --profiles: the one method every profile uses (default: each profile's).")
+@click.option("--profiles", default=None, metavar="A,B", help="Compare profiles instead of methods, e.g. "
+              "paper,default: each a whole config (SLAM, maps, fusion) over the same frames, "
+              "layered under --config and --set.")
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="Output folder (default runs/compare_<first recording>).")
 @click.option("--variants", is_flag=True, help="Also re-render each synth recording's scene in the variants of "
@@ -869,16 +889,23 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
 @window_options
 @camera_option
 @common_options
-def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, output: Path | None,
-                variants: bool, force: bool, timeout_s: float | None, win_start: WindowBound | None,
-                win_end: WindowBound | None, stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
-    """Fuzzy vs Bayes on the same frames and SLAM points: time, agreement, accuracy against ground truth."""
+def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, profiles: str | None,
+                output: Path | None, variants: bool, force: bool, timeout_s: float | None,
+                win_start: WindowBound | None, win_end: WindowBound | None, stride: int | None,
+                max_frames: int | None) -> tuple[dict[str, Any], str]:
+    """Fuzzy vs Bayes on the same frames and SLAM points: time, agreement, accuracy against ground truth.
+
+    With --profiles: whole configs (e.g. the paper as published against slz's defaults) on the same recordings."""
     from slzcli.compare import compare, recording_name
     from slzcli.outputs.report import text_table
 
     config = _windowed(config, win_start, win_end, stride, max_frames)
 
     out = output or Path("runs") / f"compare_{recording_name(recordings[0])}"
+    if profiles is not None:
+        window = functools.partial(_windowed, start=win_start, end=win_end, stride=stride,
+                                   max_frames=max_frames)
+        return _compare_profiles(recordings, profiles, methods, out, variants, force, timeout_s, window)
     chosen = tuple(methods.split(",")) if methods is not None else None
     with _progress("compare") as progress:
         summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=progress,
@@ -888,6 +915,30 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
     return envelope("compare", summary), text_table(summary, str(out))
+
+
+def _compare_profiles(recordings: tuple[Path, ...], profiles: str, methods: str | None, out: Path, variants: bool,
+                      force: bool, timeout_s: float | None,
+                      window: Callable[[Config], Config]) -> tuple[dict[str, Any], str]:
+    """``slz compare --profiles``: each profile's config with the command's --config and --set over it."""
+    from slzcli.compare import compare_profiles, profile_table
+    from slzcli.errors import ConfigError
+
+    if variants:
+        raise ConfigError("--variants", "not available with --profiles (compare profiles on the variant recordings)")
+    method = None
+    if methods is not None:
+        chosen = [m.strip() for m in methods.split(",") if m.strip()]
+        if len(chosen) != 1:
+            raise ConfigError("--methods", "with --profiles give one method (each profile is compared, not methods)")
+        method = chosen[0]
+    _, config_file, overrides = _layers()
+    names = list(dict.fromkeys(n.strip() for n in profiles.split(",") if n.strip()))
+    configs = {n: window(load_config(config_file, overrides, n)) for n in names}  # the same frame window each
+    with _progress("compare") as progress:
+        summary = compare_profiles(list(recordings), configs, out, method, force=force, progress=progress,
+                                   timeout_s=timeout_s)
+    return summary, profile_table(summary["rows"]) + f"\n  results: {out}/ (compare.json, compare.csv)"
 
 
 # --- commands end (new commands go above this line) ---

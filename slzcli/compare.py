@@ -300,7 +300,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
     committed_of: dict[str, dict[str, Any] | None] = {}
     for m, run in runs.items():
         st = run.state
-        committed = commit_site(st.sites.sites, side)
+        committed = commit_site(st.sites.sites, side, config.landing.commit)
         committed_of[m] = committed
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)
@@ -339,7 +339,9 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         "slam_backend": tracker.slam_name, "tracking": tracker.tracking,
         "keyframes": len(tracker.keyframes),
         "slam": {"maps": len(segment_table(tracker.trajectory.segments(), tracker.trajectory.has_pose(),
-                                           tracker.keyframes.per_segment))},
+                                           tracker.keyframes.per_segment)),
+                 "ate_rmse_m": _ate_rmse(tracker, truth),
+                 "frames_digest": digest(np.asarray(tracker.trajectory.stamps))},
         "inputs_identical": True,
         "methods": per, "pairs": pairs, "wall_s": round(wall_s, 3), "ground_truth": truth is not None,
         "depth_noise": noise.summary(),
@@ -353,6 +355,24 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                            "mean_unsafe": _mean(map_means[f"{n}_unsafe"])} for n in TerrainMaps.NAMES}
     out["_arrays"] = _arrays(runs, committed_of, map_curves, truth is not None)
     return out
+
+
+def _ate_rmse(tracker: Tracker, truth: Any | None) -> float | None:
+    """SLAM's ATE (m, each map segment aligned on its own) against the true poses; None without truth or poses."""
+    if truth is None:
+        return None
+    from slzcli.evaluate.slam import ate_by_segment
+
+    true: list[np.ndarray | None] = []
+    for stamp in tracker.trajectory.stamps:
+        try:
+            true.append(np.asarray(truth.T_world_camera[truth.index_of(stamp)], np.float64))
+        except DatasetError:
+            true.append(None)
+    try:
+        return ate_by_segment(tracker.trajectory.poses(), true, tracker.trajectory.segments().tolist()).rmse_m
+    except ValueError:  # fewer than 3 tracked frames in every segment
+        return None
 
 
 def _mean(v: list[float]) -> float | None:
@@ -485,3 +505,85 @@ def compare(paths: list[Path], config: Config, out_dir: Path, methods: tuple[str
         with StageLimit(timeout_s, str(out_dir)).stage("writing the comparison"):
             summary = report.write_comparison(tmp, config, methods, results, variant_results)
     return {**summary, "output": str(out_dir)}
+
+
+# ----------------------------------------------------------------------------- profiles
+def profile_row(result: dict[str, Any], profile: str, method: str) -> dict[str, Any]:
+    """One recording under one profile: what ``slz compare --profiles`` and benchmarks/ablation.py report."""
+    m = result["methods"][method]
+    gt = m.get("ground_truth") or {}
+    mask, site = gt.get("mask") or {}, gt.get("site")
+    return {"recording": result["name"], "profile": profile, "method": method, "frames": result["frames"],
+            "detections": m["detections"], "slam_backend": result["slam_backend"], "tracking": result["tracking"],
+            "slam_maps": result["slam"]["maps"], "ate_rmse_m": result["slam"].get("ate_rmse_m"),
+            "precision": mask.get("precision"), "recall": mask.get("recall"), "iou": mask.get("iou"),
+            "pr_auc": gt.get("pr_auc"), "status": m["status"], "reason": m.get("reason"),
+            "site_safe": None if site is None else site.get("safe"),
+            "clearance_m": None if site is None else site.get("clearance_m"),
+            "frame_ms_median": m["timings_ms"]["frame"]["median_ms"],
+            "maps_ms_median": m["timings_ms"]["maps"]["median_ms"],
+            "slam_ms_median": m["timings_ms"]["slam"]["median_ms"]}
+
+
+def compare_profiles(paths: list[Path], configs: dict[str, Config], out_dir: Path, method: str | None = None, *,
+                     force: bool = False, progress: Progress | None = None,
+                     timeout_s: float | None = None) -> dict[str, Any]:
+    """Each recording under each profile (a whole config: SLAM, maps, fusion, commit), into ``out_dir``.
+
+    Profiles may change SLAM, so keyframes and detection frames may differ; every profile reads the
+    same recording frames (checked by their stamps). ``method``: the fusion of every profile (None:
+    each profile's ``scoring.method``).
+    """
+    from slzcli.outputs import files
+
+    if len(configs) < 2:
+        raise ConfigError("--profiles", f"give at least two different profiles to compare, got {', '.join(configs)}")
+    if method is not None and method not in METHODS:
+        raise ConfigError("--methods", f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    for p in paths:
+        if not Path(p).exists():
+            raise DatasetError(p, "no such file or folder")
+    output_dir.refuse_inputs(out_dir, [Path(p) for p in paths])
+    output_dir.inspect(out_dir, output_dir.COMPARE)
+    rows: list[dict[str, Any]] = []
+    with run_lock.claim(out_dir), output_dir.build(out_dir, output_dir.COMPARE, replace=force) as tmp:
+        for p in paths:
+            stamps: dict[str, str] = {}
+            for name, cfg in configs.items():
+                m = method or cfg.scoring.method
+                r = compare_recording(Path(p), cfg, (m,), progress, timeout_s)
+                stamps[name] = r["slam"]["frames_digest"]
+                rows.append(profile_row(r, name, m))
+            if len(set(stamps.values())) > 1:
+                raise RuntimeError(f"compare: profiles {', '.join(stamps)} read different frames of {p}")
+        summary = {"profiles": list(configs), "config_hashes": {n: c.hash() for n, c in configs.items()},
+                   "recordings": [str(p) for p in paths], "rows": rows}
+        files.write_json(tmp / "compare.json", {**summary, "configs": {n: c.to_dict() for n, c in configs.items()}})
+        files.write_text(tmp / "compare.csv", _profile_csv(rows))
+    return {**summary, "output": str(out_dir)}
+
+
+def _profile_csv(rows: list[dict[str, Any]]) -> str:
+    import csv
+    import io
+    import json
+
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(rows[0]) if rows else ["recording", "profile"], lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: json.dumps(v) if isinstance(v, dict) else v for k, v in r.items()})
+    return buf.getvalue()
+
+
+def profile_table(rows: list[dict[str, Any]]) -> str:
+    """The rows of ``compare_profiles`` as a text table (one line per recording and profile)."""
+    f = lambda v, p=3: "-" if v is None else f"{v:.{p}f}"  # noqa: E731
+    lines = [f"{'recording':<20} {'profile':<10} {'det':>4} {'prec':>6} {'recall':>6} {'site':<13} {'safe':>5} "
+             f"{'ATE m':>6} {'ms/frame':>8}"]
+    for r in rows:
+        safe = "-" if r["site_safe"] is None else str(r["site_safe"])
+        lines.append(f"{r['recording'][:20]:<20} {r['profile'][:10]:<10} {r['detections']:>4} {f(r['precision']):>6} "
+                     f"{f(r['recall']):>6} {r['status']:<13} {safe:>5} {f(r['ate_rmse_m']):>6} "
+                     f"{f(r['frame_ms_median'], 1):>8}")
+    return "\n".join(lines)

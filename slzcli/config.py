@@ -2,7 +2,8 @@
 
 The YAML file holds every value with its unit and source; the dataclasses here hold
 only the schema (types, ranges, choices), so a value lives in exactly one place.
-Layering: defaults <- ``--config FILE`` <- ``--set a.b=v``. Unknown keys are rejected
+Layering: defaults <- ``--profile NAME`` (``configs/profiles/NAME.yaml``) <- ``--config FILE`` <-
+``--set a.b=v``. Unknown keys are rejected
 with the dotted path and a "did you mean"; wrong types and out-of-range values too.
 """
 
@@ -38,6 +39,7 @@ def package_dir(*parts: str) -> Path:
 
 CONFIG_DIR = package_dir("configs")
 DEFAULT_CONFIG = CONFIG_DIR / "default.yaml"
+PROFILE_DIR = CONFIG_DIR / "profiles"
 
 Normalise = Literal["absolute", "frame"]
 OutputLevel = Literal["summary", "maps", "all"]  # output.level / slz detect --outputs
@@ -136,6 +138,7 @@ class DepthVarianceCfg:
     s0_m: float = rng(0, lo_open=True)
     min_valid_fraction: float = rng(0, 1, lo_open=True)
     normalise: Normalise = "absolute"
+    statistic: Literal["plane", "std"] = "plane"
 
 
 @schema
@@ -271,6 +274,7 @@ class LandingCfg:
     edge_clearance_factor: float = rng(0)
     commit_radius_factor: float = rng(0)
     max_normal_pairs: int = rng(1)
+    commit: Literal["agree", "latest"] = "agree"
 
 
 @schema
@@ -522,6 +526,9 @@ class SlamKeyframeCfg:
 
 @schema
 class OrbSlam3Cfg:
+    sensor: Literal["rgbd", "monocular"]
+    scale_min_points: int = rng(1)
+    init_warn_frames: int = rng(1)
     close_depth_m: float = rng(0, lo_open=True)
     baseline_m: float = rng(0, lo_open=True)
     nominal_period_s: float = rng(0, lo_open=True)
@@ -617,9 +624,13 @@ class Config:
 
 
 # ----------------------------------------------------------------------------- loading
-def load_config(config_file: str | Path | None = None, overrides: typing.Sequence[str] = ()) -> Config:
-    """Defaults, then the user's file, then ``--set`` overrides; validated into ``Config``."""
+def load_config(config_file: str | Path | None = None, overrides: typing.Sequence[str] = (),
+                profile: str | None = None) -> Config:
+    """Defaults, then the profile, then the user's file, then ``--set`` overrides; validated into ``Config``."""
     data = read_yaml_mapping(DEFAULT_CONFIG)
+    profile_file = profile_path(profile)
+    if profile_file is not None:
+        data = merge(data, read_yaml_mapping(profile_file), source=str(profile_file))
     if config_file is not None:
         user = read_yaml_mapping(Path(config_file))
         data = merge(data, user, source=str(config_file))
@@ -628,10 +639,91 @@ def load_config(config_file: str | Path | None = None, overrides: typing.Sequenc
         key, value = parse_override(item)
         changed.append(key)
         data = merge(data, _nest(key, value), source="--set")
-    where = str(config_file) if config_file else None
+    where = str(config_file) if config_file else (str(profile_file) if profile_file else None)
     config = build(Config, data, "", source=where)
     validate_pairs(config, where or ("--set" if overrides else None), frozenset(changed))
     return config
+
+
+# ----------------------------------------------------------------------------- profiles
+# A profile is a named layer between default.yaml and --config: configs/profiles/NAME.yaml, in
+# default.yaml's style (one leaf per line, each with its unit and source). "default" is no layer.
+DEFAULT_PROFILE = "default"
+
+
+def profile_names() -> list[str]:
+    """Every profile ``--profile`` accepts: ``default`` and the files in configs/profiles/."""
+    shipped = sorted(p.stem for p in PROFILE_DIR.glob("*.yaml")) if PROFILE_DIR.is_dir() else []
+    return [DEFAULT_PROFILE, *(n for n in shipped if n != DEFAULT_PROFILE)]
+
+
+def profile_path(name: str | None) -> Path | None:
+    """The file of profile ``name`` (None for no profile or ``default``); ConfigError naming the known ones."""
+    if name is None or name == DEFAULT_PROFILE:
+        return None
+    known = profile_names()
+    if name not in known:
+        raise ConfigError("--profile", f"unknown profile {short_repr(name)}{_did_you_mean(name, known)}; "
+                                       f"known: {', '.join(known)}")
+    return PROFILE_DIR / f"{name}.yaml"
+
+
+def layer_sources(profile: str | None = None, config_file: str | Path | None = None,
+                  overrides: typing.Sequence[str] = ()) -> dict[str, str]:
+    """Dotted key -> where its value comes from, for every key a layer above default.yaml sets.
+
+    The text is the layer (``profile paper``, ``--config FILE``, ``--set``) and the comment the
+    layer's file writes beside the key, so ``slz config dump`` shows each value's source. The last
+    layer setting a key wins, as in ``load_config``.
+    """
+    out: dict[str, str] = {}
+    layers: list[tuple[str, Path]] = []
+    profile_file = profile_path(profile)
+    if profile_file is not None:
+        layers.append((f"profile {profile}", profile_file))
+    if config_file is not None:
+        layers.append((f"--config {config_file}", Path(config_file)))
+    for label, path in layers:
+        comments = _leaf_comments(read_yaml_text(path))
+        for key in _leaves(read_yaml_mapping(path)):
+            note = comments.get(key, "")
+            out[key] = f"{label}: {note}" if note else label
+    for item in overrides:
+        key, _ = parse_override(item)
+        for leaf in [k for k in out if k == key or k.startswith(key + ".")]:
+            del out[leaf]
+        out[key] = "--set"
+    return out
+
+
+def _leaves(data: Mapping[str, Any], prefix: str = "") -> list[str]:
+    keys: list[str] = []
+    for key, value in data.items():
+        path = f"{prefix}{key}"
+        keys.extend(_leaves(value, f"{path}.") if isinstance(value, dict) else [path])
+    return keys
+
+
+_LINE_RE = re.compile(r"^(\s*)([A-Za-z_]\w*):(\s*)([^#]*?)(\s*)(#.*)?$")
+
+
+def _leaf_comments(text: str) -> dict[str, str]:
+    """Dotted key -> the comment on its line (without ``#``), for a file in default.yaml's style."""
+    out: dict[str, str] = {}
+    stack: list[tuple[int, str]] = []
+    for line in text.splitlines():
+        m = _LINE_RE.match(line)
+        if not m:
+            continue
+        indent, key, _, value, _, comment = m.groups()
+        while stack and stack[-1][0] >= len(indent):
+            stack.pop()
+        if value == "":
+            stack.append((len(indent), key))
+            continue
+        if comment:
+            out[".".join([*(k for _, k in stack), key])] = comment.lstrip("#").strip()
+    return out
 
 
 # ----------------------------------------------------------------------------- bounded YAML
@@ -1017,10 +1109,12 @@ def _to_plain(obj: Any) -> Any:
 
 
 # ----------------------------------------------------------------------------- dump
-def dump(config: Config) -> str:
+def dump(config: Config, sources: Mapping[str, str] | None = None) -> str:
     """The resolved config as YAML, keeping default.yaml's comments (unit and source of every key).
 
     default.yaml keeps one leaf per line, so each leaf line's value is replaced in place.
+    ``sources`` (``layer_sources``): keys set by a layer above the defaults get that layer's
+    source as their comment instead.
     """
     values = config.to_dict()
     out: list[str] = []
@@ -1043,6 +1137,9 @@ def dump(config: Config) -> str:
             node = node[k]
         new = _yaml_scalar(node[key])
         text = f"{indent}{key}: {new}"
+        dotted = ".".join([*(k for _, k in stack), key])
+        if sources and dotted in sources:
+            comment = f"# {sources[dotted]}"
         if comment:
             text = text.ljust(max(len(text) + 1, 32)) + comment
         out.append(text)

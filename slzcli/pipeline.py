@@ -403,21 +403,27 @@ def commit_radius_m(config: Config) -> float:
     return config.landing.commit_radius_factor * config.uav.footprint_m[0]
 
 
-def commit_site(sites: list[dict[str, Any]], side_m: float) -> dict[str, Any] | None:
+def commit_site(sites: list[dict[str, Any]], side_m: float, rule: str = "agree") -> dict[str, Any] | None:
     """The site confirmed by the most detections of its own map segment (see the module docstring).
 
     Adds ``support`` (agreeing detections, this one included), ``detections`` (sites of the run),
     ``segment`` and ``segment_detections`` (sites of that segment) to the chosen entry.
+    ``rule`` ``latest`` (``landing.commit``, the paper's "current keyframe"): the last detection's
+    site, accepted or not; its support is still counted.
     """
     if not sites:
         return None
     pool = [s for s in sites if s["site"].accepted] or sites
+    if rule == "latest":
+        pool = sites
     centres = np.array([s["site"].center_world for s in pool])
     seg = np.array([s["segment"] for s in pool])
     near = np.linalg.norm(centres[:, None, :2] - centres[None, :, :2], axis=2) <= side_m
     support = (near & (seg[:, None] == seg[None, :])).sum(axis=1)
     order = sorted(range(len(pool)), key=lambda i: (-support[i], pool[i]["site"].normal_variance,
                                                       -pool[i]["frame"].index))
+    if rule == "latest":
+        order = [max(range(len(pool)), key=lambda i: pool[i]["frame"].index)]
     best = dict(pool[order[0]])
     best["support"] = int(support[order[0]])
     best["detections"] = len(sites)
@@ -503,7 +509,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             raise DatasetError(path, no_frames_reason(rec.report))
         with limit.stage("writing the run folder"):
             writer.close()  # every frame written before the run's own files and results.mcap's end
-            committed = commit_site(state.sites.sites, commit_radius_m(config))
+            committed = commit_site(state.sites.sites, commit_radius_m(config), config.landing.commit)
             results.write_run(committed)
             result = summarise(path, config, method, info, rec.report, state, tracker.slam_name,
                                tracker.poses_are_recorded, committed, truth, time.perf_counter() - t_start, key)

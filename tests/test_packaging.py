@@ -77,6 +77,8 @@ def test_the_wheel_carries_configs_rules_and_scenes(installed: tuple[Path, dict[
     assert all(Path(p).is_relative_to(venv) for p in where), where  # imported from the wheel, not the checkout
     dump = _run([str(venv / "bin" / "slz"), "config", "dump"], cwd=work, env=env).stdout
     assert "fuzzy_rules.yaml" in dump and "# px; paper T1" in dump  # the comments of default.yaml came along
+    paper = _run([str(venv / "bin" / "slz"), "config", "dump", "--profile", "paper"], cwd=work, env=env).stdout
+    assert "sensor: monocular" in paper and "# profile paper: paper sec. 2.2" in paper  # configs/profiles/ came along
     scenes = _run([str(venv / "bin" / "slz"), "synth", "--list"], cwd=work, env=env).stdout
     assert all(name in scenes for name in ("clear_field", "parking_lot", "no_site"))
     schema = _run([str(venv / "bin" / "python"), "-c", "from slzcli.outputs.summary_json import schema_path as p; "

@@ -1,4 +1,5 @@
-"""The real ORB-SLAM3 (RGB-D) through the optional ``pyorbslam3`` wheel (GPL-3.0: ``slz[orbslam3]``).
+"""The real ORB-SLAM3 (RGB-D, or monocular as in the paper) through the optional ``pyorbslam3`` wheel
+(GPL-3.0: ``slz[orbslam3]``).
 
 The native library runs in a worker process (a fresh interpreter) fed over a socket: a crash there (a bad
 vocabulary, an assertion in the native code) becomes an ``SlzError`` naming the cause instead
@@ -6,6 +7,14 @@ of killing the batch. The vocabulary is validated before the native loader sees 
 pyorbslam3 reports neither keyframes nor map point identities, so keyframes are chosen by
 ``slam.keyframe`` (motion / tracked ratio) and map point ids are -1; a map point's pixel is its
 projection through the tracked pose.
+
+Monocular (``slam.orbslam3.sensor: monocular``, the paper's sec. 2.2): ORB-SLAM3 sees the colour image
+only and its map has an arbitrary scale. The paper does not say how it fixed the scale; slz measures it
+from the recording's depth at the tracked map points: per frame the median of measured depth over map
+depth (at least ``scale_min_points`` points), per map segment the median of those per-frame values so
+far, applied to the pose's translation and the map points. Until a segment has a scale its frames have
+no (metric) pose. A monocular map needs parallax to initialise: a hover gives little, and slz warns
+after ``init_warn_frames`` frames without one.
 """
 
 from __future__ import annotations
@@ -82,7 +91,7 @@ def settings_yaml(K: Intrinsics, orb: Any, close_depth_m: float, baseline_m: flo
     ])
 
 
-def _worker(conn: Any, vocab_path: str, settings_text: str) -> None:
+def _worker(conn: Any, vocab_path: str, settings_text: str, sensor: str = "rgbd") -> None:
     """Runs in the worker process: owns the native ORB-SLAM3 system, answers track requests."""
     import os
     import tempfile
@@ -95,7 +104,7 @@ def _worker(conn: Any, vocab_path: str, settings_text: str) -> None:
         with open(settings, "w") as f:
             f.write(settings_text)
         try:
-            system = pos.Slam(vocab_path, settings, pos.Sensor.RGBD)
+            system = pos.Slam(vocab_path, settings, pos.Sensor.MONOCULAR if sensor == "monocular" else pos.Sensor.RGBD)
         except Exception as err:
             conn.send(("error", f"{type(err).__name__}: {err}"))
             return
@@ -108,7 +117,7 @@ def _worker(conn: Any, vocab_path: str, settings_text: str) -> None:
                 _, rgb, depth, t = msg
                 t0 = time.perf_counter()
                 try:
-                    r = system.track_rgbd(rgb, depth, t)
+                    r = system.track_monocular(rgb, t) if depth is None else system.track_rgbd(rgb, depth, t)
                 except Exception as err:
                     conn.send(("error", f"{type(err).__name__}: {err}"))
                     continue
@@ -129,12 +138,13 @@ def _worker_main() -> None:
     from multiprocessing.connection import Connection
 
     conn = Connection(int(sys.argv[1]))
-    _init, vocab_path, settings_text = conn.recv()
-    _worker(conn, vocab_path, settings_text)
+    _init, vocab_path, settings_text, sensor = conn.recv()
+    _worker(conn, vocab_path, settings_text, sensor)
 
 
 class OrbSlam3Backend(BackendBase):
-    """ORB-SLAM3 in RGB-D mode (monocular can report OK on a wrong trajectory over planar ground)."""
+    """ORB-SLAM3 in RGB-D mode, or monocular with the scale from depth (monocular can report OK on a wrong
+    trajectory over planar ground: the paper's mode, kept for comparison)."""
 
     name = "orbslam3"
 
@@ -158,6 +168,10 @@ class OrbSlam3Backend(BackendBase):
         self._segment = 0
         self._was_ok = False
         self._ever_ok = False
+        self.monocular = cfg.orbslam3.sensor == "monocular"
+        self._scales: dict[int, list[float]] = {}   # monocular: per map segment, each frame's measured scale
+        self._frames_uninitialised = 0
+        self._warned_init = False
         self._track_ms: float | None = None  # the worker's own time for the last frame
 
     # -- worker plumbing
@@ -179,7 +193,7 @@ class OrbSlam3Backend(BackendBase):
                                       stdout=subprocess.DEVNULL, stderr=self._log, env=env)
         theirs.close()
         self._conn = Connection(ours.detach())
-        self._conn.send(("init", self.vocab_path, text))
+        self._conn.send(("init", self.vocab_path, text, self.cfg.orbslam3.sensor))
         kind, detail = self._recv(f"starting on {frame.source or 'the recording'} (loading the vocabulary)",
                                   self.cfg.orbslam3.load_timeout_s)[:2]
         if kind == "error":
@@ -258,7 +272,7 @@ class OrbSlam3Backend(BackendBase):
         elif frame.intrinsics != self._intrinsics:
             raise SlzError(f"{frame.source or 'recording'}: frame {frame.index} has other intrinsics than the first "
                            "frame; ORB-SLAM3 is configured once per run")
-        depth = np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32)  # ORB-SLAM3: <= 0 is no depth
+        depth = None if self.monocular else np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32)  # <= 0: none
         assert self._conn is not None  # _start opened it
         with contextlib.suppress(BrokenPipeError, OSError):  # _recv reports how the worker died
             self._conn.send(("track", np.ascontiguousarray(frame.rgb), depth, frame.stamp_ns * 1e-9))
@@ -290,6 +304,8 @@ class OrbSlam3Backend(BackendBase):
             self._last_kf_pose = None
         self._was_ok = pose is not None
         self._ever_ok |= self._was_ok
+        if self.monocular:
+            pose, pts = self._metric(frame, pose, pts)
         if pose is not None:
             kf = self.cfg.keyframe
             is_kf = is_new_keyframe(self._last_kf_pose, pose, n_tracked, self._last_kf_tracked,
@@ -304,6 +320,57 @@ class OrbSlam3Backend(BackendBase):
 
     def keyframe(self) -> MapPoints | None:
         return self._keyframe
+
+    def _metric(self, frame: Frame, pose: np.ndarray | None,
+                pts: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+        """Monocular: the pose and map points in metres (see the module docstring), or no pose yet."""
+        if pose is None:
+            if not self._ever_ok:
+                self._frames_uninitialised += 1
+                if self._frames_uninitialised >= self.cfg.orbslam3.init_warn_frames and not self._warned_init:
+                    self._warned_init = True
+                    log.warning("%s: monocular ORB-SLAM3 has not initialised after %d frames: a monocular map needs "
+                                "the camera to move sideways (parallax); a hover or a straight descent gives too "
+                                "little. Use --set slam.orbslam3.sensor=rgbd (depth starts the map at once)",
+                                frame.source or "recording", self._frames_uninitialised)
+            return None, pts
+        ratio = monocular_scale(pose, pts, frame.depth_m, frame.K, self.cfg.orbslam3.scale_min_points)
+        seen = self._scales.setdefault(self._segment, [])
+        if ratio is not None:
+            seen.append(ratio)
+        if not seen:
+            return None, pts  # no frame of this map has measured its scale yet: no metric pose
+        scale = float(np.median(seen))
+        metric = pose.copy()
+        metric[:3, 3] *= scale
+        return metric, pts * scale
+
+
+def monocular_scale(T_world_camera: np.ndarray, points_world: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
+                    min_points: int) -> float | None:
+    """Metres per map unit of one frame: the median of measured depth / map depth over the tracked map
+    points that project onto a pixel with depth (None: fewer than ``min_points`` such points).
+
+    Map depth is the point's z in the camera; the measured depth is the recording's at its pixel.
+    """
+    pts = np.asarray(points_world, np.float64).reshape(-1, 3)
+    if len(pts) < min_points:
+        return None
+    R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
+    cam = (pts - t) @ R                                   # R^T (p - t), row-wise
+    z = cam[:, 2]
+    front = z > 0
+    cam, z = cam[front], z[front]
+    u = np.rint(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(np.int64)
+    v = np.rint(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(np.int64)
+    h, w = depth_m.shape[:2]
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    measured = np.full(len(z), np.nan)
+    measured[inside] = depth_m[v[inside], u[inside]]
+    ok = np.isfinite(measured) & (measured > 0)
+    if int(ok.sum()) < min_points:
+        return None
+    return float(np.median(measured[ok] / z[ok]))
 
 
 if __name__ == "__main__":
