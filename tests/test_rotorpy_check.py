@@ -46,7 +46,7 @@ def test_rotorpy_lands_where_slz_lands_from_scenario_1() -> None:
     pytest.importorskip("rotorpy")
     cfg = load_config(None, [])
     c = np.array((2.0, 1.5, 0.3))
-    target = Target(c, square_corners(c, cfg.uav.footprint_m))
+    target = Target(c, square_corners(c, (cfg.uav.footprint_m[0], cfg.uav.footprint_m[1])))
     start = np.array([[0.0, 0.0, 10.0, 0.0]])
     own = simulate(target, start, cfg).metrics(0)
     other = simulate(target, start, cfg, plant=rc.RotorPyPlant(cfg)).metrics(0)
@@ -61,6 +61,6 @@ def test_an_external_plant_needs_dynamic_attitude() -> None:
 
     cfg = load_config(None, ["control.sim.attitude=ideal"])
     c = np.zeros(3)
+    target = Target(c, square_corners(c, (cfg.uav.footprint_m[0], cfg.uav.footprint_m[1])))
     with pytest.raises(ConfigError, match=r"control\.sim\.attitude"):
-        simulate(Target(c, square_corners(c, cfg.uav.footprint_m)), np.array([[0.0, 0.0, 5.0, 0.0]]), cfg,
-                 plant=lambda x, thrust, torque: x)
+        simulate(target, np.array([[0.0, 0.0, 5.0, 0.0]]), cfg, plant=lambda x, thrust, torque: x)
