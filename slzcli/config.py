@@ -253,11 +253,17 @@ class UavCfg:
     max_slope_deg: float = rng(0, 90, lo_open=True)
     max_step_m: float = rng(0, lo_open=True)
     margin_m: float = rng(0)
+    touchdown_dispersion_m: float = rng(0)
     thrust_min_n: float = rng(0)
     thrust_max_n: float = rng(0, lo_open=True)
     torque_max_n_m: tuple[float, ...] = rng(0, lo_open=True, n=3)
     camera_offset_m: tuple[float, ...] = rng(n=3)
     camera_yaw_deg: float = rng(-180, 180)
+
+    @property
+    def clearance_m(self) -> float:
+        """Clearance beyond the footprint on every side: the fixed margin plus the measured landing dispersion."""
+        return self.margin_m + self.touchdown_dispersion_m
 
 
 @schema

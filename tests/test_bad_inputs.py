@@ -235,7 +235,7 @@ def test_every_frame_over_the_bound_warns_once_and_counts(runner: CliRunner, tmp
     ("config_alias_small_bomb", "landing.kmeans_k", "expected an integer, got a list [[[[...]"),
     ("config_too_deep", "", "nested more than 32 levels deep"),
     ("config_too_large", "", "file is larger than 1024 KiB"),
-    ("config_long_value", "scoring.method", "must be one of fuzzy, bayes; got 'xxxxx"),
+    ("config_long_value", "scoring.method", "must be one of fuzzy, bayes, px4slp; got 'xxxxx"),
 ])
 def test_bad_config_file_is_one_line_naming_file_and_key(runner: CliRunner, tmp_path: Path, case: str, key: str,
                                                          cause: str) -> None:

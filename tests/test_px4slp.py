@@ -256,10 +256,11 @@ def test_detect_with_px4slp_and_bad_method_names(field_5m, tmp_path) -> None:
     landing = json.loads((run / "landing.json").read_text())
     assert landing["method"] == "px4slp" and landing["status"] == "site"
     assert "px4slp" in landing["timings_ms"] and landing["timings_ms"]["maps"] == 0.0
-    # No cell can hold 10^6 points: no site, and the reason is the planner's own, not slz's noise limits.
+    # No 0.25 m cell of a 320x240 frame from 5 m holds 5000 points (the .cfg's maximum): no site, and the reason
+    # is the planner's own, not slz's noise limits.
     none = tmp_path / "none"
     res = runner.invoke(main, ["detect", str(field_5m), "-o", str(none), "--method", "px4slp", *SMALL,
-                               "--set", "scoring.px4slp.n_points_threshold=1000000"])
+                               "--set", "scoring.px4slp.n_points_threshold=5000"])
     assert res.exit_code == 0, res.output
     landing = json.loads((none / "landing.json").read_text())
     assert landing["status"] == "no_safe_site" and landing["reason"].startswith("no disk of 13 cells")

@@ -145,6 +145,15 @@ def test_footprint_and_margin_are_cleared_around_a_box(tmp_path, small_config):
     assert not world.raster.safe_at(np.array([0.0]), np.array([0.0]))[0]   # box top: not landable
 
 
+def test_touchdown_dispersion_adds_to_the_margin_around_a_box(tmp_path):
+    """uav.touchdown_dispersion_m (slz land simulate's p95) widens the truth's clearance like the margin does."""
+    config = load_config(overrides=[*SMALL, *NOISE_OFF, "uav.touchdown_dispersion_m=0.3"])
+    world = record.build_world(load_scene(write_scene(tmp_path, "box", BOX_SCENE)), config)
+    half = 0.656 / 2 + config.uav.margin_m + 0.3
+    xs = np.array([1.0 + half - 0.1, 1.0 + half + 0.1])   # 0.1 m either side of the widened clearance
+    assert world.raster.safe_at(xs, np.zeros(2)).tolist() == [False, True]
+
+
 def test_clear_field_centre_is_safe(small_config):
     world = record.build_world(load_scene("clear_field"), small_config)
     r = world.renderer.render(down_pose(0.0, 0.0, 10.0), world.intrinsics)

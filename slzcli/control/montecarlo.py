@@ -92,7 +92,7 @@ def summarise(result: SimResult) -> dict[str, Any]:
         out[name] = {"count": int(vals.size), "mean": float(vals.mean()) if vals.size else None,
                      **{f"p{p}": (float(np.percentile(vals, p)) if vals.size else None) for p in PERCENTILES}}
     # Where the UAV really touches down around the site (every touch-down, inside the radius or not):
-    # `slz detect --set uav.margin_m=<this>` makes a site's clearance cover it (README, METHOD 2.9).
+    # `slz detect --set uav.touchdown_dispersion_m=<this>` adds it to the site's clearance (README, METHOD 2.4.3).
     out["landing_dispersion_p95_m"] = out["touchdown_error_m"]["p95"]
     return out
 
@@ -110,6 +110,6 @@ def table(summary: dict[str, Any]) -> str:
     p95 = summary.get("landing_dispersion_p95_m")
     if p95 is not None:
         margin = math.ceil(p95 * 100) / 100
-        lines.append(f"landing dispersion p95 {p95:.3f} m: `slz detect --set uav.margin_m={margin:g}` keeps that "
-                     "much clearance around a site")
+        lines.append(f"landing dispersion p95 {p95:.3f} m: `slz detect --set uav.touchdown_dispersion_m={margin:g}` "
+                     "adds that much to uav.margin_m around a site")
     return "\n".join(lines)

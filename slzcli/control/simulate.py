@@ -21,6 +21,7 @@ reason. Finished runs are frozen while the others go on.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -157,13 +158,23 @@ class _Command:
     qpsi_d: np.ndarray           # desired yaw feature (aligned to the square at step 0)
 
 
+Plant = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""Another simulator's vehicle: (state (N, 13) NED/FRD as in ``dynamics``, thrust (N,) N, body torque
+(N, 3) N m, held for one control period) -> the state after it. It brings its own drag and wind
+(``control.wind`` is not applied)."""
+
+
 def simulate(target: Target, starts_world: np.ndarray, config: Config, *, log: bool = False,
-             seed: int | None = None, first_run: int = 0) -> SimResult:
+             seed: int | None = None, first_run: int = 0, plant: Plant | None = None) -> SimResult:
     """Fly N landings from (N, 4) world starts (x, y, z m, yaw deg; ENU) onto ``target``.
 
     ``seed`` overrides ``control.noise.seed`` (noise, drift, gusts). Row i is run ``first_run + i``:
     its noise depends only on (seed, first_run + i), not on N, so batches can be split or resized.
+    ``plant``: fly the same controller in another simulator's vehicle instead of ``dynamics``
+    (the independent check, ``control/rotorpy_check.py``); needs ``control.sim.attitude: dynamic``.
     """
+    if plant is not None and config.control.sim.attitude != "dynamic":
+        raise ConfigError("control.sim.attitude", "an external plant needs 'dynamic' (it flies the torques)")
     s = _setup(target, config)
     starts = np.atleast_2d(np.asarray(starts_world, float))
     n = starts.shape[0]
@@ -260,7 +271,10 @@ def simulate(target: Target, starts_world: np.ndarray, config: Config, *, log: b
         phase_time[live, phase[live]] += s.dt
 
         obs = obs.predict(cmd.thrust, tr.r_ib, s)
-        x_new, torque = _integrate(x, cmd, torque, tr.yaw, gust, s)
+        if plant is None:
+            x_new, torque = _integrate(x, cmd, torque, tr.yaw, gust, s)
+        else:
+            x_new = plant(x, cmd.thrust, torque)
         gust = s.wind.next_gust(gust, s.dt, z[:, NOISE_COLUMNS["gust"]])
         x = np.where((code == 0)[:, None], x_new, x)
 

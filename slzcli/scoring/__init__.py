@@ -137,8 +137,8 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
         plan = (fit_intrinsics(intrinsics, np.asarray(depth_m).shape), up_camera, mc.plan_cells_per_footprint)
         points = camera_points(depth_m, plan[0])          # once, for the plan filter and the column
     sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
-                      mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan, margin_m=config.uav.margin_m,
-                      points=points)
+                      mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan,
+                      margin_m=config.uav.clearance_m, points=points)
     if plan is not None:   # the final descent's column must have been in view (control.desired_depth_m hover)
         before = int(sm.mask.sum())
         np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], config.control.desired_depth_m,

@@ -109,7 +109,7 @@ def compute_raster(cast: Any, extent_xy: tuple[float, float, float, float], top_
         level = slope <= uav.max_slope_deg + cfg.slope_tolerance_deg
     usable = landable & level & ~step & np.isfinite(height)
 
-    half = [int(np.floor((L / 2 + uav.margin_m) / res)) for L in uav.footprint_m]
+    half = [int(np.floor((L / 2 + uav.clearance_m) / res)) for L in uav.footprint_m]
     if 2 * half[0] + 1 > cols or 2 * half[1] + 1 > rows:   # the UAV is larger than the scene: nowhere is safe
         safe = np.zeros((rows, cols), bool)                 # (and the kernel is never built: 1e6 m asked TiB)
     else:
