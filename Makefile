@@ -37,8 +37,11 @@ lint: $(STAMP)
 	$(BIN)/ruff check $(LINTED)
 	$(BIN)/mypy
 
+# Every core, a test file per worker (module fixtures stay in one process).
+PYTEST_PAR := -n auto --dist loadfile
+
 test: lint
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest $(PYTEST_PAR)
 
 # The newest releases that meet pyproject's floors, in a scratch venv, through lint and the whole suite.
 # When it passes, `make constraints` records those versions as the new known-good set.
@@ -50,7 +53,7 @@ test-latest: sysdeps
 	$(LATEST)/bin/python -m pip freeze --all --exclude-editable > $(LATEST)/versions.txt
 	$(LATEST)/bin/ruff check $(LINTED)
 	$(LATEST)/bin/mypy
-	$(LATEST)/bin/python -m pytest
+	$(LATEST)/bin/python -m pytest $(PYTEST_PAR)
 	touch $(LATEST)/.passed
 	@echo "newest releases pass; 'make constraints' records them in $(CONSTRAINTS)"
 
