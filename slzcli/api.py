@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Iterable, Iterator
-from contextlib import ExitStack
+from contextlib import ExitStack, closing
 from pathlib import Path
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any
@@ -119,7 +119,7 @@ def _run_frames(frames: Iterator[Frame], opened: tuple[Any, ...] | None, config:
         state = pipeline.run_state(tracker, config)
         assert state.noise is not None
         fusion = pipeline.Fusion.of(config, method)
-        tracked = pipeline.tracked_frames(path, rec, tracker, limit)
+        tracked = stack.enter_context(closing(pipeline.tracked_frames(path, rec, tracker, limit)))  # reader first
         for d in pipeline.detect(_after_each(tracked, truth), tracker, fusion, state.noise, limit):
             pipeline.tally(state, d, config)
             if truth is not None:

@@ -39,7 +39,7 @@ from __future__ import annotations
 import logging
 import shutil
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from contextlib import ExitStack, closing
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -496,7 +496,8 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             if progress is not None:
                 progress(tracker.frames, info.expected_frames)
 
-        frames = each_frame(tracked_frames(path, rec, tracker, limit), tracked, done)
+        # Closed first when the run stops early: its decoding thread stops before the recording is closed.
+        frames = stack.enter_context(closing(each_frame(tracked_frames(path, rec, tracker, limit), tracked, done)))
         for d in detect(frames, tracker, Fusion.of(config, method), noise, limit):
             tally(state, d, config)  # the sinks: tables, ground truth, files
             if truth is not None:
@@ -550,7 +551,7 @@ def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any,
     return rec, info, has_recorded_clouds(info, config)
 
 
-def tracked_frames(path: Path, rec: Any, tracker: Tracker, limit: StageLimit) -> Iterator[TrackedFrame]:
+def tracked_frames(path: Path, rec: Any, tracker: Tracker, limit: StageLimit) -> Generator[TrackedFrame, None, None]:
     """The frames of an open recording with their SLAM pose and whether detection is due.
 
     Reading each frame and tracking it are stages under ``limit``; shared by ``slz detect``
@@ -587,7 +588,7 @@ def _track_each(path: Path, frames: Iterator[Frame], tracker: Tracker, limit: St
 
 
 def each_frame(frames: Iterable[TrackedFrame], before: Callable[[Frame, np.ndarray | None], None],
-               after: Callable[[Frame], None]) -> Iterator[TrackedFrame]:
+               after: Callable[[Frame], None]) -> Generator[TrackedFrame, None, None]:
     """The frames unchanged, with the per-frame sinks: ``before`` each is handed on, ``after`` once the
     consumer asks for the next one (its detection, if any, has then gone through the sinks)."""
     for frame, T, due in frames:
