@@ -71,7 +71,7 @@ demo: $(STAMP)
 	$(BIN)/slz synth parking_lot -o $(DEMO)/parking_lot.mcap --frames 40 --rate 4 --path descent --start 0,0,8 --force
 	$(BIN)/slz info $(DEMO)/parking_lot.mcap
 	$(BIN)/slz detect $(DEMO)/parking_lot.mcap -o $(DEMO)/run --force
-	$(BIN)/slz land simulate $(DEMO)/run --start 2,-1.5,8
+	$(BIN)/slz land simulate $(DEMO)/run --offset 2,-1.5,8
 	@for s in clear_field playground office slopes no_site; do \
 	  $(BIN)/slz synth $$s -o $(DEMO)/scenes/$$s.mcap --frames 2 --force >/dev/null || exit 1; done
 	@echo
