@@ -72,6 +72,9 @@ DECISIONS: dict[str, list[str]] = {
     "plan_filter": ["mask.clearance=plan"],
     # METHOD 2.5: the site most detections agree on instead of the latest keyframe's
     "agreement": ["landing.commit=agree"],
+    # METHOD 2.3.5 / 2.4.3: maps on blocks of at least 2.5 cm on the ground, the plan filter on 2 samples
+    # per footprint cell (speed: the paper works on every pixel)
+    "working_grid": ["terrain.limits.finest_block_m=0.025", "mask.plan_samples_per_cell=2.0"],
 }
 
 

@@ -182,6 +182,7 @@ class NoiseEstimateCfg:
 class LimitsCfg:
     confidence_sigma: float = rng(0, lo_open=True)
     blocks_per_footprint: float = rng(1)
+    finest_block_m: float = rng(0)
     target_margin: float = rng(1)
 
 
@@ -242,6 +243,7 @@ class MaskCfg:
     smooth_m: float = rng(0)
     clearance: Literal["plan", "image"]
     plan_cells_per_footprint: float = rng(1, 64)
+    plan_samples_per_cell: float = rng(1)
 
 
 @schema

@@ -144,6 +144,21 @@ class PairingReport:
 
 
 @dataclass(frozen=True, eq=False)
+class BlockGrid:
+    """The four maps on the b x b block grid (b > 1) they were computed on, where the score is made too.
+
+    ``maps``: float32 in [0, 1], 0 where unknown; ``valid``: the blocks with depth. With b > 1 each
+    block's maps are the same for its b^2 pixels, so scoring every pixel would redo each block's work
+    b^2 times: the full-resolution maps and score are this grid upsampled (bilinear), zero where the
+    pixel itself has no depth.
+    """
+
+    maps: dict[str, np.ndarray]
+    valid: np.ndarray
+    block_px: int
+
+
+@dataclass(frozen=True, eq=False)
 class TerrainMaps:
     """The four terrain maps of METHOD.md 2.3, float32 HxW in [0, 1], 1 = good for landing.
 
@@ -161,6 +176,7 @@ class TerrainMaps:
     edge_distance_m: np.ndarray | None = None  # metres to the nearest depth edge or hole (acceptance test)
     work: Working | None = None  # block size, windows and detection limits the maps were made with
     up_camera: np.ndarray | None = None  # world up in the camera frame the maps were made with (unit 3-vector)
+    grid: BlockGrid | None = None  # the block grid the maps were made on, when b > 1 (scoring and mask run there)
 
     NAMES = ("depth_variance", "flatness", "inclination", "steepness")
 

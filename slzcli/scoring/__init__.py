@@ -10,14 +10,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError
+from slzcli.geometry import valid_depth
 from slzcli.scoring import bayes, closed_form, fuzzy, lut
 from slzcli.scoring.mask import camera_points, column_in_view, landing_mask
 from slzcli.scoring.rules import RuleBase, did_you_mean, load_rules
-from slzcli.terrain.geometry import fit_intrinsics
+from slzcli.terrain.geometry import block_depth, fit_intrinsics, median_depth_m
 from slzcli.terrain.limits import Working
 from slzcli.types import Intrinsics, ScoreMap, TerrainMaps
 
@@ -74,7 +76,7 @@ class FuzzyScorer:
         return _zero_invalid(score, valid)
 
     def __call__(self, maps: TerrainMaps) -> np.ndarray:
-        return self.score_arrays(maps.as_dict(), maps.valid)
+        return score_maps(self, maps)
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,10 +99,21 @@ class BayesScorer:
         return _zero_invalid(score, valid)
 
     def __call__(self, maps: TerrainMaps) -> np.ndarray:
-        return self.score_arrays(maps.as_dict(), maps.valid)
+        return score_maps(self, maps)
 
 
 Scorer = FuzzyScorer | BayesScorer
+
+
+def score_maps(scorer: Scorer, maps: TerrainMaps) -> np.ndarray:
+    """The score of a frame's maps at full resolution: scored on their block grid when they have one
+    (``TerrainMaps.grid``), then upsampled (bilinear) and zeroed where the pixel has no depth."""
+    if maps.grid is None:
+        return scorer.score_arrays(maps.as_dict(), maps.valid)
+    on_grid = scorer.score_arrays(maps.grid.maps, maps.grid.valid)
+    h, w = maps.valid.shape
+    score = cv2.resize(on_grid, (w, h), interpolation=cv2.INTER_LINEAR)
+    return _zero_invalid(score, maps.valid)
 
 SCORERS: dict[str, type[FuzzyScorer] | type[BayesScorer]] = {"fuzzy": FuzzyScorer, "bayes": BayesScorer}
 # every detection method: the two fusions of the four maps, and the PX4 grid planner (scoring/px4slp.py),
@@ -130,11 +143,59 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     ``work``: the maps' working scale; nothing is called safe where its noise limits fail (the
     whole frame when it cannot vouch, else the pixels beyond its ``vouch_depth_m``).
     ``up_camera``: world up in the camera frame, for ``mask.clearance: plan`` (without it: image).
+    The plan-view filter runs on m x m block means of score and depth (``mask.plan_samples_per_cell``),
+    its mask upsampled (nearest) and cut to the pixels with depth.
     """
+    depth = np.asarray(depth_m)
+    mc = config.mask
+    if mc.clearance == "plan" and up_camera is not None:
+        m = plan_block_px(depth, intrinsics, config)
+        if m > 1:
+            h, w = depth.shape
+            depth_b, _ = block_depth(depth, valid_depth(depth), m)
+            score_b = cv2.resize(np.asarray(score, np.float32), depth_b.shape[::-1], interpolation=cv2.INTER_AREA)
+            sm = _mask(scorer, score_b, depth_b, fit_intrinsics(intrinsics, depth_b.shape), config, up_camera)
+            mask = cv2.resize(sm.mask.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
+            np.logical_and(mask, valid_depth(depth), out=mask)
+            sm = ScoreMap(sm.method, score, mask, sm.column_cut)
+        else:
+            sm = _mask(scorer, score, depth, intrinsics, config, up_camera)
+    else:
+        sm = _mask(scorer, score, depth, intrinsics, config, None)
+    if work is None:
+        return sm
+    if not work.vouched:
+        return ScoreMap(sm.method, sm.score, np.zeros_like(sm.mask), sm.column_cut)
+    if math.isfinite(work.vouch_depth_m):
+        with np.errstate(invalid="ignore"):
+            np.logical_and(sm.mask, depth <= work.vouch_depth_m, out=sm.mask)
+    return sm
+
+
+def plan_block_px(depth_m: np.ndarray, intrinsics: Intrinsics, config: Config) -> int:
+    """The block side m (px) the plan-view filter runs on: the coarsest that still puts
+    ``mask.plan_samples_per_cell`` samples across a plan cell at the frame's median depth (1: every pixel).
+
+    The cell is the bare footprint's (without the clearance margins, which only make the raster's cells
+    larger): so m does not move with ``uav.margin_m`` or the touch-down dispersion, and a larger
+    clearance gives a mask inside the smaller one's, on the same samples.
+    """
+    mc = config.mask
+    depth = median_depth_m(depth_m)
+    if depth is None:
+        return 1
+    cell_m = mc.margin_factor * max(config.uav.footprint_m) / mc.plan_cells_per_footprint
+    px_m = depth / (0.5 * (intrinsics.fx + intrinsics.fy))
+    return max(1, math.floor(cell_m / (mc.plan_samples_per_cell * px_m)))
+
+
+def _mask(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, config: Config,
+          up_camera: np.ndarray | None) -> ScoreMap:
+    """Footprint filter, threshold and column rule of a score and the depth image it is on."""
     mc = config.mask
     plan = points = None
     if mc.clearance == "plan" and up_camera is not None:
-        plan = (fit_intrinsics(intrinsics, np.asarray(depth_m).shape), up_camera, mc.plan_cells_per_footprint)
+        plan = (fit_intrinsics(intrinsics, depth_m.shape), up_camera, mc.plan_cells_per_footprint)
         points = camera_points(depth_m, plan[0])          # once, for the plan filter and the column
     sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
                       mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan,
@@ -142,14 +203,7 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     if plan is not None:   # the final descent's column must have been in view (control.desired_depth_m hover)
         before = int(sm.mask.sum())
         np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], config.control.desired_depth_m,
-                                               points=points), out=sm.mask)
+                                               points=points, among=sm.mask), out=sm.mask)
         if before:
             sm = ScoreMap(sm.method, sm.score, sm.mask, 1.0 - int(sm.mask.sum()) / before)
-    if work is None:
-        return sm
-    if not work.vouched:
-        return ScoreMap(sm.method, sm.score, np.zeros_like(sm.mask), sm.column_cut)
-    if math.isfinite(work.vouch_depth_m):
-        with np.errstate(invalid="ignore"):
-            np.logical_and(sm.mask, np.asarray(depth_m) <= work.vouch_depth_m, out=sm.mask)
     return sm

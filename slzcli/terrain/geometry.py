@@ -61,6 +61,21 @@ _EQUAL_AREA_HALF_SIDE = math.sqrt(math.pi) / 2.0
 DEPTH_SUBSAMPLE = 4  # px step of the grid a frame's median depth is taken on (a median needs no more)
 
 
+def block_depth(depth_m: np.ndarray, valid: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """(depth, valid) of block x block means of inverse depth (a plane stays a plane), inverted; a block
+    needs half its pixels with depth (NaN otherwise). The grid is (W // block) x (H // block)."""
+    h, w = depth_m.shape
+    size = (max(1, w // block), max(1, h // block))
+    inv = np.zeros(depth_m.shape, np.float32)
+    np.divide(np.float32(1.0), depth_m, out=inv, where=valid)
+    num = cv2.resize(inv, size, interpolation=cv2.INTER_AREA)
+    den = cv2.resize(valid.view(np.uint8).astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    ok = (den >= 0.5) & (num > 0)
+    depth: np.ndarray = np.full(num.shape, np.nan, np.float32)
+    np.divide(den, num, out=depth, where=ok)
+    return depth, ok
+
+
 def median_depth_m(depth_m: np.ndarray) -> float | None:
     """Median of the finite, positive depths on a coarse grid; None when there are none."""
     d = np.asarray(depth_m)[::DEPTH_SUBSAMPLE, ::DEPTH_SUBSAMPLE]

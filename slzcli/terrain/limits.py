@@ -8,7 +8,10 @@ it tolerates, its slope limit). One frame, one set of windows (like the mask's m
   the depth-variance map tell its own half-value roughness (``s0 ln 2``) from the noise at
   ``confidence_sigma``: the 3 x 3-block plane-fit residual variance of pure noise has a standard
   deviation of sqrt(2/6) sigma_b^2. b never exceeds the size that leaves
-  ``blocks_per_footprint`` blocks across the footprint (coarser could not place a landing square).
+  ``blocks_per_footprint`` blocks across the footprint (coarser could not place a landing square),
+  and is never finer than ``finest_block_m`` on the ground: close to the ground a pixel covers a few
+  millimetres, far finer than the plan-view mask's cell, and full-resolution maps there cost 4-5x
+  the work for nothing the mask can use.
 - **Slope window.** The steepness plane fit covers K x K blocks, at least ``normal_size_m`` and
   at most the footprint, the smallest K for which both limits below are ``target_margin`` times
   within the UAV's tolerances (a window that only just meets them leaves a slope map too noisy to
@@ -152,9 +155,10 @@ def working_scale(noise: DepthNoise, depth_m: float, focal_px: float, cfg: Terra
     footprint = max(uav.footprint_m)
     px_per_m = focal_px / depth_m
     b_max = max(1, math.floor(footprint * px_per_m / lim.blocks_per_footprint))
+    b_min = min(b_max, max(1, math.floor(lim.finest_block_m * px_per_m)))
     s_half_sq = (cfg.depth_variance.s0_m * math.log(2.0)) ** 2
     block = b_max
-    for b in range(1, b_max + 1):
+    for b in range(b_min, b_max + 1):
         if k * math.sqrt(2.0 / _PLANE_DOF_3X3) * noise.sigma_m(depth_m, b) ** 2 <= s_half_sq:
             block = b
             break

@@ -32,6 +32,7 @@ from slzcli.config import Config, DepthVarianceCfg, FlatnessCfg, InclinationCfg,
 from slzcli.errors import DatasetError
 from slzcli.terrain.geometry import (
     NormalField,
+    block_depth,
     fit_intrinsics,
     median_depth_m,
     normal_field,
@@ -42,13 +43,15 @@ from slzcli.terrain.geometry import (
 )
 from slzcli.terrain.limits import Working, working_scale
 from slzcli.terrain.noise import MAD_TO_SIGMA, DepthNoise, NoiseTracker
-from slzcli.types import Frame, Intrinsics, TerrainMaps
+from slzcli.types import BlockGrid, Frame, Intrinsics, TerrainMaps
 
 # The flanks of a step's derivative (blur + Sobel spread it over ~2 px each side) are left out of
 # the local trend with the step itself.
 _SHOULDERS = np.ones((5, 5), np.uint8)
 # cv2.distanceTransform mask sizes by the config value (3 or 5 px).
 _DIST_MASKS = {3: cv2.DIST_MASK_3, 5: cv2.DIST_MASK_5}
+# _within_spread: pixels of the sub-lattice its median is taken on (the whole frame below 4x this)
+_SPREAD_SAMPLES = 65536
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -243,7 +246,12 @@ def _within_spread(derivs: list[np.ndarray], seen: np.ndarray, k: float, low: fl
     above = sum(int(np.count_nonzero((np.abs(g) > level) & seen)) for g in derivs)
     if n == 0 or 2 * above < n:
         return derivs
-    spread = MAD_TO_SIGMA * float(np.median(np.abs(np.concatenate([g[seen] for g in derivs]))))
+    # a large frame's spread from a regular sub-lattice of at least _SPREAD_SAMPLES pixels: the MAD's own
+    # sampling error there is ~0.5 %, and the median of 600,000 values was a third of a 640x480 frame's maps
+    stride = max(1, math.isqrt(n // (2 * _SPREAD_SAMPLES)))
+    sub = seen[::stride, ::stride]
+    values = np.concatenate([g[::stride, ::stride][sub] for g in derivs])
+    spread = MAD_TO_SIGMA * float(np.median(np.abs(values, out=values), overwrite_input=True))
     if k * spread <= low:
         return derivs
     gain = np.float32(low / (k * spread))
@@ -427,16 +435,8 @@ def frame_working(depth_m: np.ndarray, intr: Intrinsics, noise: DepthNoise, cfg:
 
 
 def _blocks(d: _Depth, intr: Intrinsics, block: int) -> tuple[_Depth, Intrinsics]:
-    """block x block means of inverse depth (a plane stays a plane); a block needs half its pixels."""
-    h, w = d.depth.shape
-    size = (max(1, w // block), max(1, h // block))
-    inv = np.zeros(d.depth.shape, np.float32)
-    np.divide(np.float32(1.0), d.depth, out=inv, where=d.valid)
-    num = cv2.resize(inv, size, interpolation=cv2.INTER_AREA)
-    den = cv2.resize(d.valid.view(np.uint8).astype(np.float32), size, interpolation=cv2.INTER_AREA)
-    ok = (den >= 0.5) & (num > 0)
-    depth: np.ndarray = np.full(num.shape, np.nan, np.float32)
-    np.divide(den, num, out=depth, where=ok)
+    """block x block means of inverse depth (``block_depth``) with the camera scaled to them."""
+    depth, ok = block_depth(d.depth, d.valid, block)
     return _Depth(depth, ok, np.where(ok, depth, np.float32(0))), fit_intrinsics(intr, depth.shape)
 
 
@@ -507,19 +507,18 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
                     noise_a_per_m=noise.a_at(cell_px) if noise is not None else 0.0)
 
     shape, valid = d.depth.shape, d.valid
+    if block > 1:
+        return _grid_maps(db, intr_b, block, rough, rough_ok, edge_px, edge_m, psi, pca.curvature, work, up, cfg,
+                          d)
     rough = _upsample(rough, rough_ok, 10.0 * cfg.depth_variance.s0_m, shape, valid)
     psi = _upsample(psi, np.isfinite(psi), math.pi / 2, shape, valid)
     curvature = _upsample(pca.curvature, np.isfinite(pca.curvature), 1.0 / 3.0, shape, valid)
     edge_m = _nan_to_zero(_upsample(edge_m, db.valid, 0.0, shape, valid))
-    if block == 1:
-        edge_px_full = edge_px
-    else:
-        edge_px_full = _nan_to_zero(_upsample(edge_px * np.float32(block), db.valid, 0.0, shape, valid))
     slope_deg = np.multiply(psi, np.float32(180.0 / math.pi))
     rough_ok_full = np.isfinite(rough)
     return TerrainMaps(
         depth_variance=_roughness_map(_nan_to_zero(rough, rough_ok_full), rough_ok_full, cfg.depth_variance),
-        flatness=_flatness(edge_px_full, edge_m, valid, cfg.flatness),
+        flatness=_flatness(edge_px, edge_m, valid, cfg.flatness),
         edge_distance_m=edge_m,
         inclination=inclination_map(curvature, cfg.inclination),
         steepness=steepness_map(psi, cfg.steepness, work.max_slope_deg),
@@ -528,6 +527,38 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
         work=work,
         up_camera=up,
     )
+
+
+def _grid_maps(db: _Depth, intr_b: Intrinsics, block: int, rough: np.ndarray, rough_ok: np.ndarray,
+               edge_px: np.ndarray, edge_m: np.ndarray, psi: np.ndarray, curvature: np.ndarray, work: Working,
+               up: np.ndarray, cfg: TerrainCfg, d: _Depth) -> TerrainMaps:
+    """b > 1: the four maps on the block grid (``BlockGrid``), and at full resolution that grid upsampled
+    (bilinear; zero where the pixel has no depth or its nearest block has none), with the slope and the
+    edge distance likewise."""
+    ok = db.valid
+    on_grid = {
+        "depth_variance": _roughness_map(np.where(rough_ok, rough, np.float32(0)), rough_ok & ok, cfg.depth_variance),
+        "flatness": _flatness(edge_px * np.float32(block), edge_m, ok, cfg.flatness),
+        "inclination": inclination_map(curvature, cfg.inclination),
+        "steepness": steepness_map(psi, cfg.steepness, work.max_slope_deg),
+    }
+    shape, valid = d.depth.shape, d.valid
+    h, w = shape
+    known = cv2.resize(ok.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
+    np.logical_and(known, valid, out=known)
+    unknown = ~known
+
+    def up_sample(values: np.ndarray, fill: float) -> np.ndarray:
+        out = cv2.resize(values, (w, h), interpolation=cv2.INTER_LINEAR)
+        np.copyto(out, np.float32(fill), where=unknown)
+        return out
+
+    full = {name: up_sample(m, 0.0) for name, m in on_grid.items()}
+    slope_deg = _upsample(psi, np.isfinite(psi), math.pi / 2, shape, valid)
+    slope_deg *= np.float32(180.0 / math.pi)
+    grid = BlockGrid(on_grid, ok, block)
+    return TerrainMaps(**full, valid=valid, slope_deg=slope_deg, edge_distance_m=up_sample(edge_m, 0.0), work=work,
+                       up_camera=up, grid=grid)
 
 
 def frame_maps(frame: Frame, config: Config, noise: DepthNoise | None = None) -> TerrainMaps:
