@@ -243,7 +243,7 @@ class MaskCfg:
     smooth_m: float = rng(0)
     clearance: Literal["plan", "image"]
     plan_cells_per_footprint: float = rng(1, 64)
-    plan_samples_per_cell: float = rng(1)
+    plan_samples_per_cell: float = rng(0)
 
 
 @schema

@@ -174,7 +174,7 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
 
 def plan_block_px(depth_m: np.ndarray, intrinsics: Intrinsics, config: Config) -> int:
     """The block side m (px) the plan-view filter runs on: the coarsest that still puts
-    ``mask.plan_samples_per_cell`` samples across a plan cell at the frame's median depth (1: every pixel).
+    ``mask.plan_samples_per_cell`` samples across a plan cell at the frame's median depth (0: every pixel).
 
     The cell is the bare footprint's (without the clearance margins, which only make the raster's cells
     larger): so m does not move with ``uav.margin_m`` or the touch-down dispersion, and a larger
@@ -182,7 +182,7 @@ def plan_block_px(depth_m: np.ndarray, intrinsics: Intrinsics, config: Config) -
     """
     mc = config.mask
     depth = median_depth_m(depth_m)
-    if depth is None:
+    if depth is None or mc.plan_samples_per_cell <= 0:
         return 1
     cell_m = mc.margin_factor * max(config.uav.footprint_m) / mc.plan_cells_per_footprint
     px_m = depth / (0.5 * (intrinsics.fx + intrinsics.fy))
