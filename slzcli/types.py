@@ -150,7 +150,7 @@ class BlockGrid:
     ``maps``: float32 in [0, 1], 0 where unknown; ``valid``: the blocks with depth. With b > 1 each
     block's maps are the same for its b^2 pixels, so scoring every pixel would redo each block's work
     b^2 times: the full-resolution maps and score are this grid upsampled (bilinear), zero where the
-    pixel itself has no depth.
+    pixel or its nearest block has no depth.
     """
 
     maps: dict[str, np.ndarray]

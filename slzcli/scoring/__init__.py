@@ -107,13 +107,15 @@ Scorer = FuzzyScorer | BayesScorer
 
 def score_maps(scorer: Scorer, maps: TerrainMaps) -> np.ndarray:
     """The score of a frame's maps at full resolution: scored on their block grid when they have one
-    (``TerrainMaps.grid``), then upsampled (bilinear) and zeroed where the pixel has no depth."""
+    (``TerrainMaps.grid``), then upsampled (bilinear) and 0 where the maps are (the pixel, or its
+    nearest block, has no depth)."""
     if maps.grid is None:
         return scorer.score_arrays(maps.as_dict(), maps.valid)
     on_grid = scorer.score_arrays(maps.grid.maps, maps.grid.valid)
     h, w = maps.valid.shape
     score = cv2.resize(on_grid, (w, h), interpolation=cv2.INTER_LINEAR)
-    return _zero_invalid(score, maps.valid)
+    known = cv2.resize(maps.grid.valid.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
+    return _zero_invalid(score, known & maps.valid)
 
 SCORERS: dict[str, type[FuzzyScorer] | type[BayesScorer]] = {"fuzzy": FuzzyScorer, "bayes": BayesScorer}
 # every detection method: the two fusions of the four maps, and the PX4 grid planner (scoring/px4slp.py),
