@@ -109,9 +109,10 @@ DEFAULT_PNG = (cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL, cv2.IMWRITE_PNG_STRATEGY,
 PHOTO_PNG = (cv2.IMWRITE_PNG_COMPRESSION, 0, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE)
 
 
-def write_png(path: Path, image: np.ndarray, params: tuple[int, ...] = DEFAULT_PNG) -> None:
-    """Encode in memory, then write atomically (cv2.imwrite cannot target a temp name safely)."""
-    ok, buf = cv2.imencode(".png", image, list(params))
+def write_png(path: Path, image: np.ndarray, params: tuple[int, ...] | None = None) -> None:
+    """Encode in memory (``params``: ``DEFAULT_PNG`` when None, or ``PHOTO_PNG``), then write atomically
+    (cv2.imwrite cannot target a temp name safely)."""
+    ok, buf = cv2.imencode(".png", image, list(DEFAULT_PNG if params is None else params))
     if not ok:
         raise OutputError(path, "PNG encoding failed")
     with atomic_path(path) as tmp:
