@@ -102,10 +102,11 @@ PNG_LEVEL = 1
 DEFAULT_PNG = (cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
                cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP)
 # Photo-like images (the overlay: a tinted camera image) are written uncompressed (zlib level 0, no row filter):
-# 2-3 ms for a 640x480 overlay against 32 ms at level 1 with run-length matching (the writer before) and 19 ms at
-# level 1 with the SUB filter, for 0.92 MB against 0.61 MB (benchmarks/writes.py, measured on a clear_field
-# frame: zlib finds little to squeeze out of camera noise). A valid PNG like any other, lossless, every reader
-# opens it; the ~0.3 MB more is ~5 % of a frame folder (maps.npz holds ~5.5 MB).
+# ~1.4 ms for a 640x480 overlay against ~23 ms at level 1 with run-length matching (the writer before) and ~14 ms
+# at level 1 with the SUB filter, for 0.92 MB against 0.60 MB on a clear_field frame (benchmarks/writes.py) and
+# against 0.36 MB on the real RealSense frames of the test data (an indoor floor, less noise): +5-9 % of a frame
+# folder (maps.npz holds ~5.5 MB), for ~20 ms of the ~50 a detection frame may take to write at 10 frames/s.
+# A valid PNG like any other, lossless, every reader opens it.
 PHOTO_PNG = (cv2.IMWRITE_PNG_COMPRESSION, 0, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE)
 
 
