@@ -65,6 +65,13 @@ def test_float16_through_opencv_is_numpys_cast_bit_for_bit() -> None:
     nan = np.isnan(values)
     assert np.array_equal(got.view(np.uint16)[~nan], want.view(np.uint16)[~nan])
     assert np.isnan(got[nan]).all()  # NaN stays NaN (F16C quiets a signalling NaN's payload; numpy keeps it)
+    # views, Fortran order, a row, a column, nothing: the same as numpy's
+    wide16 = values[:480, :640]
+    for view in (wide16[:, ::2], np.asfortranarray(wide16), wide16[::3, 5:300], wide16[:1], wide16[:, :1],
+                 np.zeros((0, 5), np.float32)):
+        ok = ~np.isnan(view)
+        with np.errstate(over="ignore", invalid="ignore"):
+            assert np.array_equal(run_folder.to_float16(view)[ok], view.astype(np.float16)[ok]), view.shape
     # other dtypes and shapes take numpy's own cast
     wide = values[:3][~np.isnan(values[:3])].astype(np.float64)
     with np.errstate(over="ignore"):

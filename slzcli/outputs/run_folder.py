@@ -49,7 +49,7 @@ def to_float16(values: np.ndarray) -> np.ndarray:
     conversion takes ~0.5 ms for a 640x480 map against ~1.8 ms for numpy's (benchmarks/writes.py; six maps a
     detection frame)."""
     a = np.asarray(values)
-    if a.dtype != np.float32 or a.ndim != 2:
+    if a.dtype != np.float32 or a.ndim != 2 or a.size == 0:
         return a.astype(np.float16)
     # x * 1.0 is exact (and keeps -0.0): only the cast rounds. OpenCV takes a scalar operand; its stubs do not say so.
     out = cv2.multiply(a, 1.0, dtype=cv2.CV_16F)  # type: ignore[call-overload]
