@@ -97,8 +97,8 @@ def mask_png(mask: np.ndarray) -> np.ndarray:
 # for ~20% more bytes (benchmarks/writes.py); PNG is lossless at every level, the pixels are the same.
 PNG_LEVEL = 1
 # The heat maps and the mask (--outputs all): run-length matching after the UP row filter encodes the five heat maps
-# of a 640x480 frame in ~47 ms against ~120 ms with zlib's default matching and PNG's adaptive filters, and in ~2 %
-# fewer bytes (smooth colour maps: a row is mostly the one above it; benchmarks/writes.py).
+# of a 640x480 frame in 45-60 ms against 90-120 ms with zlib's default matching and PNG's adaptive filters, and in
+# ~3 % fewer bytes (smooth colour maps: a row is mostly the one above it; benchmarks/writes.py).
 DEFAULT_PNG = (cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
                cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP)
 # Photo-like images (the overlay: a tinted camera image) are written uncompressed (zlib level 0, no row filter):

@@ -39,11 +39,12 @@ and nothing is drawn in a frame it is not in. The committed site is in its segme
 The maps and the score are raw mono8 images so that a script gets the values back exactly
 (value = byte / 255). The colour image and the overlay are pictures to look at, written as JPEG
 (``JPEG_QUALITY``) on ``<topic>/compressed`` as image_transport names them: the exact colour is in
-the recording, the exact overlay in ``frames/NNNNNN/overlay.png``. Chunks are LZ4-compressed
+the recording, the exact overlay in ``frames/NNNNNN/overlay.png`` (``output.level`` maps or all).
+Chunks are LZ4-compressed
 (``CHUNK_COMPRESSION``). Why (benchmarks/writes.py, a 640x480 detection frame): raw rgb8 colour and
 overlay were 1.8 MB of the 3.4 MB a frame wrote, and mcap's default zstd took ~44 ms a frame over
 chunks of camera images that it shrank by a third; JPEG takes ~2 ms an image for ~1/5 of the bytes,
-LZ4 ~1/10 of zstd's time. PNG maps (lossless too) would cost ~20 ms a frame to encode against ~2 ms
+LZ4 ~1/10 of zstd's time. PNG maps (lossless too) would cost ~18 ms a frame to encode against ~2 ms
 of LZ4 over the raw bytes, so they stay raw. Frames without a pose have no /tf, so their clouds
 stay in the camera frame.
 """
