@@ -177,9 +177,10 @@ def test_results_mcap_reads_back_with_expected_topics_and_the_score_image(local_
     # written as tracked; only the committed site (on its frame's stamp) comes last
     assert in_file == sorted(in_file)
     map_names = ("depth_variance", "flatness", "inclination", "steepness")
-    images = ["/slz/color", "/slz/score", "/slz/overlay", *(f"/slz/maps/{n}" for n in map_names)]
-    for topic in images:
+    for topic in ["/slz/score", *(f"/slz/maps/{n}" for n in map_names)]:  # values: raw mono8
         assert schemas[topic] == "sensor_msgs/msg/Image" and len(msgs[topic]) == detections, topic
+    for topic in ("/slz/color/compressed", "/slz/overlay/compressed"):  # pictures: JPEG
+        assert schemas[topic] == "sensor_msgs/msg/CompressedImage" and len(msgs[topic]) == detections, topic
     for topic in ("/slz/mask", "/slz/map_points", "/slz/candidates"):
         assert schemas[topic] == "sensor_msgs/msg/PointCloud2", topic
     assert schemas["/slz/site"] == schemas["/slz/landing_site"] == "visualization_msgs/msg/MarkerArray"

@@ -107,7 +107,7 @@ def test_recording_frames_are_read(synth, with_tf) -> None:
 def test_a_recording_without_tf_gets_map_and_its_own_camera_frame(synth, tmp_path) -> None:
     detect(synth, tmp_path / "run")
     msgs = read_mcap(tmp_path / "run" / "results.mcap")
-    for topic in ("/slz/color", "/slz/camera_info", "/slz/score", "/slz/overlay", "/slz/mask"):
+    for topic in ("/slz/color/compressed", "/slz/camera_info", "/slz/score", "/slz/overlay/compressed", "/slz/mask"):
         assert {m.header.frame_id for m in msgs[topic]} == {OPTICAL}, topic
     for topic in ("/slz/map_points", "/slz/camera_pose"):
         assert {m.header.frame_id for m in msgs[topic]} == {"map"}, topic
@@ -136,7 +136,7 @@ def test_recorded_tf_poses_link_the_map_to_the_recordings_frame(with_tf, tmp_pat
     (link,) = edges(msgs["/tf_static"])
     assert link[:2] == ("odom", "map")
     np.testing.assert_allclose(link[2], np.eye(4), atol=1e-9)
-    assert {m.header.frame_id for m in msgs["/slz/color"]} == {OPTICAL}
+    assert {m.header.frame_id for m in msgs["/slz/color/compressed"]} == {OPTICAL}
 
 
 def test_slam_poses_are_linked_on_the_first_frame(with_tf, synth, tmp_path) -> None:

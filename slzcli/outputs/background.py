@@ -4,7 +4,7 @@ Writing a detection frame (maps.npz, overlay.png, its results.mcap messages) cos
 as computing it; done in the main loop it adds to every detection. Here the main loop hands each
 write over as a task and goes on with the next frames while one thread writes, in the order the
 tasks came (results.mcap stays in time order: poses and detections go through the same queue).
-PNG and zstd encoding, numpy casts and file writes release the GIL, so on two cores the writes
+PNG, JPEG and LZ4 encoding, numpy casts and file writes release the GIL, so on two cores the writes
 overlap the next frame's SLAM and maps.
 
 The queue holds at most ``depth`` tasks (``output.write_queue``; 0 writes in the loop): a detection task keeps its

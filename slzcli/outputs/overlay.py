@@ -1,4 +1,5 @@
-"""The Figure 6 overlay of one detection, drawn for its frame folder (overlay.png) and results.mcap (/slz/overlay).
+"""The Figure 6 overlay of one detection, drawn once for its frame folder (overlay.png) and results.mcap
+(/slz/overlay/compressed).
 
 Its own module so that both writers share it without one importing the other.
 """

@@ -34,6 +34,7 @@ from slzcli.types import Frame, Intrinsics
 
 FORMATS = ("mcap", "mcap-ros1", "ros1", "ros2-sqlite", "ros2-mcap")
 COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8", "jpeg", "png")
+MCAP_COMPRESSIONS = ("zstd", "lz4", "none")
 DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1", "compressedDepth", "compressedDepth-32FC1")
 # image_transport compressedDepth publisher defaults (CompressedDepthPublisher.cfg): the
 # inverse-depth code of 32FC1 depth is q = A / d + B with A = z0 (z0 + 1), B = 1 - A / depth_max.
@@ -68,13 +69,18 @@ class RecordingWriter:
 
     def __init__(self, path: str | Path, fmt: str = "mcap", *, color_encoding: str = "rgb8",
                  depth_encoding: str = "16UC1", layout: TopicLayout = REALSENSE, big_endian: bool = False,
-                 depth_unit_m: float = REP118_DEPTH_UNIT_M, chunk_bytes: int | None = None) -> None:
+                 depth_unit_m: float = REP118_DEPTH_UNIT_M, chunk_bytes: int | None = None,
+                 compression: str = "zstd") -> None:
+        """``compression``: of an MCAP file's chunks, ``zstd`` (mcap's default), ``lz4`` or ``none``; both
+        compressions are in the MCAP spec and read by Foxglove, ``mcap`` and rosbags (ignored by .bag/sqlite)."""
         if fmt not in FORMATS:
             raise OutputError(path, f"unknown recording format {fmt!r} (one of {', '.join(FORMATS)})")
         if color_encoding not in COLOR_ENCODINGS:
             raise OutputError(path, f"unknown colour encoding {color_encoding!r} (one of {', '.join(COLOR_ENCODINGS)})")
         if depth_encoding not in DEPTH_ENCODINGS:
             raise OutputError(path, f"unknown depth encoding {depth_encoding!r} (one of {', '.join(DEPTH_ENCODINGS)})")
+        if compression not in MCAP_COMPRESSIONS:
+            raise OutputError(path, f"unknown MCAP compression {compression!r} (one of {', '.join(MCAP_COMPRESSIONS)})")
         self.path = Path(path)
         self.fmt = fmt
         self.color_encoding = color_encoding
@@ -83,6 +89,7 @@ class RecordingWriter:
         self.big_endian = big_endian
         self.depth_unit_m = depth_unit_m
         self.chunk_bytes = chunk_bytes
+        self.compression = compression
         self.ros1 = fmt in ("ros1", "mcap-ros1")
         self.typestore = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
         if POSE_TYPES["tf"] not in self.typestore.fielddefs:  # the Noetic store lacks tf2_msgs
@@ -325,11 +332,15 @@ class _Backend:
 
 class _McapBackend(_Backend):
     def __init__(self, tmp: Path, w: RecordingWriter) -> None:
-        from mcap.writer import Writer
+        from mcap.writer import CompressionType, Writer
 
         self.w = w
         self.f = tmp.open("wb")
-        self.mcap = Writer(self.f, chunk_size=w.chunk_bytes) if w.chunk_bytes else Writer(self.f)
+        compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+        kw: dict[str, Any] = {"compression": compression[w.compression]}
+        if w.chunk_bytes:
+            kw["chunk_size"] = w.chunk_bytes
+        self.mcap = Writer(self.f, **kw)
         self.mcap.start(profile="ros1" if w.ros1 else "ros2", library="slz")
         self.schemas: dict[str, int] = {}
         self.channels: dict[str, int] = {}
