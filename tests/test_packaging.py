@@ -96,7 +96,7 @@ def test_the_installed_slz_renders_and_detects_outside_the_checkout(
         installed: tuple[Path, dict[str, str], Path]) -> None:
     venv, env, work = installed
     slz = str(venv / "bin" / "slz")
-    _run([slz, "synth", "clear_field", "-o", "f.mcap", "--frames", "4"], cwd=work, env=env)
+    _run([slz, "synth", "clear_field", "-o", "f.mcap", "--frames", "2"], cwd=work, env=env)  # default sensor
     _run([slz, "detect", "f.mcap", "-o", "run", "--json"], cwd=work, env=env)
     landing = json.loads((work / "run" / "landing.json").read_text())
     assert landing["status"] in ("site", "no_safe_site")
