@@ -150,11 +150,13 @@ def test_montecarlo_small_batch_summary() -> None:
 
 def test_disturbance_observer_holds_the_hover_in_steady_wind() -> None:
     """3 m/s steady wind (0.3 N through the 0.1 kg/s drag) at the hover. Measured: with the observer the
-    drift after 4 s stays within 1.3 mm and d_hat = 0.300 N (the drag force); without it (the paper's law,
-    the integral alone) the UAV is blown 0.148 m off. Limits: 1 cm and 0.1 m, and d_hat within 1 %."""
+    drift from 4 s to the end of the flight stays within 1.3 mm and d_hat = 0.300 N (the drag force); without it
+    (the paper's law, the integral alone) the UAV is blown 0.148 m off. Limits: 1 cm and 0.1 m, and d_hat within
+    1 %. An 8 s flight (12 s before) gives the same figures: 1.29 mm and 0.1476 m at 8 s, 1.30 mm and 0.1477 m
+    at 12 s (the drift has settled), at half the CPU."""
     target = target_at((0.0, 0.0, 0.0))
     start = np.array([[0.0, 0.0, 2.0 + 0.089 / 2, 0.0]])   # body origin at the hover, 2 m above the square
-    sets = ["control.sim.switch_hold_s=1000", "control.sim.timeout_s=12", "control.wind.mean_m_s=[3, 0, 0]"]
+    sets = ["control.sim.switch_hold_s=1000", "control.sim.timeout_s=8", "control.wind.mean_m_s=[3, 0, 0]"]
     drift = {}
     for obs in ("true", "false"):
         r = simulate(target, start, load_config(None, [*sets, f"control.disturbance.observer={obs}"]), log=True)
