@@ -17,6 +17,10 @@ REALSENSE = Path(os.environ.get("SLZ_REALSENSE_DIR") or SHARED / "data" / "reals
 # own tests (test_synth_sensor.py) and the default sensor runs end to end in test_sensor_cells.py and
 # test_packaging.py.
 GAUSSIAN = ("--set", "synth.sensor.model=gaussian")
+# Half the default camera (320 x 240, the same field of view) for tests of formats and contracts, not of accuracy:
+# a quarter of the pixels to render and detect.
+HALF_SIZE = ("--set", "camera.width=320", "--set", "camera.height=240", "--set", "camera.fx=231.0685",
+             "--set", "camera.fy=231.0685", "--set", "camera.cx=160", "--set", "camera.cy=120")
 
 
 def synth_recording(path: Path, scene: str, frames: int, *options: str) -> Path:

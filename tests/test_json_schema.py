@@ -13,7 +13,7 @@ from typing import Any
 
 import jsonschema  # type: ignore[import-untyped]  # no stubs in the lint extra (types-jsonschema)
 import pytest
-from conftest import GAUSSIAN, REPO, synth_recording
+from conftest import GAUSSIAN, HALF_SIZE, REPO, synth_recording
 
 from slzcli.cli import main
 from slzcli.outputs.summary_json import SCHEMA_VERSION, round_float, rounded, schema_path
@@ -31,9 +31,9 @@ def validator() -> jsonschema.protocols.Validator:
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory) -> Path:
-    """Two ground-truthed recordings (with their sidecars) in one folder."""
+    """Two ground-truthed recordings (with their sidecars) in one folder (half size: the schema, not accuracy)."""
     folder = tmp_path_factory.mktemp("json")
-    synth_recording(folder / "cf.mcap", "clear_field", FRAMES, *GAUSSIAN)
+    synth_recording(folder / "cf.mcap", "clear_field", FRAMES, *GAUSSIAN, *HALF_SIZE)
     for f in list(folder.iterdir()):
         shutil.copy(f, folder / f.name.replace("cf.mcap", "cf2.mcap"))
     return folder

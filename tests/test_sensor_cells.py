@@ -1,7 +1,7 @@
 """Cells of the sensor x altitude matrix (benchmarks/sensor_matrix.py) held end to end through the CLI.
 
 Each cell: `slz synth SCENE --start x,y,Z` with a depth sensor, then `slz detect` (SLAM as the user
-runs it, a detection on frames 0 and 2), scored against the synth ground truth. Every limit below
+runs it, a detection on frames 0 and 2 of 3), scored against the synth ground truth. Every limit below
 was measured over seeds 0-4 (the numbers in the comments); the suite runs seeds 0-2.
 """
 
@@ -14,7 +14,12 @@ import pytest
 
 from slzcli.cli import main
 
-FRAMES = "4"
+# Three frames: the detections are on frames 0 and 2, the pipeline is causal and the renders are prefix-stable
+# (flight and noise drawn frame by frame), so a fourth frame, tracked after the last detection, changed none of
+# the numbers asserted below (measured, 3 vs 4 frames, seed 0 D435 at 5 m, seed 1 D455 at 5 m, seed 0 gaussian
+# 0.003 at 10 m: identical status, precision, recall, site, depth limits and noise estimate; only the SLAM
+# ATE and the frame counts differ). It cost a quarter of each cell's render (D435: 22.1 -> 15.4 CPU s).
+FRAMES = "3"
 DETECT = ["--set", "landing.detect_on=every_nth", "--set", "landing.every_nth_frame=2"]
 GAUSS = {"gauss0.003": ["--set", "synth.sensor.model=gaussian", "--set", "synth.sensor.depth_sigma_a=0.003"]}
 D435 = ["--set", "synth.sensor.model=stereo", "--set", "synth.sensor.preset=d435"]   # the default sensor
