@@ -34,10 +34,6 @@ from slzcli.types import Intrinsics, ScoreMap
 
 _GAP_NEIGHBOURS = 5        # an unobserved cell with at least this many observed 8-neighbours is a sampling gap
 MAX_PLAN_CELLS = 4 << 20   # cells of the plan raster; coarser cells beyond (a view of 80 m at 4 cm)
-# smooth(): from this sigma (px) the blur runs at half resolution; below it the 2 x 2 means and the
-# upsampling (together 0.92 px^2 of variance, a sigma of ~1 px) would be most of the blur
-_HALF_RES_SIGMA_PX = 4.0
-_HALF_RES_ADDED_VAR_PX2 = 0.25 + 2.0 / 3.0    # the 2 x 2 box and the bilinear tent (2 px half-width)
 
 
 def min_filter(score: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
@@ -56,19 +52,12 @@ def min_filter(score: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
 
 
 def smooth(score: np.ndarray, sigma_x_px: float, sigma_y_px: float) -> np.ndarray:
-    """Gaussian blur whose kernel is cut at the image's own size; a wide one runs at half resolution.
+    """Gaussian blur whose kernel is cut at the image's own size.
 
     OpenCV sizes a float kernel at 8 sigma + 1: ``mask.smooth_m=1000`` made a 616,000-tap
     kernel and minutes of work per frame. A tap further away than the image is wide only sees
     the border's reflection, so the kernel stops at 2 x the image side + 1 (the same result up
     to those reflected taps, and always when the blur is narrower than the image).
-
-    From ``_HALF_RES_SIGMA_PX`` up (even sides) the blur is 2 x 2 means, a Gaussian of the remaining
-    variance on that half-size image, and bilinear upsampling: the three variances add up to the
-    requested one (box of 2: 1/4 px^2, tent of the upsampling: 2/3 px^2), for 1/4-1/7 of the work
-    (sigma 5.8-15.5 px). On the 46 frames of benchmarks/stages.py (sigma 5.8-74 px) the result is
-    within 0.023 of the full-resolution blur (median difference <= 1.7e-4) and at most 0.08 % of a
-    frame's pixels change side of the 0.5 threshold.
     """
     h, w = score.shape[:2]
 
@@ -76,11 +65,6 @@ def smooth(score: np.ndarray, sigma_x_px: float, sigma_y_px: float) -> np.ndarra
         full = round(sigma * 8 + 1) | 1
         return min(full, 2 * side + 1)
 
-    if min(sigma_x_px, sigma_y_px) >= _HALF_RES_SIGMA_PX and h % 2 == 0 and w % 2 == 0:
-        half = cv2.resize(score, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-        sx, sy = (0.5 * math.sqrt(s * s - _HALF_RES_ADDED_VAR_PX2) for s in (sigma_x_px, sigma_y_px))
-        half = cv2.GaussianBlur(half, (ksize(sx, w // 2), ksize(sy, h // 2)), sigmaX=sx, sigmaY=sy)
-        return cv2.resize(half, (w, h), interpolation=cv2.INTER_LINEAR)
     return cv2.GaussianBlur(score, (ksize(sigma_x_px, w), ksize(sigma_y_px, h)), sigmaX=sigma_x_px,
                             sigmaY=sigma_y_px)
 
