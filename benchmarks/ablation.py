@@ -2,6 +2,7 @@
 
     python benchmarks/ablation.py [--scenes a,b] [--altitudes 5,10] [--sensors d435] [--seeds 0]
                                   [--frames 20] [--rate 10] [--decisions a,b] [--workers 2]
+                                  [--leave-one-out] [--variants a,b]
     python benchmarks/ablation.py --recordings A.mcap B.mcap      # your own recordings (with or without truth)
 
 Per cell (scene x altitude x sensor x seed, the grid of benchmarks/sensor_matrix.py) one `slz synth` recording,
@@ -108,14 +109,17 @@ def revert(decision: str) -> list[str]:
     return out
 
 
-def run_variants(path: Path, decisions: list[str], base: list[str], leave_one_out: bool = False
-                 ) -> list[dict[str, Any]]:
-    """Every variant over one recording, in this process (times comparable within the cell)."""
+def run_variants(path: Path, decisions: list[str], base: list[str], leave_one_out: bool = False,
+                 only: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+    """Every variant (or those named in ``only``) over one recording, in this process (times comparable within
+    the cell)."""
     from slzcli.compare import compare_recording, profile_row
     from slzcli.config import load_config
 
     rows = []
     for name, (profile, items) in variants(decisions, leave_one_out).items():
+        if only and name not in only:
+            continue
         cfg = load_config(None, base + items, profile)
         t0 = time.perf_counter()
         try:
@@ -129,7 +133,7 @@ def run_variants(path: Path, decisions: list[str], base: list[str], leave_one_ou
 
 
 def run_cell(scene: str, altitude: float, sensor: str, seed: int, frames: int, rate: float, decisions: list[str],
-             tmp: str, leave_one_out: bool = False) -> list[dict[str, Any]]:
+             tmp: str, leave_one_out: bool = False, only: tuple[str, ...] = ()) -> list[dict[str, Any]]:
     from slzcli.config import load_config
     from slzcli.synth.record import SynthOptions, scenario_start, synthesize
     from slzcli.synth.scenes import load_scene
@@ -138,7 +142,7 @@ def run_cell(scene: str, altitude: float, sensor: str, seed: int, frames: int, r
     x, y, _ = scenario_start(cfg, load_scene(scene).scenario)
     path = Path(tmp) / f"{scene}_{altitude:g}_{sensor}_{seed}.mcap"
     synthesize(path, SynthOptions(scene, frames, rate, PATH, seed, (x, y, altitude)), cfg)
-    rows = run_variants(path, decisions, [], leave_one_out)
+    rows = run_variants(path, decisions, [], leave_one_out, only)
     for r in rows:
         r.update(scene=scene, altitude_m=altitude, sensor=sensor, seed=seed)
     path.unlink(missing_ok=True)
@@ -190,10 +194,16 @@ def main() -> None:
     ap.add_argument("--decisions", default=",".join(DECISIONS))
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--leave-one-out", action="store_true", help="Also the default with each decision switched back.")
+    ap.add_argument("--variants", default="", help="Run only these variants (names as printed, e.g. "
+                    "default,default-absolute); default: all.")
     ap.add_argument("--recordings", nargs="*", type=Path, help="Run the variants on these recordings instead.")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "ablation.json")
     args = ap.parse_args()
     decisions = [d for d in args.decisions.split(",") if d]
+    only = tuple(v for v in args.variants.split(",") if v)
+    known = variants(decisions, args.leave_one_out) if only else {}
+    if [v for v in only if v not in known]:
+        sys.exit(f"unknown variant(s) {', '.join(v for v in only if v not in known)}; known: {', '.join(known)}")
     unknown = [d for d in decisions if d not in DECISIONS]
     if unknown:
         sys.exit(f"unknown decision(s) {', '.join(unknown)}; known: {', '.join(DECISIONS)}")
@@ -209,7 +219,7 @@ def main() -> None:
 
     if args.recordings:
         for p in args.recordings:
-            for r in run_variants(p, decisions, [], args.leave_one_out):
+            for r in run_variants(p, decisions, [], args.leave_one_out, only):
                 rows.append(r)
                 print_row(r)
             save()
@@ -221,7 +231,7 @@ def main() -> None:
         fresh: dict[str, Any] = {"max_tasks_per_child": 1} if sys.version_info >= (3, 11) else {}
         with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(args.workers, **fresh) as pool:
             futures = [pool.submit(run_cell, s, z, sensor, seed, args.frames, args.rate, decisions, tmp,
-                                   args.leave_one_out)
+                                   args.leave_one_out, only)
                        for s, z, sensor, seed in cells]
             for cell, fut in zip(cells, futures, strict=True):
                 try:
