@@ -21,7 +21,7 @@ The flight: a straight survey line (``slz synth --path transect``: 2 m/s due eas
 wobble on top) at ``--rate`` 10 Hz, so monocular SLAM has parallax from the second frame. Monocular ORB-SLAM3
 also needs relief in view: over near-planar ground it takes the fundamental matrix, which a plane leaves
 undetermined (docs/METHOD.md 2.2). benchmarks/monocular_init.py measured it on these transects (24 frames,
-6 scenes x 5, 10 m x seeds 0, 1): it started on 18 of 24, 12 of them by frame 2, never on clear_field (flat
+6 scenes x 5, 10 m x seeds 0, 1): it started on 18 of 24, 11 of them by frame 2, never on clear_field (flat
 grass), on parking_lot with seed 1 only; ATE 0.7-10 cm where it did. A cell where it does not start is
 reported as such (no keyframe, no detection), not dropped.
 Writes benchmarks/results/ablation.json after every cell and prints a table.
