@@ -2,6 +2,7 @@
 
     python benchmarks/ablation.py [--scenes a,b] [--altitudes 5,10] [--sensors d435] [--seeds 0]
                                   [--frames 20] [--rate 10] [--decisions a,b] [--workers 2]
+                                  [--leave-one-out] [--variants a,b]
     python benchmarks/ablation.py --recordings A.mcap B.mcap      # your own recordings (with or without truth)
 
 Per cell (scene x altitude x sensor x seed, the grid of benchmarks/sensor_matrix.py) one `slz synth` recording,
@@ -9,18 +10,20 @@ then every variant on it with `slz compare`'s machinery (``compare.compare_recor
 method): ``paper``; ``paper_rgbd`` (the paper with slz's RGB-D SLAM); ``+D``, that base plus decision D, for
 every other decision D below; and ``default`` (all of them: tests/test_profiles.py holds that paper + every
 decision is exactly the default config). The base of the map, mask and commit decisions is ``paper_rgbd``,
-not ``paper``, because the paper's monocular SLAM does not initialise on most of these flights (next
-paragraph): without a map there are no keyframes and so no detection to change. Reported per
-variant: mask precision and recall (pixels summed over its detection frames), whether the committed site
-is truly safe, SLAM ATE (m, against the true poses) and the median time per detection frame (SLAM + maps +
-score + mask + select, ms, same process, same machine).
+not ``paper``, because the paper's monocular SLAM does not start on every flight (next paragraph): without a
+map there are no keyframes and so no detection to change, and a base that detects on some cells only would
+mix "the decision helps" with "the map started". Reported per variant: mask precision and recall (pixels
+summed over its detection frames), whether the committed site is truly safe, SLAM ATE (m, against the true
+poses) and the median time per detection frame (SLAM + maps + score + mask + select, ms, same process, same
+machine).
 
-The flight: monocular SLAM needs parallax between frames to initialise; the default synth hover (0.3 m
-drift over 12 s) gives little, so the cells fly a 1 m drift over 6 s at ``--rate`` 10 Hz. Measured with
-pyorbslam3 on parking_lot at 5 m (1000 features, 8 levels, 1.2): a 20 Hz render of that flight never
-initialised (60 of 60 frames), every 2nd frame of the same render did (frame 16, 0.8 s), and six 10 Hz
-renders (three seeds, no colour noise, gaussian depth, playground) did not in 24 frames. A cell where it
-does not is reported as such (no keyframe, no detection), not dropped.
+The flight: a straight survey line (``slz synth --path transect``: 2 m/s due east, the hover's drift and tilt
+wobble on top) at ``--rate`` 10 Hz, so monocular SLAM has parallax from the second frame. Monocular ORB-SLAM3
+also needs relief in view: over near-planar ground it takes the fundamental matrix, which a plane leaves
+undetermined (docs/METHOD.md 2.2). benchmarks/monocular_init.py measured it on these transects (24 frames,
+6 scenes x 5, 10 m x seeds 0, 1): it started on 18 of 24, 11 of them by frame 2, never on clear_field (flat
+grass), on parking_lot with seed 1 only; ATE 0.7-10 cm where it did. A cell where it does not start is
+reported as such (no keyframe, no detection), not dropped.
 Writes benchmarks/results/ablation.json after every cell and prints a table.
 """
 
@@ -34,7 +37,7 @@ import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -47,7 +50,8 @@ SENSORS: dict[str, list[str]] = {   # as benchmarks/sensor_matrix.py
     "d435": ["synth.sensor.model=stereo", "synth.sensor.preset=d435"],
     "d455": ["synth.sensor.model=stereo", "synth.sensor.preset=d455"],
 }
-FLIGHT = ["synth.flight.drift_m=1.0", "synth.flight.drift_period_s=6.0"]   # parallax for monocular SLAM (above)
+PATH: Literal["transect"] = "transect"   # a survey line (synth.flight.speed_m_s, heading_deg): parallax (above)
+FLIGHT: list[str] = []   # the flight keys of default.yaml (2 m/s due east, the hover's drift and tilt wobble on top)
 
 # slz's decisions against the paper, each as the --set items that switch it on over `--profile paper`.
 DECISIONS: dict[str, list[str]] = {
@@ -108,14 +112,17 @@ def revert(decision: str) -> list[str]:
     return out
 
 
-def run_variants(path: Path, decisions: list[str], base: list[str], leave_one_out: bool = False
-                 ) -> list[dict[str, Any]]:
-    """Every variant over one recording, in this process (times comparable within the cell)."""
+def run_variants(path: Path, decisions: list[str], base: list[str], leave_one_out: bool = False,
+                 only: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+    """Every variant (or those named in ``only``) over one recording, in this process (times comparable within
+    the cell)."""
     from slzcli.compare import compare_recording, profile_row
     from slzcli.config import load_config
 
     rows = []
     for name, (profile, items) in variants(decisions, leave_one_out).items():
+        if only and name not in only:
+            continue
         cfg = load_config(None, base + items, profile)
         t0 = time.perf_counter()
         try:
@@ -129,7 +136,7 @@ def run_variants(path: Path, decisions: list[str], base: list[str], leave_one_ou
 
 
 def run_cell(scene: str, altitude: float, sensor: str, seed: int, frames: int, rate: float, decisions: list[str],
-             tmp: str, leave_one_out: bool = False) -> list[dict[str, Any]]:
+             tmp: str, leave_one_out: bool = False, only: tuple[str, ...] = ()) -> list[dict[str, Any]]:
     from slzcli.config import load_config
     from slzcli.synth.record import SynthOptions, scenario_start, synthesize
     from slzcli.synth.scenes import load_scene
@@ -137,8 +144,8 @@ def run_cell(scene: str, altitude: float, sensor: str, seed: int, frames: int, r
     cfg = load_config(None, SENSORS[sensor] + FLIGHT)
     x, y, _ = scenario_start(cfg, load_scene(scene).scenario)
     path = Path(tmp) / f"{scene}_{altitude:g}_{sensor}_{seed}.mcap"
-    synthesize(path, SynthOptions(scene, frames, rate, "hover", seed, (x, y, altitude)), cfg)
-    rows = run_variants(path, decisions, [], leave_one_out)
+    synthesize(path, SynthOptions(scene, frames, rate, PATH, seed, (x, y, altitude)), cfg)
+    rows = run_variants(path, decisions, [], leave_one_out, only)
     for r in rows:
         r.update(scene=scene, altitude_m=altitude, sensor=sensor, seed=seed)
     path.unlink(missing_ok=True)
@@ -190,10 +197,16 @@ def main() -> None:
     ap.add_argument("--decisions", default=",".join(DECISIONS))
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--leave-one-out", action="store_true", help="Also the default with each decision switched back.")
+    ap.add_argument("--variants", default="", help="Run only these variants (names as printed, e.g. "
+                    "default,default-absolute); default: all.")
     ap.add_argument("--recordings", nargs="*", type=Path, help="Run the variants on these recordings instead.")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "ablation.json")
     args = ap.parse_args()
     decisions = [d for d in args.decisions.split(",") if d]
+    only = tuple(v for v in args.variants.split(",") if v)
+    known = variants(decisions, args.leave_one_out) if only else {}
+    if [v for v in only if v not in known]:
+        sys.exit(f"unknown variant(s) {', '.join(v for v in only if v not in known)}; known: {', '.join(known)}")
     unknown = [d for d in decisions if d not in DECISIONS]
     if unknown:
         sys.exit(f"unknown decision(s) {', '.join(unknown)}; known: {', '.join(DECISIONS)}")
@@ -201,7 +214,7 @@ def main() -> None:
           f"{'ATE m':>6} {'ms/frm':>7}")
     rows: list[dict[str, Any]] = []
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    run = {"frames": args.frames, "rate_hz": args.rate, "flight": FLIGHT, "decisions": {d: DECISIONS[d]
+    run = {"frames": args.frames, "rate_hz": args.rate, "path": PATH, "flight": FLIGHT, "decisions": {d: DECISIONS[d]
                                                                                         for d in decisions}}
 
     def save() -> None:
@@ -209,18 +222,19 @@ def main() -> None:
 
     if args.recordings:
         for p in args.recordings:
-            for r in run_variants(p, decisions, [], args.leave_one_out):
+            for r in run_variants(p, decisions, [], args.leave_one_out, only):
                 rows.append(r)
                 print_row(r)
             save()
     else:
-        cells = [(s, float(z), sensor, int(seed)) for s in args.scenes.split(",") for z in args.altitudes.split(",")
-                 for sensor in args.sensors.split(",") for seed in args.seeds.split(",")]
+        # altitude-major: a run stopped part way has covered every scene and sensor at the first altitudes
+        cells = [(s, float(z), sensor, int(seed)) for seed in args.seeds.split(",") for z in args.altitudes.split(",")
+                 for s in args.scenes.split(",") for sensor in args.sensors.split(",")]
         run.update(cells=[list(c) for c in cells])
         fresh: dict[str, Any] = {"max_tasks_per_child": 1} if sys.version_info >= (3, 11) else {}
         with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(args.workers, **fresh) as pool:
             futures = [pool.submit(run_cell, s, z, sensor, seed, args.frames, args.rate, decisions, tmp,
-                                   args.leave_one_out)
+                                   args.leave_one_out, only)
                        for s, z, sensor, seed in cells]
             for cell, fut in zip(cells, futures, strict=True):
                 try:

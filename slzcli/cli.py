@@ -521,7 +521,8 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
 @click.option("--color-encoding", default="rgb8", show_default=True,
               type=click.Choice(["rgb8", "bgr8", "jpeg", "png"]), help="Raw Image or CompressedImage (jpeg, png).")
 @click.option("--rate", "rate_hz", type=FiniteFloatRange(1, 200), help="Frame rate in Hz (default synth.rate_hz).")
-@click.option("--path", "path_kind", type=click.Choice(["hover", "descent"]), help="Camera path (default synth.path).")
+@click.option("--path", "path_kind", type=click.Choice(["hover", "descent", "transect"]),
+              help="Camera path (default synth.path).")
 @click.option("--variant", "variants", multiple=True, help="Scene variant (repeatable), e.g. sand, low_light; "
               "or SCENE:sand+low_light.")
 @click.option("--contact-sheet", "sheet", type=click.Path(dir_okay=False, path_type=Path, readable=False),

@@ -407,6 +407,8 @@ class FlightCfg:
     yaw_deg: float = rng(-360, 360)
     yaw_rate_deg_s: float = rng(-90, 90)
     descent_m_s: float = rng(0)
+    speed_m_s: float = rng(0, 30)
+    heading_deg: float = rng(-360, 360)
     min_altitude_m: float = rng(0, lo_open=True)
 
 
@@ -504,7 +506,7 @@ class GroundTruthCfg:
 class SynthCfg:
     frames: int = rng(1)
     rate_hz: float = rng(1, 200)
-    path: Literal["hover", "descent"]
+    path: Literal["hover", "descent", "transect"]
     seed: int = rng(0)
     start_stamp_ns: int = rng(0)
     embed_m: float = rng(0)

@@ -192,8 +192,9 @@ def test_compare_profiles_runs_the_paper_and_the_default_on_the_same_frames(runn
     res = runner.invoke(main, ["compare", str(hover), "--profiles", "paper,default", "-o", str(tmp_path / "cmp"),
                                "--json"])
     assert res.exit_code == 0, res.output
-    rows = {r["profile"]: r for r in json.loads(res.output)["rows"]}
+    rows = {r["profile"]: r for r in json.loads(res.stdout)["rows"]}   # stderr: the monocular warning
     paper, default = rows["paper"], rows["default"]
+    assert "monocular ORB-SLAM3 never initialised (12 frames" in res.stderr
     assert paper["frames"] == default["frames"] == 12
     assert paper["slam_backend"] == "orbslam3" and default["slam_backend"] == "orbslam3"
     # monocular: no map on a hover, so no keyframe and no detection; said as a reason, not a crash

@@ -13,8 +13,14 @@ only and its map has an arbitrary scale. The paper does not say how it fixed the
 from the recording's depth at the tracked map points: per frame the median of measured depth over map
 depth (at least ``scale_min_points`` points), per map segment the median of those per-frame values so
 far, applied to the pose's translation and the map points. Until a segment has a scale its frames have
-no (metric) pose. A monocular map needs parallax to initialise: a hover gives little, and slz warns
-after ``init_warn_frames`` frames without one.
+no (metric) pose.
+
+A monocular map starts from two views (ORB-SLAM3's TwoViewReconstruction) and needs parallax (1 deg at the
+50th point) and relief in view: it takes the fundamental matrix unless the homography scores over half
+(RH > 0.50), over near-planar ground seen straight down RH sits just under 0.5 (0.47-0.49 measured), and F is
+degenerate on a plane. On the synth transects it started on 18 of 24 flights, never over flat grass
+(docs/METHOD.md 2.2, benchmarks/monocular_init.py). slz warns after ``init_warn_frames`` frames without a map,
+and again at the end of a run that never had one.
 """
 
 from __future__ import annotations
@@ -171,6 +177,8 @@ class OrbSlam3Backend(BackendBase):
         self.monocular = cfg.orbslam3.sensor == "monocular"
         self._scales: dict[int, list[float]] = {}   # monocular: per map segment, each frame's measured scale
         self._frames_uninitialised = 0
+        self._uninitialised_span_ns: tuple[int, int] | None = None   # first and last stamp without a map
+        self._source = ""
         self._warned_init = False
         self._track_ms: float | None = None  # the worker's own time for the last frame
 
@@ -247,6 +255,7 @@ class OrbSlam3Backend(BackendBase):
         self._stop()
 
     def close(self) -> None:
+        self._say_never_initialised()
         proc, conn = self._proc, self._conn
         if proc is not None and conn is not None and proc.poll() is None:
             try:
@@ -327,6 +336,9 @@ class OrbSlam3Backend(BackendBase):
         if pose is None:
             if not self._ever_ok:
                 self._frames_uninitialised += 1
+                self._source = frame.source or "recording"
+                first = frame.stamp_ns if self._uninitialised_span_ns is None else self._uninitialised_span_ns[0]
+                self._uninitialised_span_ns = (first, frame.stamp_ns)
                 if self._frames_uninitialised >= self.cfg.orbslam3.init_warn_frames and not self._warned_init:
                     self._warned_init = True
                     log.warning("%s: monocular ORB-SLAM3 has not initialised after %d frames: a monocular map needs "
@@ -344,6 +356,20 @@ class OrbSlam3Backend(BackendBase):
         metric = pose.copy()
         metric[:3, 3] *= scale
         return metric, pts * scale
+
+
+    def _say_never_initialised(self) -> None:
+        """At the end of a monocular run that never had a map: one warning saying so, why, and what to do."""
+        if not self.monocular or self._ever_ok or not self._frames_uninitialised or self._uninitialised_span_ns is None:
+            return
+        first, last = self._uninitialised_span_ns
+        n = self._frames_uninitialised
+        self._frames_uninitialised = 0   # said once, even if close() is called again
+        log.warning("%s: monocular ORB-SLAM3 never initialised (%d frames, %.1f s), so no pose and no detection: "
+                    "it starts a map from two views and needs sideways motion (parallax; a hover or a straight "
+                    "descent gives too little) over ground with some relief. Fly a transect, or use "
+                    "--set slam.orbslam3.sensor=rgbd (depth starts the map at once)",
+                    self._source, n, (last - first) * 1e-9)
 
 
 def monocular_scale(T_world_camera: np.ndarray, points_world: np.ndarray, depth_m: np.ndarray, K: np.ndarray,

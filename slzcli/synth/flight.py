@@ -1,8 +1,13 @@
-"""Camera paths for synthetic flights: hover with drift, or a slow descent; smooth and seeded.
+"""Camera paths for synthetic flights: hover with drift, a slow descent, or a straight survey transect;
+smooth and seeded.
 
 The camera looks straight down with image "up" towards world +y at yaw 0:
 optical z = world -z, optical x = world +x, optical y = world -y. Small roll/pitch
 wobbles and an optional yaw rate are added on top. Poses are ``T_world_camera``.
+
+``transect`` flies a straight line at ``speed_m_s`` towards compass ``heading_deg`` (0 = north = world +y,
+90 = east = +x) at constant altitude, the way a survey or a search for a landing site crosses ground; the
+drift and wobbles stay on top. Unlike a hover it gives a monocular camera parallax from the first frames.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ import numpy as np
 
 from slzcli.config import FlightCfg
 
-PathKind = Literal["hover", "descent"]
+PathKind = Literal["hover", "descent", "transect"]
 
 #: Rotation camera optical frame -> world for a camera looking straight down at yaw 0.
 R_WORLD_CAMERA_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
@@ -52,6 +57,10 @@ def make_flight(start_m: tuple[float, float, float], frames: int, rate_hz: float
     dy = cfg.drift_m * (np.sin(0.73 * w_drift * t + ph[1]) - np.sin(ph[1]))
     dz = cfg.altitude_wobble_m * (np.sin(1.31 * w_drift * t + ph[2]) - np.sin(ph[2]))
     z = start_m[2] + dz
+    if path == "transect":
+        heading = np.deg2rad(cfg.heading_deg)
+        dx = dx + cfg.speed_m_s * t * np.sin(heading)
+        dy = dy + cfg.speed_m_s * t * np.cos(heading)
     if path == "descent":
         z = np.maximum(start_m[2] - cfg.descent_m_s * t, cfg.min_altitude_m) + dz
     pos = np.stack([start_m[0] + dx, start_m[1] + dy, z], axis=1)
