@@ -154,11 +154,12 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
         m = plan_block_px(depth, intrinsics, config)
         if m > 1:
             h, w = depth.shape
-            depth_b, _ = block_depth(depth, valid_depth(depth), m)
+            valid = valid_depth(depth)
+            depth_b, _ = block_depth(depth, valid, m)
             score_b = cv2.resize(np.asarray(score, np.float32), depth_b.shape[::-1], interpolation=cv2.INTER_AREA)
             sm = _mask(scorer, score_b, depth_b, fit_intrinsics(intrinsics, depth_b.shape), config, up_camera)
             mask = cv2.resize(sm.mask.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
-            np.logical_and(mask, valid_depth(depth), out=mask)
+            np.logical_and(mask, valid, out=mask)
             sm = ScoreMap(sm.method, score, mask, sm.column_cut)
         else:
             sm = _mask(scorer, score, depth, intrinsics, config, up_camera)
