@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from click.testing import CliRunner
@@ -42,3 +45,25 @@ def realsense_dir() -> Path:
     if not (REALSENSE / "cam_params_realsense.json").is_file():
         pytest.skip(f"real RealSense frames not found at {REALSENSE}")
     return REALSENSE
+
+
+@contextlib.contextmanager
+def fusion_spy() -> Iterator[list[tuple[str, Any]]]:
+    """(method, Detection) of every detection each method's ``pipeline.Fusion`` makes inside the block: what a
+    test of `slz compare` checks beyond its JSON (the detections themselves, per method)."""
+    from slzcli import pipeline
+
+    seen: list[tuple[str, Any]] = []
+    original = pipeline.Fusion.__call__
+
+    def spy(self: Any, *args: Any, **kwargs: Any) -> Any:
+        d = original(self, *args, **kwargs)
+        seen.append((self.method, d))
+        return d
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(pipeline.Fusion, "__call__", spy)
+    try:
+        yield seen
+    finally:
+        mp.undo()

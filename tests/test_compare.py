@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import GAUSSIAN, synth_recording
+from conftest import GAUSSIAN, fusion_spy, synth_recording
 
 from slzcli import pipeline
 from slzcli.cli import main
@@ -36,21 +36,9 @@ def compared(clear_field, tmp_path_factory):
     """One comparison of clear_field, with every Detection each method produced captured."""
     from click.testing import CliRunner
 
-    seen: list[tuple[str, pipeline.Detection]] = []
-    original = pipeline.Fusion.__call__
-
-    def spy(self, *args, **kwargs):
-        d = original(self, *args, **kwargs)
-        seen.append((self.method, d))
-        return d
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(pipeline.Fusion, "__call__", spy)
     out = tmp_path_factory.mktemp("cmp") / "out"
-    try:
+    with fusion_spy() as seen:
         res = CliRunner().invoke(main, ["compare", str(clear_field), "-o", str(out), "--json", *SMALL])
-    finally:
-        mp.undo()
     assert res.exit_code == 0, res.output
     return json.loads(res.stdout), out, seen
 

@@ -13,9 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import GAUSSIAN, synth_recording
+from conftest import GAUSSIAN, fusion_spy, synth_recording
 
-from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.landing.px4slp import choose_patch, grid_site, patch_disk, search_offsets
@@ -211,22 +210,10 @@ def field_5m(tmp_path_factory) -> Path:
 def test_compare_three_methods_through_the_cli(field_5m, tmp_path) -> None:
     from click.testing import CliRunner
 
-    seen: list[tuple[str, pipeline.Detection]] = []
-    original = pipeline.Fusion.__call__
-
-    def spy(self, *args, **kwargs):
-        d = original(self, *args, **kwargs)
-        seen.append((self.method, d))
-        return d
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(pipeline.Fusion, "__call__", spy)
     out = tmp_path / "cmp"
-    try:
+    with fusion_spy() as seen:
         res = CliRunner().invoke(main, ["compare", str(field_5m), "-o", str(out), "--json",
                                         "--methods", "fuzzy,bayes,px4slp", *SMALL])
-    finally:
-        mp.undo()
     assert res.exit_code == 0, res.output
     rec = json.loads(res.stdout)["recordings"][0]
     assert set(rec["methods"]) == {"fuzzy", "bayes", "px4slp"} and rec["inputs_identical"] is True
