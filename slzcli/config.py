@@ -16,7 +16,7 @@ import json
 import re
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -717,23 +717,42 @@ def _leaves(data: Mapping[str, Any], prefix: str = "") -> list[str]:
 _LINE_RE = re.compile(r"^(\s*)([A-Za-z_]\w*):(\s*)([^#]*?)(\s*)(#.*)?$")
 
 
-def _leaf_comments(text: str) -> dict[str, str]:
-    """Dotted key -> the comment on its line (without ``#``), for a file in default.yaml's style."""
-    out: dict[str, str] = {}
+@dataclass(frozen=True)
+class _LeafLine:
+    """A ``key: value  # comment`` line of a file in default.yaml's style (one leaf per line)."""
+
+    indent: str
+    sections: tuple[str, ...]   # the keys of the sections it is in, outermost first
+    key: str
+    comment: str                # "# ..." or ""
+
+    @property
+    def dotted(self) -> str:
+        return ".".join((*self.sections, self.key))
+
+
+def _yaml_lines(text: str) -> Iterator[tuple[str, _LeafLine | None]]:
+    """Every line of a file in default.yaml's style with its leaf (None for sections, comments, blanks):
+    what the comment reader and ``dump`` both walk."""
     stack: list[tuple[int, str]] = []
     for line in text.splitlines():
         m = _LINE_RE.match(line)
         if not m:
+            yield line, None
             continue
         indent, key, _, value, _, comment = m.groups()
         while stack and stack[-1][0] >= len(indent):
             stack.pop()
         if value == "":
             stack.append((len(indent), key))
+            yield line, None
             continue
-        if comment:
-            out[".".join([*(k for _, k in stack), key])] = comment.lstrip("#").strip()
-    return out
+        yield line, _LeafLine(indent, tuple(k for _, k in stack), key, comment or "")
+
+
+def _leaf_comments(text: str) -> dict[str, str]:
+    """Dotted key -> the comment on its line (without ``#``), for a file in default.yaml's style."""
+    return {leaf.dotted: leaf.comment.lstrip("#").strip() for _, leaf in _yaml_lines(text) if leaf and leaf.comment}
 
 
 # ----------------------------------------------------------------------------- bounded YAML
@@ -1128,28 +1147,15 @@ def dump(config: Config, sources: Mapping[str, str] | None = None) -> str:
     """
     values = config.to_dict()
     out: list[str] = []
-    stack: list[tuple[int, str]] = []
-    line_re = re.compile(r"^(\s*)([A-Za-z_]\w*):(\s*)([^#]*?)(\s*)(#.*)?$")
-    for line in DEFAULT_CONFIG.read_text().splitlines():
-        m = line_re.match(line)
-        if not m:
-            out.append(line)
-            continue
-        indent, key, _, value, _, comment = m.groups()
-        while stack and stack[-1][0] >= len(indent):
-            stack.pop()
-        if value == "":
-            stack.append((len(indent), key))
+    for line, leaf in _yaml_lines(DEFAULT_CONFIG.read_text()):
+        if leaf is None:
             out.append(line)
             continue
         node: Any = values
-        for _, k in stack:
+        for k in leaf.sections:
             node = node[k]
-        new = _yaml_scalar(node[key])
-        text = f"{indent}{key}: {new}"
-        dotted = ".".join([*(k for _, k in stack), key])
-        if sources and dotted in sources:
-            comment = f"# {sources[dotted]}"
+        text = f"{leaf.indent}{leaf.key}: {_yaml_scalar(node[leaf.key])}"
+        comment = f"# {sources[leaf.dotted]}" if sources and leaf.dotted in sources else leaf.comment
         if comment:
             text = text.ljust(max(len(text) + 1, 32)) + comment
         out.append(text)
