@@ -4,6 +4,7 @@
                                   [--frames 20] [--rate 10] [--decisions a,b] [--workers 2]
                                   [--leave-one-out] [--variants a,b]
     python benchmarks/ablation.py --recordings A.mcap B.mcap      # your own recordings (with or without truth)
+    python benchmarks/ablation.py --table results/ablation_*.json # the README's tables from result files
 
 Per cell (scene x altitude x sensor x seed, the grid of benchmarks/sensor_matrix.py) one `slz synth` recording,
 then every variant on it with `slz compare`'s machinery (``compare.compare_recording``, the variant's own
@@ -56,7 +57,7 @@ FLIGHT: list[str] = []   # the flight keys of default.yaml (2 m/s due east, the 
 # slz's decisions against the paper, each as the --set items that switch it on over `--profile paper`.
 DECISIONS: dict[str, list[str]] = {
     # METHOD 2.2: RGB-D ORB-SLAM3 (depth makes the first frame a metric map) instead of monocular
-    "slam_rgbd": ["slam.backend=auto", "slam.orbslam3.sensor=rgbd", "slam.orbslam3.nominal_period_s=0.1"],
+    "slam_rgbd": ["slam.backend=auto", "slam.orbslam3.sensor=rgbd", "slam.orbslam3.nominal_period_s=auto"],
     # METHOD 2.3: absolute ranges (1 = good in every frame) instead of per-frame min-max (Eq. 5)
     "absolute": ["terrain.depth_variance.normalise=absolute", "terrain.depth_variance.s0_m=0.05",
                  "terrain.flatness.normalise=absolute", "terrain.inclination.normalise=absolute",
@@ -186,6 +187,74 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return out
 
 
+def merge(files: list[Path]) -> list[dict[str, Any]]:
+    """The rows of several result files, one per (cell, variant): a later file's row replaces an earlier one's."""
+    rows: dict[tuple[Any, ...], dict[str, Any]] = {}
+    for f in files:
+        for r in json.loads(f.read_text())["rows"]:
+            rows[(r.get("scene"), r.get("altitude_m"), r.get("sensor"), r.get("seed"), r["profile"])] = r
+    return list(rows.values())
+
+
+def _flight(r: dict[str, Any]) -> tuple[Any, ...]:
+    return r.get("scene"), r.get("altitude_m"), r.get("sensor"), r.get("seed")
+
+
+def _cell(rows: list[dict[str, Any]]) -> str:
+    """One table cell over several runs: truly safe / committed sites, mean recall (runs where the truth has
+    safe ground), and how many runs had a map where some had none (monocular SLAM that never started)."""
+    if not rows:
+        return ""
+    ok = [r for r in rows if "error" not in r]
+    sites = [r for r in ok if r["status"] == "site"]
+    recall = [r["recall"] for r in ok if r.get("recall") is not None]
+    mean = float(np.mean(recall)) if recall else None
+    text = f"{sum(r['site_safe'] is True for r in sites)}/{len(sites)}, {_f(mean, 2)}"
+    nomap = sum(r["detections"] == 0 for r in ok)
+    errors = len(rows) - len(ok)
+    return text + (f"; mapped {len(ok) - nomap}/{len(ok)}" if nomap else "") + (f"; {errors} errors" if errors else "")
+
+
+def _overall(rows: list[dict[str, Any]], names: list[str], title: str) -> list[str]:
+    summary = summarise(rows)
+    out = [title, "", "| variant | flights | sites truly safe / committed | recall (mean) | precision (mean / worst) | "
+           "ATE m (median) | ms/frame (median) |", "|---|---|---|---|---|---|---|"]
+    for name in names:
+        if name not in summary:
+            continue
+        s = summary[name]
+        prec = [r["precision"] for r in rows if r["profile"] == name and r.get("precision") is not None]
+        out.append(f"| {name} | {s['cells']} | {s['sites_safe']}/{s['sites']} | {_f(s['recall_mean'], 3)} | "
+                   f"{_f(s['precision_mean'], 3)} / {_f(min(prec) if prec else None, 3)} | {_f(s['ate_median_m'])} | "
+                   f"{_f(s['frame_ms_median'], 0)} |")
+    return [*out, ""]
+
+
+def tables(rows: list[dict[str, Any]]) -> str:
+    """Markdown: per sensor, variant x altitude (sites truly safe / committed, mean recall over the scenes and
+    seeds); one table over every flight (precision, ATE and time too); and, where some variants ran on fewer
+    flights (``--leave-one-out`` at one altitude, say), the same over the flights every variant ran on."""
+    names = list(dict.fromkeys(r["profile"] for r in rows))
+    alts = sorted({r["altitude_m"] for r in rows})
+    out = []
+    for sensor in dict.fromkeys(r["sensor"] for r in rows):
+        mine = [r for r in rows if r["sensor"] == sensor]
+        out += [f"{sensor} ({len({_flight(r) for r in mine})} flights): sites truly safe / committed, mean recall",
+                "", "| variant | " + " | ".join(f"{a:g} m" for a in alts) + " |", "|---" * (len(alts) + 1) + "|"]
+        for name in names:
+            cells = [_cell([r for r in mine if r["profile"] == name and r["altitude_m"] == a]) for a in alts]
+            if any(cells):
+                out.append(f"| {name} | " + " | ".join(cells) + " |")
+        out.append("")
+    out += _overall(rows, names, "Every flight")
+    flights = [{_flight(r) for r in rows if r["profile"] == n} for n in names]
+    common = set.intersection(*flights) if flights else set()
+    if common and any(f != common for f in flights):
+        out += _overall([r for r in rows if _flight(r) in common], names,
+                        f"The {len(common)} flights every variant ran on")
+    return "\n".join(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", default=",".join(SCENES))
@@ -201,7 +270,12 @@ def main() -> None:
                     "default,default-absolute); default: all.")
     ap.add_argument("--recordings", nargs="*", type=Path, help="Run the variants on these recordings instead.")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "ablation.json")
+    ap.add_argument("--table", nargs="+", type=Path, metavar="RESULT",
+                    help="Print the README's tables from these result files (a later file's row wins) and exit.")
     args = ap.parse_args()
+    if args.table:
+        print(tables(merge(args.table)), end="")
+        return
     decisions = [d for d in args.decisions.split(",") if d]
     only = tuple(v for v in args.variants.split(",") if v)
     known = variants(decisions, args.leave_one_out) if only else {}

@@ -72,11 +72,9 @@ def _read_run(out: Path) -> RunResult:
 
 def _in_memory(path: Path, config: Config, method: str, limit: StageLimit) -> RunResult:
     from slzcli.pipeline import open_inputs
-    from slzcli.sources.presets import with_noise_prior
 
     with ExitStack() as stack:
-        rec, info, clouds = open_inputs(path, config, stack)
-        config = with_noise_prior(config, info.camera_preset)  # as slz detect: the camera preset's noise prior
+        rec, info, clouds, config = open_inputs(path, config, stack)  # as slz detect
         return _run_frames(iter(rec.frames()), (path, rec, info, clouds), config, method, limit)
 
 

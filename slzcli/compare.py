@@ -63,7 +63,6 @@ from slzcli.pipeline import (
 from slzcli.scoring import METHODS
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
-from slzcli.sources.presets import with_noise_prior
 from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunState, no_site_reason, site_truth
 from slzcli.terrain.noise import NoiseTracker
@@ -192,8 +191,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
     with ExitStack() as stack:
         with limit.stage("opening the recording"):
             truth = ground_truth_of(path, config)
-            rec, info, clouds = open_inputs(path, config, stack)
-            config = with_noise_prior(config, info.camera_preset)  # the camera preset's depth noise prior
+            rec, info, clouds, config = open_inputs(path, config, stack)
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         with get_backend(config, has_poses, clouds=clouds) as slam:
             tracker = Tracker(config, slam)

@@ -541,7 +541,7 @@ class OrbSlam3Cfg:
     init_warn_frames: int = rng(1)
     close_depth_m: float = rng(0, lo_open=True)
     baseline_m: float = rng(0, lo_open=True)
-    nominal_period_s: float = rng(0, lo_open=True)
+    nominal_period_s: Literal["auto"] | float = rng(0, lo_open=True)
     load_timeout_s: float = rng(0, lo_open=True)
     frame_timeout_s: float = rng(0, lo_open=True)
 

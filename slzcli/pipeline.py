@@ -65,7 +65,7 @@ from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.scoring.px4slp import NAME as PX4SLP
 from slzcli.scoring.px4slp import Px4SlpMemory, Px4SlpPlanner
-from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
+from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend, with_frame_period
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
 from slzcli.sources.presets import with_noise_prior
@@ -465,8 +465,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         with limit.stage("opening the recording"):
             gt = ground_truth_of(path, config)
             truth = None if gt is None else TruthEvaluator(gt)  # a sink: detection never reads the truth
-            rec, info, clouds = open_inputs(path, config, stack)
-            config = with_noise_prior(config, info.camera_preset)  # the camera preset's depth noise prior
+            rec, info, clouds, config = open_inputs(path, config, stack)
         results = results_mcap.open_results(tmp, config, rec.recorded_frames())
         stack.enter_context(results)   # __enter__ returns the writer itself
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
@@ -544,11 +543,14 @@ def rerun_key(path: Path, config: Config, method: str, out_dir: Path, force: boo
     return key, None
 
 
-def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, bool]:
-    """The open recording (closed with ``stack``), its info and whether its frames carry recorded map clouds."""
+def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, bool, Config]:
+    """The open recording (closed with ``stack``), its info, whether its frames carry recorded map clouds, and
+    ``config`` with what the recording decides: the camera preset's depth noise prior and the frame period
+    ORB-SLAM3 is told (``slam.orbslam3.nominal_period_s: auto``)."""
     rec = stack.enter_context(open_recording(path, config))
     info = rec.info()
-    return rec, info, has_recorded_clouds(info, config)
+    config = with_frame_period(with_noise_prior(config, info.camera_preset), info)
+    return rec, info, has_recorded_clouds(info, config), config
 
 
 def tracked_frames(path: Path, rec: Any, tracker: Tracker, limit: StageLimit) -> Generator[TrackedFrame, None, None]:

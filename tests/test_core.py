@@ -48,7 +48,7 @@ def run_core(path: Path, config: Config, fusion: Fusion) -> tuple[list[Detection
     truth = TruthEvaluator(gt)
     limit = StageLimit(None, str(path))
     with ExitStack() as stack:
-        rec, info, clouds = open_inputs(path, config, stack)
+        rec, info, clouds, config = open_inputs(path, config, stack)
         has_poses = any(c.role == "pose" and c.topic for c in info.choices)
         tracker = Tracker(config, stack.enter_context(get_backend(config, has_poses, clouds=clouds)))
         state = run_state(tracker, config)
@@ -137,7 +137,7 @@ def test_slam_is_handed_the_next_frame_before_this_frames_detection(recording, m
     config = load_config(None, ["slam.backend=odometry", "landing.detect_on=every_nth", "landing.every_nth_frame=1"])
     limit = StageLimit(None, str(recording))
     with ExitStack() as stack:
-        rec, _, _ = open_inputs(recording, config, stack)
+        rec, _, _, _ = open_inputs(recording, config, stack)
         slam = stack.enter_context(get_backend(config, False))
         real_submit, real_collect = slam.submit, slam.collect
         def submit(frame):

@@ -363,3 +363,31 @@ def test_vocab_build_cli_bad_input_is_one_line(tmp_path, runner) -> None:
     res = runner.invoke(main, ["vocab", "build", str(tmp_path / "missing.mcap"), "-o", str(tmp_path / "v.txt"),
                                "--set", "slam.vocab.k=50"])
     assert res.exit_code == 1 and "slam.vocab.k" in res.output
+
+
+@pytest.mark.skipif(not orbslam3_available(), reason="pyorbslam3 not installed")
+def test_orbslam3_is_told_the_recordings_own_frame_rate(tmp_path, runner, monkeypatch) -> None:
+    """``slam.orbslam3.nominal_period_s: auto``: Camera.fps (ORB-SLAM3's keyframe cadence) is the colour stream's
+    rate, resolved where the recording is opened and kept in run.json's config; a number the user sets stays."""
+    import json
+
+    from conftest import synth_recording
+
+    import slzcli.slam.orbslam3 as orb
+
+    told: list[float] = []
+    real = orb.settings_yaml
+
+    def spy(K: Any, o: Any, close: float, baseline: float, fps: float) -> str:
+        told.append(fps)
+        return real(K, o, close, baseline, fps)
+
+    monkeypatch.setattr(orb, "settings_yaml", spy)
+    path = synth_recording(tmp_path / "r.mcap", "parking_lot", 3, "--rate", "15")
+    for sets, fps in (((), 15.0), (("--set", "slam.orbslam3.nominal_period_s=0.04"), 25.0)):
+        out = tmp_path / f"run{fps:g}"
+        res = runner.invoke(main, ["detect", str(path), "-o", str(out), "--set", "slam.backend=orbslam3", *sets])
+        assert res.exit_code == 0, res.output + res.stderr
+        assert told.pop() == pytest.approx(fps, rel=1e-6)
+        run = json.loads((out / "run.json").read_text())
+        assert run["config"]["slam"]["orbslam3"]["nominal_period_s"] == pytest.approx(1 / fps, rel=1e-6)

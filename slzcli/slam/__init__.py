@@ -6,6 +6,7 @@ ORB-SLAM3 when the optional pyorbslam3 wheel is installed, else the built-in odo
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -14,6 +15,7 @@ from slzcli.slam.base import Keyframe, MapPoints, SlamBackend, TrackingState, Tr
 
 if TYPE_CHECKING:
     from slzcli.config import Config
+    from slzcli.sources.recording import RecordingInfo
 
 
 def _recorded(config: Config, **kw: Any) -> SlamBackend:
@@ -49,6 +51,18 @@ def choose_backend(config: Config, has_recorded_poses: bool) -> str:
     return "orbslam3" if available() else "odometry"
 
 
+def with_frame_period(config: Config, info: RecordingInfo) -> Config:
+    """``config`` with ``slam.orbslam3.nominal_period_s: auto`` resolved to the recording's colour frame period
+    (ORB-SLAM3 keeps at most Camera.fps frames between keyframes, so the cadence follows the camera's rate).
+    A recording of one frame, where the cadence does not matter, gets 1 s. A number set by the user stays."""
+    orb = config.slam.orbslam3
+    if orb.nominal_period_s != "auto":
+        return config
+    period = info.frame_period_s or 1.0
+    slam = dataclasses.replace(config.slam, orbslam3=dataclasses.replace(orb, nominal_period_s=period))
+    return dataclasses.replace(config, slam=slam)
+
+
 def get_backend(config: Config, has_recorded_poses: bool = False, **kw: Any) -> SlamBackend:
     """A backend instance (a context manager).
 
@@ -61,4 +75,4 @@ def get_backend(config: Config, has_recorded_poses: bool = False, **kw: Any) -> 
 
 
 __all__ = ["BACKENDS", "Keyframe", "MapPoints", "SlamBackend", "TrackResult", "TrackingState",
-           "choose_backend", "get_backend"]
+           "choose_backend", "get_backend", "with_frame_period"]

@@ -56,6 +56,9 @@ _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 _EXIT_GRACE_S = 5.0
 # A new ORB-SLAM3 map starts at exactly the identity pose; this tolerance only absorbs float noise.
 _IDENTITY_ATOL = 1e-9
+# Camera.fps for frames fed to the backend without a recording to measure their rate from (tests, benchmarks):
+# ORB-SLAM3's own value when the settings give none (Tracking.cc, ParseCamParamFile: fps 0 -> 30)
+UNKNOWN_RATE_FPS = 30.0
 
 # ORB-SLAM3 Tracking::eTrackingState values -> our coarse state.
 _STATES = {-1: TrackingState.INITIALISING, 0: TrackingState.INITIALISING, 1: TrackingState.INITIALISING,
@@ -188,7 +191,8 @@ class OrbSlam3Backend(BackendBase):
         if any(frame.intrinsics.distortion):
             log.warning("%s: camera distortion %s ignored; ORB-SLAM3 is run as an undistorted pinhole",
                         frame.source or "recording", frame.intrinsics.distortion_model or "coefficients")
-        fps = 1.0 / self.cfg.orbslam3.nominal_period_s
+        period = self.cfg.orbslam3.nominal_period_s   # "auto" is resolved from the recording (with_frame_period)
+        fps = UNKNOWN_RATE_FPS if period == "auto" else 1.0 / period
         text = settings_yaml(frame.intrinsics, self.cfg.orb, self.cfg.orbslam3.close_depth_m,
                              self.cfg.orbslam3.baseline_m, fps)
         ours, theirs = socket.socketpair()

@@ -33,6 +33,13 @@ class RecordingInfo:
     def expected_frames(self) -> int:
         return self.pairing.paired
 
+    @property
+    def frame_period_s(self) -> float | None:
+        """The colour stream's mean frame period; None with fewer than two stamped frames."""
+        topic = next((c.topic for c in self.choices if c.role == "color"), None)
+        rate = next((s.rate_hz for s in self.streams if s.topic == topic), None)
+        return None if rate is None else 1.0 / rate
+
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready form (the ``--json`` summary of ``slz info``)."""
         k = self.intrinsics
