@@ -159,7 +159,9 @@ def what_changed(run: dict[str, Any], config: Config, method: str, inputs: dict[
     key = run.get("key")
     if not isinstance(key, dict):
         return "it was made by an older slz"
-    old_cfg = run.get("config")
+    # the config the key was made of: run.json's own "config" is the one that ran, with what the recording
+    # decided (the camera preset's noise prior, the frame period for ORB-SLAM3) filled in
+    old_cfg = key.get("config", run.get("config"))
     if isinstance(old_cfg, dict):
         diff = _first_difference(old_cfg, json.loads(json.dumps(config.to_dict())))  # tuples as JSON lists
         if diff:

@@ -532,7 +532,7 @@ def rerun_key(path: Path, config: Config, method: str, out_dir: Path, force: boo
         inputs = fingerprint.run_inputs(path, config, fingerprint.cache_of(existing.marker))
     vers = fingerprint.versions(config)
     key = {"sha256": fingerprint.run_key(config, method, inputs, vers), "method": method, "versions": vers,
-           "inputs": inputs}
+           "inputs": inputs, "config": config.to_dict()}  # as asked; run.json's config adds what the recording set
     if previous is not None and not force:
         if (previous.get("key") or {}).get("sha256") == key["sha256"] and "summary" in previous:
             log.info("%s: already done for these inputs and config (%s); use --force to redo", out_dir, config.hash())
