@@ -4,7 +4,7 @@
                                   [--frames 20] [--rate 10] [--decisions a,b] [--workers 2]
                                   [--leave-one-out] [--variants a,b]
     python benchmarks/ablation.py --recordings A.mcap B.mcap      # your own recordings (with or without truth)
-    python benchmarks/ablation.py --table results/ablation_*.json # the README's tables from result files
+    python benchmarks/ablation.py --table benchmarks/results/ablation_seed*.json  # docs/ABLATION.md from results
 
 Per cell (scene x altitude x sensor x seed, the grid of benchmarks/sensor_matrix.py) one `slz synth` recording,
 then every variant on it with `slz compare`'s machinery (``compare.compare_recording``, the variant's own
