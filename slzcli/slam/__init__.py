@@ -54,11 +54,12 @@ def choose_backend(config: Config, has_recorded_poses: bool) -> str:
 def with_frame_period(config: Config, info: RecordingInfo) -> Config:
     """``config`` with ``slam.orbslam3.nominal_period_s: auto`` resolved to the recording's colour frame period
     (ORB-SLAM3 keeps at most Camera.fps frames between keyframes, so the cadence follows the camera's rate).
-    A recording of one frame, where the cadence does not matter, gets 1 s. A number set by the user stays."""
+    A number set by the user stays; so does ``auto`` where the rate is unknown (one frame: the backend then
+    writes ORB-SLAM3's own default, orbslam3.UNKNOWN_RATE_FPS)."""
     orb = config.slam.orbslam3
-    if orb.nominal_period_s != "auto":
+    period = info.frame_period_s
+    if orb.nominal_period_s != "auto" or period is None:
         return config
-    period = info.frame_period_s or 1.0
     slam = dataclasses.replace(config.slam, orbslam3=dataclasses.replace(orb, nominal_period_s=period))
     return dataclasses.replace(config, slam=slam)
 

@@ -56,7 +56,7 @@ _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 _EXIT_GRACE_S = 5.0
 # A new ORB-SLAM3 map starts at exactly the identity pose; this tolerance only absorbs float noise.
 _IDENTITY_ATOL = 1e-9
-# Camera.fps for frames fed to the backend without a recording to measure their rate from (tests, benchmarks):
+# Camera.fps where the frame rate is unknown (a one-frame recording; frames fed in without a recording):
 # ORB-SLAM3's own value when the settings give none (Tracking.cc, ParseCamParamFile: fps 0 -> 30)
 UNKNOWN_RATE_FPS = 30.0
 
