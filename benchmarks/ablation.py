@@ -187,17 +187,18 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return out
 
 
+def _flight(r: dict[str, Any]) -> tuple[Any, ...]:
+    return r.get("scene"), r.get("altitude_m"), r.get("sensor"), r.get("seed")
+
+
 def merge(files: list[Path]) -> list[dict[str, Any]]:
     """The rows of several result files, one per (cell, variant): a later file's row replaces an earlier one's."""
     rows: dict[tuple[Any, ...], dict[str, Any]] = {}
     for f in files:
         for r in json.loads(f.read_text())["rows"]:
-            rows[(r.get("scene"), r.get("altitude_m"), r.get("sensor"), r.get("seed"), r["profile"])] = r
+            key = (*_flight(r), r["profile"])
+            rows[key] = r
     return list(rows.values())
-
-
-def _flight(r: dict[str, Any]) -> tuple[Any, ...]:
-    return r.get("scene"), r.get("altitude_m"), r.get("sensor"), r.get("seed")
 
 
 def _cell(rows: list[dict[str, Any]]) -> str:

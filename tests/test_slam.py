@@ -3,10 +3,12 @@ the vocabulary (train, validate, load in ORB-SLAM3), the recorded backend and `s
 
 from __future__ import annotations
 
+import json
 from typing import Any, cast
 
 import numpy as np
 import pytest
+from conftest import synth_recording
 from slam_flight import render_flight
 
 from slzcli.cli import main
@@ -369,10 +371,6 @@ def test_vocab_build_cli_bad_input_is_one_line(tmp_path, runner) -> None:
 def test_orbslam3_is_told_the_recordings_own_frame_rate(tmp_path, runner, monkeypatch) -> None:
     """``slam.orbslam3.nominal_period_s: auto``: Camera.fps (ORB-SLAM3's keyframe cadence) is the colour stream's
     rate, resolved where the recording is opened and kept in run.json's config; a number the user sets stays."""
-    import json
-
-    from conftest import synth_recording
-
     import slzcli.slam.orbslam3 as orb
 
     told: list[float] = []
