@@ -1,6 +1,6 @@
 """Every case of the bad-input corpus (tests/bad_inputs.py) through `slz info` and `slz detect`.
 
-The documented behaviour (README "Failure modes"): either exit 1 with ONE line
+The documented behaviour (docs/FAILURE_MODES.md): either exit 1 with ONE line
 ``slz: error: <file>: <cause>`` and nothing left behind (no run folder, no temporary),
 or exit 0 with a warning and a result that says what was skipped or why there is no site.
 Never a traceback, never an "internal error".
