@@ -89,6 +89,7 @@ class FuseStats:
     new: int             # of them seen for the first time (or taking over a slot)
     rejected: int        # measurements the gate rejected
     median_shift_px: float   # median image shift of its cells since their last look
+    nis_median: float        # median normalised innovation squared of its cells seen before (chi-square 1: 0.455)
 
 
 def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
@@ -158,7 +159,10 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     _sweep(grid, m)
     so = shift[owned]
     med = float(np.median(so)) if so.size else float("nan")
-    return FuseStats(len(m), int(np.count_nonzero(new)), int(np.count_nonzero(owned & ~ok)), med)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nis = innov[owned] ** 2 / s_t[owned]
+    nis_med = float(np.median(nis)) if nis.size else float("nan")
+    return FuseStats(len(m), int(np.count_nonzero(new)), int(np.count_nonzero(owned & ~ok)), med, nis_med)
 
 
 def _sweep(grid: FusedGrid, m: FrameCells) -> None:
