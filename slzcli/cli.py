@@ -25,6 +25,7 @@ from slzcli import __version__
 from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
 from slzcli.config import Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
+from slzcli.methods import registry as method_registry
 from slzcli.outputs.summary_json import envelope
 
 if TYPE_CHECKING:
@@ -649,8 +650,9 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="One recording: its run folder (default runs/<name>). Several, or a quoted glob pattern: "
                    "the folder for one run folder each plus summary.json and summary.csv (default runs/).")
-@click.option("--method", type=click.Choice(["fuzzy", "bayes", "px4slp"]), default=None,
-              help="Fusion method (default: scoring.method).")
+@click.option("--method", type=click.Choice(method_registry.names()), default=None,
+              help="Detection method (default: scoring.method): "
+                   + "; ".join(f"{n}, {e.summary}" for n, e in method_registry.METHODS.items()) + ".")
 @click.option("--force", is_flag=True, help="Replace finished runs (only the files slz writes in a run folder): "
               "redo one done for the same config and inputs, or replace one of another config.")
 @click.option("--workers", type=click.IntRange(1), default=None,
