@@ -100,7 +100,7 @@ def run_flight(path: Path, every: int, sets: list[str]) -> dict[str, Any]:
     reg = fm.region
     step_seen = fm.step_min_m[reg.seen & np.isfinite(fm.step_min_m)]
     dec = fm.decided & reg.seen
-    out: dict[str, Any] = {"flight": path.name, "frames": int(len(T_all)), "every": every}
+    out: dict[str, Any] = {"flight": path.name, "frames": len(T_all), "every": every}
     for name in ("frame", "fused"):
         c = cnt[name]
         out[f"{name}_precision"] = c["tp"] / (c["tp"] + c["fp"]) if c["tp"] + c["fp"] else None

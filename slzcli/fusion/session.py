@@ -119,25 +119,42 @@ class FusedTerrain:
                       math.tan(math.radians(work.slope_min_deg)))
 
 
-def verdict_in_frame(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
-                     T_world_camera: np.ndarray) -> np.ndarray:
-    """Per pixel of a frame: its cell's verdict is SAFE (the fused mask rendered into the frame's pixels)."""
+def _pixel_cells(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
+                 T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(row j, column i, inside) of every pixel's cell in the region (its point on the ground, by its depth)."""
     depth = np.asarray(depth_m, dtype=np.float32)
     intr = fit_intrinsics(intrinsics, depth.shape)
     rx, ry = pixel_rays(intr)
     valid = valid_depth(depth)
     T = np.asarray(T_world_camera, dtype=np.float64)
-    R, t = T[:3, :3].astype(np.float32), T[:3, 3].astype(np.float32)
+    R, t = T[:3, :3].astype(np.float32), T[:3, 3]
     z = np.where(valid, depth, np.float32(0))
-    wx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * z + t[0]
-    wy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * z + t[1]
     reg = fm.region
+    ox, oy = reg.origin_m
+    wx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * z + np.float32(t[0] - ox)
+    wy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * z + np.float32(t[1] - oy)
     inv = np.float32(1.0 / reg.cell_m)
-    i = np.floor(wx * inv).astype(np.int64) - reg.x0
-    j = np.floor(wy * inv).astype(np.int64) - reg.y0
+    i = np.floor(wx * inv).astype(np.int64)
+    j = np.floor(wy * inv).astype(np.int64)
     ny, nx = reg.shape
     inside = valid & (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
-    out = np.zeros(depth.shape, bool)
+    return j, i, inside
+
+
+def render_in_frame(values: np.ndarray, fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
+                    T_world_camera: np.ndarray) -> np.ndarray:
+    """A per-cell float map of the region at every pixel of a frame (0 where no depth or outside)."""
+    j, i, inside = _pixel_cells(fm, depth_m, intrinsics, T_world_camera)
+    out = np.zeros(inside.shape, np.float32)
+    out[inside] = values[j[inside], i[inside]]
+    return out
+
+
+def verdict_in_frame(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
+                     T_world_camera: np.ndarray) -> np.ndarray:
+    """Per pixel of a frame: its cell's verdict is SAFE (the fused mask rendered into the frame's pixels)."""
+    j, i, inside = _pixel_cells(fm, depth_m, intrinsics, T_world_camera)
+    out = np.zeros(inside.shape, bool)
     out[inside] = fm.verdict[j[inside], i[inside]] == SAFE
     return out
 
