@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slzcli.fusion.measure import FrameCells, FusionParams
+from slzcli.fusion.measure import FrameCells, FusionParams, project_cells
 
 _EMPTY = np.iinfo(np.int64).min      # owner of a slot no cell has used yet
 _RHO_MAX = 1.0 - 1e-9               # guards 1 - rho^2 against round-off
@@ -185,18 +185,8 @@ def _sweep(grid: FusedGrid, m: FrameCells) -> None:
 
 
 def _project(m: FrameCells, h: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pixel (u, v) of the cells' centres at heights ``h`` in the frame, and whether they are in front of it."""
-    T = m.T_world_camera
-    R, t = T[:3, :3], T[:3, 3]
-    px = (m.ix + 0.5) * cell_m - t[0]
-    py = (m.iy + 0.5) * cell_m - t[1]
-    pz = h - t[2]
-    xc = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
-    yc = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
-    zc = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
-    intr = m.intrinsics
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return intr.fx * xc / zc + intr.cx, intr.fy * yc / zc + intr.cy, zc > 0
+    """Pixel (u, v) of the frame's cells' centres at heights ``h``, and whether they are in front of it."""
+    return project_cells(m.ix, m.iy, h, m.T_world_camera, m.intrinsics, cell_m)
 
 
 def _column(grid: FusedGrid, m: FrameCells, k: np.ndarray, h: np.ndarray) -> None:

@@ -77,8 +77,8 @@ class FrameCells:
     iy: np.ndarray           # int64 cell row (world y / cell_m, floored)
     height_m: np.ndarray     # float64 mean height of the cell's samples
     spread_m: np.ndarray     # float64 std of the samples' heights inside the cell
-    u_px: np.ndarray         # float64 mean image column of the samples (full-resolution pixels)
-    v_px: np.ndarray         # float64 mean image row
+    u_px: np.ndarray         # float64 image column of the cell's centre at its measured height
+    v_px: np.ndarray         # float64 image row
     sigma_w_m: np.ndarray    # float64 std of the part of the error that is new in this frame
     sigma_c_m: np.ndarray    # float64 std of the part that moves with the view
     pose_var_m2: np.ndarray  # float64 variance added by the pose
@@ -91,6 +91,21 @@ class FrameCells:
 
     def __len__(self) -> int:
         return int(self.ix.size)
+
+
+def project_cells(ix: np.ndarray, iy: np.ndarray, h: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics,
+                  cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel (u, v) of cell centres at heights ``h`` in a frame, and whether they are in front of it."""
+    T = np.asarray(T_world_camera, dtype=np.float64)
+    R, t = T[:3, :3], T[:3, 3]
+    px = (ix + 0.5) * cell_m - t[0]
+    py = (iy + 0.5) * cell_m - t[1]
+    pz = h - t[2]
+    xc = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+    yc = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+    zc = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return intr.fx * xc / zc + intr.cx, intr.fy * yc / zc + intr.cy, zc > 0
 
 
 def sample_block_px(depth_m: float, focal_px: float, params: FusionParams) -> int:
@@ -155,7 +170,7 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
     half = params.side_cells // 2 - 1
     near = (np.abs(ix) <= half) & (np.abs(iy) <= half)
     if not near.all():
-        ix, iy, wz, z, up, rows, cols = (a[near] for a in (ix, iy, wz, z, up, rows, cols))
+        ix, iy, wz, z, up = (a[near] for a in (ix, iy, wz, z, up))
         if ix.size == 0:
             return None
     x0, y0 = int(ix.min()), int(iy.min())
@@ -174,15 +189,13 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
     h += t[2]
     zc = mean(z)
     upc = np.abs(mean(up))
-    # block centres in full-resolution pixels
-    u = (mean(cols) + 0.5) * m - 0.5
-    v = (mean(rows) + 0.5) * m - 0.5
     sigma = cell_sigma_m(noise, zc, f, params.cell_m) * upc
     wf = params.white_fraction
     sw = sigma * math.sqrt(wf)
     sc = sigma * math.sqrt(1.0 - wf - params.fixed_fraction)
     cells_x = idx % nx + x0 + cx
     cells_y = idx // nx + y0 + cy
+    u, v, _ = project_cells(cells_x, cells_y, h, T, intr, params.cell_m)
     pose_var = np.full(idx.size, params.pose_sigma_m ** 2)
     if params.pose_sigma_rad > 0:
         r2 = ((cells_x + 0.5) * params.cell_m - t[0]) ** 2 + ((cells_y + 0.5) * params.cell_m - t[1]) ** 2

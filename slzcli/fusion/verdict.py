@@ -4,8 +4,8 @@ The maps keep their METHOD 2.3 meaning, on cells instead of pixels (a height fie
   depth variance  exp(-s / s0): s the residual height std about the plane of 3 x 3 cells, the fused
                   noise's share removed (2.3.1)
   flatness        min(d / clearance_m, 1): d the distance (m) to the nearest cell where a step to a
-                  4-neighbour exceeds uav.max_step_m significantly (k sigma of the difference), a refused
-                  cell or an unseen one (2.3.2)
+                  4-neighbour exceeds uav.max_step_m significantly (k sigma of the difference) or a refused
+                  cell (2.3.2; an unseen cell keeps its square from being decided instead)
   inclination     exp(-C / curvature_ref): C = l0 / (l0 + l1 + l2) of the cells within radius_m (2.3.3)
   steepness       exp(-(psi / max_slope)^2): psi the slope of the plane over the footprint's cells (2.3.4)
 The fuzzy rules score them (``Scorer.score_arrays``, the rules stay data); the mask is the score smoothed
@@ -204,7 +204,10 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
         big = both & (np.abs(a - b) > np.maximum(uav.max_step_m, k * sd))
         step_edge[: ny - dy, : nx - dx] |= big
         step_edge[dy:, dx:] |= big
-    clear = (ok & ~step_edge).astype(np.uint8)
+    # unseen cells are not edges here (as the image border is not in 2.3.2): a landing square must be seen
+    # whole to be decided, so what an unseen cell may hide already keeps every square over it from SAFE,
+    # while counting the edge of the seen ground as an edge called ground beside it unsafe
+    clear = (~refused & ~step_edge).astype(np.uint8)
     dist = cv2.distanceTransform(clear, cv2.DIST_L2, 5) * cell if not clear.all() else \
         np.full(hc.shape, float(max(hc.shape)) * cell, np.float32)
     flatness = np.where(ok, np.minimum(dist / terrain.flatness.clearance_m, 1.0), 0.0)
@@ -216,6 +219,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # the mask: smoothed score, its minimum over the landing square, the threshold
     mc = config.mask
     sm = score
+    kk = 1
     if mc.smooth_m > 0:
         sg = mc.smooth_m / cell
         kk = max(3, round(sg * 8 + 1) | 1)
@@ -249,9 +253,16 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     with np.errstate(invalid="ignore"):
         step_fine = s_abs + step_min <= uav.max_step_m
         step_bad = s_abs - kb * step_min > uav.max_step_m
-        slope_fine = okf & (tan_psi + tan_min <= tan_lim)
-        steep = okf & (tan_psi - kb * tan_min > tan_lim)
-    decided = cv2.erode(limit_ok.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+        # the limits hold for a full window: a plane over a window cut by the edge of the seen ground is neither
+        full = _box(ok.astype(np.float64), n_fp) >= n_fp * n_fp - 0.5
+        slope_fine = okf & full & (tan_psi + tan_min <= tan_lim)
+        steep = okf & full & (tan_psi - kb * tan_min > tan_lim)
+    # decided over the square and the widest window around it (the maps' and the smoothing's): every score of
+    # the square then rests on full windows (a window cut by the edge of the seen ground scores 0, which is
+    # not a finding)
+    n_dec = n_sq + 2 * max(n_fp // 2, n_r // 2, 1) + 2 * (kk // 2)
+    decided = cv2.erode(limit_ok.astype(np.uint8), np.ones((n_dec, n_dec), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                        borderValue=0) > 0
     fine = cv2.erode((step_fine & slope_fine).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT,
                      borderValue=0) > 0
     bad = steep | refused | step_bad      # a step between two neighbours only lowers the flatness map

@@ -15,11 +15,15 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from slzcli.config import Config
+from slzcli.fusion.grid import region, seen_bounds
+from slzcli.fusion.output import write_landing_map
 from slzcli.fusion.session import FusedTerrain, render_in_frame, verdict_in_frame
+from slzcli.fusion.verdict import fused_maps
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
 from slzcli.scoring import SCORERS
@@ -80,6 +84,18 @@ class FusedMethod:
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)
         return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment)
+
+
+    def write_outputs(self, folder: Path) -> None:
+        """The flight-wide landing map of the run's last map segment (``fusion/output.py``), when it has one."""
+        grid = self.terrain.grid
+        if grid is None:
+            return
+        bounds = seen_bounds(grid)
+        if bounds is None:
+            return
+        fm = fused_maps(region(grid, *bounds), self.config, self.terrain.params, self.terrain.scorer)
+        write_landing_map(folder, fm, self.terrain.segment or 0, self.terrain.frames - 1)
 
 
 def fused(config: Config) -> FusedMethod:
