@@ -33,7 +33,7 @@ def flight_name(scene: str, altitude: float, sensor: str, motion: str, seed: int
 def render(out: Path, scene: str, altitude: float, sensor: str, motion: str, seed: int, frames: int,
            rate: float) -> Path:
     from slzcli.config import load_config
-    from slzcli.synth.flight import make_flight
+    from slzcli.synth.flight import PathKind, make_flight
     from slzcli.synth.record import build_world, render_frames, scenario_start, seeds
     from slzcli.synth.scenes import load_scene
 
@@ -42,7 +42,7 @@ def render(out: Path, scene: str, altitude: float, sensor: str, motion: str, see
         return path
     duration = frames / rate
     sets = list(SENSORS[sensor])
-    kind = "hover"
+    kind: PathKind = "hover"
     if motion != "hover":
         sets.append(f"synth.flight.speed_m_s={float(motion) / duration}")
         kind = "transect"

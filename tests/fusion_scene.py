@@ -10,7 +10,9 @@ tests hand the fusion the noise it really gets (the "known noise" of the tests).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -99,7 +101,7 @@ def cell_noise(stereo: Stereo, cell_px: float, trials: int = 4) -> float:
 
 def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float, seed: int, frames: int,
         step_m: float, altitude_m: float = 8.0, block: Block | None = None, start_x: float | None = None,
-        region_m: float = 8.0, noise_white: bool = False):  # type: ignore[no-untyped-def]
+        region_m: float = 8.0, noise_white: bool = False) -> Iterator[tuple[int, Any, Any]]:
     """Fly ``frames`` frames ``step_m`` apart along world x (centred on 0) over the scene; yield, per frame,
     (index, FusedTerrain, FusedMaps of the ``region_m`` square around the origin)."""
     from slzcli.config import load_config
@@ -121,7 +123,7 @@ def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float,
         yield i, ft, ft.maps_around(0.0, 0.0, region_m)
 
 
-def cell_centres(reg) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+def cell_centres(reg: Any) -> tuple[np.ndarray, np.ndarray]:
     ny, nx = reg.shape
     xs = reg.origin_m[0] + (np.arange(nx) + 0.5) * reg.cell_m
     ys = reg.origin_m[1] + (np.arange(ny) + 0.5) * reg.cell_m
