@@ -22,8 +22,8 @@ from slzcli.fusion.verdict import SAFE, UNDECIDED, UNSAFE, step_kernel
 from slzcli.terrain.noise import DepthNoise
 
 SEEDS = range(5)
+# one frame's cell std 0.125 m at 8 m, step limit 0.33 m
 NOISE: dict[str, Any] = {"a_per_m": 0.002, "white": 0.2, "corr_px": 2.0}
-# NOISE: one frame's cell std 0.125 m at 8 m, step limit 0.33 m
 
 
 def _chebyshev_to_edge(X: np.ndarray, Y: np.ndarray, b: Block) -> np.ndarray:
