@@ -376,12 +376,16 @@ def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: 
     """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames
     (within --start/--end/--stride/--max-frames when given)."""
     from slzcli.sources import open_recording
+    from slzcli.sources.depth_check import check_depth
     from slzcli.sources.info_text import info_text
 
     config = _windowed(config, win_start, win_end, stride, max_frames)
     with open_recording(bag, config) as rec:
         info = rec.info()
-    return info.to_dict(), info_text(info)
+    depth = check_depth(bag, config, info)  # a few frames decoded: the depth's range, a wrong unit warned of
+    if depth is not None and depth.warning:
+        log.warning("%s: %s", bag, depth.warning)
+    return {**info.to_dict(), "depth": None if depth is None else depth.to_dict()}, info_text(info, depth)
 
 
 @main.group("vocab")

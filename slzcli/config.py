@@ -115,6 +115,14 @@ class WindowCfg:
 
 
 @schema
+class DepthCheckCfg:
+    frames: int = rng(1, 1000)
+    min_range_m: float = rng(0, lo_open=True)
+    below_min_share: float = rng(0, 1)
+    max_median_m: float = rng(0, lo_open=True)
+
+
+@schema
 class SourcesCfg:
     topics: Topics
     intrinsics: IntrinsicsCheckCfg
@@ -130,6 +138,7 @@ class SourcesCfg:
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
     window: WindowCfg
     read_ahead_frames: int = rng(0, 64)
+    depth_check: DepthCheckCfg
 
 
 @schema
