@@ -695,6 +695,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     rows = result.rows
     for r in rows:
         _warn_slam_maps(r.get("summary"))
+        _warn_untracked(r.get("summary"))
     # --json names paths as the user gave them (the run folders and summary files keep absolute ones)
     given = {str(p.absolute()): str(p) for p in paths}
     given_run = {str(t.run_dir): str(output) if output is not None and not is_batch else str(batch_dir / t.run_dir.name)
@@ -758,6 +759,13 @@ def _warn_slam_maps(s: dict[str, Any] | None) -> None:
     log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; %s in map %d (frames %d-%d, "
                 "%d tracked); run.json summary.slam lists them all", s["source"], slam["maps"], what,  # type: ignore[index]
                 slam["segment"], seg["first_frame"], seg["last_frame"], seg["frames_tracked"])
+
+
+def _warn_untracked(s: dict[str, Any] | None) -> None:
+    """One warning line when SLAM left more than slam.max_untracked_share of the frames without a pose."""
+    warning = ((s or {}).get("slam") or {}).get("warning")
+    if warning:
+        log.warning("%s: %s", s["source"], warning)  # type: ignore[index]
 
 
 def _batch_text(t: dict[str, Any], rows: list[dict[str, Any]]) -> str:
@@ -837,7 +845,9 @@ class _BatchDisplay:
 def _detect_text(out: Path, s: dict[str, Any]) -> str:
     t = s["timings_ms"]
     maps = _slam_maps(s)
-    head = (f"{s['source']}: {s['frames']} frames, {s['detections']} detections ({s['method']}, "
+    lost = (s.get("slam") or {}).get("frames_untracked")
+    head = (f"{s['source']}: {s['frames']} frames" + (f" ({lost} not tracked)" if lost else "")
+            + f", {s['detections']} detections ({s['method']}, "
             f"SLAM {s['slam_backend']}" + (f", {maps} maps)" if maps > 1 else ")"))
     if s.get("skipped"):
         head += " [skipped: done before with the same config and input bytes; --force redoes it]"
@@ -919,6 +929,7 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
         if _slam_maps(r) > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
+        _warn_untracked(r)
     return envelope("compare", summary), text_table(summary, str(out))
 
 

@@ -591,6 +591,7 @@ class SlamCfg:
     vocabulary: str
     points_topic: str
     track_ahead: bool
+    max_untracked_share: float = rng(0, 1)
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
     orbslam3: OrbSlam3Cfg
