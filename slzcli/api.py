@@ -125,7 +125,8 @@ def _run_frames(frames: Iterator[Frame], opened: tuple[Any, ...] | None, config:
         state.frames = tracker.frames
         if state.frames == 0:
             raise DatasetError(path, no_frames_reason(rec.report))
-        committed = pipeline.commit_site(state.sites.sites, pipeline.commit_radius_m(config))
+        committed = pipeline.commit_site(state.sites.sites, pipeline.commit_radius_m(config), config.landing.commit,
+                                         config.landing.commit_score_band)
         if opened is None:
             assert first is not None
             rec.report = PairingReport(paired=state.frames)

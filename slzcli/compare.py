@@ -298,7 +298,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
     committed_of: dict[str, dict[str, Any] | None] = {}
     for m, run in runs.items():
         st = run.state
-        committed = commit_site(st.sites.sites, side, config.landing.commit)
+        committed = commit_site(st.sites.sites, side, config.landing.commit, config.landing.commit_score_band)
         committed_of[m] = committed
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)

@@ -290,6 +290,7 @@ class LandingCfg:
     depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
     commit_radius_factor: float = rng(0)
+    commit_score_band: float = rng(0, 1)
     max_normal_pairs: int = rng(1)
     commit: Literal["agree", "latest"] = "agree"
 

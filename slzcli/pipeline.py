@@ -26,12 +26,13 @@ the same way from its own first tracked frame, and its map points never serve a 
 another segment.
 
 The committed site. Every detection frame may give a site; the one written to
-``landing.json`` is the site confirmed by the most detections (other sites within
-``landing.commit_radius_factor`` footprint sides of it in plan, two by default, in the same
-map segment: positions in different segments are in different frames), among those that
-pass the acceptance test when any do; ties go to the lower normal variance, then to the
-later frame. One lucky keyframe cannot outvote a site
-seen again and again. The committed site's segment is the run's world frame.
+``landing.json`` is ranked by ``slzcli.landing.commit`` on what the ground gives each site,
+never on the order detections arrived (ORB-SLAM3's threads change which frames are
+keyframes from run to run): among the accepted sites confirmed by another detection of the
+same map segment (within ``landing.commit_radius_factor`` footprint sides in plan), those
+within ``landing.commit_score_band`` of the best score are equally good, and the one in
+their middle (the plan medoid) is committed; how far apart they lie is landing.json's
+``site_spread_m``. The committed site's segment is the run's world frame.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ from slzcli.evaluate.truth import TruthEvaluator
 from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
+from slzcli.landing.commit import commit
 from slzcli.landing.px4slp import grid_site
 from slzcli.landing.select import Candidate, SelectParams, Site, select_site
 from slzcli.outputs import output_dir, results_mcap, run_folder
@@ -403,32 +405,20 @@ def commit_radius_m(config: Config) -> float:
     return config.landing.commit_radius_factor * config.uav.footprint_m[0]
 
 
-def commit_site(sites: list[dict[str, Any]], side_m: float, rule: str = "agree") -> dict[str, Any] | None:
-    """The site confirmed by the most detections of its own map segment (see the module docstring).
+def commit_site(sites: list[dict[str, Any]], side_m: float, rule: str = "agree",
+                score_band: float = 0.0) -> dict[str, Any] | None:
+    """The committed site (``landing.commit``): ``slzcli.landing.commit`` ranks, by the ground, not by frame order.
 
     Adds ``support`` (agreeing detections, this one included), ``detections`` (sites of the run),
-    ``segment`` and ``segment_detections`` (sites of that segment) to the chosen entry.
-    ``rule`` ``latest`` (``landing.commit``, the paper's "current keyframe"): the last detection's
-    site, accepted or not; its support is still counted.
+    ``segment``, ``segment_detections`` (sites of that segment) and ``ranked`` (the ranking: its equally good
+    sites and their spread) to the chosen entry. ``score_band``: ``landing.commit_score_band``.
     """
-    if not sites:
+    found = commit(sites, side_m, score_band, rule)
+    if found is None:
         return None
-    pool = [s for s in sites if s["site"].accepted] or sites
-    if rule == "latest":
-        pool = sites
-    centres = np.array([s["site"].center_world for s in pool])
-    seg = np.array([s["segment"] for s in pool])
-    near = np.linalg.norm(centres[:, None, :2] - centres[None, :, :2], axis=2) <= side_m
-    support = (near & (seg[:, None] == seg[None, :])).sum(axis=1)
-    order = sorted(range(len(pool)), key=lambda i: (-support[i], pool[i]["site"].normal_variance,
-                                                      -pool[i]["frame"].index))
-    if rule == "latest":
-        order = [max(range(len(pool)), key=lambda i: pool[i]["frame"].index)]
-    best = dict(pool[order[0]])
-    best["support"] = int(support[order[0]])
-    best["detections"] = len(sites)
-    best["segment"] = int(seg[order[0]])
-    best["segment_detections"] = sum(s["segment"] == best["segment"] for s in sites)
+    best, ranked = found
+    best.update(support=ranked.support, detections=len(sites), segment=int(best["segment"]), ranked=ranked,
+                segment_detections=sum(s["segment"] == best["segment"] for s in sites))
     return best
 
 
@@ -509,7 +499,8 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             raise DatasetError(path, no_frames_reason(rec.report))
         with limit.stage("writing the run folder"):
             writer.close()  # every frame written before the run's own files and results.mcap's end
-            committed = commit_site(state.sites.sites, commit_radius_m(config), config.landing.commit)
+            committed = commit_site(state.sites.sites, commit_radius_m(config), config.landing.commit,
+                                    config.landing.commit_score_band)
             results.write_run(committed)
             result = summarise(path, config, method, info, rec.report, state, tracker.slam_name,
                                tracker.poses_are_recorded, committed, truth, time.perf_counter() - t_start, key)

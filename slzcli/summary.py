@@ -20,6 +20,7 @@ from slzcli import __version__
 from slzcli.config import Config
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
+from slzcli.landing.commit import spread_record
 from slzcli.outputs.results_mcap import MAP_FRAME, map_frame_of
 from slzcli.outputs.run_folder import landing_record
 from slzcli.outputs.site_log import SiteLog
@@ -172,12 +173,15 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
     world = world_frame_text(slam_name, poses_are_recorded, table, primary)
     reason = no_site_reason(st, slam_name, len(st.keyframes))
     site_gt = site_truth(None if truth is None else truth.truth, committed)
-    landing = landing_record(source, method, committed, world, timings, reason, site_gt, primary)
+    spread = None if committed is None or "ranked" not in committed else \
+        spread_record(committed["ranked"], config.uav.footprint_m[0])
+    landing = landing_record(source, method, committed, world, timings, reason, site_gt, primary, spread)
     noise = noise_summary(st)
     summary: dict[str, Any] = {
         "source": str(source), "method": method, "frames": st.frames, "detections": st.detections,
         "status": landing["status"], "site_world": landing.get("site", {}).get("center_world"),
-        "reason": landing.get("reason"), "slam_backend": slam_name, "tracking": st.tracking,
+        "reason": landing.get("reason"), "site_spread_m": landing.get("site_spread_m"),
+        "slam_backend": slam_name, "tracking": st.tracking,
         "slam": {**slam_summary(slam_name, table, primary, trajectory_files(st.trajectory), config.output.map_frame),
                  **untracked_frames(st.trajectory.has_pose(), st.tracking, slam_name, config.slam.max_untracked_share)},
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
