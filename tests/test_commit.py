@@ -16,7 +16,7 @@ from conftest import GAUSSIAN, HALF_SIZE, synth_recording
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.landing.commit import MIN_SITES_FOR_SPREAD, commit, rank, spread_record
-from slzcli.pipeline import commit_site
+from slzcli.pipeline.commit import commit_site
 
 BAND = load_config().landing.commit_score_band
 FOOTPRINT = load_config().uav.footprint_m[0]
