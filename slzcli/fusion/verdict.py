@@ -233,9 +233,9 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
 
     # the limits of the per-frame path, scaled by the cell's fused std (correlated noise at coarser scales
     # included, as limits.working_scale evaluates it)
-    sd_cell = np.sqrt(np.where(ok, var, np.inf))
-    step_min = reg.step_ratio * sd_cell
-    tan_min = reg.tan_ratio * sd_cell
+    sd_cell = np.sqrt(np.where(ok, var, 0.0))
+    step_min = np.where(ok, reg.step_ratio * sd_cell, np.inf)        # an unseen cell hides everything
+    tan_min = np.where(ok, reg.tan_ratio * sd_cell, np.inf)
     slope_min = np.degrees(np.arctan(tan_min))
     m = params.target_margin
     limit_ok = ok & (m * step_min <= uav.max_step_m) & (m * tan_min <= math.tan(math.radians(uav.max_slope_deg)))
