@@ -112,7 +112,8 @@ def test_progress_lines_off_a_terminal(run, recording, tmp_path) -> None:
     res = CliRunner().invoke(main, ["detect", str(recording), "-o", str(tmp_path / "r"), "--outputs", "summary"])
     assert res.exit_code == 0, res.output
     lines = [ln for ln in res.stderr.splitlines() if ln.startswith("slz: detect: ")]
-    assert lines and lines[0].startswith("slz: detect: 1 frames")  # the first frame at once, then every 5 s
+    assert lines and lines[0].startswith(f"slz: detect: 1 of {FRAMES} frames")  # the first frame at once,
+    assert lines[-1].startswith(f"slz: detect: {FRAMES} of {FRAMES} frames (100 %)")  # then every 5 s and the last
 
 
 def test_report_at_summary_level_says_what_is_missing(recording, tmp_path) -> None:
