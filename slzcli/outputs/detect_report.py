@@ -20,7 +20,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from slzcli.outputs import images
+from slzcli.landing.height import height_text
+from slzcli.outputs import images, palette
 from slzcli.outputs.files import write_text
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
@@ -33,6 +34,8 @@ TILE_WIDTH_PX = 320
 TITLE_BAND_PX = 24
 TILES_PER_ROW = 4
 SVG_WIDTH_PX, SVG_HEIGHT_PX, SVG_MARGIN_PX = 640, 480, 34
+SAFE_HEX, UNSAFE_HEX = palette.hex_of(palette.SAFE), palette.hex_of(palette.UNSAFE)
+SITE_HEX = palette.hex_of(palette.SITE)
 # The panel is a picture (the values are in maps.npz): JPEG at this quality is ~1/4 of the PNG's bytes and encodes
 # faster; project decision.
 PANEL_JPEG_QUALITY = 85
@@ -81,7 +84,9 @@ def _result(s: dict[str, Any], landing: dict[str, Any]) -> str:
         x, y, z = site["center_world"]
         sup = site["support"]
         acc = site["acceptance"]
-        what = (f"<b>Landing site</b> at ({x:.2f}, {y:.2f}, {z:.2f}) m, score {site['score']:.2f}, confirmed by "
+        height = f" ({html.escape(height_text(site['height']))})" if site.get("height") else ""
+        what = (f"<b>Landing site</b> at ({x:.2f}, {y:.2f}, {z:.2f}) m{height}, score {site['score']:.2f}, "
+                f"confirmed by "
                 f"{sup['detections_agreeing']} of {sup['detections_with_site']} detections with a site; acceptance "
                 f"test {'passed' if acc['passed'] else 'NOT passed: ' + html.escape(str(acc['reason']))}, "
                 f"tilt {acc['tilt_deg']:.1f} deg.")
@@ -125,7 +130,7 @@ def _figure5(run_dir: Path, index: int | None, is_site: bool, level: str, revers
     tiles.append(("fused score", heat(arrays["score"])))
     mask = small(arrays["mask"]).astype(bool)
     tiles.append((f"landing mask ({100 * float(np.mean(arrays['mask'])):.0f} % safe)",
-                  cv2.cvtColor(images.with_mask_legend(images.mask_png(mask)), cv2.COLOR_GRAY2BGR)))
+                  images.verdict_bgr(mask, valid)))
     slope = small(arrays.get("slope_deg", np.full((h, w), np.nan)))
     finite = slope[np.isfinite(slope) & valid]
     top = max(float(np.percentile(finite, 99)), 1.0) if finite.size else 1.0
@@ -206,17 +211,18 @@ def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, 
              f"<text x='{SVG_WIDTH_PX / 2:.0f}' y='{SVG_HEIGHT_PX - 4}' font-size='12'>x (m)</text>",
              "<text x='4' y='14' font-size='12'>y (m)</text>"]
     if len(square):
-        parts.append(f"<polygon points='{pts(square)}' fill='red' fill-opacity='0.35' stroke='red'/>")
+        parts.append(f"<polygon points='{pts(square)}' fill='none' stroke='#000' stroke-width='3'/>"
+                     f"<polygon points='{pts(square)}' fill='none' stroke='{SITE_HEX}' stroke-width='1.2'/>")
     parts.append(f"<polyline points='{pts(path)}' fill='none' stroke='#444' stroke-width='1.5'/>")
     (x0, y0), = px(path[:1])
-    parts.append(f"<circle cx='{x0:.1f}' cy='{y0:.1f}' r='5' fill='green'/>")
+    parts.append(f"<circle cx='{x0:.1f}' cy='{y0:.1f}' r='5' fill='none' stroke='#444' stroke-width='2'/>")
     for (x, y), ok in zip(px(centres), accepted, strict=True):
-        parts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='3.5' fill='{'#1f77b4' if ok else 'orange'}'/>")
+        parts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='3.5' fill='{SAFE_HEX if ok else UNSAFE_HEX}'/>")
     parts.append("</svg>")
     note = f" (SLAM map segment {segment})" if segment is not None else ""
-    return (head + f"<p class=note>Top view of the run's world frame{note}, metres: camera path (grey, green dot = "
-            "first frame), the site of each detection (blue: passed the acceptance test, orange: not), the "
-            "committed site's Eq. 10 square (red).</p>" + "".join(parts))
+    return (head + f"<p class=note>Top view of the run's world frame{note}, metres: camera path (grey, ring = "
+            "first frame), the site of each detection (green: passed the acceptance test, vermillion: not), the "
+            "committed site's Eq. 10 square (outline).</p>" + "".join(parts))
 
 
 def _nice_step(raw: float) -> float:
@@ -263,8 +269,9 @@ def _detections(run_dir: Path, frames: list[int], sites: SiteLog, committed: dic
         mark = " <b>committed</b>" if i == site_frame else ""
         figs.append(f"<figure><a href='{link}'><img loading=lazy src='{link}' alt='frame {i}'></a>"
                     f"<figcaption>frame {i}: {html.escape(what)}{mark}</figcaption></figure>")
-    return (head + "<p class=note>Each detection frame's overlay (mask tint green/red, SLAM points white, under "
-            "the mask blue, chosen cluster green, Eq. 10 square red); click for full size.</p>"
+    return (head + "<p class=note>Each detection frame's overlay: the verdict tint (bluish green safe, vermillion "
+            "unsafe, grey no depth), SLAM points white, those under the mask sky blue, the chosen cluster yellow, "
+            "the Eq. 10 square as an outline; legend, frame and scale bar in the corners. Click for full size.</p>"
             f"<div class=grid>{''.join(figs)}</div>")
 
 
