@@ -11,7 +11,7 @@ EXTRAS := test,lint,orbslam3,dask
 LATEST := .venv-latest
 LINTED := slzcli tests benchmarks scripts
 
-.PHONY: demo test lint test-latest constraints sysdeps venv bench clean
+.PHONY: demo test lint test-latest constraints sysdeps venv bench clean docs
 
 # open3d's wheel links against libusb-1.0 and libgomp; install them when absent.
 sysdeps:
@@ -85,8 +85,18 @@ demo: $(STAMP)
 	@echo "  parking_lot.mcap.preview.png  contact sheet: colour, depth, object ids, true safe area"
 	@echo "More scenes: $(BIN)/slz synth --list"
 
+# The documentation site (docs/ -> site/): mkdocs with the material theme, strict (a warning fails the build).
+DOCS_STAMP := $(VENV)/.docs-installed
+$(DOCS_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -q -c $(CONSTRAINTS) -e '.[docs]'
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+	@echo "site/index.html"
+
 bench: $(STAMP)
 	for b in read synth terrain scoring masks stages slam ibvs; do $(BIN)/python benchmarks/$$b.py || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(LATEST) runs .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) $(LATEST) runs site .pytest_cache .mypy_cache .ruff_cache

@@ -8,7 +8,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from slzcli.landing.height import height_text
+
+def height_text(h: dict[str, Any]) -> str:
+    """``0.02 m above the ground, 8.02 m below the start (frame 0's camera, map frame map)``."""
+    def updown(v: float, what: str) -> str:
+        return f"{abs(v):.2f} m {'above' if v >= 0 else 'below'} {what}"
+
+    parts = [] if h.get("above_ground_m") is None else [updown(h["above_ground_m"], "the ground")]
+    parts.append(updown(h["above_start_m"], f"the start (frame {h['start_frame']}'s camera, map frame "
+                                             f"{h['frame_id']})"))
+    return ", ".join(parts)
 
 
 def slam_maps(s: dict[str, Any] | None) -> int:

@@ -8,9 +8,9 @@ import numpy as np
 from click.testing import CliRunner
 
 from slzcli.cli import main
-from slzcli.landing.height import height_text, site_height
+from slzcli.landing.height import site_height
 from slzcli.outputs.report import TABLE_HEAD, without_empty_truth
-from slzcli.render import simulate_text
+from slzcli.render import height_text, simulate_text
 
 
 def test_site_height_above_ground_and_start_with_frames() -> None:

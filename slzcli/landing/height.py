@@ -1,4 +1,4 @@
-"""The site's height, said so that it cannot be read as underground.
+"""The site's height above the ground and above the start (its words: ``render.height_text``).
 
 The run's world frame has its origin at the first tracked camera (z up), so a site on the ground
 below a drone that started 8 m up has z = -8 m. landing.json says what that means: the height
@@ -31,14 +31,3 @@ def site_height(center_world: list[float], map_z: np.ndarray, frame_id: str, sta
         "start_frame": start_frame,
         "ground": f"median z of the {len(map_z)} SLAM map points in map frame {frame_id}",
     }
-
-
-def height_text(h: dict[str, Any]) -> str:
-    """``0.02 m above the ground, 8.02 m below the start (frame 0's camera, map frame map)``."""
-    def updown(v: float, what: str) -> str:
-        return f"{abs(v):.2f} m {'above' if v >= 0 else 'below'} {what}"
-
-    parts = [] if h.get("above_ground_m") is None else [updown(h["above_ground_m"], "the ground")]
-    parts.append(updown(h["above_start_m"], f"the start (frame {h['start_frame']}'s camera, map frame "
-                                             f"{h['frame_id']})"))
-    return ", ".join(parts)

@@ -20,11 +20,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from slzcli.landing.height import height_text
 from slzcli.outputs import images, palette
 from slzcli.outputs.files import write_text
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
+from slzcli.render import height_text
 from slzcli.types import RunResult
 
 # Display only (no result depends on these): the Figure 5 tiles' width and title band, tiles per row, the
