@@ -51,7 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     for p in frames[:1]:
         import cv2
 
-        h, w = cv2.imread(str(p)).shape[:2]
+        image = cv2.imread(str(p))
+        if image is None:
+            raise SystemExit(f"{p}: not a readable PNG")
+        h, w = image.shape[:2]
         shots.append(shoot(args.chromium, p.resolve().as_uri(), args.output / f"overlay_{p.parent.name}.png",
                            w + 16, h + 16))
     print("\n".join(str(s) for s in shots))

@@ -36,10 +36,11 @@ def compressed_size(data: bytes | memoryview | np.ndarray) -> tuple[int, int, st
     take ~100 ms). Their plugin classes are used directly: ``Image.open`` refuses images over its own
     pixel limit (``DecompressionBombError``) before telling the size, and the bound here is slz's own.
     """
-    from PIL import JpegImagePlugin, PngImagePlugin
+    from PIL import ImageFile, JpegImagePlugin, PngImagePlugin
 
     view = _bytes_view(data)
     head = bytes(view[:8])
+    reader: type[ImageFile.ImageFile]
     if head == PNG_SIGNATURE:
         kind, reader = "png", PngImagePlugin.PngImageFile
     elif head[:2] == JPEG_SOI:
