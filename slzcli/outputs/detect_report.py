@@ -61,20 +61,31 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
     detection_frames = _detection_frames(run_dir)
     panel_frame = committed["frame"].index if committed is not None else \
         (detection_frames[-1] if detection_frames else None)
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>slz detect: "
-             f"{html.escape(Path(s['source']).name)}</title><style>{CSS}</style></head><body>",
-             f"<h1>slz detect: {html.escape(Path(s['source']).name)}</h1>",
-             _result(s, landing),
-             _figure5(run_dir, panel_frame, committed is not None and committed["frame"].index == panel_frame, level,
-                      bool(result.run.get("config", {}).get("output", {}).get("reverse_colormap", False))),
-             _trajectory(trajectory, sites, committed, result.primary_segment),
-             _site_table(sites, committed),
-             _detections(run_dir, detection_frames, sites, committed, level),
-             _timings(s),
-             "</body></html>"]
+    from markupsafe import Markup
+
+    reverse = bool(result.run.get("config", {}).get("output", {}).get("reverse_colormap", False))
+    page = _template().render(
+        name=Path(s["source"]).name, css=Markup(CSS),
+        # the picture sections are drawn here (image panel, SVG); the rest is the template's
+        result=Markup(_result(s, landing)),
+        figure5=Markup(_figure5(run_dir, panel_frame, committed is not None and
+                                committed["frame"].index == panel_frame, level, reverse)),
+        trajectory=Markup(_trajectory(trajectory, sites, committed, result.primary_segment)),
+        site_columns=SITE_COLUMNS, sites=_site_rows(sites, committed),
+        detections=_detection_figures(detection_frames, sites, committed), level=level,
+        timings=[(k, v) for k, v in (s.get("timings_ms") or {}).items() if isinstance(v, int | float)])
     path = run_dir / "report.html"
-    write_text(path, "\n".join(p for p in parts if p))
+    write_text(path, page)
     return path
+
+
+def _template() -> Any:
+    """templates/detect_report.html (jinja2, HTML-escaped by default; the package carries it)."""
+    import jinja2
+
+    env = jinja2.Environment(loader=jinja2.PackageLoader("slzcli.outputs", "templates"), autoescape=True,
+                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
+    return env.get_template("detect_report.html")
 
 
 # ----------------------------------------------------------------------------- sections
@@ -231,12 +242,12 @@ def _nice_step(raw: float) -> float:
     return float(next(k * p for k in (1, 2, 5, 10) if k * p >= raw))
 
 
-def _site_table(sites: SiteLog, committed: dict[str, Any] | None) -> str:
-    head = "<h2 id=sites>Sites found</h2>"
-    if not sites.sites:
-        return head + "<p class=note>No detection frame gave a site.</p>"
-    cols = ("frame", "map", "x m", "y m", "z m", "score", "accepted", "reason", "tilt deg", "edge m",
-            "normal var", "extent m", "points")
+SITE_COLUMNS = ("frame", "map", "x m", "y m", "z m", "score", "accepted", "reason", "tilt deg", "edge m",
+                "normal var", "extent m", "points")
+
+
+def _site_rows(sites: SiteLog, committed: dict[str, Any] | None) -> list[dict[str, Any]]:
+    """The site table's rows (``SITE_COLUMNS``), the committed site marked."""
     chosen = None if committed is None else committed["id"]
     rows = []
     for e in sites.sites:
@@ -246,42 +257,20 @@ def _site_table(sites: SiteLog, committed: dict[str, Any] | None) -> str:
                  "yes" if st.accepted else "no", st.acceptance_reason or "", f"{st.tilt_deg:.1f}",
                  "n/a" if st.edge_clearance_m is None else f"{st.edge_clearance_m:.2f}",
                  f"{st.normal_variance:.2e}", f"{st.extent_m[0]:.2f} x {st.extent_m[1]:.2f}", str(st.cluster_points)]
-        tds = "".join(f"<td{' class=l' if i == 7 else ''}>{html.escape(c)}</td>" for i, c in enumerate(cells))
-        rows.append(f"<tr{' class=committed' if e['id'] == chosen else ''}>{tds}</tr>")
-    th = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
-    return (head + "<p class=note>One row per detection frame that gave a site; the committed site (landing.json) "
-            "is highlighted. Every candidate cluster is in sites.csv.</p>"
-            f"<table><tr>{th}</tr>{''.join(rows)}</table>")
+        rows.append({"cells": cells, "committed": e["id"] == chosen})
+    return rows
 
 
-def _detections(run_dir: Path, frames: list[int], sites: SiteLog, committed: dict[str, Any] | None,
-                level: str) -> str:
-    head = "<h2 id=detections>Detections</h2>"
-    if not frames:
-        return head + f"<p class=note>No frame folders at --outputs {html.escape(level)}.</p>"
+def _detection_figures(frames: list[int], sites: SiteLog, committed: dict[str, Any] | None) -> list[dict[str, Any]]:
+    """One figure per detection frame folder: its overlay, whether it gave a site, whether that was committed."""
     by_frame = {e["frame"].index: e["site"] for e in sites.sites}
     site_frame = None if committed is None else committed["frame"].index
-    figs = []
+    out = []
     for i in frames:
-        link = f"frames/{i:06d}/overlay.png"
         st = by_frame.get(i)
         what = "no site" if st is None else f"site {st.score:.2f}" + ("" if st.accepted else " (not accepted)")
-        mark = " <b>committed</b>" if i == site_frame else ""
-        figs.append(f"<figure><a href='{link}'><img loading=lazy src='{link}' alt='frame {i}'></a>"
-                    f"<figcaption>frame {i}: {html.escape(what)}{mark}</figcaption></figure>")
-    return (head + "<p class=note>Each detection frame's overlay: the verdict tint (bluish green safe, vermillion "
-            "unsafe, grey no depth), SLAM points white, those under the mask sky blue, the chosen cluster yellow, "
-            "the Eq. 10 square as an outline; legend, frame and scale bar in the corners. Click for full size.</p>"
-            f"<div class=grid>{''.join(figs)}</div>")
-
-
-def _timings(s: dict[str, Any]) -> str:
-    t = s.get("timings_ms") or {}
-    rows = [(k, v) for k, v in t.items() if isinstance(v, int | float)]
-    if not rows:
-        return ""
-    body = "".join(f"<tr><td class=l>{html.escape(k)}</td><td>{v:.1f}</td></tr>" for k, v in rows)
-    return f"<h2 id=timings>Time per stage</h2><table><tr><th>stage</th><th>ms</th></tr>{body}</table>"
+        out.append({"index": i, "link": f"frames/{i:06d}/overlay.png", "what": what, "committed": i == site_frame})
+    return out
 
 
 # ----------------------------------------------------------------------------- helpers
