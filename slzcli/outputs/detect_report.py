@@ -95,7 +95,7 @@ def _result(s: dict[str, Any], landing: dict[str, Any]) -> str:
         x, y, z = site["center_world"]
         sup = site["support"]
         acc = site["acceptance"]
-        height = f" ({html.escape(height_text(site['height']))})" if site.get("height") else ""
+        height = f", {html.escape(height_text(site['height']))}" if site.get("height") else ""
         what = (f"<b>Landing site</b> at ({x:.2f}, {y:.2f}, {z:.2f}) m{height}, score {site['score']:.2f}, "
                 f"confirmed by "
                 f"{sup['detections_agreeing']} of {sup['detections_with_site']} detections with a site; acceptance "
