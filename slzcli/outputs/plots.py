@@ -1,9 +1,9 @@
 """Figures of ``slz compare`` (matplotlib, Agg): the paper's Figure 6 layout, PR curves, timing, variants.
 
-Colours: scores use the same JET convention as ``images.heatmap_bgr`` (1 = good = red);
-SLAM map points are grey when the mask rejects them, magenta when kept; the Eq. 10 square
-of the site is white outlined in black; masks are light green (safe) on dark grey. Every
-function writes one PNG atomically and returns its path.
+Colours (``palette``): scores in viridis as ``images.heatmap_bgr`` (1 = good = light yellow);
+SLAM map points white when the mask rejects them, sky blue when kept; the Eq. 10 square of the
+site is white outlined in black; masks in the verdict colours (bluish green safe, vermillion
+unsafe). Every function writes one PNG atomically and returns its path.
 """
 
 from __future__ import annotations
