@@ -18,15 +18,17 @@ def test_heat_maps_use_viridis_and_verdicts_the_palette() -> None:
     assert len({palette.SAFE, palette.UNSAFE, palette.UNDECIDED}) == 3
 
 
-def test_overlay_tints_no_depth_grey_and_safe_wins() -> None:
+def test_overlay_tints_undecided_grey_over_any_mask_value() -> None:
     rgb = np.zeros((4, 4, 3), np.uint8)
     mask = np.zeros((4, 4), bool)
     mask[0, 0] = True
     undecided = np.zeros((4, 4), bool)
-    undecided[0, :2] = True  # (0, 0) is safe and without depth: the mask decides
+    undecided[0, 1:3] = True
+    mask[0, 2] = True  # safe by the mask but beyond what the frame vouches for: undecided
     img = images.overlay_bgr(rgb, mask, undecided=undecided)
     tint = lambda c: np.round(0.45 * np.array(palette.bgr(c))).astype(int)  # noqa: E731
     assert np.abs(img[0, 0].astype(int) - tint(palette.SAFE)).max() <= 1
+    assert np.abs(img[0, 2].astype(int) - tint(palette.UNDECIDED)).max() <= 1
     assert np.abs(img[0, 1].astype(int) - tint(palette.UNDECIDED)).max() <= 1
     assert np.abs(img[1, 1].astype(int) - tint(palette.UNSAFE)).max() <= 1
 

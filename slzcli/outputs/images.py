@@ -88,7 +88,7 @@ def verdict_bgr(mask: np.ndarray, valid: np.ndarray) -> np.ndarray:
     img = np.empty((*mask.shape, 3), np.uint8)
     img[...] = UNSAFE_BGR
     img[mask] = SAFE_BGR
-    img[~valid & ~mask] = UNDECIDED_BGR
+    img[~valid] = UNDECIDED_BGR
     h = img.shape[0]
     strip = np.full((h, LEGEND_WIDTH_PX, 3), 64, np.uint8)
     for row, (text, rgb) in enumerate(palette.VERDICTS):
@@ -100,14 +100,15 @@ def verdict_bgr(mask: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 def overlay_bgr(rgb: np.ndarray, mask: np.ndarray, alpha: float = 0.45,
                 undecided: np.ndarray | None = None) -> np.ndarray:
-    """The colour image tinted by verdict: safe, unsafe, and (``undecided``: pixels without depth) no
-    depth, in ``palette``'s colours (blended in uint8, rounded)."""
+    """The colour image tinted by verdict: safe, unsafe, and undecided (``undecided``: pixels without
+    depth or beyond the depth the frame's noise lets it vouch for), in ``palette``'s colours (blended in
+    uint8, rounded). Undecided wins: a mask value there is not a verdict slz stands by."""
     bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
     # One plane per channel then merged: the same uint8 tint as np.where(mask[..., None], SAFE, UNSAFE) in
     # ~1 ms instead of ~10 (a (h, w, 3) where broadcasts to int64 first).
     planes = [np.where(mask, safe, unsafe) for safe, unsafe in zip(SAFE_BGR, UNSAFE_BGR, strict=True)]
     if undecided is not None:
-        planes = [np.where(undecided & ~mask, grey, p) for grey, p in zip(UNDECIDED_BGR, planes, strict=True)]
+        planes = [np.where(undecided, grey, p) for grey, p in zip(UNDECIDED_BGR, planes, strict=True)]
     return cv2.addWeighted(bgr, 1.0 - alpha, cv2.merge(planes), alpha, 0.0)
 
 

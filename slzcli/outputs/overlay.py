@@ -25,10 +25,18 @@ def detection_overlay_bgr(det: Any) -> np.ndarray:
         corners_px, _ = project(np.asarray(sel.site.corners_world), det.T_world_camera, det.frame.K,
                                 det.score.mask.shape)
     valid = det.maps.valid
-    depth = det.frame.depth_m[valid] if valid.shape == det.frame.depth_m.shape else np.zeros(0)
+    same = valid.shape == det.frame.depth_m.shape
+    depth = det.frame.depth_m[valid] if same else np.zeros(0)
     ground_m = float(np.median(depth)) if depth.size else float("nan")
     px_per_m = det.frame.K[0, 0] / ground_m if ground_m > 0 else None  # at the median depth in view
     label = f"frame {det.frame.index}" + (f", {ground_m:.1f} m to the ground (median depth)" if depth.size else "")
+    undecided = ~valid
+    work = det.maps.work
+    if work is not None and same:  # beyond vouch_depth_m the noise hides what the UAV cannot land on
+        with np.errstate(invalid="ignore"):
+            undecided = undecided | (det.frame.depth_m > work.vouch_depth_m)
+        if not work.vouched:
+            label += "; cannot vouch for a site here (depth noise)"
     return images.site_overlay_bgr(det.frame.rgb, det.score.mask, None if sel is None else sel.projected,
-                                   None if sel is None else sel.kept, chosen, corners_px, undecided=~valid,
+                                   None if sel is None else sel.kept, chosen, corners_px, undecided=undecided,
                                    label=label, px_per_m=px_per_m)
