@@ -36,6 +36,11 @@ def duration(seconds: float) -> str:
     return f"{s // 3600} h {s % 3600 // 60:02d} min"
 
 
+def _rate(per_s: float) -> str:
+    """A rate with one decimal, two below 1 (a slow render reads 0.25 frames/s, not 0.0)."""
+    return f"{per_s:.1f}" if per_s >= 1 else f"{per_s:.2f}"
+
+
 def progress_line(label: str, done: int, total: int | None, unit: str, elapsed_s: float, note: str = "",
                   rate: float | None = None) -> str:
     """The plain progress line; the count is the third word (scripts and tests read it).
@@ -47,7 +52,7 @@ def progress_line(label: str, done: int, total: int | None, unit: str, elapsed_s
         count = f"{done} of {total} {unit} ({100 * done / total:.0f} %)"
     else:
         count = f"{done} {unit}"
-    text = f"slz: {label}: {count} in {elapsed_s:.1f} s, {mean:.1f} {unit}/s"
+    text = f"slz: {label}: {count} in {elapsed_s:.1f} s, {_rate(mean)} {unit}/s"
     if total and 0 < done < total and rate > 0:
         text += f", about {duration((total - done) / rate)} left"
     return text + (f"; {note}" if note else "")
@@ -96,7 +101,7 @@ class Bar:
         """``done`` of ``total`` units (None: not known yet); ``note``: a short addition to the line."""
         elapsed = time.perf_counter() - self.t0
         if self.rich is not None:
-            rate = f"{done / elapsed:.1f} {self.unit}/s" if elapsed > 0 and done else ""
+            rate = f"{_rate(done / elapsed)} {self.unit}/s" if elapsed > 0 and done else ""
             self.rich.update(self.task, completed=done, total=total, rate=rate, note=note)
             return
         if done == self.last_done and self.pending is None:
