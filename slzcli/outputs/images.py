@@ -223,7 +223,7 @@ def annotate(img: np.ndarray, label: str, px_per_m: float | None) -> None:
     metres = nice_length_m(SCALE_BAR_FRACTION * w / px_per_m)
     length = round(metres * px_per_m)
     x1, y = w - NOTE_PAD_PX - 4, h - NOTE_PAD_PX - 6
-    text = f"{metres:g} m on the ground"
+    text = f"{metres:g} m at the median depth"
     (tw, _), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, NOTE_SCALE, 1)
     _box(img, min(x1 - length, x1 - tw) - 2 * NOTE_PAD_PX, y - NOTE_LINE_PX - 2 * NOTE_PAD_PX, w, h)
     cv2.line(img, (x1 - length, y), (x1, y), (255, 255, 255), 2)

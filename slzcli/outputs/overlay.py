@@ -28,8 +28,8 @@ def detection_overlay_bgr(det: Any) -> np.ndarray:
     same = valid.shape == det.frame.depth_m.shape
     depth = det.frame.depth_m[valid] if same else np.zeros(0)
     ground_m = float(np.median(depth)) if depth.size else float("nan")
-    px_per_m = det.frame.K[0, 0] / ground_m if ground_m > 0 else None  # at the median depth in view
-    label = f"frame {det.frame.index}" + (f", {ground_m:.1f} m to the ground (median depth)" if depth.size else "")
+    px_per_m = det.frame.K[0, 0] / ground_m if ground_m > 0 else None  # at the median depth in view (the scale bar)
+    label = f"frame {det.frame.index}" + (f", median depth {ground_m:.1f} m" if depth.size else "")
     undecided = ~valid
     work = det.maps.work
     if work is not None and same:  # beyond vouch_depth_m the noise hides what the UAV cannot land on
