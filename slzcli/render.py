@@ -33,7 +33,9 @@ def detect_text(out: Path, s: dict[str, Any]) -> str:
     """``slz detect`` on one recording: the verdict first, then how it was reached and where the files are."""
     t = s["timings_ms"]
     maps = slam_maps(s)
-    head = (f"{s['source']}: {s['frames']} frames, {s['detections']} detections ({s['method']}, "
+    lost = (s.get("slam") or {}).get("frames_untracked")
+    head = (f"{s['source']}: {s['frames']} frames" + (f" ({lost} not tracked)" if lost else "")
+            + f", {s['detections']} detections ({s['method']}, "
             f"SLAM {s['slam_backend']}" + (f", {maps} maps)" if maps > 1 else ")"))
     if s.get("skipped"):
         head += " [skipped: done before with the same config and input bytes; --force redoes it]"
