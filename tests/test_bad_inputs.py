@@ -610,11 +610,11 @@ def test_python_warnings_are_one_line_each_and_repeats_counted(runner: CliRunner
 
     real = it.info_text
 
-    def noisy(info: object) -> str:
+    def noisy(info: object, *rest: object) -> str:  # info_text(info, depth)
         with np.errstate(invalid="warn"):
             for _ in range(5):
                 np.float32(np.inf) - np.float32(np.inf)  # "invalid value encountered in scalar subtract"
-        return real(info)  # type: ignore[arg-type]
+        return real(info, *rest)  # type: ignore[arg-type]
 
     monkeypatch.setattr(it, "info_text", noisy)
     res = invoke(runner, "info", str(B.good(tmp_path, n=2)))
