@@ -13,8 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-if TYPE_CHECKING:  # types only: terrain and landing import types, not the other way round
-    from slzcli.landing.select import Selection
+if TYPE_CHECKING:  # types only: terrain imports types, not the other way round
     from slzcli.terrain.limits import Working
 
 
@@ -236,6 +235,90 @@ class TrackedFrame:
     slam_ms: float
 
 
+# ----------------------------------------------------------------------------- sites
+@dataclass(frozen=True)
+class Candidate:
+    """One k-means cluster and why it did or did not qualify (a row of sites.csv)."""
+
+    cluster: int
+    points: int
+    centroid_world: tuple[float, float, float]
+    normal_variance: float
+    extent_m: tuple[float, float]
+    qualifies: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class Site:
+    pixel: tuple[float, float]
+    center_camera: tuple[float, float, float]
+    center_world: tuple[float, float, float]
+    corners_world: tuple[tuple[float, float, float], ...]
+    normal_world: tuple[float, float, float]
+    cluster_points: int
+    normal_variance: float
+    extent_m: tuple[float, float]
+    score: float
+    tilt_deg: float
+    edge_clearance_m: float | None
+    accepted: bool
+    acceptance_reason: str
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The result for one keyframe: the site (or None), why not, and every candidate."""
+
+    site: Site | None
+    reason: str
+    candidates: tuple[Candidate, ...]
+    projected: np.ndarray  # (N, 2) pixels of all map points in the image
+    kept: np.ndarray       # (N,) bool: under the mask
+    labels: np.ndarray     # (N,) int: cluster of each kept point, -1 for the rest
+
+
+@dataclass(frozen=True)
+class FoundSite:
+    """A site one detection frame gave, as the run's site log keeps it (``outputs.site_log.SiteLog``).
+
+    ``id``: its place in the log (its points in the spool); ``limits``: what the frame's depth noise let
+    the maps see (``Working.as_dict``); ``segment``: the SLAM map segment whose world frame it is in.
+    """
+
+    frame: FrameRef
+    site: Site
+    id: int
+    limits: dict[str, object] | None
+    segment: int
+
+
+@dataclass(frozen=True)
+class CommittedSite:
+    """The site landing.json holds (``pipeline.commit``): a found site and how many detections confirm it.
+
+    ``support``: detections of its segment within the commit radius, itself included; ``detections``:
+    sites of the run; ``segment_detections``: sites of its map segment.
+    """
+
+    found: FoundSite
+    support: int
+    detections: int
+    segment_detections: int
+
+    @property
+    def site(self) -> Site:
+        return self.found.site
+
+    @property
+    def frame(self) -> FrameRef:
+        return self.found.frame
+
+    @property
+    def segment(self) -> int:
+        return self.found.segment
+
+
 # ----------------------------------------------------------------------------- detection
 @dataclass(frozen=True, eq=False)
 class Detection:
@@ -327,7 +410,7 @@ class RunResult:
 
     landing: dict[str, Any]
     run: dict[str, Any]
-    committed: dict[str, Any] | None
+    committed: CommittedSite | None
     primary_segment: int | None
     points_segment: int | None
 

@@ -24,7 +24,7 @@ from slzcli.outputs import images
 from slzcli.outputs.files import write_text
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
-from slzcli.types import RunResult
+from slzcli.types import CommittedSite, RunResult
 
 # Display only (no result depends on these): the Figure 5 tiles' width and title band, tiles per row, the
 # trajectory drawing's size and margin (px). Drawn with OpenCV and SVG, not matplotlib: a matplotlib panel of
@@ -56,13 +56,13 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
     run_dir = Path(run_dir)
     s, landing, committed = result.summary, result.landing, result.committed
     detection_frames = _detection_frames(run_dir)
-    panel_frame = committed["frame"].index if committed is not None else \
+    panel_frame = committed.frame.index if committed is not None else \
         (detection_frames[-1] if detection_frames else None)
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>slz detect: "
              f"{html.escape(Path(s['source']).name)}</title><style>{CSS}</style></head><body>",
              f"<h1>slz detect: {html.escape(Path(s['source']).name)}</h1>",
              _result(s, landing),
-             _figure5(run_dir, panel_frame, committed is not None and committed["frame"].index == panel_frame, level,
+             _figure5(run_dir, panel_frame, committed is not None and committed.frame.index == panel_frame, level,
                       bool(result.run.get("config", {}).get("output", {}).get("reverse_colormap", False))),
              _trajectory(trajectory, sites, committed, result.primary_segment),
              _site_table(sites, committed),
@@ -166,7 +166,7 @@ def _mosaic(tiles: list[tuple[str, np.ndarray]], per_row: int) -> np.ndarray:
     return np.vstack(rows)
 
 
-def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, segment: int | None) -> str:
+def _trajectory(log: PoseLog, sites: SiteLog, committed: CommittedSite | None, segment: int | None) -> str:
     """The camera path, every site and the committed square from above, as inline SVG (no rendering cost)."""
     head = "<h2 id=trajectory>Trajectory from above</h2>"
     poses = [p for p, k in zip(log.poses(), log.segments(), strict=True)
@@ -174,10 +174,10 @@ def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, 
     if not poses:
         return head + "<p class=note>No frame was tracked: no trajectory.</p>"
     path = np.array([p[:2, 3] for p in poses])
-    found = [e for e in sites.sites if segment is None or e["segment"] == segment]
-    centres = np.array([e["site"].center_world[:2] for e in found]).reshape(-1, 2)
-    accepted = np.array([e["site"].accepted for e in found], bool)
-    square = np.asarray(committed["site"].corners_world)[[0, 1, 3, 2], :2] if committed is not None else \
+    found = [e for e in sites.sites if segment is None or e.segment == segment]
+    centres = np.array([e.site.center_world[:2] for e in found]).reshape(-1, 2)
+    accepted = np.array([e.site.accepted for e in found], bool)
+    square = np.asarray(committed.site.corners_world)[[0, 1, 3, 2], :2] if committed is not None else \
         np.zeros((0, 2))
     everything = np.vstack([path, centres, square])
     lo, hi = everything.min(axis=0), everything.max(axis=0)
@@ -225,36 +225,36 @@ def _nice_step(raw: float) -> float:
     return float(next(k * p for k in (1, 2, 5, 10) if k * p >= raw))
 
 
-def _site_table(sites: SiteLog, committed: dict[str, Any] | None) -> str:
+def _site_table(sites: SiteLog, committed: CommittedSite | None) -> str:
     head = "<h2 id=sites>Sites found</h2>"
     if not sites.sites:
         return head + "<p class=note>No detection frame gave a site.</p>"
     cols = ("frame", "map", "x m", "y m", "z m", "score", "accepted", "reason", "tilt deg", "edge m",
             "normal var", "extent m", "points")
-    chosen = None if committed is None else committed["id"]
+    chosen = None if committed is None else committed.found.id
     rows = []
     for e in sites.sites:
-        st = e["site"]
+        st = e.site
         x, y, z = st.center_world
-        cells = [str(e["frame"].index), str(e["segment"]), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}", f"{st.score:.2f}",
+        cells = [str(e.frame.index), str(e.segment), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}", f"{st.score:.2f}",
                  "yes" if st.accepted else "no", st.acceptance_reason or "", f"{st.tilt_deg:.1f}",
                  "n/a" if st.edge_clearance_m is None else f"{st.edge_clearance_m:.2f}",
                  f"{st.normal_variance:.2e}", f"{st.extent_m[0]:.2f} x {st.extent_m[1]:.2f}", str(st.cluster_points)]
         tds = "".join(f"<td{' class=l' if i == 7 else ''}>{html.escape(c)}</td>" for i, c in enumerate(cells))
-        rows.append(f"<tr{' class=committed' if e['id'] == chosen else ''}>{tds}</tr>")
+        rows.append(f"<tr{' class=committed' if e.id == chosen else ''}>{tds}</tr>")
     th = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
     return (head + "<p class=note>One row per detection frame that gave a site; the committed site (landing.json) "
             "is highlighted. Every candidate cluster is in sites.csv.</p>"
             f"<table><tr>{th}</tr>{''.join(rows)}</table>")
 
 
-def _detections(run_dir: Path, frames: list[int], sites: SiteLog, committed: dict[str, Any] | None,
+def _detections(run_dir: Path, frames: list[int], sites: SiteLog, committed: CommittedSite | None,
                 level: str) -> str:
     head = "<h2 id=detections>Detections</h2>"
     if not frames:
         return head + f"<p class=note>No frame folders at --outputs {html.escape(level)}.</p>"
-    by_frame = {e["frame"].index: e["site"] for e in sites.sites}
-    site_frame = None if committed is None else committed["frame"].index
+    by_frame = {e.frame.index: e.site for e in sites.sites}
+    site_frame = None if committed is None else committed.frame.index
     figs = []
     for i in frames:
         link = f"frames/{i:06d}/overlay.png"
