@@ -20,13 +20,13 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from slzcli import __version__
 from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
 from slzcli.config import Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
 from slzcli.interrupt import sigterm_interrupts
 from slzcli.methods import registry as method_registry
 from slzcli.outputs.summary_json import envelope
+from slzcli.version import __version__
 
 if TYPE_CHECKING:
     from slzcli.synth.flight import PathKind

@@ -26,6 +26,7 @@ import yaml
 
 from slzcli.errors import ConfigError, short_repr
 from slzcli.methods import registry as method_registry
+from slzcli.pinhole import intrinsics_problem
 
 
 def package_dir(*parts: str) -> Path:
@@ -1111,12 +1112,8 @@ def validate_pairs(config: Config, source: str | None = None, changed: frozenset
                                           f"which {thrust} = {value:g} must {what} (it could not {effect})", source)
         raise ConfigError(thrust, f"must {what} the weight uav.mass_kg x control.gravity_m_s2 = "
                                   f"{weight:.3g} N (it could not {effect}); got {value:g}", source)
-    from slzcli.sources.validate import intrinsics_problem  # here: sources imports this module
-    from slzcli.types import Intrinsics
-
     cam, lim = config.camera, config.sources.intrinsics
-    problem = intrinsics_problem(Intrinsics(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height),
-                                 lim.min_fov_deg, lim.max_fov_deg)
+    problem = intrinsics_problem(cam, lim.min_fov_deg, lim.max_fov_deg)
     if problem is not None:
         raise ConfigError("camera", problem, source)
 

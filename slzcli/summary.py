@@ -16,7 +16,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from slzcli import __version__
 from slzcli.config import Config
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
@@ -25,9 +24,9 @@ from slzcli.outputs.run_folder import landing_record
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog, trajectory_files
 from slzcli.slam.segments import Segment, primary_segment, segment_table
-from slzcli.terrain.limits import Working
 from slzcli.terrain.noise import NoiseTracker
-from slzcli.types import CommittedSite, RunResult
+from slzcli.types import CommittedSite, RunResult, Working
+from slzcli.version import __version__
 
 PER_FRAME_STAGES = ("maps", "score", "mask", "slam", "select")  # the per-frame total; "write" is apart
 _COLUMN_CUT_NOTED = 0.5  # the column rule is named in a no-site reason when it removed at least this share
