@@ -1,5 +1,5 @@
 """Whether a pinhole model can be used at all: for the recordings' camera models (``sources/``) and the
-config's ``camera`` block alike. Plain arithmetic on six numbers, no numpy: ``config.py`` checks the
+config's ``camera`` block alike. Plain arithmetic on six numbers, no numpy: ``config/`` checks the
 camera block with it at load time without pulling the array stack into ``import slzcli.cli``."""
 
 from __future__ import annotations

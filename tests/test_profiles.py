@@ -67,7 +67,7 @@ def test_unknown_profile_is_refused_naming_the_known_ones(runner: Any) -> None:
 
 def test_a_profile_key_unknown_to_the_defaults_names_the_profile_file(tmp_path: Path, monkeypatch: Any) -> None:
     (tmp_path / "bad.yaml").write_text("mask:\n  treshold: 0.5\n")
-    monkeypatch.setattr("slzcli.config.PROFILE_DIR", tmp_path)
+    monkeypatch.setattr("slzcli.config.loader.PROFILE_DIR", tmp_path)
     with pytest.raises(ConfigError, match=r"bad\.yaml.*mask\.treshold.*did you mean 'threshold'"):
         load_config(profile="bad")
 

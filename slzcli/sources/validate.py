@@ -1,8 +1,8 @@
 """Checks on what a recording claims before slz uses it: intrinsics, stamps, poses.
 
 Pure functions: each returns the reason a value is unusable (or None), and the caller names
-the file, topic or key. Nothing here imports the config (config.py uses ``intrinsics_problem``
-on the ``camera`` section too).
+the file, topic or key. Nothing here imports the config (``intrinsics_problem`` is ``pinhole.py``'s, which the config's
+check of the ``camera`` section uses too).
 """
 
 from __future__ import annotations
