@@ -9,7 +9,7 @@ DEMO := runs/demo
 CONSTRAINTS := constraints.txt
 EXTRAS := test,lint,orbslam3,dask
 LATEST := .venv-latest
-LINTED := slzcli tests benchmarks
+LINTED := slzcli tests benchmarks scripts
 
 .PHONY: demo test test-fast lint test-latest constraints sysdeps venv bench clean
 
