@@ -384,17 +384,31 @@ class FoundSite:
 
 
 @dataclass(frozen=True)
+class Ranked:
+    """How a run's found sites rank (``landing.commit``): the committed site's index into the sites given, its
+    support, its equals and the spread of its pool."""
+
+    index: int
+    support: int              # detections of its segment within radius_m of it, itself included
+    equals: tuple[int, ...]   # indices of the equally good sites (the committed one included)
+    pool: tuple[int, ...]     # indices of the sites another run may commit: the pool in the committed segment
+    spread_m: float           # largest plan distance between two of the pool (0 with one)
+
+
+@dataclass(frozen=True)
 class CommittedSite:
     """The site landing.json holds (``pipeline.commit``): a found site and how many detections confirm it.
 
     ``support``: detections of its segment within the commit radius, itself included; ``detections``:
-    sites of the run; ``segment_detections``: sites of its map segment.
+    sites of the run; ``segment_detections``: sites of its map segment; ``ranked``: how the run's sites
+    ranked (its equally good sites: the sites another run may commit, and their spread).
     """
 
     found: FoundSite
     support: int
     detections: int
     segment_detections: int
+    ranked: Ranked
 
     @property
     def site(self) -> Site:

@@ -153,7 +153,8 @@ def test_commit_latest_takes_the_last_detection_not_the_best_supported() -> None
     from slzcli.types import FoundSite
 
     def entry(i: int, x: float, accepted: bool) -> FoundSite:
-        site = SimpleNamespace(center_world=(x, 0.0, 0.0), accepted=accepted, normal_variance=0.01)
+        site = SimpleNamespace(center_world=(x, 0.0, 0.0), accepted=accepted, normal_variance=0.01, score=0.8,
+                               edge_clearance_m=1.0)
         return FoundSite(SimpleNamespace(index=i), site, i, None, 0)  # type: ignore[arg-type]  # what commit reads
 
     sites = [entry(0, 0.0, True), entry(1, 0.1, True), entry(2, 5.0, False)]

@@ -33,6 +33,7 @@ from slzcli.config.schema import CameraCfg as CameraCfg
 from slzcli.config.schema import CompareCfg as CompareCfg
 from slzcli.config.schema import Config as Config
 from slzcli.config.schema import ControlCfg as ControlCfg
+from slzcli.config.schema import DepthCheckCfg as DepthCheckCfg
 from slzcli.config.schema import DepthVarianceCfg as DepthVarianceCfg
 from slzcli.config.schema import DisturbanceCfg as DisturbanceCfg
 from slzcli.config.schema import FlatnessCfg as FlatnessCfg

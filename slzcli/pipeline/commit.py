@@ -1,19 +1,17 @@
-"""The commit rule: which of a run's detected sites ``landing.json`` holds.
+"""The commit rule: which of a run's detected sites ``landing.json`` holds (every run commits here).
 
-Every detection frame may give a site; the one written to ``landing.json`` is the site confirmed by
-the most detections (other sites within ``landing.commit_radius_factor`` footprint sides of it in
-plan, two by default, in the same map segment: positions in different segments are in different
-frames), among those that pass the acceptance test when any do; ties go to the lower normal
-variance, then to the later frame. One lucky keyframe cannot outvote a site seen again and again.
-The committed site's segment is the run's world frame. ``landing.commit: latest`` (the paper's
-"current keyframe") takes the last detection's site instead.
+The ranking is ``slzcli.landing.commit``'s: by what the ground gives each site (confirmed by
+another detection of the same map segment within ``landing.commit_radius_factor`` footprint
+sides, within ``landing.commit_score_band`` of the best score, the plan medoid of those), never
+by the order detections arrived, which ORB-SLAM3's threads change from run to run. The committed
+site's segment is the run's world frame. ``landing.commit: latest`` (the paper's "current
+keyframe") takes the last detection's site instead.
 """
 
 from __future__ import annotations
 
-import numpy as np
-
 from slzcli.config import Config
+from slzcli.landing.commit import commit as rank_sites
 from slzcli.types import CommittedSite, FoundSite
 
 
@@ -23,26 +21,16 @@ def commit_radius_m(config: Config) -> float:
 
 
 def commit(sites: list[FoundSite], config: Config) -> CommittedSite | None:
-    """The committed site of a run's sites under the config's rule and radius (every run commits here)."""
-    return commit_site(sites, commit_radius_m(config), config.landing.commit)
+    """The committed site of a run's sites under the config's rule, radius and score band."""
+    return commit_site(sites, commit_radius_m(config), config.landing.commit, config.landing.commit_score_band)
 
 
-def commit_site(sites: list[FoundSite], side_m: float, rule: str = "agree") -> CommittedSite | None:
-    """The site confirmed by the most detections of its own map segment (see the module docstring), with
-    its support; ``rule`` ``latest``: the last detection's site, accepted or not; its support is still counted.
-    """
-    if not sites:
+def commit_site(sites: list[FoundSite], side_m: float, rule: str = "agree",
+                score_band: float = 0.0) -> CommittedSite | None:
+    """The committed site (``slzcli.landing.commit``; ``score_band``: ``landing.commit_score_band``), with its
+    support, the run's and its segment's site counts and the ranking (its equally good sites and their spread)."""
+    found = rank_sites(sites, side_m, score_band, rule)
+    if found is None:
         return None
-    pool = [s for s in sites if s.site.accepted] or sites
-    if rule == "latest":
-        pool = sites
-    centres = np.array([s.site.center_world for s in pool])
-    seg = np.array([s.segment for s in pool])
-    near = np.linalg.norm(centres[:, None, :2] - centres[None, :, :2], axis=2) <= side_m
-    support = (near & (seg[:, None] == seg[None, :])).sum(axis=1)
-    order = sorted(range(len(pool)), key=lambda i: (-support[i], pool[i].site.normal_variance,
-                                                      -pool[i].frame.index))
-    if rule == "latest":
-        order = [max(range(len(pool)), key=lambda i: pool[i].frame.index)]
-    best = pool[order[0]]
-    return CommittedSite(best, int(support[order[0]]), len(sites), sum(s.segment == best.segment for s in sites))
+    best, ranked = found
+    return CommittedSite(best, ranked.support, len(sites), sum(s.segment == best.segment for s in sites), ranked)
