@@ -38,6 +38,7 @@ from slzcli.config.schema import DepthVarianceCfg as DepthVarianceCfg
 from slzcli.config.schema import DisturbanceCfg as DisturbanceCfg
 from slzcli.config.schema import FlatnessCfg as FlatnessCfg
 from slzcli.config.schema import FlightCfg as FlightCfg
+from slzcli.config.schema import FusionCfg as FusionCfg
 from slzcli.config.schema import FuzzyCfg as FuzzyCfg
 from slzcli.config.schema import GroundTruthCfg as GroundTruthCfg
 from slzcli.config.schema import InclinationCfg as InclinationCfg
