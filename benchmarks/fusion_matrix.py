@@ -1,6 +1,6 @@
 """The per-frame path against the terrain fused over the flight, on rendered flights with ground truth.
 
-    python benchmarks/fusion_matrix.py --cache DIR [--flights GLOB] [--every 3] [--out NAME]
+    python benchmarks/fusion_matrix.py --cache DIR [--flights GLOB] [--every 3] [--out NAME] [--set K=V] [--fused-only]
 
 Flights: benchmarks/fusion_render.py's cache (slz synth's scenes, sensors and flights, true poses). Per
 flight, every frame goes through both paths with the true pose and the run's noise estimate
@@ -8,11 +8,13 @@ flight, every frame goes through both paths with the true pose and the run's noi
 - per frame: ``frame_maps`` -> fuzzy score -> ``mask_score`` (METHOD 2.3-2.4) on every ``--every``-th frame;
 - fused: every frame into ``FusedTerrain``; on the same frames the verdict of the cells in view, rendered
   into the frame's pixels (``verdict_in_frame``).
-Reported per flight: pixel precision and recall of the mask against the truth's safe pixels (summed over
-those frames), frames that vouched (per frame) or had a safe cell (fused), the undecided share of the
-frame's pixels with depth (fused), the site (fused: ``best_site`` of the last frame, truly safe in the
-raster?; per frame: a proxy, the mask pixel deepest inside the mask over the flight, truly safe?), the
-smallest step the fused noise lets through (median over the cells in view at the end), the advice, and the
+Reported per flight (``--fused-only``: the fused path alone): pixel precision and recall of the mask
+against the truth's safe pixels (summed over those frames), frames that vouched (per frame) or had a safe
+cell (fused), the undecided share of the frame's pixels with depth (fused), the site (fused: ``best_site``
+of the last frame, truly safe in the raster?; per frame: a proxy, the mask pixel deepest inside the mask
+over the flight, truly safe?), the fused safe cells of the last frame's region whose centre the truth
+raster calls unsafe (and the unsafe cells it calls safe), the smallest step the fused noise lets through
+(median over the cells in view at the end; and the smallest on a decided cell), the advice, and the
 fusion's CPU time per frame (``time.process_time``: a core's time, not the loaded machine's wall clock).
 Writes benchmarks/results/fusion_matrix[_NAME].json and prints a table.
 """
@@ -39,12 +41,26 @@ def _truth_cell_safe(d: Any, x: float, y: float) -> bool:
     return bool(0 <= r < rs.shape[0] and 0 <= c < rs.shape[1] and rs[r, c])
 
 
-def run_flight(path: Path, every: int, sets: list[str]) -> dict[str, Any]:
+def _cells_truly_safe(d: Any, fm: Any, code: int) -> tuple[int, int]:
+    """(cells of the fused verdict ``code``, of them the ones whose centre the truth raster calls safe)."""
+    reg = fm.region
+    jj, ii = np.nonzero(fm.verdict == code)
+    x = reg.origin_m[0] + (ii + 0.5) * reg.cell_m
+    y = reg.origin_m[1] + (jj + 0.5) * reg.cell_m
+    rs, org, res = d["raster_safe"], d["raster_origin"], float(d["raster_res"])
+    c, r = np.floor((x - org[0]) / res).astype(int), np.floor((y - org[1]) / res).astype(int)
+    inside = (r >= 0) & (r < rs.shape[0]) & (c >= 0) & (c < rs.shape[1])
+    truth = np.zeros(jj.size, bool)
+    truth[inside] = rs[r[inside], c[inside]].astype(bool)
+    return int(jj.size), int(np.count_nonzero(truth))
+
+
+def run_flight(path: Path, every: int, sets: list[str], fused_only: bool = False) -> dict[str, Any]:
     from dataclasses import replace
 
     from slzcli.config import load_config
     from slzcli.fusion.session import FusedTerrain, verdict_in_frame
-    from slzcli.fusion.verdict import UNDECIDED
+    from slzcli.fusion.verdict import SAFE, UNDECIDED, UNSAFE
     from slzcli.scoring import get_scorer, mask_score
     from slzcli.terrain.maps import frame_maps
     from slzcli.terrain.noise import NoiseTracker
@@ -74,10 +90,13 @@ def run_flight(path: Path, every: int, sets: list[str]) -> dict[str, Any]:
             continue
         frame = Frame(index=i, stamp_ns=int(d["stamps"][i]), rgb=np.zeros((intr.height, intr.width, 3), np.uint8),
                       depth_m=depth, intrinsics=intr, T_world_camera=T)
-        maps = frame_maps(frame, cfg, noise)
-        sm = mask_score(scorer, scorer(maps), depth, intr, cfg, maps.work, maps.up_camera)
-        per = sm.mask
-        vouched += bool(maps.work is None or maps.work.vouched)
+        if fused_only:
+            per = np.zeros_like(truth)
+        else:
+            maps = frame_maps(frame, cfg, noise)
+            sm = mask_score(scorer, scorer(maps), depth, intr, cfg, maps.work, maps.up_camera)
+            per = sm.mask
+            vouched += bool(maps.work is None or maps.work.vouched)
         fm = ft.maps_in_view()
         assert fm is not None
         fused = verdict_in_frame(fm, depth, intr, T)
@@ -100,13 +119,15 @@ def run_flight(path: Path, every: int, sets: list[str]) -> dict[str, Any]:
     reg = fm.region
     step_seen = fm.step_min_m[reg.seen & np.isfinite(fm.step_min_m)]
     dec = fm.decided & reg.seen
+    n_safe, n_safe_ok = _cells_truly_safe(d, fm, SAFE)
+    _, n_unsafe_ok = _cells_truly_safe(d, fm, UNSAFE)
     out: dict[str, Any] = {"flight": path.name, "frames": len(T_all), "every": every}
-    for name in ("frame", "fused"):
+    for name in ("fused",) if fused_only else ("frame", "fused"):
         c = cnt[name]
         out[f"{name}_precision"] = c["tp"] / (c["tp"] + c["fp"]) if c["tp"] + c["fp"] else None
         out[f"{name}_recall"] = c["tp"] / (c["tp"] + c["fn"]) if c["tp"] + c["fn"] else None
     out.update({
-        "frame_vouched_frames": vouched, "fused_frames_with_safe": fused_frames,
+        "frame_vouched_frames": None if fused_only else vouched, "fused_frames_with_safe": fused_frames,
         "frame_site_proxy_safe": None if best_frame is None else best_frame[1],
         "fused_site": None if site is None else {"x_m": round(site.x_m, 3), "y_m": round(site.y_m, 3),
                                                  "clearance_m": round(site.clearance_m, 3),
@@ -114,6 +135,7 @@ def run_flight(path: Path, every: int, sets: list[str]) -> dict[str, Any]:
                                                  "truly_safe": _truth_cell_safe(d, site.x_m, site.y_m)},
         "undecided_share_last": undecided[-1], "undecided_share_mean": float(np.mean(undecided)),
         "step_min_median_m": float(np.median(step_seen)) if step_seen.size else None,
+        "safe_cells_truly_unsafe": n_safe - n_safe_ok, "unsafe_cells_truly_safe": n_unsafe_ok,
         "step_min_decided_min_m": float(np.min(fm.step_min_m[dec])) if dec.any() else None,
         "looks_median": float(np.median(reg.looks[reg.seen])) if reg.seen.any() else None,
         "verdict_cells": fm.counts(), "advice": None if adv is None else adv.as_dict(),
@@ -142,15 +164,16 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=3)
     ap.add_argument("--out", default="")
     ap.add_argument("--set", action="append", default=[])
+    ap.add_argument("--fused-only", action="store_true", help="skip the per-frame path (its numbers are null)")
     a = ap.parse_args()
     rows = []
     for p in sorted(glob.glob(str(a.cache / (a.flights + ".npz")))):
         if p.endswith(".tmp.npz"):
             continue
-        r = run_flight(Path(p), a.every, a.set)
+        r = run_flight(Path(p), a.every, a.set, a.fused_only)
         rows.append(r)
         site = r["fused_site"]
-        print(f"{r['flight']:48s} frame P {_f(r['frame_precision'])} R {_f(r['frame_recall'])} "
+        print(f"{r['flight']:48s} frame P {_f(r.get('frame_precision'))} R {_f(r.get('frame_recall'))} "
               f"vouched {r['frame_vouched_frames']} | fused P {_f(r['fused_precision'])} R {_f(r['fused_recall'])} "
               f"und {r['undecided_share_last']:.2f} site {'-' if site is None else site['truly_safe']} "
               f"step {_f(r['step_min_median_m'])} looks {_f(r['looks_median'], 1)} "

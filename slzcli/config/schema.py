@@ -200,6 +200,8 @@ class FusionCfg:
     two_heights_fraction: float = rng(0, 1, lo_open=True)
     pose_sigma_m: float = rng(0)
     pose_sigma_deg: float = rng(0)
+    decided_margin: float = rng(1)
+    unsafe_margin: float = rng(1)
 
 
 @schema

@@ -2,10 +2,11 @@
 
 For the undecided landing square with the best cleared score, the factor its fused noise must still
 shrink by is ``r = m max(step_min / max_step, tan(slope_min) / tan(max_slope))`` over the square, m the
-limits' ``target_margin`` (2): ``verdict`` calls a square safe when the fitted step plus its limit stays
-within the UAV's tolerance, and over a square of cells the largest fitted step of level ground is about
-the limit itself. The cell's own Kalman filter (``grid``'s model: a shared error that decorrelates as
-exp(-shift / decorrelation_px) with the cell's shift in the image, and a white part) is then run forward:
+larger of ``terrain.fusion.decided_margin`` (the gate on the noise alone) and 2: ``verdict`` calls a square
+safe when the fitted step plus its limit stays within the UAV's tolerance, and over a square of cells the
+largest fitted step of level ground is about the limit itself (estimate + limit ~ 2 limits). The cell's
+own Kalman filter (``grid``'s model: a shared error that decorrelates as exp(-shift / decorrelation_px)
+with the cell's shift in the image, and a white part) is then run forward:
 - frames: at the image shift per frame the flight has now; when the variance cannot get below the target
   that way (a hover: the shared error never decorrelates), the answer is to move;
 - sideways: one look every ``decorrelation_px`` of image shift (metres at the altitude: px x z / f);
@@ -27,6 +28,7 @@ from slzcli.fusion.verdict import UNDECIDED, FusedMaps
 
 _MAX_FRAMES = 1800      # frames; beyond a minute at 30 Hz "N more frames" is not an answer (fly instead)
 _STILL_PX = 0.05        # px; image shifts below this are the estimate's own jitter, not motion
+_LEVEL_FIT = 2.0        # x the limit; level ground's largest fitted step over a square ~ its limit: estimate + limit
 
 
 @dataclass(frozen=True)
@@ -108,7 +110,7 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
     ok = reg.seen[sl]
     tan_max = math.tan(math.radians(params.max_slope_deg))
     with np.errstate(invalid="ignore", divide="ignore"):
-        r_cells = params.target_margin * np.maximum(fm.step_min_m[sl] / params.max_step_m,
+        r_cells = max(params.decided_margin, _LEVEL_FIT) * np.maximum(fm.step_min_m[sl] / params.max_step_m,
                                                     np.tan(np.radians(fm.slope_min_deg[sl])) / tan_max)
     r_cells = np.where(ok, r_cells, np.inf)
     jj, ii = np.unravel_index(int(np.argmax(r_cells)), r_cells.shape)
@@ -131,7 +133,7 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
         frames = frames_to_variance(p_now, p_hc, p_cc, sc, sw, shift_px_per_frame, target, params)
         side = frames_to_variance(p_now, p_hc, p_cc, sc, sw, params.decorrelation_px, target, params)
     sideways = None if side is None else side * params.decorrelation_px * depth_m / focal_px
-    r1 = params.target_margin * max(single_step_m / params.max_step_m, single_tan / tan_max)
+    r1 = max(params.decided_margin, _LEVEL_FIT) * max(single_step_m / params.max_step_m, single_tan / tan_max)
     descend = depth_m / math.sqrt(r1) if r1 > 1 else None
     if descend is not None and descend < params.column_m:
         descend = None     # below the final-descent hover: not an answer

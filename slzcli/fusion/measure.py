@@ -47,7 +47,8 @@ class FusionParams:
     pose_sigma_m: float
     pose_sigma_rad: float
     confidence_sigma: float
-    target_margin: float
+    decided_margin: float       # a square is decided when its noise limits are this far within the tolerances
+    unsafe_margin: float        # ... and its failing mask a finding when they are this far within
     max_step_m: float
     max_slope_deg: float
     column_m: float             # the descent column's height above a site (control.desired_depth_m)
@@ -64,7 +65,7 @@ class FusionParams:
                    two_heights_fraction=f.two_heights_fraction, pose_sigma_m=f.pose_sigma_m,
                    pose_sigma_rad=math.radians(f.pose_sigma_deg),
                    confidence_sigma=config.terrain.limits.confidence_sigma,
-                   target_margin=config.terrain.limits.target_margin, max_step_m=uav.max_step_m,
+                   decided_margin=f.decided_margin, unsafe_margin=f.unsafe_margin, max_step_m=uav.max_step_m,
                    max_slope_deg=uav.max_slope_deg, column_m=config.control.desired_depth_m,
                    square_m=mc.margin_factor * max(uav.footprint_m) + 2.0 * uav.clearance_m)
 

@@ -14,11 +14,13 @@ by ``mask.smooth_m``, its minimum over the landing square (footprint + margins),
 Verdict per cell:
   SAFE       the mask holds, every cell of its landing square is *decided* (its fused variance no longer
              hides a step of uav.max_step_m nor a slope of max_slope_deg: the per-frame limits of
-             ``limits.working_scale`` scaled by the cell's fused std, ``limits.target_margin`` within them),
+             ``limits.working_scale`` scaled by the cell's fused std, ``terrain.fusion.decided_margin`` times within
+             them),
              the step fitted across every cell of the square and the slope of its plane stay within the
              tolerances by those limits (estimate + limit <= tolerance) and its descent column was seen;
   UNSAFE     a defect is known in its square (a step or slope beyond the tolerance by more than (k + 1) / k
-             times its limit, a refused cell), or the mask fails on a decided square;
+             times its limit, a refused cell), or the mask fails on a square whose limits are
+             ``terrain.fusion.unsafe_margin`` times within the tolerances;
   UNDECIDED  seen, neither of the above: the noise still hides what the UAV cannot take;
   UNSEEN     no frame measured it.
 """
@@ -57,7 +59,7 @@ class FusedMaps:
     clear_score: np.ndarray   # the min-filtered score itself (ranks candidates)
     step_min_m: np.ndarray    # smallest step the cell's fused noise lets through (per cell)
     slope_min_deg: np.ndarray
-    decided: np.ndarray       # the whole landing square's noise limits target_margin within the UAV's tolerances
+    decided: np.ndarray       # the whole landing square's noise limits decided_margin times within the tolerances
     defect: np.ndarray        # a known defect in the landing square
     refused: np.ndarray       # two heights
     verdict: np.ndarray       # uint8 UNSEEN / UNSAFE / UNDECIDED / SAFE
@@ -167,7 +169,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # steepness: the plane over the footprint's cells (the widest window the per-frame path uses)
     n_fp = max(3, _odd(max(uav.footprint_m) / cell))
     gx, gy, _, okf = _plane_fit(hc, ok, n_fp, cell)
-    tan_psi = np.hypot(np.nan_to_num(gx), np.nan_to_num(gy))
+    tan_psi = np.hypot(np.where(okf, gx, 0.0), np.where(okf, gy, 0.0))   # a degenerate window's gradient is inf
     psi = np.arctan(tan_psi)
     slope_deg = np.where(okf, np.degrees(psi), np.nan)
     steepness = np.where(okf, np.exp(-(psi / math.radians(uav.max_slope_deg)) ** 2), 0.0)
@@ -237,8 +239,9 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     step_min = np.where(ok, reg.step_ratio * sd_cell, np.inf)        # an unseen cell hides everything
     tan_min = np.where(ok, reg.tan_ratio * sd_cell, np.inf)
     slope_min = np.degrees(np.arctan(tan_min))
-    m = params.target_margin
-    limit_ok = ok & (m * step_min <= uav.max_step_m) & (m * tan_min <= math.tan(math.radians(uav.max_slope_deg)))
+
+    def limits_within(m: float) -> np.ndarray:
+        return ok & (m * step_min <= uav.max_step_m) & (m * tan_min <= math.tan(math.radians(uav.max_slope_deg)))
     # a step across every cell, fitted with a plane over the footprint's window, and the plane's slope. Their
     # noise at k sigma is the per-frame path's limit scaled by the fused std (step_min, tan_min: it holds the
     # noise's correlation between neighbouring cells, which a sum over independent cells would not). SAFE
@@ -261,8 +264,14 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # the square then rests on full windows (a window cut by the edge of the seen ground scores 0, which is
     # not a finding)
     n_dec = n_sq + 2 * max(n_fp // 2, n_r // 2, 1) + 2 * (kk // 2)
-    decided = cv2.erode(limit_ok.astype(np.uint8), np.ones((n_dec, n_dec), np.uint8), borderType=cv2.BORDER_CONSTANT,
-                        borderValue=0) > 0
+    def square_within(m: float) -> np.ndarray:
+        return cv2.erode(limits_within(m).astype(np.uint8), np.ones((n_dec, n_dec), np.uint8),
+                         borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+
+    decided = square_within(params.decided_margin)
+    # a failing mask is a finding only where the noise is well within the tolerances: near them, noise alone
+    # fails the mask of level ground (the maps read it as roughness)
+    mask_conclusive = decided if params.unsafe_margin == params.decided_margin else square_within(params.unsafe_margin)
     fine = cv2.erode((step_fine & slope_fine).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT,
                      borderValue=0) > 0
     bad = steep | refused | step_bad      # a step between two neighbours only lowers the flatness map
@@ -270,7 +279,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
 
     verdict = np.full(hc.shape, UNSEEN, np.uint8)
     safe = ok & mask & decided & fine & reg.column
-    unsafe = seen & ~safe & (defect | (~mask & decided) | refused)
+    unsafe = seen & ~safe & (defect | (~mask & mask_conclusive) | refused)
     verdict[seen] = UNDECIDED
     verdict[unsafe] = UNSAFE
     verdict[safe] = SAFE
