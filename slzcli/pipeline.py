@@ -53,6 +53,7 @@ from slzcli.errors import DatasetError, OutputError
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator
 from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
+from slzcli.funnel import frame_funnel
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.interrupt import call_interruptibly
 from slzcli.landing.px4slp import grid_site
@@ -344,6 +345,7 @@ def tally(state: RunState, det: Detection, config: Config) -> None:
             state.unvouched_reason = limit_reason(work, config.terrain, config.uav)
     for name, ms in det.timings_ms.items():
         state.timer.add(name, ms)
+    state.funnel.add(frame_funnel(det))
     state.detections += 1
     state.detections_without_depth += not det.maps.valid.any()
     record(state.sites, det)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:  # types only: terrain and landing import types, not the other way round
+    from slzcli.funnel import MaskFunnel
     from slzcli.landing.select import Selection
     from slzcli.terrain.limits import Working
 
@@ -192,6 +193,7 @@ class ScoreMap:
     score: np.ndarray
     mask: np.ndarray
     column_cut: float = 0.0  # fraction of the otherwise-safe pixels whose descent column was out of view
+    funnel: MaskFunnel | None = None  # the pixels each mask step left (slzcli.funnel); None: not counted (px4slp)
 
 
 # ----------------------------------------------------------------------------- SLAM
