@@ -177,7 +177,7 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     threshold = scorer.threshold(config)
     plan = mc.clearance == "plan" and up_camera is not None
     return replace(sm, funnel=_funnel(score, depth, valid, threshold, footprint, column, sm.mask, intrinsics, config,
-                                      plan))
+                                      plan, work))
 
 
 def _upsampled(mask_b: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -189,18 +189,19 @@ def _upsampled(mask_b: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 def _funnel(score: np.ndarray, depth: np.ndarray, valid: np.ndarray, threshold: float, footprint: int | None,
-            column: int, final: np.ndarray, intrinsics: Intrinsics, config: Config, plan: bool) -> MaskFunnel:
+            column: int, final: np.ndarray, intrinsics: Intrinsics, config: Config, plan: bool,
+            work: Working | None) -> MaskFunnel:
     """The pixels each mask step left (``slzcli.funnel``). ``footprint`` None: no column rule ran, so the
     footprint step left what the column step did. The score is 0 where there is no depth: its maximum and
-    the pixels above the threshold are those of the pixels with depth."""
-    score32 = np.asarray(score, np.float32)
-    above = cv2.countNonZero(cv2.threshold(score32, threshold, 1.0, cv2.THRESH_BINARY)[1])
-    best = float(cv2.minMaxLoc(score32)[1])
+    the pixels above the threshold are those of the pixels with depth. The median depth is the working
+    scale's (the same median), measured here only without one."""
+    above = int(np.count_nonzero(np.greater(score, threshold)))
+    best = float(np.max(score)) if score.size else 0.0
     uav = config.uav
     side = config.mask.margin_factor * max(uav.footprint_m) + 2.0 * uav.clearance_m
-    d = median_depth_m(depth)
+    d = work.altitude_m if work is not None else median_depth_m(depth)
     view = None if d is None else (intrinsics.width * d / intrinsics.fx, intrinsics.height * d / intrinsics.fy)
-    counts = (int(np.count_nonzero(valid)), int(above), column if footprint is None else footprint, column,
+    counts = (int(np.count_nonzero(valid)), above, column if footprint is None else footprint, column,
               int(np.count_nonzero(final)))
     return mask_funnel(valid.size, counts, threshold, best, side, config.control.desired_depth_m if plan else None,
                        d, view)
