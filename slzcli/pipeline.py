@@ -343,6 +343,8 @@ def tally(state: RunState, det: Detection, config: Config) -> None:
         if worst is None or work.altitude_m > worst.altitude_m:
             state.worst_unvouched = work
             state.unvouched_reason = limit_reason(work, config.terrain, config.uav)
+    if not grid and work is not None and (state.highest is None or work.altitude_m > state.highest.altitude_m):
+        state.highest = work
     for name, ms in det.timings_ms.items():
         state.timer.add(name, ms)
     state.funnel.add(frame_funnel(det))

@@ -50,6 +50,7 @@ class RunState:
     unvouched: int = 0                 # detection frames whose noise hides what the UAV cannot tolerate
     worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
     unvouched_reason: str = ""         # limits.limit_reason of that frame
+    highest: Working | None = None     # the highest detection frame's working scale (depth_limits without a site)
     column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
     grid_reason: str = ""              # px4slp: why its latest detection frame gave no site (docs/PX4SLP.md)
     funnel: FunnelLog = field(default_factory=FunnelLog)  # what each filter left in each detection frame
@@ -173,7 +174,8 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
         "outputs": config.output.level,
         "depth_noise": noise,
-        "depth_limits": landing.get("site", {}).get("depth_limits") or noise.get("not_vouched"),
+        "depth_limits": landing.get("site", {}).get("depth_limits") or noise.get("not_vouched")
+        or (None if st.highest is None else st.highest.as_dict()),
         "pairing": {"paired": report.paired, "unpaired_color": report.unpaired_color,
                     "unpaired_depth": report.unpaired_depth, "undecodable": report.undecodable,
                     "outside_window": report.outside_window, "notes": list(report.notes)},

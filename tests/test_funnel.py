@@ -242,6 +242,7 @@ def test_the_real_frames_reason_names_the_filter_that_emptied_the_mask(floor_bag
     assert res.exit_code == 0, res.output
     summary = json.loads(res.stdout)
     assert summary["status"] == "no_safe_site" and summary["detections"] == 10
+    assert summary["depth_limits"]["vouched"] is True and 0.8 < summary["depth_limits"]["altitude_m"] < 1.6
     reason = summary["reason"]
     assert "SLAM map point" not in reason
     run = json.loads((out / "run.json").read_text())
