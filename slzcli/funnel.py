@@ -45,13 +45,14 @@ _SAMPLE_PX = 8  # grid step (px) of the sample the weakest map's median is taken
 @dataclass(frozen=True)
 class MaskFunnel:
     """The pixels each mask step left in one frame (``left``, one per ``MASK_STEPS``, non-increasing) and
-    what the reason needs to say what would change it: the threshold and the best score against it, the
+    what the reason needs to say what would change it: the threshold and the best score against it (None:
+    some pixel was above it), the
     footprint square's side and the column's height (m), and the frame's median depth (m, None: no depth)."""
 
     pixels: int
     left: tuple[int, ...]
     threshold: float
-    best_score: float
+    best_score: float | None
     side_m: float
     column_m: float | None   # None: the column rule did not run (mask.clearance: image)
     depth_m: float | None
@@ -70,7 +71,7 @@ class MaskFunnel:
         return None
 
 
-def mask_funnel(pixels: int, counts: tuple[int, ...], threshold: float, best_score: float, side_m: float,
+def mask_funnel(pixels: int, counts: tuple[int, ...], threshold: float, best_score: float | None, side_m: float,
                 column_m: float | None, depth_m: float | None, view_m: tuple[float, float] | None) -> MaskFunnel:
     """A MaskFunnel from the raw counts of each step, made non-increasing: the threshold is counted on the
     score as scored, the footprint on the score as filtered (smoothed), so a smoothed pixel may pass the
@@ -99,7 +100,7 @@ class FrameFunnel:
         out: dict[str, Any] = {"frame": self.frame}
         if m is not None:
             out["mask_px"] = dict(zip(MASK_STEPS, m.left, strict=True))
-            out["best_score"] = round(m.best_score, 4)
+            out["best_score"] = None if m.best_score is None else round(m.best_score, 4)
             out["emptied_by"] = m.emptied_by()
         if self.weakest is not None:
             out["weakest_map"] = {"name": self.weakest[0], "median": round(self.weakest[1], 4),
@@ -234,9 +235,10 @@ class FunnelLog:
 def _what_would_change(step: str, masks: list[MaskFunnel], rows: list[FrameFunnel], unvouched_reason: str) -> str:
     m = masks[0]
     if step == "threshold":
-        best = max(x.best_score for x in masks)
-        none = sum(x.left[1] == 0 for x in masks)
-        text = f"no pixel scored above {m.threshold:g} in {none} of {len(masks)} frames (best {best:.2f})"
+        bests = [x.best_score for x in masks if x.best_score is not None]
+        text = f"no pixel scored above {m.threshold:g} in {len(bests)} of {len(masks)} frames"
+        if bests:
+            text += f" (best there {max(bests):.2f})"
         weak = Counter(f.weakest[0] for f in rows if f.weakest is not None)
         if weak:
             name = weak.most_common(1)[0][0]

@@ -152,6 +152,8 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     """
     depth = np.asarray(depth_m)
     mc = config.mask
+    threshold = scorer.threshold(config)
+    above = int(np.count_nonzero(np.greater(score, threshold)))  # the funnel's count, while the score is in cache
     valid = valid_depth(depth)
     if mc.clearance == "plan" and up_camera is not None:
         m = plan_block_px(depth, intrinsics, config)
@@ -160,8 +162,8 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
             score_b = cv2.resize(np.asarray(score, np.float32), depth_b.shape[::-1], interpolation=cv2.INTER_AREA)
             sm, before_b = _mask(scorer, score_b, depth_b, fit_intrinsics(intrinsics, depth_b.shape), config,
                                  up_camera)
-            sm = ScoreMap(sm.method, score, _upsampled(sm.mask, valid), sm.column_cut)
-            footprint = None if before_b is None else int(np.count_nonzero(_upsampled(before_b, valid)))
+            mask, footprint = _upsampled(sm.mask, before_b, valid)
+            sm = ScoreMap(sm.method, score, mask, sm.column_cut)
         else:
             sm, before = _mask(scorer, score, depth, intrinsics, config, up_camera)
             footprint = None if before is None else int(np.count_nonzero(before))
@@ -174,35 +176,42 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     elif work is not None and math.isfinite(work.vouch_depth_m):
         with np.errstate(invalid="ignore"):
             np.logical_and(sm.mask, depth <= work.vouch_depth_m, out=sm.mask)
-    threshold = scorer.threshold(config)
     plan = mc.clearance == "plan" and up_camera is not None
-    return replace(sm, funnel=_funnel(score, depth, valid, threshold, footprint, column, sm.mask, intrinsics, config,
-                                      plan, work))
+    return replace(sm, funnel=_funnel(score, depth, valid, threshold, above, footprint, column, sm.mask, intrinsics,
+                                      config, plan, work))
 
 
-def _upsampled(mask_b: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """A block-grid mask at the full resolution (nearest), cut to the pixels with depth."""
+def _upsampled(mask_b: np.ndarray, before_b: np.ndarray | None, valid: np.ndarray) -> tuple[np.ndarray, int | None]:
+    """A block-grid mask at the full resolution (nearest), cut to the pixels with depth, and the full-resolution
+    pixels of ``before_b`` (the mask before the column rule, a superset; None: no count): one resize of both."""
     h, w = valid.shape
-    mask = cv2.resize(mask_b.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
-    np.logical_and(mask, valid, out=mask)
-    return mask
+    if before_b is None:
+        mask = cv2.resize(mask_b.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
+        np.logical_and(mask, valid, out=mask)
+        return mask, None
+    up = cv2.resize(mask_b.view(np.uint8) + before_b.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+    np.multiply(up, valid, out=up)      # 2: in the mask, 1: only before the column rule, 0: neither or no depth
+    before = int(np.count_nonzero(up))
+    mask = up.view(bool)
+    np.equal(up, 2, out=mask)           # in place: no new full-size array (their page faults cost more)
+    return mask, before
 
 
-def _funnel(score: np.ndarray, depth: np.ndarray, valid: np.ndarray, threshold: float, footprint: int | None,
-            column: int, final: np.ndarray, intrinsics: Intrinsics, config: Config, plan: bool,
+def _funnel(score: np.ndarray, depth: np.ndarray, valid: np.ndarray, threshold: float, above: int,
+            footprint: int | None, column: int, final: np.ndarray, intrinsics: Intrinsics, config: Config, plan: bool,
             work: Working | None) -> MaskFunnel:
     """The pixels each mask step left (``slzcli.funnel``). ``footprint`` None: no column rule ran, so the
-    footprint step left what the column step did. The score is 0 where there is no depth: its maximum and
-    the pixels above the threshold are those of the pixels with depth. The median depth is the working
-    scale's (the same median), measured here only without one."""
-    above = int(np.count_nonzero(np.greater(score, threshold)))
-    best = float(np.max(score)) if score.size else 0.0
+    footprint step left what the column step did; ``above``: the pixels whose score is above the threshold.
+    The score is 0 where there is no depth: its maximum and the pixels above the threshold are those of the
+    pixels with depth; the maximum is taken only when no pixel is above (what the no-site reason quotes).
+    The median depth is the working scale's (the same median), measured here only without one."""
+    depth_px = int(np.count_nonzero(valid))
+    best = float(np.max(score)) if above == 0 and score.size else None   # what the reason needs: below it
     uav = config.uav
     side = config.mask.margin_factor * max(uav.footprint_m) + 2.0 * uav.clearance_m
     d = work.altitude_m if work is not None else median_depth_m(depth)
     view = None if d is None else (intrinsics.width * d / intrinsics.fx, intrinsics.height * d / intrinsics.fy)
-    counts = (int(np.count_nonzero(valid)), above, column if footprint is None else footprint, column,
-              int(np.count_nonzero(final)))
+    counts = (depth_px, above, column if footprint is None else footprint, column, int(np.count_nonzero(final)))
     return mask_funnel(valid.size, counts, threshold, best, side, config.control.desired_depth_m if plan else None,
                        d, view)
 
