@@ -25,7 +25,9 @@ from slzcli.cli import main
 from slzcli.config import PROFILE_DIR, Config, load_config, read_yaml_mapping
 from slzcli.funnel import BENCH_COLUMN_M, MASK_STEPS, FrameFunnel, FunnelLog, mask_funnel
 from slzcli.landing.select import select_site
-from slzcli.pipeline import select_params, tally
+from slzcli.methods.base import build
+from slzcli.methods.maps import fuzzy
+from slzcli.pipeline.step import tally
 from slzcli.scoring import get_scorer, mask_score
 from slzcli.slam import MapPoints
 from slzcli.summary import RunState, no_site_reason
@@ -64,14 +66,14 @@ def detection(cfg: Config, score: np.ndarray, altitude_m: float, *, work=None, x
     points = selection = None
     if xyz is not None:
         points = MapPoints(np.arange(len(xyz)), xyz, np.zeros((len(xyz), 2)), 0, 0, T)
-        selection = select_site(xyz, T, K.K, sm.mask, sm.score, select_params(cfg, "fuzzy"))
+        selection = select_site(xyz, T, K.K, sm.mask, sm.score, fuzzy(cfg).params)
     return Detection(frame, T, maps, sm, points, selection, None, {}, 0)
 
 
 def reason_of(cfg: Config, *dets: Detection) -> tuple[str, RunState]:
-    state = RunState()
+    state, method = RunState(), build("fuzzy", cfg)
     for d in dets:
-        tally(state, d, cfg)
+        tally(state, d, method, cfg)
     return no_site_reason(state, "odometry", 1), state
 
 
