@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-MASK_STEPS = ("depth", "threshold", "footprint", "column", "noise")
+from slzcli.types import MASK_STEPS, MaskFunnel
+
 STEP_TEXT = {"threshold": "the score threshold", "footprint": "the footprint clearance",
              "column": "the descent column", "noise": "the noise limits"}
 # The clusters' tests (landing/select.py ``Candidate.test``), in the order they are applied.
@@ -40,35 +41,6 @@ CLUSTER_TESTS = {"points": "too few points (landing.min_cluster_points)",
                  "centroid": "centroid on a pixel the mask rejects"}
 BENCH_COLUMN_M = 0.5  # control.desired_depth_m of configs/profiles/bench.yaml (tests check they agree)
 _SAMPLE_PX = 8  # grid step (px) of the sample the weakest map's median is taken on: display only
-
-
-@dataclass(frozen=True)
-class MaskFunnel:
-    """The pixels each mask step left in one frame (``left``, one per ``MASK_STEPS``, non-increasing) and
-    what the reason needs to say what would change it: the threshold and the best score against it (None:
-    some pixel was above it), the
-    footprint square's side and the column's height (m), and the frame's median depth (m, None: no depth)."""
-
-    pixels: int
-    left: tuple[int, ...]
-    threshold: float
-    best_score: float | None
-    side_m: float
-    column_m: float | None   # None: the column rule did not run (mask.clearance: image)
-    depth_m: float | None
-    view_m: tuple[float, float] | None  # the view's width and height at depth_m (m)
-
-    def removed(self) -> dict[str, int]:
-        """Pixels each step (but ``depth``) removed."""
-        return {s: self.left[i - 1] - self.left[i] for i, s in enumerate(MASK_STEPS) if i}
-
-    def emptied_by(self) -> str | None:
-        """The step that left no pixel while the one before it left some (None: the mask is not empty, or
-        no pixel had depth)."""
-        for i in range(1, len(MASK_STEPS)):
-            if self.left[i] == 0:
-                return MASK_STEPS[i] if self.left[i - 1] > 0 else None
-        return None
 
 
 def mask_funnel(pixels: int, counts: tuple[int, ...], threshold: float, best_score: float | None, side_m: float,
