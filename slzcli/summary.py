@@ -19,6 +19,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
+from slzcli.funnel import FunnelLog
 from slzcli.landing.commit import spread_record
 from slzcli.outputs.results_mcap import MAP_FRAME, map_frame_of
 from slzcli.outputs.run_folder import landing_record
@@ -49,8 +50,10 @@ class RunState:
     unvouched: int = 0                 # detection frames whose noise hides what the UAV cannot tolerate
     worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
     unvouched_reason: str = ""         # limits.limit_reason of that frame
+    highest: Working | None = None     # the highest detection frame's working scale (depth_limits without a site)
     column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
     method_reason: str = ""            # a method the maps do not gate (px4slp): why its latest frame gave no site
+    funnel: FunnelLog = field(default_factory=FunnelLog)  # what each filter left in each detection frame
 
 
 def versions() -> dict[str, str]:
@@ -123,14 +126,19 @@ def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
         return f"{st.method_reason} (the last of {st.detections} detection frames without a site)"
     if st.unvouched and st.unvouched == st.detections:
         return st.unvouched_reason
+    funnel = st.funnel.reason(st.unvouched_reason)   # the step that removed the most, what would change it
+    if funnel is not None and st.funnel.mask_always_empty():
+        return funnel
     if not keyframes:
         reason = f"the {slam_name} backend gave no keyframe with map points"
+    elif funnel is not None:
+        reason = funnel
     elif not st.sites.rows:
         reason = "no SLAM map point of any keyframe fell on the landing mask"
     else:
         reason = "no cluster of mask-filtered map points met the footprint in any detection frame"
     cut = st.column_cut
-    if keyframes and cut is not None and cut >= _COLUMN_CUT_NOTED:
+    if keyframes and cut is not None and cut >= _COLUMN_CUT_NOTED and "final descent's column" not in reason:
         reason += (f"; the final descent's column (control.desired_depth_m above the ground) was out of view "
                    f"over {cut:.0%} or more of the ground the maps called safe: close to the ground the view is "
                    "too narrow to see what may overhang a site, a higher frame sees more")
@@ -201,7 +209,8 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
         "outputs": config.output.level,
         "depth_noise": noise,
-        "depth_limits": landing.get("site", {}).get("depth_limits") or noise.get("not_vouched"),
+        "depth_limits": landing.get("site", {}).get("depth_limits") or noise.get("not_vouched")
+        or (None if st.highest is None else st.highest.as_dict()),
         "pairing": {"paired": report.paired, "unpaired_color": report.unpaired_color,
                     "unpaired_depth": report.unpaired_depth, "undecodable": report.undecodable,
                     "outside_window": report.outside_window, "notes": list(report.notes)},
@@ -210,5 +219,5 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
         summary["ground_truth"] = truth.summary(st.trajectory.poses(), st.trajectory.segments().tolist(),
                                                 landing.get("site"))
     run = {"summary": summary, "config_hash": config.hash(), "key": key, "versions": versions(),
-           "config": config.to_dict(), "recording": info.to_dict(), "timings": timing}
+           "config": config.to_dict(), "recording": info.to_dict(), "timings": timing, "funnel": st.funnel.as_dict()}
     return RunResult(landing, run, committed, primary, primary if len(table) > 1 else None)

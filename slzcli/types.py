@@ -273,6 +273,38 @@ class TerrainMaps:
         return {name: getattr(self, name) for name in self.NAMES}
 
 
+MASK_STEPS = ("depth", "threshold", "footprint", "column", "noise")  # the landing mask's steps (slzcli.funnel)
+
+
+@dataclass(frozen=True)
+class MaskFunnel:
+    """The pixels each mask step left in one frame (``left``, one per ``MASK_STEPS``, non-increasing) and
+    what the reason needs to say what would change it: the threshold and the best score against it (None:
+    some pixel was above it), the
+    footprint square's side and the column's height (m), and the frame's median depth (m, None: no depth)."""
+
+    pixels: int
+    left: tuple[int, ...]
+    threshold: float
+    best_score: float | None
+    side_m: float
+    column_m: float | None   # None: the column rule did not run (mask.clearance: image)
+    depth_m: float | None
+    view_m: tuple[float, float] | None  # the view's width and height at depth_m (m)
+
+    def removed(self) -> dict[str, int]:
+        """Pixels each step (but ``depth``) removed."""
+        return {s: self.left[i - 1] - self.left[i] for i, s in enumerate(MASK_STEPS) if i}
+
+    def emptied_by(self) -> str | None:
+        """The step that left no pixel while the one before it left some (None: the mask is not empty, or
+        no pixel had depth)."""
+        for i in range(1, len(MASK_STEPS)):
+            if self.left[i] == 0:
+                return MASK_STEPS[i] if self.left[i - 1] > 0 else None
+        return None
+
+
 @dataclass(frozen=True, eq=False)
 class ScoreMap:
     """A fused landing score (float32 HxW in [0, 1]) and the binary landing mask made from it."""
@@ -281,6 +313,7 @@ class ScoreMap:
     score: np.ndarray
     mask: np.ndarray
     column_cut: float = 0.0  # fraction of the otherwise-safe pixels whose descent column was out of view
+    funnel: MaskFunnel | None = None  # the pixels each mask step left (slzcli.funnel); None: not counted (px4slp)
 
 
 # ----------------------------------------------------------------------------- SLAM
@@ -337,6 +370,7 @@ class Candidate:
     extent_m: tuple[float, float]
     qualifies: bool
     reason: str
+    test: str = ""  # the first test it failed: points | normals | extent | centroid ("" = qualifies)
 
 
 @dataclass(frozen=True)
@@ -366,6 +400,7 @@ class Selection:
     projected: np.ndarray  # (N, 2) pixels of all map points in the image
     kept: np.ndarray       # (N,) bool: under the mask
     labels: np.ndarray     # (N,) int: cluster of each kept point, -1 for the rest
+    in_view: int = 0       # map points in front of the camera and inside the image
 
 
 @dataclass(frozen=True)

@@ -58,8 +58,8 @@ def test_layers_apply_in_the_documented_order(tmp_path: Path) -> None:
 
 
 def test_unknown_profile_is_refused_naming_the_known_ones(runner: Any) -> None:
-    assert profile_names()[:2] == ["default", "paper"]
-    with pytest.raises(ConfigError, match=r"did you mean 'paper'.*known: default, paper"):
+    assert profile_names() == ["default", "bench", "paper"]
+    with pytest.raises(ConfigError, match=r"did you mean 'paper'.*known: default, bench, paper"):
         load_config(profile="papr")
     res = runner.invoke(main, ["config", "dump", "--profile", "papr"])
     assert res.exit_code == 1 and res.output.count("\n") == 1 and "--profile" in res.output

@@ -68,6 +68,10 @@ def test_the_api_and_slz_detect_write_the_same_landing_json(runner, recording, t
     with open_recording(recording, config) as rec:
         frames = list(rec.frames())
     in_memory = slzcli.detect(iter(frames), config, method="bayes").landing
+    if profile == "bench":  # a 0.2 m vehicle from 10 m: the depth noise hides its 0.027 m steps, and both say so
+        assert in_memory["status"] == cli["status"] == "no_safe_site"
+        assert in_memory["reason"] == cli["reason"] and "hides steps below" in cli["reason"]
+        return
     assert in_memory["status"] == cli["status"] == "site"
     assert in_memory["site"]["center_world"] == cli["site"]["center_world"]
     assert in_memory["frame"] == cli["frame"] and in_memory["site"]["support"] == cli["site"]["support"]

@@ -80,7 +80,8 @@ def grid_site(hysteresis: np.ndarray, mean: np.ndarray, position: np.ndarray, ce
     if chosen is None:
         return Selection(None, f"no disk of {2 * radius_cells + 1} cells ({(2 * radius_cells + 1) * cell_m:g} m) "
                                "land-able in every cell on the planner's search rays (upstream would fly its "
-                               "spiral search; a recording cannot)", (), pixels, kept, labels)
+                               "spiral search; a recording cannot)", (), pixels, kept, labels,
+                         int(np.count_nonzero(inside)))
     offset = np.asarray(chosen)
     disk = patch_disk(radius_cells)
     centre_cell = n // 2 + offset
@@ -108,7 +109,7 @@ def grid_site(hysteresis: np.ndarray, mean: np.ndarray, position: np.ndarray, ce
         acceptance_reason="passed (px4slp: every cell of the disk land-able; upstream has no tilt or edge test)")
     candidate = Candidate(0, int(members.sum()), _vec3(centre), normal_var, extent, True,
                           f"disk at ({offset[0]:+d}, {offset[1]:+d}) cells from the vehicle land-able")
-    return Selection(site, "", (candidate,), pixels, kept, labels)
+    return Selection(site, "", (candidate,), pixels, kept, labels, int(np.count_nonzero(inside)))
 
 
 def _patch_normal(heights: np.ndarray, disk: np.ndarray, cell_m: float) -> tuple[np.ndarray, float]:

@@ -95,7 +95,7 @@ def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray
     iu = np.round(pixels[inside]).astype(int)
     kept[np.flatnonzero(inside)] = mask[iu[:, 1], iu[:, 0]]
     labels = np.full(n, -1)
-    empty = Selection(None, "", (), pixels, kept, labels)
+    empty = Selection(None, "", (), pixels, kept, labels, int(np.count_nonzero(inside)))
     n_kept = int(kept.sum())
     if n_kept < params.min_cluster_points:
         why = (f"only {n_kept} of {n} SLAM map points lie on the landing mask "
@@ -117,14 +117,14 @@ def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray
     good = [c for c in candidates if c.qualifies]
     if not good:
         reasons = "; ".join(f"cluster {c.cluster}: {c.reason}" for c in candidates)
-        return Selection(None, f"no cluster qualifies ({reasons})", tuple(candidates), pixels, kept, labels)
+        return replace(empty, reason=f"no cluster qualifies ({reasons})", candidates=tuple(candidates))
     if params.rule == "largest":
         best = max(good, key=lambda c: (c.points, -c.normal_variance))
     else:
         best = min(good, key=lambda c: (c.normal_variance, -c.points))
     member = lab == best.cluster
     site = _site(best, pts[member], normals[member], T_world_camera, K, score, params, up, edge_distance_m)
-    return Selection(site, "", tuple(candidates), pixels, kept, labels)
+    return replace(empty, site=site, candidates=tuple(candidates))
 
 
 def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndarray, params: SelectParams,
@@ -133,19 +133,20 @@ def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndar
     extent = np.ptp(pts[:, :2], axis=0) if len(pts) else np.zeros(2)
     good_n = normals[np.all(np.isfinite(normals), axis=1)]
     variance = float(1.0 - np.sum(good_n.mean(axis=0) ** 2)) if len(good_n) >= 3 else float("nan")
-    reason = ""
+    reason = test = ""
     if len(pts) < params.min_cluster_points:
-        reason = f"{len(pts)} points (< {params.min_cluster_points})"
+        reason, test = f"{len(pts)} points (< {params.min_cluster_points})", "points"
     elif not np.isfinite(variance):
-        reason = f"fewer than 3 points with a normal within {params.normal_radius_m} m"
+        reason, test = f"fewer than 3 points with a normal within {params.normal_radius_m} m", "normals"
     elif np.any(extent < min_extent):
         reason = f"extent {extent[0]:.2f} x {extent[1]:.2f} m below {min_extent[0]:.2f} x {min_extent[1]:.2f} m"
+        test = "extent"
     else:
         (uv,), (inside,) = project(centroid[None], T_world_camera, K, mask.shape)
         if not inside or not mask[round(float(uv[1])), round(float(uv[0]))]:
-            reason = "centroid falls on a pixel the mask rejects"
+            reason, test = "centroid falls on a pixel the mask rejects", "centroid"
     return Candidate(c, len(pts), _vec3(centroid), variance, (float(extent[0]), float(extent[1])),
-                     reason == "", reason or "qualifies")
+                     reason == "", reason or "qualifies", test)
 
 
 def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray,

@@ -1,10 +1,11 @@
 """report.html of a ``slz detect`` run folder: one static page to read a run without a viewer.
 
-Sections: the result (site or why not), the paper's Figure 5 panel for one frame (the four
-terrain maps, the score and the mask, the slope and the overlay, with colour bars and units),
-the trajectory from above with the sites (SVG), the table of every site found, each detection's
-overlay, the stage times. Built at the end of the run from what the run already holds or has
-written (the RunResult, the site log, the pose log, frames/NNNNNN/maps.npz and overlay.png):
+Sections: the result (site or why not), the funnel (what each filter left: ``outputs/funnel_html.py``),
+the paper's Figure 5 panel for one frame (the four terrain maps, the score and the mask, the slope and
+the overlay, with colour bars and units), the trajectory from above with the sites (SVG), the table of
+every site found, each detection's overlay, the stage times. Built at the end of the run from what the
+run already holds or has written (the RunResult, the site log, the pose log, frames/NNNNNN/maps.npz and
+overlay.png):
 one panel is drawn (for the committed site's frame, or the last detection frame without a
 site), with OpenCV from one maps.npz; overlays are linked, not copied. At
 ``--outputs summary`` there are no frame files: the page says so and shows the rest.
@@ -22,6 +23,7 @@ import numpy as np
 
 from slzcli.outputs import images, palette
 from slzcli.outputs.files import write_text
+from slzcli.outputs.funnel_html import funnel_section
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
 from slzcli.render import height_text
@@ -41,7 +43,7 @@ SITE_HEX = palette.hex_of(palette.SITE)
 PANEL_JPEG_QUALITY = 85
 MAP_TITLES = {"depth_variance": "depth variance", "flatness": "flatness", "inclination": "inclination",
               "steepness": "steepness"}
-SECTIONS = ("result", "figure5", "trajectory", "sites", "detections", "timings")
+SECTIONS = ("result", "funnel", "figure5", "trajectory", "sites", "detections", "timings")
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:24px auto;max-width:1200px;color:#222}
 h1{font-size:22px;margin-bottom:4px} h2{font-size:18px;margin-top:28px;border-bottom:1px solid #ccc}
@@ -67,7 +69,7 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
     page = _template().render(
         name=Path(s["source"]).name, css=Markup(CSS),
         # the picture sections are drawn here (image panel, SVG); the rest is the template's
-        result=Markup(_result(s, landing)),
+        result=Markup(_result(s, landing)), funnel=Markup(funnel_section(result.run.get("funnel"))),
         figure5=Markup(_figure5(run_dir, panel_frame, committed is not None and
                                 committed.frame.index == panel_frame, level, reverse)),
         trajectory=Markup(_trajectory(trajectory, sites, committed, result.primary_segment)),

@@ -28,6 +28,8 @@ and nothing is drawn in a frame it is not in. The committed site is in its segme
     /slz/candidates                 sensor_msgs/PointCloud2      map points under the mask (map),
                                                                  field ``cluster`` = k-means label
     /slz/site                       visualization_msgs/MarkerArray   this detection's site and square
+    /slz/funnel                     std_msgs/String              what each filter left (run.json funnel's
+                                                                 row of the frame, JSON)
     /slz/landing_site               visualization_msgs/MarkerArray   the committed site (landing.json)
     /slz/camera_pose                geometry_msgs/PoseStamped    every tracked frame (map)
     /tf                             tf2_msgs/TFMessage           map -> camera (map_K -> camera_K in map
@@ -50,6 +52,7 @@ a pose have no /tf, so their clouds stay in the camera frame.
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 from types import TracebackType
@@ -60,6 +63,7 @@ import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError, OutputError
+from slzcli.funnel import frame_funnel
 from slzcli.geometry import Pose, back_project_every, invert_pose
 from slzcli.outputs import palette
 from slzcli.outputs.overlay import detection_overlay_bgr
@@ -72,6 +76,7 @@ CAMERA_FRAME = "camera"  # the camera's frame id when the recording names none (
 TOPIC = "/slz"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+STRING = "std_msgs/msg/String"
 FLOAT32 = 7  # sensor_msgs/PointField FLOAT32
 BYTE_MAX = 255.0  # mono8 full scale: a map value v in [0, 1] is written as round(v * 255)
 # The colour image and the overlay (pictures, module docstring): OpenCV's default JPEG quality, the one `slz synth
@@ -181,6 +186,8 @@ class ResultsMcap:
             colour = ACCEPTED_RGBA if site.accepted else REJECTED_RGBA
             label = f"score {site.score:.2f}" + ("" if site.accepted else f" ({site.acceptance_reason})")
             self._markers("site", site, colour, label, stamp, world)
+        row = json.dumps(frame_funnel(det).as_dict(), separators=(",", ":"))
+        self._raw("funnel", STRING, self.writer.message(STRING, data=row), stamp)
 
     # ------------------------------------------------------------------ end of run
     def write_pose(self, stamp: int, T: np.ndarray | None, segment: int = 0,

@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from slzcli.config import Config
+from slzcli.funnel import frame_funnel
 from slzcli.methods.base import Method
 from slzcli.outputs.site_log import SiteLog
 from slzcli.summary import RunState
@@ -61,8 +62,11 @@ def tally(state: RunState, det: Detection, method: Method, config: Config) -> No
         if worst is None or work.altitude_m > worst.altitude_m:
             state.worst_unvouched = work
             state.unvouched_reason = limit_reason(work, config.terrain, config.uav)
+    if method.reads_maps and work is not None and (state.highest is None or work.altitude_m > state.highest.altitude_m):
+        state.highest = work
     for name, ms in det.timings_ms.items():
         state.timer.add(name, ms)
+    state.funnel.add(frame_funnel(det))
     state.detections += 1
     state.detections_without_depth += not det.maps.valid.any()
     record(state.sites, det)

@@ -8,13 +8,14 @@ pixels without depth (``valid`` False) score 0. ``score_frame`` adds the landing
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError
+from slzcli.funnel import MaskFunnel, mask_funnel
 from slzcli.geometry import valid_depth
 from slzcli.scoring import bayes, closed_form, fuzzy, lut
 from slzcli.scoring.mask import camera_points, column_in_view, landing_mask
@@ -143,33 +144,73 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     whole frame when it cannot vouch, else the pixels beyond its ``vouch_depth_m``).
     ``up_camera``: world up in the camera frame, for ``mask.clearance: plan`` (without it: image).
     The plan-view filter runs on m x m block means of score and depth (``mask.plan_samples_per_cell``),
-    its mask upsampled (nearest) and cut to the pixels with depth.
+    its mask upsampled (nearest) and cut to the pixels with depth. The ScoreMap's ``funnel`` counts the
+    pixels each step left (``slzcli.funnel``).
     """
     depth = np.asarray(depth_m)
     mc = config.mask
+    threshold = scorer.threshold(config)
+    above = int(np.count_nonzero(np.greater(score, threshold)))  # the funnel's count, while the score is in cache
+    valid = valid_depth(depth)
     if mc.clearance == "plan" and up_camera is not None:
         m = plan_block_px(depth, intrinsics, config)
         if m > 1:
-            h, w = depth.shape
-            valid = valid_depth(depth)
             depth_b, _ = block_depth(depth, valid, m)
             score_b = cv2.resize(np.asarray(score, np.float32), depth_b.shape[::-1], interpolation=cv2.INTER_AREA)
-            sm = _mask(scorer, score_b, depth_b, fit_intrinsics(intrinsics, depth_b.shape), config, up_camera)
-            mask = cv2.resize(sm.mask.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
-            np.logical_and(mask, valid, out=mask)
+            sm, before_b = _mask(scorer, score_b, depth_b, fit_intrinsics(intrinsics, depth_b.shape), config,
+                                 up_camera)
+            mask, footprint = _upsampled(sm.mask, before_b, valid)
             sm = ScoreMap(sm.method, score, mask, sm.column_cut)
         else:
-            sm = _mask(scorer, score, depth, intrinsics, config, up_camera)
+            sm, before = _mask(scorer, score, depth, intrinsics, config, up_camera)
+            footprint = None if before is None else int(np.count_nonzero(before))
     else:
-        sm = _mask(scorer, score, depth, intrinsics, config, None)
-    if work is None:
-        return sm
-    if not work.vouched:
-        return ScoreMap(sm.method, sm.score, np.zeros_like(sm.mask), sm.column_cut)
-    if math.isfinite(work.vouch_depth_m):
+        sm, _ = _mask(scorer, score, depth, intrinsics, config, None)
+        footprint = None
+    column = int(np.count_nonzero(sm.mask))
+    if work is not None and not work.vouched:
+        sm = ScoreMap(sm.method, sm.score, np.zeros_like(sm.mask), sm.column_cut)
+    elif work is not None and math.isfinite(work.vouch_depth_m):
         with np.errstate(invalid="ignore"):
             np.logical_and(sm.mask, depth <= work.vouch_depth_m, out=sm.mask)
-    return sm
+    plan = mc.clearance == "plan" and up_camera is not None
+    return replace(sm, funnel=_funnel(score, depth, valid, threshold, above, footprint, column, sm.mask, intrinsics,
+                                      config, plan, work))
+
+
+def _upsampled(mask_b: np.ndarray, before_b: np.ndarray | None, valid: np.ndarray) -> tuple[np.ndarray, int | None]:
+    """A block-grid mask at the full resolution (nearest), cut to the pixels with depth, and the full-resolution
+    pixels of ``before_b`` (the mask before the column rule, a superset; None: no count): one resize of both."""
+    h, w = valid.shape
+    if before_b is None:
+        mask = cv2.resize(mask_b.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
+        np.logical_and(mask, valid, out=mask)
+        return mask, None
+    up = cv2.resize(mask_b.view(np.uint8) + before_b.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+    np.multiply(up, valid, out=up)      # 2: in the mask, 1: only before the column rule, 0: neither or no depth
+    before = int(np.count_nonzero(up))
+    mask = up.view(bool)
+    np.equal(up, 2, out=mask)           # in place: no new full-size array (their page faults cost more)
+    return mask, before
+
+
+def _funnel(score: np.ndarray, depth: np.ndarray, valid: np.ndarray, threshold: float, above: int,
+            footprint: int | None, column: int, final: np.ndarray, intrinsics: Intrinsics, config: Config, plan: bool,
+            work: Working | None) -> MaskFunnel:
+    """The pixels each mask step left (``slzcli.funnel``). ``footprint`` None: no column rule ran, so the
+    footprint step left what the column step did; ``above``: the pixels whose score is above the threshold.
+    The score is 0 where there is no depth: its maximum and the pixels above the threshold are those of the
+    pixels with depth; the maximum is taken only when no pixel is above (what the no-site reason quotes).
+    The median depth is the working scale's (the same median), measured here only without one."""
+    depth_px = int(np.count_nonzero(valid))
+    best = float(np.max(score)) if above == 0 and score.size else None   # what the reason needs: below it
+    uav = config.uav
+    side = config.mask.margin_factor * max(uav.footprint_m) + 2.0 * uav.clearance_m
+    d = work.altitude_m if work is not None else median_depth_m(depth)
+    view = None if d is None else (intrinsics.width * d / intrinsics.fx, intrinsics.height * d / intrinsics.fy)
+    counts = (depth_px, above, column if footprint is None else footprint, column, int(np.count_nonzero(final)))
+    return mask_funnel(valid.size, counts, threshold, best, side, config.control.desired_depth_m if plan else None,
+                       d, view)
 
 
 def plan_block_px(depth_m: np.ndarray, intrinsics: Intrinsics, config: Config) -> int:
@@ -190,8 +231,9 @@ def plan_block_px(depth_m: np.ndarray, intrinsics: Intrinsics, config: Config) -
 
 
 def _mask(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, config: Config,
-          up_camera: np.ndarray | None) -> ScoreMap:
-    """Footprint filter, threshold and column rule of a score and the depth image it is on."""
+          up_camera: np.ndarray | None) -> tuple[ScoreMap, np.ndarray | None]:
+    """Footprint filter, threshold and column rule of a score and the depth image it is on; and the mask
+    before the column rule (None: the rule did not run)."""
     mc = config.mask
     plan = points = None
     if mc.clearance == "plan" and up_camera is not None:
@@ -200,10 +242,13 @@ def _mask(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsics: In
     sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
                       mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan,
                       margin_m=config.uav.clearance_m, points=points)
-    if plan is not None:   # the final descent's column must have been in view (control.desired_depth_m hover)
-        before = int(sm.mask.sum())
-        np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], config.control.desired_depth_m,
-                                               points=points, among=sm.mask), out=sm.mask)
-        if before:
-            sm = ScoreMap(sm.method, sm.score, sm.mask, 1.0 - int(sm.mask.sum()) / before)
-    return sm
+    if plan is None:
+        return sm, None
+    # the final descent's column must have been in view (control.desired_depth_m hover)
+    footprint = sm.mask.copy()
+    before = int(np.count_nonzero(footprint))
+    np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], config.control.desired_depth_m,
+                                           points=points, among=sm.mask), out=sm.mask)
+    if before:
+        sm = ScoreMap(sm.method, sm.score, sm.mask, 1.0 - int(np.count_nonzero(sm.mask)) / before)
+    return sm, footprint

@@ -1,0 +1,58 @@
+"""report.html's funnel section: per detection frame, what each filter between the depth and a site left.
+
+Read from run.json's ``funnel`` (``slzcli.funnel.FunnelLog.as_dict``): one row per detection frame (the first
+``MAX_ROWS``; all of them are in run.json), the sums over the run first.
+"""
+
+from __future__ import annotations
+
+import html
+from typing import Any
+
+MAX_ROWS = 200  # display only: a long recording's rows stay in run.json
+COLUMNS = ("frame", "px with depth", "above threshold", "footprint clear", "column in view", "noise limits (mask)",
+           "emptied by", "map points: keyframe / in view / on mask", "clusters (failed test)", "site")
+
+
+def funnel_section(funnel: dict[str, Any] | None) -> str:
+    """The section's HTML ("" without a funnel: a run folder of an older slz)."""
+    if not funnel:
+        return ""
+    frames = funnel.get("frames") or []
+    head = "<h2 id=funnel>Funnel: what each filter left</h2>"
+    if not frames:
+        return head + "<p class=note>No detection frame.</p>"
+    mp = funnel.get("map_points") or {}
+    failed = funnel.get("clusters_failed") or {}
+    total = ["all", *(str(v) for v in (funnel.get("mask_px") or {}).values()),
+             ", ".join(f"{k} {v}" for k, v in (funnel.get("frames_emptied_by") or {}).items() if v) or "-",
+             f"{mp.get('keyframe', 0)} / {mp.get('in_view', 0)} / {mp.get('on_mask', 0)}",
+             f"{funnel.get('clusters', 0)}" + (f" ({', '.join(f'{k} {v}' for k, v in failed.items())})" if failed
+                                                else ""), ""]
+    rows = [_row(total, " style=font-weight:600")] + [_row(_cells(f)) for f in frames[:MAX_ROWS]]
+    more = f" The first {MAX_ROWS} of {len(frames)} frames are shown; run.json has every one." \
+        if len(frames) > MAX_ROWS else ""
+    th = "".join(f"<th>{html.escape(c)}</th>" for c in COLUMNS)
+    return (head + "<p class=note>Pixels of each detection frame left after each step of the landing mask, in "
+            "order (the score threshold, the footprint square's clearance, the final descent's column in view, "
+            "the depth noise limits), then the SLAM map points on the mask, the k-means clusters and the first "
+            "test each failed, and the site's acceptance test (docs/DESIGN.md, run.json funnel). The first row "
+            f"sums the run.{more}</p><table><tr>{th}</tr>{''.join(rows)}</table>")
+
+
+def _cells(f: dict[str, Any]) -> list[str]:
+    px = f.get("mask_px")
+    mask = [str(v) for v in px.values()] if px else ["-"] * 5
+    mp = f.get("map_points")
+    points = f.get("note", "-") if mp is None else f"{mp['keyframe']} / {mp['in_view']} / {mp['on_mask']}"
+    clusters = f.get("clusters") or []
+    tests = [c["failed"] for c in clusters if c["failed"]]
+    cl = f"{len(clusters)}" + (f" ({', '.join(tests)})" if tests else "")
+    site = f.get("site")
+    what = "-" if site is None else ("accepted" if site["accepted"] else f"not accepted: {site['reason']}")
+    return [str(f["frame"]), *mask, f.get("emptied_by") or "-", points, cl, what]
+
+
+def _row(cells: list[str], cls: str = "") -> str:
+    tds = "".join(f"<td{' class=l' if i >= 6 else ''}>{html.escape(c)}</td>" for i, c in enumerate(cells))
+    return f"<tr{cls}>{tds}</tr>"
