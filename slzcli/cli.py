@@ -375,12 +375,13 @@ def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: 
              stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
     """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames
     (within --start/--end/--stride/--max-frames when given)."""
+    from slzcli import gravity
     from slzcli.sources import open_recording
     from slzcli.sources.info_text import info_text
 
     config = _windowed(config, win_start, win_end, stride, max_frames)
     with open_recording(bag, config) as rec:
-        info = rec.info()
+        info = gravity.apply(bag, rec, rec.info(), config)[1]
     return info.to_dict(), info_text(info)
 
 
@@ -844,6 +845,10 @@ def _detect_text(out: Path, s: dict[str, Any]) -> str:
     else:
         result = f"no safe site: {s['reason']}"
     lines = [head, "  " + result]
+    gv = s.get("gravity")
+    if gv:
+        apart = f" ({len(gv['disagreements'])} disagreement(s): see the warnings)" if gv["disagreements"] else ""
+        lines.append(f"  gravity: {gv['source']}, camera tilted {gv['tilt_deg']:.1f} deg from straight down{apart}")
     noise, lim = s.get("depth_noise") or {}, s.get("depth_limits")
     if lim:
         a = noise.get("a_per_m_median", noise.get("a_per_m"))

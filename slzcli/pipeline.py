@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from slzcli import fingerprint
+from slzcli import fingerprint, gravity
 from slzcli.config import Config
 from slzcli.errors import DatasetError, OutputError
 from slzcli.evaluate.timing import StageTimer
@@ -74,7 +74,7 @@ from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunState, summarise
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.limits import limit_reason
-from slzcli.terrain.maps import frame_maps, gravity_up_in_camera
+from slzcli.terrain.maps import frame_maps, frame_up
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.timeout import StageLimit
 from slzcli.types import Detection, Frame, ScoreMap, TerrainMaps
@@ -167,12 +167,13 @@ class Tracker:
         """The tracking time of the latest frame (ms)."""
         return self.timer.samples_ms["slam"][-1]
 
-    def _world(self, T_slam_camera: np.ndarray | None, segment: int) -> np.ndarray | None:
+    def _world(self, T_slam_camera: np.ndarray | None, segment: int, frame: Frame) -> np.ndarray | None:
         if T_slam_camera is None:
             return None
-        if segment not in self.align:
+        if segment not in self.align:  # the frame's own gravity (frame_up: no pose yet, so the recording's)
             self.align[segment] = np.eye(4) if self.poses_are_recorded else \
-                gravity_alignment(gravity_up_in_camera(None, self.config.camera.mount)) @ invert_pose(T_slam_camera)
+                gravity_alignment(frame_up(replace(frame, T_world_camera=None), self.config.camera.mount)) @ \
+                invert_pose(T_slam_camera)
         return self.align[segment] @ T_slam_camera
 
     def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
@@ -200,7 +201,7 @@ class Tracker:
         self.timer.add("slam_wait", waited)
         if result.segment != self._segment:  # a new map: the old map's points are in another frame
             self._segment, self._points = result.segment, None
-        T = self._world(result.T_world_camera, self._segment)
+        T = self._world(result.T_world_camera, self._segment, frame)
         self.frames += 1
         self.trajectory.append(frame.stamp_ns, T, self._segment)
         self.tracking[result.state.value] = self.tracking.get(result.state.value, 0) + 1
@@ -548,7 +549,7 @@ def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any,
     ``config`` with what the recording decides: the camera preset's depth noise prior and the frame period
     ORB-SLAM3 is told (``slam.orbslam3.nominal_period_s: auto``)."""
     rec = stack.enter_context(open_recording(path, config))
-    info = rec.info()
+    rec, info, config = gravity.apply(path, rec, rec.info(), config)  # world up: IMU, poses, scene or mount
     config = with_frame_period(with_noise_prior(config, info.camera_preset), info)
     return rec, info, has_recorded_clouds(info, config), config
 

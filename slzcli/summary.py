@@ -165,6 +165,7 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
         "slam": slam_summary(slam_name, table, primary, trajectory_files(st.trajectory), config.output.map_frame),
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
         "outputs": config.output.level,
+        "gravity": getattr(info, "gravity", None),  # source, camera tilt, disagreements (slzcli/gravity.py)
         "depth_noise": noise,
         "depth_limits": landing.get("site", {}).get("depth_limits") or noise.get("not_vouched"),
         "pairing": {"paired": report.paired, "unpaired_color": report.unpaired_color,
