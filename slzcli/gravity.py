@@ -128,11 +128,13 @@ def _imu(rec: Any, config: Config, found: dict[str, g.Estimate], unavailable: di
     if not hasattr(rec, "log"):  # a TUM folder: no IMU slz reads
         unavailable["imu"] = "this format carries no sensor_msgs/Imu"
         return None
-    from slzcli.sources.imu import read_imu
+    from slzcli.sources.imu import NO_IMU, read_imu
 
     samples = read_imu(rec, cfg)
     if isinstance(samples, str):
         unavailable["imu"] = samples
+        if samples != NO_IMU:  # there is an IMU, and it cannot be used: say so
+            log.warning("IMU not used for gravity: %s", samples)
         return None
     blocks = g.quiet_blocks(samples.stamps_ns, samples.accel, samples.gyro_stamps_ns, samples.gyro, cfg)
     quiet = len(blocks.stamps_ns)

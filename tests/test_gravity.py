@@ -23,6 +23,7 @@ from slzcli.synth.imu import imu_track
 from slzcli.terrain import gravity as g
 from slzcli.terrain import maps as tm
 from slzcli.terrain.geometry import back_project
+from slzcli.types import Intrinsics
 
 CONFIG = load_config()
 GRAV = CONFIG.camera.gravity
@@ -91,7 +92,7 @@ def test_an_imu_in_g_units_is_not_used_and_said_why() -> None:
 
 
 # ----------------------------------------------------------------------------- the scene's plane
-def _plane_depth(up: np.ndarray, height_m: float, shape: tuple[int, int] = (120, 160)) -> tuple[np.ndarray, object]:
+def _plane_depth(up: np.ndarray, height_m: float, shape: tuple[int, int] = (120, 160)) -> tuple[np.ndarray, Intrinsics]:
     """Depth of level ground ``height_m`` below a camera whose world up is ``up``, with a box on it."""
     intr = known_frame().intrinsics.scaled(shape[1], shape[0])
     rays = back_project(np.ones(shape, np.float32), intr)  # z = 1 rays
@@ -269,9 +270,8 @@ def detect(runner, rec: Path, out: Path, *options: str) -> tuple[dict, str]:
 
 
 # (scene, pitch, roll, seed, imu): tilts of 24 to 30 deg, three seeds, both ways of finding gravity.
-# Measured over 3 seeds x 4 tilts x IMU/scene (docs/METHOD.md "Gravity", /tmp runs of benchmarks-like
-# script): every site safe, mask precision >= 0.99, gravity within 1.9 deg of the mount; the bound
-# below is the issue's 0.95.
+# Measured over 3 seeds x 4 mounts x IMU/scene (docs/METHOD.md "Gravity from the recording"): every site
+# safe, mask precision >= 0.99; the bound below is the issue's 0.95.
 FLIGHTS = [("parking_lot", 22, 9, 0, True), ("playground", 15, -25, 1, False), ("parking_lot", 0, 30, 2, True)]
 
 
@@ -282,8 +282,10 @@ def test_a_tilted_flight_gives_a_truly_safe_site(tmp_path: Path, runner, scene: 
     s, err = detect(runner, rec, tmp_path / "run")
     gv = s["gravity"]
     assert gv["source"] == ("imu" if imu else "scene")
-    assert g.angle_deg(np.array(gv["up_camera"]), up_of(pitch, roll)) < 3.0  # measured <= 1.9 deg
-    assert gv["tilt_deg"] == pytest.approx(g.angle_deg(up_of(pitch, roll), g.DOWN), abs=3.0)
+    # measured against the mount over 3 seeds x 4 mounts: IMU <= 2.4 deg, scene <= 1.0 deg (the vehicle's 1.5 deg
+    # wobble and the IMU's 0.1 m/s^2 bias are in it: the truth at a frame is not the mount alone)
+    assert g.angle_deg(np.array(gv["up_camera"]), up_of(pitch, roll)) < 4.0
+    assert gv["tilt_deg"] == pytest.approx(g.angle_deg(up_of(pitch, roll), g.DOWN), abs=4.0)
     assert s["status"] == "site" and s["ground_truth"]["site"]["safe"]
     assert s["ground_truth"]["mask"]["precision"] >= 0.95
     assert ("gravity from the scene alone" in err) == (not imu)
@@ -350,6 +352,7 @@ def test_real_frames_as_a_realsense_bag_give_a_level_floor(realsense_dir: Path, 
         for i, name in enumerate(sorted((realsense_dir / "color").glob("*.png"))):
             bgr = cv2.imread(str(name), cv2.IMREAD_COLOR)
             raw = cv2.imread(str(realsense_dir / "depth" / name.name), cv2.IMREAD_UNCHANGED)
+            assert bgr is not None and raw is not None
             depth = np.where(raw > 0, raw * 0.001, np.nan).astype(np.float32)
             w.write_frame(Frame(i, T0_NS + i * 33_333_333, bgr[:, :, ::-1].copy(), depth, intr))
     with open_recording(path, CONFIG) as rec:

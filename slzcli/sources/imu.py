@@ -29,6 +29,7 @@ from slzcli.sources.topics import TRANSFORM, is_ground_truth, normalise_msgtype
 log = logging.getLogger(__name__)
 IMU = "sensor_msgs/msg/Imu"
 TF_TOPIC = "/tf"
+NO_IMU = "no sensor_msgs/Imu topic"
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,7 +80,7 @@ def read_imu(rec: Any, cfg: ImuGravityCfg) -> ImuSamples | str:
     if chosen is None:
         if cfg.topic:
             return f"camera.gravity.imu.topic {cfg.topic} is not in the recording"
-        return "no sensor_msgs/Imu topic"
+        return NO_IMU
     accel_topic, gyro_topic = chosen
     if normalise_msgtype(topics[accel_topic]) != IMU:
         return f"{accel_topic} is {topics[accel_topic]}, not sensor_msgs/Imu"
