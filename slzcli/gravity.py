@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from slzcli.config import Config
-from slzcli.errors import DatasetError
+from slzcli.errors import DatasetError, SlzError
 from slzcli.terrain import gravity as g
 from slzcli.terrain.maps import gravity_up_in_camera
 from slzcli.types import Frame
@@ -108,6 +109,18 @@ def resolve_recording(path: Path, rec: Any, config: Config) -> RecordingGravity:
     return RecordingGravity(gravity, up_of)
 
 
+@contextmanager
+def _quiet_readers() -> Iterator[None]:
+    """The readers' warnings off while the first frames are read again: the run's own pass says them, once."""
+    logger = logging.getLogger("slzcli.sources")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
 def _imu_up_of(blocks: g.QuietBlocks, window_s: float) -> UpOf:
     return lambda frame: blocks.up_at(frame.stamp_ns, window_s)
 
@@ -130,7 +143,10 @@ def _imu(rec: Any, config: Config, found: dict[str, g.Estimate], unavailable: di
         return None
     from slzcli.sources.imu import NO_IMU, read_imu
 
-    samples = read_imu(rec, cfg)
+    try:
+        samples = read_imu(rec, cfg)
+    except SlzError as err:  # a damaged file: the frames' own pass says what it can still read
+        samples = f"the IMU could not be read ({err})"
     if isinstance(samples, str):
         unavailable["imu"] = samples
         if samples != NO_IMU:  # there is an IMU, and it cannot be used: say so
@@ -161,21 +177,25 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate], unavailabl
     planes: list[g.Plane] = []
     read = 0
     last = (cfg.frames - 1) * cfg.stride
-    with open_recording(path, config) as other:
-        frames = other.frames()
-        for frame in frames:
-            if frame.index > last:
-                break
-            if frame.index % cfg.stride:
-                continue
-            read += 1
-            if frame.T_world_camera is not None:
-                pose_ups.append(np.asarray(frame.T_world_camera, np.float64)[2, :3])
-            plane = g.dominant_plane(frame.depth_m, frame.intrinsics, prior, cfg.max_prior_deg, cfg,
-                                     cfg.seed + frame.index)
-            if plane is not None:
-                planes.append(plane)
-        getattr(frames, "close", lambda: None)()  # stop its decoding before the recording closes
+    try:
+        with _quiet_readers(), open_recording(path, config) as other:
+            frames = other.frames()
+            for frame in frames:
+                if frame.index > last:
+                    break
+                if frame.index % cfg.stride:
+                    continue
+                read += 1
+                if frame.T_world_camera is not None:
+                    pose_ups.append(np.asarray(frame.T_world_camera, np.float64)[2, :3])
+                plane = g.dominant_plane(frame.depth_m, frame.intrinsics, prior, cfg.max_prior_deg, cfg,
+                                         cfg.seed + frame.index)
+                if plane is not None:
+                    planes.append(plane)
+            getattr(frames, "close", lambda: None)()  # stop its decoding before the recording closes
+    except SlzError as err:  # the run's own pass over the frames reports it, once
+        unavailable["scene"] = unavailable["poses"] = f"the first frames could not be read ({err})"
+        return
     if pose_ups:
         up, members = g.agreeing(pose_ups, cfg.cluster_deg)
         spread = max(g.angle_deg(u, up) for u in pose_ups)

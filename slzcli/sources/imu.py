@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from slzcli.config import ImuGravityCfg
-from slzcli.errors import DecodeError
+from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources import decode, tf
 from slzcli.sources.topics import TRANSFORM, is_ground_truth, normalise_msgtype
 
@@ -144,7 +144,12 @@ def _read(msglog: Any, topic: str, limit: int, want_gyro: bool
 
 
 def _messages(msglog: Any, topic: str) -> Generator[Any, None, None]:
-    yield from msglog.messages([topic])
+    try:
+        yield from msglog.messages([topic])
+    except SlzError:
+        raise
+    except Exception as err:  # third-party reader errors (a damaged file), named once
+        raise DatasetError(msglog.path, f"cannot read {topic} ({type(err).__name__}: {err})") from err
 
 
 def _static_transforms(msglog: Any, topics: dict[str, str]
