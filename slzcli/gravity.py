@@ -38,6 +38,7 @@ class RecordingGravity:
 
     gravity: g.Gravity
     up_of: UpOf | None = None
+    world_fix: np.ndarray | None = None  # 3x3: recorded poses' world rotated to the IMU's up (None: as recorded)
 
     def config(self, config: Config) -> Config:
         """``config`` with ``camera.mount`` set to the gravity used (unchanged when it is the mount)."""
@@ -52,11 +53,13 @@ class RecordingGravity:
 
     def frames(self, frames: Iterator[Frame]) -> Iterator[Frame]:
         """Each frame with its own gravity attached (``Frame.up_camera``) where the source gives one."""
-        if self.up_of is None:
+        if self.up_of is None and self.world_fix is None:
             yield from frames
             return
         for frame in frames:
-            yield dataclasses.replace(frame, up_camera=self.up_of(frame))
+            if self.world_fix is not None and frame.T_world_camera is not None:
+                frame = _rotated(frame, self.world_fix)
+            yield frame if self.up_of is None else dataclasses.replace(frame, up_camera=self.up_of(frame))
 
 
 class GravityRecording:
@@ -89,12 +92,23 @@ def resolve_recording(path: Path, rec: Any, config: Config) -> RecordingGravity:
     found: dict[str, g.Estimate] = {}
     unavailable: dict[str, str] = {}
     blocks = _imu(rec, config, found, unavailable)
-    _frames(path, config, found, unavailable)
+    poses = _frames(path, config, found, unavailable)
     try:
         gravity = g.resolve(found, config.camera.mount, cfg, unavailable)
     except ValueError as err:
         raise DatasetError(path, str(err)) from None
     up_of: UpOf | None = None
+    fix = None
+    if gravity.source == "imu" and blocks is not None and "poses" in found and \
+            g.angle_deg(found["poses"].vector, gravity.up) > cfg.max_disagreement_deg:
+        # the poses' world is not level (a visual SLAM's first camera frame?): rotate it to the IMU's up, so
+        # that no map runs on a gravity the IMU contradicts
+        up_world = sum(R @ blocks.up_at(stamp, cfg.imu.window_s) for stamp, R in poses)
+        fix = g.rotation_between(np.asarray(up_world), np.array([0.0, 0.0, 1.0]))
+        turned = g.angle_deg(np.asarray(up_world), np.array([0.0, 0.0, 1.0]))
+        gravity = dataclasses.replace(gravity, warnings=(*gravity.warnings, (
+            f"gravity: the recorded poses' world z is {turned:.1f} deg from the IMU's up: their world is rotated "
+            "about its origin to the IMU's (the site's coordinates are in that rotated frame)")))
     if gravity.source == "imu" and blocks is not None:
         window = cfg.imu.window_s
         up_of = _imu_up_of(blocks, window)
@@ -106,7 +120,7 @@ def resolve_recording(path: Path, rec: Any, config: Config) -> RecordingGravity:
             "else the recording's"))
     elif gravity.source == "poses":
         gravity = dataclasses.replace(gravity, per_frame="each frame's recorded pose")
-    return RecordingGravity(gravity, up_of)
+    return RecordingGravity(gravity, up_of, fix)
 
 
 @contextmanager
@@ -119,6 +133,17 @@ def _quiet_readers() -> Iterator[None]:
         yield
     finally:
         logger.setLevel(level)
+
+
+def _rotated(frame: Frame, R: np.ndarray) -> Frame:
+    """A frame's recorded pose (and map cloud) in a world rotated by ``R`` about its origin."""
+    assert frame.T_world_camera is not None
+    fix = np.eye(4)
+    fix[:3, :3] = R
+    cloud = frame.map_points
+    if cloud is not None:
+        cloud = dataclasses.replace(cloud, xyz=np.asarray(cloud.xyz) @ R.T)
+    return dataclasses.replace(frame, T_world_camera=fix @ frame.T_world_camera, map_points=cloud)
 
 
 def _imu_up_of(blocks: g.QuietBlocks, window_s: float) -> UpOf:
@@ -167,13 +192,15 @@ def _imu(rec: Any, config: Config, found: dict[str, g.Estimate], unavailable: di
     return blocks
 
 
-def _frames(path: Path, config: Config, found: dict[str, g.Estimate], unavailable: dict[str, str]) -> None:
-    """The recorded poses' and the scene's estimates from the first frames."""
+def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
+            unavailable: dict[str, str]) -> list[tuple[int, np.ndarray]]:
+    """The recorded poses' and the scene's estimates from the first frames; their (stamp, R_world_camera)."""
     from slzcli.sources import open_recording
 
     cfg = config.camera.gravity.scene
     prior = gravity_up_in_camera(None, config.camera.mount)
     pose_ups: list[np.ndarray] = []
+    poses: list[tuple[int, np.ndarray]] = []
     planes: list[g.Plane] = []
     read = 0
     last = (cfg.frames - 1) * cfg.stride
@@ -188,6 +215,7 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate], unavailabl
                 read += 1
                 if frame.T_world_camera is not None:
                     pose_ups.append(np.asarray(frame.T_world_camera, np.float64)[2, :3])
+                    poses.append((frame.stamp_ns, np.asarray(frame.T_world_camera, np.float64)[:3, :3]))
                 plane = g.dominant_plane(frame.depth_m, frame.intrinsics, prior, cfg.max_prior_deg, cfg,
                                          cfg.seed + frame.index)
                 if plane is not None:
@@ -195,7 +223,7 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate], unavailabl
             getattr(frames, "close", lambda: None)()  # stop its decoding before the recording closes
     except SlzError as err:  # the run's own pass over the frames reports it, once
         unavailable["scene"] = unavailable["poses"] = f"the first frames could not be read ({err})"
-        return
+        return []
     if pose_ups:
         up, members = g.agreeing(pose_ups, cfg.cluster_deg)
         spread = max(g.angle_deg(u, up) for u in pose_ups)
@@ -212,3 +240,4 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate], unavailabl
     else:
         unavailable["scene"] = (f"no plane holding {cfg.min_inlier_share:.0%} of the points within "
                                 f"{cfg.max_prior_deg:g} deg of camera.mount's up in {read} frames read")
+    return poses

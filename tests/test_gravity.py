@@ -367,3 +367,31 @@ def test_real_frames_as_a_realsense_bag_give_a_level_floor(realsense_dir: Path, 
                                .slope_deg[FLOOR_FIT]))
     assert slope < 4.0   # measured 1.6 deg (1.4 with the hand-measured mount)
     assert level > 55.0  # measured 65.5 deg: the straight-down mount, as before
+
+
+def test_recorded_poses_the_imu_contradicts_are_turned_to_the_imus_up(tmp_path: Path) -> None:
+    """Poses of a visual SLAM whose world is its first camera's (not level): the IMU's gravity wins there too."""
+    from slzcli.synth.flight import R_WORLD_CAMERA_DOWN
+    up = up_of(22, 9)
+    R_true = R_WORLD_CAMERA_DOWN @ g.mount_rotation(22, 9)       # level world -> camera
+    R_off = g.mount_rotation(20, 0)                               # the recorded world is off by 20 deg
+    path = tmp_path / "posed.mcap"
+    with RecordingWriter(path, "mcap") as w:
+        for k in range(400):
+            stamp = T0_NS + k * 5_000_000
+            w.write_imu("/camera/imu", stamp, G0 * up, np.full(3, 1e-4), "camera_color_optical_frame")
+            if k % 10 == 0:
+                T = np.eye(4)
+                T[:3, :3] = R_off @ R_true
+                T[:3, 3] = (0.0, 0.0, 10.0)
+                w.write_pose("/orb_slam3/camera_pose", stamp, T)
+                w.write_frame(dataclasses.replace(known_frame(k // 10), stamp_ns=stamp))
+    with open_recording(path, CONFIG) as rec:
+        resolved = recording_gravity.resolve_recording(path, rec, CONFIG)
+        frames = list(resolved.frames(rec.frames()))
+    assert resolved.gravity.source == "imu" and resolved.world_fix is not None
+    assert any("rotated about its origin" in w for w in resolved.gravity.warnings)
+    assert {"poses", "mount"} <= {d[0] for d in resolved.gravity.disagreements}
+    for f in frames:
+        assert f.T_world_camera is not None
+        assert g.angle_deg(tm.frame_up(f, Mount(0, 0)), up) < 1e-3

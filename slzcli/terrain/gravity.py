@@ -59,6 +59,20 @@ def mount_rotation(pitch_deg: float, roll_deg: float) -> np.ndarray:
     return ry @ rx
 
 
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking direction ``a`` to direction ``b`` (Rodrigues)."""
+    a, b = unit(a), unit(b)
+    v = np.cross(a, b)
+    s, c = float(np.linalg.norm(v)), float(a @ b)
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        axis = unit(np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0]))
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + k + k @ k * ((1.0 - c) / s**2)
+
+
 # ----------------------------------------------------------------------------- IMU
 @dataclass(frozen=True, eq=False)
 class QuietBlocks:
