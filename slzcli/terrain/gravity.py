@@ -1,7 +1,7 @@
 """Gravity in the camera frame: each source's estimate and the one resolver that chooses among them.
 
-Sources, in the order ``camera.gravity.source: auto`` trusts them (docs/METHOD.md "Gravity from the
-recording"):
+Sources, in the order ``camera.gravity.source: auto`` trusts them
+(docs/METHOD.md "Gravity from the recording"):
 
 1. an IMU: the specific force of a resting or steadily moving vehicle is gravity's reaction
    (``up``); it is averaged over blocks, and only blocks whose mean magnitude is near g and
