@@ -135,6 +135,8 @@ def test_the_imu_wins_over_a_wrong_mount_with_a_warning() -> None:
 def test_poses_come_before_the_scene() -> None:
     res = g.resolve({"poses": _est("poses", 5, 0), "scene": _est("scene", 20, 0)}, Mount(5, 0), GRAV, {})
     assert res.source == "poses" and [d[0] for d in res.disagreements] == ["scene"]
+    # sloping ground under a measured gravity is a note, not a warning
+    assert not res.warnings and any("sloping ground" in n for n in res.notes)
 
 
 def test_the_scene_is_used_only_when_it_contradicts_the_mount() -> None:

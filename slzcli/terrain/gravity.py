@@ -317,12 +317,12 @@ def resolve(found: dict[str, Estimate], mount: Mount, cfg: GravityCfg, unavailab
                           if e is not used and angle_deg(e.vector, used.vector) > limit)
     for other, _, deg in disagreements:
         e = all_est[other]
-        if other == "scene":
-            what = "the scene's dominant plane is not level (sloping ground) or is not the ground"
-        elif other == "mount":
-            what = "camera.mount is wrong for this recording"
-        else:
-            what = f"the {other} source is not what slz takes it for"
+        if other == "scene":  # not a measurement of gravity: sloping ground is a fact about the terrain, a note
+            notes.append(f"the scene's {e.detail} is {deg:.1f} deg from the gravity used ({used.source}): sloping "
+                         "ground, or the dominant plane is not the ground")
+            continue
+        what = ("camera.mount is wrong for this recording" if other == "mount" else
+                f"the {other} source is not what slz takes it for")
         warnings.append(f"gravity: {e.detail} is {deg:.1f} deg from the gravity used ({used.source}: "
                         f"{used.detail}), more than camera.gravity.max_disagreement_deg {limit:g}: {what}")
     if used.source == "scene":
