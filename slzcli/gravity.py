@@ -62,27 +62,14 @@ class RecordingGravity:
             yield frame if self.up_of is None else dataclasses.replace(frame, up_camera=self.up_of(frame))
 
 
-class GravityRecording:
-    """An open recording whose frames carry their gravity; everything else is the recording's own."""
-
-    def __init__(self, rec: Any, gravity: RecordingGravity) -> None:
-        self._rec = rec
-        self.gravity = gravity
-
-    def frames(self) -> Iterator[Frame]:
-        return self.gravity.frames(self._rec.frames())
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._rec, name)
-
-
-def apply(path: Path, rec: Any, info: Any, config: Config) -> tuple[Any, Any, Config]:
-    """(recording, info, config) of a run with the recording's gravity (see the module docstring)."""
+def apply(path: Path, rec: Any, info: Any, config: Config) -> tuple[RecordingGravity, Any, Config]:
+    """(the gravity, info, config) of a run on the open recording ``rec`` (see the module docstring): its
+    frames get their own gravity through ``RecordingGravity.frames``."""
     resolved = resolve_recording(path, rec, config)
     for line in resolved.gravity.warnings:
         log.warning("%s: %s", path, line)
     log.info("%s: gravity from %s", path, resolved.gravity.line())
-    return GravityRecording(rec, resolved), resolved.info(info), resolved.config(config)
+    return resolved, resolved.info(info), resolved.config(config)
 
 
 def resolve_recording(path: Path, rec: Any, config: Config) -> RecordingGravity:
