@@ -104,6 +104,7 @@ class SceneGravityCfg:
     max_prior_deg: float = rng(0, 180, lo_open=True)
     frame_prior_deg: float = rng(0, 180, lo_open=True)
     cluster_deg: float = rng(0, 90, lo_open=True)
+    mount_level_share: float = rng(0, 1)
     seed: int = rng(0)
 
 

@@ -29,6 +29,7 @@ from slzcli.terrain.maps import gravity_up_in_camera
 from slzcli.types import Frame
 
 log = logging.getLogger(__name__)
+LEVEL_SPREAD_DEG = 3.0  # deg; "level under camera.mount": within this (the mount's own error is about as large)
 UpOf = Callable[[Frame], "np.ndarray | None"]
 
 
@@ -79,9 +80,9 @@ def resolve_recording(path: Path, rec: Any, config: Config) -> RecordingGravity:
     found: dict[str, g.Estimate] = {}
     unavailable: dict[str, str] = {}
     blocks = _imu(rec, config, found, unavailable)
-    poses = _frames(path, config, found, unavailable)
+    poses, level = _frames(path, config, found, unavailable)
     try:
-        gravity = g.resolve(found, config.camera.mount, cfg, unavailable)
+        gravity = g.resolve(found, config.camera.mount, cfg, unavailable, level)
     except ValueError as err:
         raise DatasetError(path, str(err)) from None
     up_of: UpOf | None = None
@@ -180,14 +181,16 @@ def _imu(rec: Any, config: Config, found: dict[str, g.Estimate], unavailable: di
 
 
 def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
-            unavailable: dict[str, str]) -> list[tuple[int, np.ndarray]]:
-    """The recorded poses' and the scene's estimates from the first frames; their (stamp, R_world_camera)."""
+            unavailable: dict[str, str]) -> tuple[list[tuple[int, np.ndarray]], float]:
+    """The recorded poses' and the scene's estimates from the first frames; their (stamp, R_world_camera) and
+    the median frame's share of points on a plane level under camera.mount (``terrain.gravity.level_share``)."""
     from slzcli.sources import open_recording
 
     cfg = config.camera.gravity.scene
     prior = gravity_up_in_camera(None, config.camera.mount)
     pose_ups: list[np.ndarray] = []
     poses: list[tuple[int, np.ndarray]] = []
+    level: list[float] = []
     planes: list[g.Plane] = []
     read = 0
     last = (cfg.frames - 1) * cfg.stride
@@ -207,10 +210,11 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
                                          cfg.seed + frame.index)
                 if plane is not None:
                     planes.append(plane)
+                level.append(g.level_share(frame.depth_m, frame.intrinsics, prior, cfg, LEVEL_SPREAD_DEG))
             getattr(frames, "close", lambda: None)()  # stop its decoding before the recording closes
     except SlzError as err:  # the run's own pass over the frames reports it, once
         unavailable["scene"] = unavailable["poses"] = f"the first frames could not be read ({err})"
-        return []
+        return [], 0.0
     if pose_ups:
         up, members = g.agreeing(pose_ups, cfg.cluster_deg)
         spread = max(g.angle_deg(u, up) for u in pose_ups)
@@ -227,4 +231,4 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
     else:
         unavailable["scene"] = (f"no plane holding {cfg.min_inlier_share:.0%} of the points within "
                                 f"{cfg.max_prior_deg:g} deg of camera.mount's up in {read} frames read")
-    return poses
+    return poses, float(np.median(level)) if level else 0.0

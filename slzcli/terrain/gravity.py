@@ -164,11 +164,7 @@ def dominant_plane(depth_m: np.ndarray, intrinsics: Intrinsics, prior_up: np.nda
     """RANSAC over a grid of the frame's depth points: the plane with the most inliers among those whose
     normal (towards the camera) is within ``max_prior_deg`` of ``prior_up``, refined by least squares
     on its inliers; None when no such plane holds ``min_inlier_share`` of the points."""
-    step = cfg.sample_px
-    sub = np.asarray(depth_m, np.float32)[::step, ::step]
-    pts = back_project(sub, intrinsics.scaled(sub.shape[1], sub.shape[0]) if step > 1 else intrinsics)
-    pts = pts.reshape(-1, 3)
-    pts = pts[np.all(np.isfinite(pts), axis=1)].astype(np.float64)
+    pts = _grid_points(depth_m, intrinsics, cfg.sample_px)
     if len(pts) < 3:
         return None
     rng = np.random.default_rng(seed)
@@ -199,6 +195,40 @@ def dominant_plane(depth_m: np.ndarray, intrinsics: Intrinsics, prior_up: np.nda
     if angle_deg(n, prior) > max_prior_deg:
         n = normal[best]
     return Plane(n, float(inliers.mean()), float(abs(n @ centre)))
+
+
+def level_share(depth_m: np.ndarray, intrinsics: Intrinsics, up: np.ndarray, cfg: SceneGravityCfg,
+                spread_deg: float) -> float:
+    """The largest share of the frame's grid points on one plane within ``spread_deg`` of level under ``up``.
+
+    Heights along nine normals (``up`` and eight tilted by ``spread_deg`` around it) are binned at twice
+    the inlier tolerance; the fullest bin is the plane. Tilted ground seen as level puts only a band of it in
+    one bin; a level patch under a hillside puts all of it there.
+    """
+    pts = _grid_points(depth_m, intrinsics, cfg.sample_px)
+    if len(pts) < 3:
+        return 0.0
+    u = unit(up)
+    e1 = unit(np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0]))
+    e2 = np.cross(u, e1)
+    turns = np.linspace(0.0, 2 * math.pi, 8, endpoint=False)
+    tilt = math.tan(math.radians(spread_deg))
+    normals = unit_rows(np.vstack([u, u + tilt * (np.cos(turns)[:, None] * e1 + np.sin(turns)[:, None] * e2)]))
+    heights = pts @ normals.T
+    width = 2.0 * cfg.inlier_fraction * float(np.median(pts[:, 2]))
+    best = 0
+    for h in heights.T:
+        bins = np.floor((h - h.min()) / width).astype(np.int64)
+        best = max(best, int(np.bincount(bins).max()))
+    return best / len(pts)
+
+
+def _grid_points(depth_m: np.ndarray, intrinsics: Intrinsics, step: int) -> np.ndarray:
+    """The finite back-projected points of every ``step``-th pixel (float64, (N, 3))."""
+    sub = np.asarray(depth_m, np.float32)[::step, ::step]
+    pts = back_project(sub, intrinsics.scaled(sub.shape[1], sub.shape[0]) if step > 1 else intrinsics)
+    pts = pts.reshape(-1, 3)
+    return pts[np.all(np.isfinite(pts), axis=1)].astype(np.float64)
 
 
 def agreeing(ups: Sequence[np.ndarray], cluster_deg: float) -> tuple[np.ndarray, list[int]]:
@@ -280,12 +310,16 @@ def mount_estimate(mount: Mount) -> Estimate:
     return Estimate("mount", _tuple(up), f"camera.mount pitch {mount.pitch_deg:g} deg, roll {mount.roll_deg:g} deg")
 
 
-def resolve(found: dict[str, Estimate], mount: Mount, cfg: GravityCfg, unavailable: dict[str, str]) -> Gravity:
+def resolve(found: dict[str, Estimate], mount: Mount, cfg: GravityCfg, unavailable: dict[str, str],
+            mount_level_share: float = 0.0) -> Gravity:
     """The gravity the maps run on (see the module docstring for the order) and every disagreement.
 
     ``found``: the estimates the recording gave (imu, poses, scene); ``unavailable``: why each
-    other source gave none. A named ``cfg.source`` is used alone; ValueError (the caller names the
-    recording) when the recording lacks it, or when it is ``mount`` and the IMU contradicts it.
+    other source gave none; ``mount_level_share``: the share of the scene's points on a plane level
+    under ``camera.mount`` (``level_share``, the median frame's): a large one keeps the mount against
+    the scene (the dominant plane may be a slope beside level ground). A named ``cfg.source`` is used
+    alone; ValueError (the caller names the recording) when the recording lacks it, or when it is not the
+    IMU and the IMU contradicts it.
     """
     limit = cfg.max_disagreement_deg
     all_est = {**found, "mount": mount_estimate(mount)}
@@ -306,11 +340,19 @@ def resolve(found: dict[str, Estimate], mount: Mount, cfg: GravityCfg, unavailab
         used = found["imu"]
     elif "poses" in found:
         used = found["poses"]
-    elif "scene" in found and angle_deg(found["scene"].vector, all_est["mount"].vector) > limit:
+    elif "scene" in found and angle_deg(found["scene"].vector, all_est["mount"].vector) > limit and \
+            mount_level_share < cfg.scene.mount_level_share:
         used = found["scene"]
     else:
         used = all_est["mount"]
-        if "scene" in found:
+        if "scene" in found and angle_deg(found["scene"].vector, all_est["mount"].vector) > limit:
+            warnings.append(
+                f"gravity: camera.mount is {angle_deg(found['scene'].vector, all_est['mount'].vector):.1f} deg from "
+                f"the scene's {found['scene'].detail} and nothing measured gravity; camera.mount is kept, since a "
+                f"plane level under it holds {mount_level_share:.0%} of the points (camera.gravity.scene."
+                f"mount_level_share {cfg.scene.mount_level_share:g}): the dominant plane is taken for a slope. "
+                "Record an IMU (sensor_msgs/Imu) or poses if the camera is tilted")
+        elif "scene" in found:
             notes.append(f"camera.mount agrees with the scene's dominant plane within {limit:g} deg")
     ordered = [all_est[s] for s in SOURCES if s in all_est]
     disagreements = tuple((e.source, used.source, angle_deg(e.vector, used.vector)) for e in ordered
