@@ -156,6 +156,14 @@ class WindowCfg:
 
 
 @schema
+class DepthCheckCfg:
+    frames: int = rng(1, 1000)
+    min_range_m: float = rng(0, lo_open=True)
+    below_min_share: float = rng(0, 1)
+    max_median_m: float = rng(0, lo_open=True)
+
+
+@schema
 class SourcesCfg:
     topics: Topics
     intrinsics: IntrinsicsCheckCfg
@@ -171,6 +179,7 @@ class SourcesCfg:
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
     window: WindowCfg
     read_ahead_frames: int = rng(0, 64)
+    depth_check: DepthCheckCfg
 
 
 @schema
@@ -322,6 +331,7 @@ class LandingCfg:
     depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
     commit_radius_factor: float = rng(0)
+    commit_score_band: float = rng(0, 1)
     max_normal_pairs: int = rng(1)
     commit: Literal["agree", "latest"] = "agree"
 
@@ -638,6 +648,7 @@ class SlamCfg:
     vocabulary: str
     points_topic: str
     track_ahead: bool
+    max_untracked_share: float = rng(0, 1)
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
     orbslam3: OrbSlam3Cfg
