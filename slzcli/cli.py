@@ -391,13 +391,14 @@ def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: 
     Example:
       slz info flight.bag --camera d435
     """
+    from slzcli import gravity
     from slzcli.sources import open_recording
     from slzcli.sources.depth_check import check_depth
     from slzcli.sources.info_text import info_text
 
     config = _windowed(config, win_start, win_end, stride, max_frames)
     with open_recording(bag, config) as rec:
-        info = rec.info()
+        info = gravity.apply(bag, rec, rec.info(), config)[1]
     depth = check_depth(bag, config, info)  # a few frames decoded: the depth's range, a wrong unit warned of
     if depth is not None and depth.warning:
         log.warning("%s: %s", bag, depth.warning)

@@ -48,6 +48,10 @@ def detect_text(out: Path, s: dict[str, Any]) -> str:
     else:
         result = f"no safe site: {s['reason']}"
     lines = [head, "  " + result]
+    gv = s.get("gravity")
+    if gv:
+        apart = f" ({len(gv['disagreements'])} disagreement(s): see the warnings)" if gv["disagreements"] else ""
+        lines.append(f"  gravity: {gv['source']}, camera tilted {gv['tilt_deg']:.1f} deg from straight down{apart}")
     noise, lim = s.get("depth_noise") or {}, s.get("depth_limits")
     if lim:
         a = noise.get("a_per_m_median", noise.get("a_per_m"))

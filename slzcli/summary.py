@@ -82,12 +82,12 @@ def world_frame_text(slam_name: str, poses_are_recorded: bool, table: list[Segme
     if poses_are_recorded:
         return "the recording's world frame (recorded poses)"
     if len(table) <= 1 or primary is None:
-        return (f"{slam_name} map, gravity-aligned: z up from camera.mount at the first tracked frame, "
-                "x along that camera's x, origin at that camera")
+        return (f"{slam_name} map, gravity-aligned: z up from the recording's gravity (summary.gravity) at the first "
+                "tracked frame, x along that camera's x, origin at that camera")
     first = next(s for s in table if s.segment == primary).first_frame
     return (f"{slam_name} map segment {primary} (of {len(table)} maps: tracking was lost and new maps begun, "
-            f"each in its own frame), gravity-aligned: z up from camera.mount at its first tracked frame "
-            f"(frame {first}), x along that camera's x, origin at that camera")
+            "each in its own frame), gravity-aligned: z up from the recording's gravity (summary.gravity) at its "
+            f"first tracked frame (frame {first}), x along that camera's x, origin at that camera")
 
 
 def slam_summary(slam_name: str, table: list[Segment], primary: int | None,
@@ -208,6 +208,7 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
                  **untracked_frames(st.trajectory.has_pose(), st.tracking, slam_name, config.slam.max_untracked_share)},
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
         "outputs": config.output.level,
+        "gravity": getattr(info, "gravity", None),  # source, camera tilt, disagreements (slzcli/gravity.py)
         "depth_noise": noise,
         "depth_limits": landing.get("site", {}).get("depth_limits") or noise.get("not_vouched")
         or (None if st.highest is None else st.highest.as_dict()),

@@ -69,6 +69,7 @@ class Frame:
     T_world_camera: np.ndarray | None = None
     source: str = ""
     map_points: MapCloud | None = None
+    up_camera: np.ndarray | None = None  # world up in the camera frame from the recording (slzcli/gravity.py)
 
     @property
     def K(self) -> np.ndarray:

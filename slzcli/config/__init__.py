@@ -40,7 +40,9 @@ from slzcli.config.schema import FlatnessCfg as FlatnessCfg
 from slzcli.config.schema import FlightCfg as FlightCfg
 from slzcli.config.schema import FusionCfg as FusionCfg
 from slzcli.config.schema import FuzzyCfg as FuzzyCfg
+from slzcli.config.schema import GravityCfg as GravityCfg
 from slzcli.config.schema import GroundTruthCfg as GroundTruthCfg
+from slzcli.config.schema import ImuGravityCfg as ImuGravityCfg
 from slzcli.config.schema import InclinationCfg as InclinationCfg
 from slzcli.config.schema import IntrinsicsCheckCfg as IntrinsicsCheckCfg
 from slzcli.config.schema import LandingCfg as LandingCfg
@@ -59,6 +61,7 @@ from slzcli.config.schema import OutputCfg as OutputCfg
 from slzcli.config.schema import OutputLevel as OutputLevel
 from slzcli.config.schema import Px4SlpCfg as Px4SlpCfg
 from slzcli.config.schema import ScenariosCfg as ScenariosCfg
+from slzcli.config.schema import SceneGravityCfg as SceneGravityCfg
 from slzcli.config.schema import ScoringCfg as ScoringCfg
 from slzcli.config.schema import SensorCfg as SensorCfg
 from slzcli.config.schema import SgbmCfg as SgbmCfg
@@ -71,6 +74,7 @@ from slzcli.config.schema import StereoCfg as StereoCfg
 from slzcli.config.schema import StereoPresetCfg as StereoPresetCfg
 from slzcli.config.schema import StereoPresetsCfg as StereoPresetsCfg
 from slzcli.config.schema import SynthCfg as SynthCfg
+from slzcli.config.schema import SynthImuCfg as SynthImuCfg
 from slzcli.config.schema import TerrainCfg as TerrainCfg
 from slzcli.config.schema import Topics as Topics
 from slzcli.config.schema import TunedGainsCfg as TunedGainsCfg

@@ -70,6 +70,40 @@ class Mount:
 
 
 @schema
+class ImuGravityCfg:
+    topic: str
+    block_s: float = rng(0, lo_open=True)
+    accel_tolerance_m_s2: float = rng(0, lo_open=True)
+    gyro_quiet_rad_s: float = rng(0, lo_open=True)
+    window_s: float = rng(0, lo_open=True)
+    min_quiet_blocks: int = rng(1)
+    max_messages: int = rng(1)
+
+
+@schema
+class SceneGravityCfg:
+    frames: int = rng(1, 100)
+    stride: int = rng(1)
+    sample_px: int = rng(1, 64)
+    hypotheses: int = rng(10, 10000)
+    inlier_fraction: float = rng(0, 1, lo_open=True)
+    min_inlier_share: float = rng(0, 1, lo_open=True)
+    max_prior_deg: float = rng(0, 180, lo_open=True)
+    frame_prior_deg: float = rng(0, 180, lo_open=True)
+    cluster_deg: float = rng(0, 90, lo_open=True)
+    mount_level_share: float = rng(0, 1)
+    seed: int = rng(0)
+
+
+@schema
+class GravityCfg:
+    source: Literal["auto", "imu", "poses", "scene", "mount"]
+    max_disagreement_deg: float = rng(0, 180, lo_open=True)
+    imu: ImuGravityCfg
+    scene: SceneGravityCfg
+
+
+@schema
 class CameraCfg:
     fx: float = rng(0, lo_open=True)
     fy: float = rng(0, lo_open=True)
@@ -78,6 +112,7 @@ class CameraCfg:
     width: int = rng(1)
     height: int = rng(1)
     mount: Mount
+    gravity: GravityCfg
     preset: str
 
 
@@ -430,6 +465,20 @@ class FlightCfg:
     speed_m_s: float = rng(0, 30)
     heading_deg: float = rng(-360, 360)
     min_altitude_m: float = rng(0, lo_open=True)
+    mount_pitch_deg: float = rng(-90, 90)
+    mount_roll_deg: float = rng(-90, 90)
+
+
+@schema
+class SynthImuCfg:
+    enabled: bool
+    topic: str
+    rate_hz: float = rng(1, 2000)
+    accel_noise_m_s2: float = rng(0)
+    accel_bias_m_s2: float = rng(0)
+    vibration_m_s2: float = rng(0)
+    gyro_noise_rad_s: float = rng(0)
+    gyro_bias_rad_s: float = rng(0)
 
 
 @schema
@@ -532,6 +581,7 @@ class SynthCfg:
     embed_m: float = rng(0)
     scenarios: ScenariosCfg
     flight: FlightCfg
+    imu: SynthImuCfg
     light: LightCfg
     sensor: SensorCfg
     ground_truth: GroundTruthCfg

@@ -45,6 +45,7 @@ REP118_DEPTH_UNIT_M = 0.001  # 16UC1 depth is millimetres (REP 118)
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+IMU = "sensor_msgs/msg/Imu"
 POSE_TYPES = {"PoseStamped": "geometry_msgs/msg/PoseStamped", "Odometry": "nav_msgs/msg/Odometry",
               "tf": "tf2_msgs/msg/TFMessage"}
 TF_MESSAGE_DEF = "geometry_msgs/TransformStamped[] transforms"  # tf2_msgs/TFMessage.msg
@@ -201,6 +202,22 @@ class RecordingWriter:
                     pose=t[gm + "PoseWithCovariance"](pose=pose, covariance=zeros),
                     twist=t[gm + "TwistWithCovariance"](twist=twist, covariance=zeros.copy()))
         self._write(topic, POSE_TYPES[kind], msg, stamp_ns)
+
+    def write_imu(self, topic: str, stamp_ns: int, accel: np.ndarray, gyro: np.ndarray | None,
+                  frame_id: str = "") -> None:
+        """One sensor_msgs/Imu: specific force (m/s^2) and angular rate (rad/s, None: zeros, covariance -1 as
+        realsense-ros writes an accelerometer-only message); no orientation (covariance[0] = -1, REP 145)."""
+        t = self.typestore.types
+        vec = t["geometry_msgs/msg/Vector3"]
+        unknown = np.zeros(9, dtype=np.float64)
+        unknown[0] = -1.0
+        msg = t[IMU](header=self._header(stamp_ns, frame_id or self.layout.frame_id),
+                     orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                     orientation_covariance=unknown,
+                     angular_velocity=vec(*map(float, gyro if gyro is not None else (0.0, 0.0, 0.0))),
+                     angular_velocity_covariance=np.zeros(9) if gyro is not None else unknown.copy(),
+                     linear_acceleration=vec(*map(float, accel)), linear_acceleration_covariance=np.zeros(9))
+        self._write(topic, IMU, msg, stamp_ns)
 
     def write_raw(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
         """Any message: an instance from ``self.typestore`` or already serialised bytes."""

@@ -11,8 +11,10 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from slzcli import gravity
 from slzcli.config import Config
 from slzcli.errors import DatasetError
+from slzcli.gravity import RecordingGravity
 from slzcli.slam import with_frame_period
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import Recording, RecordingInfo, open_recording
@@ -30,6 +32,7 @@ class RecordingSource:
     recording: Recording
     opened: RecordingInfo
     clouds: bool  # its frames carry recorded map clouds
+    gravity: RecordingGravity | None = None  # each frame's own gravity, where the recording gives one
 
     @property
     def has_poses(self) -> bool:
@@ -40,7 +43,8 @@ class RecordingSource:
         return self.opened.expected_frames
 
     def frames(self) -> Iterator[Frame]:
-        return self.recording.frames()
+        frames = self.recording.frames()
+        return frames if self.gravity is None else self.gravity.frames(frames)
 
     def report(self) -> PairingReport:
         return self.recording.report
@@ -89,12 +93,13 @@ Source = RecordingSource | FramesSource
 
 
 def open_source(path: Path, config: Config, stack: ExitStack) -> tuple[RecordingSource, Config]:
-    """The open recording (closed with ``stack``) and ``config`` with what the recording decides: the camera
-    preset's depth noise prior and the frame period ORB-SLAM3 is told (``slam.orbslam3.nominal_period_s: auto``)."""
+    """The open recording (closed with ``stack``) and ``config`` with what the recording decides: its gravity
+    (``slzcli/gravity.py``: ``camera.mount``, each frame's own), the camera preset's depth noise prior and the
+    frame period ORB-SLAM3 is told (``slam.orbslam3.nominal_period_s: auto``)."""
     rec = stack.enter_context(open_recording(path, config))
-    info = rec.info()
+    resolved, info, config = gravity.apply(path, rec, rec.info(), config)
     config = with_frame_period(with_noise_prior(config, info.camera_preset), info)
-    return RecordingSource(path, rec, info, has_recorded_clouds(info, config)), config
+    return RecordingSource(path, rec, info, has_recorded_clouds(info, config), resolved), config
 
 
 def _chain(first: Frame, rest: Iterator[Frame]) -> Iterator[Frame]:

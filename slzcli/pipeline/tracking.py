@@ -1,9 +1,9 @@
 """Tracking: SLAM over the frames of a source, each map segment gravity-aligned, the pose and keyframe logs.
 
 World frame. Recorded poses are taken as given (REP 103, z up). A SLAM backend's world is
-its first camera frame; it is turned into a gravity-aligned frame (z up from the camera
-mount, x along the first camera's x, origin at the first camera) so that the slope test
-and the Eq. 10 square mean what they say. After a map reset the backend's poses are in a
+its first camera frame; it is turned into a gravity-aligned frame (z up from the recording's
+gravity at that frame, ``slzcli/gravity.py``, x along the first camera's x, origin at the first
+camera) so that the slope test and the Eq. 10 square mean what they say. After a map reset the backend's poses are in a
 new world frame (a new map segment, ``slzcli.slam.segments``): each segment is aligned
 the same way from its own first tracked frame, and its map points never serve a frame of
 another segment.
@@ -14,6 +14,7 @@ from __future__ import annotations
 import time
 from collections.abc import Generator, Iterator
 from contextlib import closing
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ from slzcli.pipeline.source import Source
 from slzcli.slam import MapPoints, SlamBackend, TrackingState
 from slzcli.sources.read_ahead import read_ahead
 from slzcli.terrain.geometry import back_project
-from slzcli.terrain.maps import gravity_up_in_camera
+from slzcli.terrain.maps import frame_up
 from slzcli.timeout import StageLimit
 from slzcli.types import Frame, TrackedFrame
 
@@ -98,12 +99,13 @@ class Tracker:
         """The tracking time of the latest frame (ms)."""
         return self.timer.samples_ms["slam"][-1]
 
-    def _world(self, T_slam_camera: np.ndarray | None, segment: int) -> np.ndarray | None:
+    def _world(self, T_slam_camera: np.ndarray | None, segment: int, frame: Frame) -> np.ndarray | None:
         if T_slam_camera is None:
             return None
-        if segment not in self.align:
+        if segment not in self.align:  # the frame's own gravity (frame_up: no pose yet, so the recording's)
             self.align[segment] = np.eye(4) if self.poses_are_recorded else \
-                gravity_alignment(gravity_up_in_camera(None, self.config.camera.mount)) @ invert_pose(T_slam_camera)
+                gravity_alignment(frame_up(replace(frame, T_world_camera=None), self.config.camera.mount)) @ \
+                invert_pose(T_slam_camera)
         return self.align[segment] @ T_slam_camera
 
     def track(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
@@ -131,7 +133,7 @@ class Tracker:
         self.timer.add("slam_wait", waited)
         if result.segment != self._segment:  # a new map: the old map's points are in another frame
             self._segment, self._points = result.segment, None
-        T = self._world(result.T_world_camera, self._segment)
+        T = self._world(result.T_world_camera, self._segment, frame)
         self.frames += 1
         self.trajectory.append(frame.stamp_ns, T, self._segment)
         self.tracking[result.state.value] = self.tracking.get(result.state.value, 0) + 1

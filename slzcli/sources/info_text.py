@@ -44,6 +44,12 @@ def info_text(info: RecordingInfo, depth: DepthRange | None = None) -> str:
                      + (f"  {k.distortion_model} {list(k.distortion)}" if k.distortion_model else ""))
     if info.depth_to_color:
         lines.append(f"  depth: {info.depth_to_color}")
+    if info.gravity:
+        gv = info.gravity
+        lines += ["", f"gravity: {gv['source']} ({gv['detail']}): camera tilted {gv['tilt_deg']:.1f} deg from straight "
+                      f"down (pitch {gv['pitch_deg']:.1f}, roll {gv['roll_deg']:.1f})"]
+        lines += [f"  {name}: {e['detail']}, {e['angle_to_used_deg']:.1f} deg from the one used"
+                  for name, e in gv["estimates"].items() if name != gv["source"]]
     p = info.pairing
     lines += ["", f"RGB-D frames that pair: {p.paired}  (unpaired colour {p.unpaired_color}, "
                   f"unpaired depth {p.unpaired_depth}, unreadable {p.undecodable})"]

@@ -28,6 +28,7 @@ class RecordingInfo:
     camera_preset: str | None = None     # configs/camera/NAME.yaml in use, None: none
     camera_preset_reason: str = ""
     depth_to_color: str = ""             # how depth reaches the colour pixel grid (aligned, registered, resized)
+    gravity: dict[str, Any] | None = None  # where world up came from (slzcli/gravity.py), None: not resolved
 
     @property
     def expected_frames(self) -> int:
@@ -56,6 +57,7 @@ class RecordingInfo:
             "intrinsics_source": self.intrinsics_source,
             "camera_preset": {"name": self.camera_preset, "reason": self.camera_preset_reason},
             "depth_to_color": self.depth_to_color,
+            "gravity": self.gravity,
             "frames": self.pairing.paired,
             "pairing": {"paired": self.pairing.paired, "unpaired_color": self.pairing.unpaired_color,
                         "unpaired_depth": self.pairing.unpaired_depth, "without_pose": self.pairing.without_pose,

@@ -18,6 +18,7 @@ from typing import Literal
 import numpy as np
 
 from slzcli.config import FlightCfg
+from slzcli.terrain.gravity import mount_rotation
 
 PathKind = Literal["hover", "descent", "transect"]
 
@@ -47,8 +48,18 @@ def _rot(axis: int, angle: np.ndarray) -> np.ndarray:
 def make_flight(start_m: tuple[float, float, float], frames: int, rate_hz: float, path: PathKind,
                 cfg: FlightCfg, seed: int, start_stamp_ns: int) -> Flight:
     """Poses and stamps for ``frames`` frames at ``rate_hz`` from ``start_m`` (world ENU, metres)."""
-    rng = np.random.default_rng(seed)
     t = np.arange(frames) / rate_hz
+    T = poses_at(t, start_m, path, cfg, seed)
+    stamps = start_stamp_ns + np.round(t * 1e9).astype(np.int64)
+    return Flight(stamps, T)
+
+
+def poses_at(t: np.ndarray, start_m: tuple[float, float, float], path: PathKind, cfg: FlightCfg,
+             seed: int) -> np.ndarray:
+    """``T_world_camera`` (N, 4, 4) of the flight at times ``t`` (s after frame 0): a smooth function of time,
+    so that an IMU can be sampled from it at its own rate (``synth.imu``). The camera sits on the vehicle
+    at ``mount_pitch_deg``/``mount_roll_deg`` (``camera.mount``'s convention) and is not told to the recording."""
+    rng = np.random.default_rng(seed)
     ph = rng.uniform(0.0, 2 * np.pi, 6)
     w_drift = 2 * np.pi / cfg.drift_period_s
     w_tilt = 2 * np.pi / cfg.tilt_period_s
@@ -67,9 +78,9 @@ def make_flight(start_m: tuple[float, float, float], frames: int, rate_hz: float
     roll = np.deg2rad(cfg.tilt_deg) * np.sin(w_tilt * t + ph[3])
     pitch = np.deg2rad(cfg.tilt_deg) * np.sin(0.87 * w_tilt * t + ph[4])
     yaw = np.deg2rad(cfg.yaw_deg + cfg.yaw_rate_deg_s * t)
-    R = _rot(2, yaw) @ _rot(1, roll) @ _rot(0, pitch) @ R_WORLD_CAMERA_DOWN
-    T = np.tile(np.eye(4), (frames, 1, 1))
+    mount = mount_rotation(cfg.mount_pitch_deg, cfg.mount_roll_deg)
+    R = _rot(2, yaw) @ _rot(1, roll) @ _rot(0, pitch) @ R_WORLD_CAMERA_DOWN @ mount
+    T = np.tile(np.eye(4), (len(t), 1, 1))
     T[:, :3, :3] = R
     T[:, :3, 3] = pos
-    stamps = start_stamp_ns + np.round(t * 1e9).astype(np.int64)
-    return Flight(stamps, T)
+    return T

@@ -41,6 +41,7 @@ from slzcli.synth.groundtruth import (
     raster_arrays,
     sidecar_paths,
 )
+from slzcli.synth.imu import imu_track
 from slzcli.synth.preview import SheetRow, contact_sheet
 from slzcli.synth.render import Renderer
 from slzcli.synth.scenes import Scene, load_scene
@@ -218,10 +219,22 @@ def _render_into(stage: Path, out: Path, options: SynthOptions, scene: Scene, co
     safe_first = float("nan")
     intr = world.intrinsics
     staged = stage / out.name
+    imu = None
+    if config.synth.imu.enabled:  # its own noise stream: turning it on leaves the frames' bytes as they were
+        imu_rng = np.random.default_rng(np.random.SeedSequence(options.seed).spawn(3)[2])
+        imu = imu_track(options.start_m, options.path, config.synth.flight, flight_seed,
+                        (options.frames - 1) / options.rate_hz, config.synth.start_stamp_ns, config.synth.imu, imu_rng)
+    imu_next = 0
     with TruthSpool(stage, options.frames, intr.height, intr.width) as spool:
         with RecordingWriter(staged, options.fmt, color_encoding=options.color_encoding,
                              depth_encoding=options.depth_encoding) as writer:
             for sf in render_frames(world, flight, config, sensor_rng, source=str(out)):
+                upto = 0 if imu is None else int(np.searchsorted(imu.stamps_ns, sf.frame.stamp_ns, side="right"))
+                for k in range(imu_next, upto):  # the IMU samples up to this frame, in time order
+                    assert imu is not None
+                    writer.write_imu(config.synth.imu.topic, int(imu.stamps_ns[k]), imu.accel[k], imu.gyro[k],
+                                     CAMERA_FRAME)
+                imu_next = max(imu_next, upto)
                 writer.write_frame(sf.frame)
                 assert sf.frame.T_world_camera is not None  # render_frames gives every frame its pose
                 writer.write_pose(GT_POSE_TOPIC, sf.frame.stamp_ns, sf.frame.T_world_camera, kind="PoseStamped",

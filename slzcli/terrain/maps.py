@@ -401,6 +401,15 @@ def gravity_up_in_camera(T_world_camera: np.ndarray | None, mount: Mount) -> np.
     return np.array([math.sin(r), -math.sin(p) * math.cos(r), -math.cos(p) * math.cos(r)])
 
 
+def frame_up(frame: Frame, mount: Mount) -> np.ndarray:
+    """A frame's world up in its camera frame: from its pose, else its own gravity (``Frame.up_camera``), else
+    the mount."""
+    if frame.T_world_camera is None and frame.up_camera is not None:
+        up = np.asarray(frame.up_camera, dtype=np.float64)
+        return up / np.linalg.norm(up)
+    return gravity_up_in_camera(frame.T_world_camera, mount)
+
+
 def mount_from_up(up_camera: np.ndarray) -> tuple[float, float]:
     """(pitch_deg, roll_deg) of the mount whose ``gravity_up_in_camera`` is ``up_camera``."""
     up = np.asarray(up_camera, dtype=np.float64)
@@ -567,7 +576,7 @@ def frame_maps(frame: Frame, config: Config, noise: DepthNoise | None = None) ->
     ``noise``: what the recording's ``NoiseTracker`` says; None measures it on this frame alone
     (or takes ``terrain.noise`` when that is a number).
     """
-    up = gravity_up_in_camera(frame.T_world_camera, config.camera.mount)
+    up = frame_up(frame, config.camera.mount)
     if noise is None:
         noise = NoiseTracker(config.terrain.noise, config.terrain.noise_estimate).update(frame.depth_m)
     work = frame_working(frame.depth_m, frame.intrinsics, noise, config.terrain, config.uav)
