@@ -528,6 +528,18 @@ class OrbCfg:
 
 
 @schema
+class PoseCheckCfg:
+    frames: int = rng(0, 10000)
+    min_posed_fraction: float = rng(0, 1)
+    min_matches: int = rng(6)
+    min_baseline_fraction: float = rng(0, lo_open=True)
+    max_scale_ratio: float = rng(1, lo_open=True)
+    max_rotation_deg: float = rng(0, 180, lo_open=True)
+    max_direction_deg: float = rng(0, 180, lo_open=True)
+    max_pose_stamps: int = rng(1, 1000000)
+
+
+@schema
 class SlamKeyframeCfg:
     min_translation_m: float = rng(0, lo_open=True)
     min_rotation_deg: float = rng(0, 180, lo_open=True)
@@ -584,6 +596,7 @@ class SlamCfg:
     track_ahead: bool
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
+    pose_check: PoseCheckCfg
     orbslam3: OrbSlam3Cfg
     odometry: OdometryCfg
     vocab: VocabCfg

@@ -66,6 +66,7 @@ from slzcli.scoring import Scorer, get_scorer, mask_score
 from slzcli.scoring.px4slp import NAME as PX4SLP
 from slzcli.scoring.px4slp import Px4SlpMemory, Px4SlpPlanner
 from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend, with_frame_period
+from slzcli.slam.pose_checks import vet_recorded_poses
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import check_readable, open_recording
 from slzcli.sources.presets import with_noise_prior
@@ -545,11 +546,13 @@ def rerun_key(path: Path, config: Config, method: str, out_dir: Path, force: boo
 
 def open_inputs(path: Path, config: Config, stack: ExitStack) -> tuple[Any, Any, bool, Config]:
     """The open recording (closed with ``stack``), its info, whether its frames carry recorded map clouds, and
-    ``config`` with what the recording decides: the camera preset's depth noise prior and the frame period
-    ORB-SLAM3 is told (``slam.orbslam3.nominal_period_s: auto``)."""
+    ``config`` with what the recording decides: the camera preset's depth noise prior, the frame period
+    ORB-SLAM3 is told (``slam.orbslam3.nominal_period_s: auto``) and the backend when the recorded poses
+    contradict the frames (``slam.pose_checks``; the reason is in ``info.warnings``)."""
     rec = stack.enter_context(open_recording(path, config))
     info = rec.info()
     config = with_frame_period(with_noise_prior(config, info.camera_preset), info)
+    config, info = vet_recorded_poses(path, rec, info, config)  # rejected poses: an error, or another backend
     return rec, info, has_recorded_clouds(info, config), config
 
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError, SlzError
-from slzcli.sources import decode, tf
+from slzcli.sources import decode, tf, tf_tree
 from slzcli.sources.clouds import CloudBuffer
 from slzcli.sources.color_camera import ALIGNED, DepthToColor, extrinsics, same_camera, to_color_camera
 from slzcli.sources.image_limits import FrameTooLarge
@@ -224,13 +224,14 @@ class MessageRecording(Recording):
                     elif msg.topic == ch.camera_info.topic and k_color is None:
                         k_color = decode.decode_camera_info(self.log.deserialize(msg.topic, msg.data))
                     elif msg.topic == TF_STATIC:
-                        for _, parent, child, T in decode.decode_tf(self.log.deserialize(msg.topic, msg.data)):
-                            tree[child] = (parent, T)
+                        tf_tree.add_edges(tree, decode.decode_tf(self.log.deserialize(msg.topic, msg.data)))
                     elif msg.topic in stream_topics and msg.topic not in stream_tf:
                         m = self.log.deserialize(msg.topic, msg.data)
                         stream_tf[msg.topic] = decode.transform_matrix(m.translation, m.rotation)
                 except DecodeError as err:
                     self._warn(f"{msg.topic}: {err} (while reading the camera set-up)")
+                except tf_tree.TfTreeError as err:
+                    raise DatasetError(self.path, f"{msg.topic}: {err}") from err
                 have_all = k_depth is not None and len(frames) == 2 and (k_color or not ch.camera_info.topic)
                 if have_all and (len(stream_tf) >= 2 or extrinsics(tree, frames["color"], frames["depth"])[0]
                                  is not None):
@@ -493,13 +494,35 @@ class MessageRecording(Recording):
         """The recording's camera, static tf chain and pose frame ids (``sources.tf``), in short passes."""
         ch = self._need_choices()
         camera = self._first_color_frame_id() or ""
-        static = tf.static_tree(self._decoded(TF_STATIC)) if TF_STATIC in self._topics else {}
+        try:
+            static = tf.static_tree(self._decoded(TF_STATIC)) if TF_STATIC in self._topics else {}
+        except tf_tree.TfTreeError as err:
+            raise DatasetError(self.path, f"{TF_STATIC}: {err}") from err
         pose_frame = ""
         if ch.pose.topic and ch.pose_type == TF:
-            pose_frame = tf.tf_root(self._decoded(ch.pose.topic), static, self.cfg.pose_frame or camera)
+            try:
+                pose_frame = tf.tf_root(self._decoded(ch.pose.topic), static, self.cfg.pose_frame or camera)
+            except tf_tree.TfTreeError as err:
+                raise DatasetError(self.path, f"{ch.pose.topic}: {err}") from err
         elif ch.pose.topic:
             pose_frame = tf.first_pose_frame(self._decoded(ch.pose.topic))
         return tf.recorded_frames(camera, static, pose_frame, ch.pose_type == TF)
+
+    def pose_stamps(self, limit: int) -> list[int]:
+        """The header stamps of the first ``limit`` poses on the pose topic (every transform's, for /tf)."""
+        ch = self._need_choices()
+        out: list[int] = []
+        if not ch.pose.topic:
+            return out
+        with closing(self._decoded(ch.pose.topic)) as messages:
+            for m in messages:
+                try:
+                    out += [s for s, *_ in decode.decode_tf(m)] if ch.pose_type == TF else [decode.decode_pose(m)[0]]
+                except (DecodeError, AttributeError):
+                    continue
+                if len(out) >= limit:
+                    break
+        return out[:limit]
 
     def _decoded(self, topic: str) -> Iterator[Any]:
         """The deserialised messages of one topic (undecodable ones skipped), closed when left early."""
@@ -640,6 +663,7 @@ class _PoseSource:
             m = self.rec.log.deserialize(msg.topic, msg.data)
             if msg.topic == TF_STATIC:
                 for _, parent, child, T in decode.decode_tf(m):
+                    tf_tree.add_edge(self._tree(), parent, child, T)  # checked against /tf too; the copy is dropped
                     self.static[child] = (parent, T)
             elif self.ch.pose_type == TF:
                 self._feed_tf(decode.decode_tf(m))
@@ -647,11 +671,15 @@ class _PoseSource:
                 self._feed_pose(*decode.decode_pose(m))
         except DecodeError as err:
             self.state.bad_pose(self.rec.path, msg.topic, err)
+        except tf_tree.TfTreeError as err:
+            raise DatasetError(self.rec.path, f"{msg.topic}: {err}; fix the recording's tf broadcasters "
+                                              "(see docs/FAILURE_MODES.md)") from err
 
     def _feed_tf(self, transforms: list[tuple[int, str, str, np.ndarray]]) -> None:
         if not self.camera_frame:
             return
         for _, parent, child, T in transforms:
+            tf_tree.add_edge(self._tree(), parent, child, T)  # checked against /tf and /tf_static together
             self.dynamic[child] = (parent, T)
         tree = self._tree()
         chain = _chain_frames(tree, self.camera_frame)

@@ -96,6 +96,10 @@ class Recording(abc.ABC):
         """The recording's own frame ids (camera, tf, poses); none for a format without them (TUM)."""
         return RecordedFrames()
 
+    def pose_stamps(self, limit: int) -> list[int]:
+        """The stamps (ns) of the first ``limit`` recorded poses of the chosen pose stream ([] without one)."""
+        return []
+
     @abc.abstractmethod
     def frames(self) -> Iterator[Frame]:
         """Paired, decoded frames in stamp order; ``self.report`` is final when it ends."""

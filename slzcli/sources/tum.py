@@ -234,6 +234,10 @@ class TumRecording(Recording):
                              tuple(self.camera_warnings), self.preset.name, self.preset.reason,
                              "registered to colour by the camera's driver (TUM)")
 
+    def pose_stamps(self, limit: int) -> list[int]:
+        """The stamps of the first ``limit`` rows of groundtruth.txt when it is the pose input."""
+        return [s for s, _ in self._gt[:limit]] if self._pose_choice().topic else []
+
     def frames(self) -> Iterator[Frame]:
         """The frames (see Recording); a configured points topic is refused here: TUM has no point clouds."""
         if self.config.slam.points_topic:
