@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from bad_inputs import ALTITUDE_M, PERIOD_NS, T0_NS, H, W, textured_frame
+from bad_inputs import ALTITUDE_M, T0_NS, W, textured_frame
 
 from slzcli.outputs.recording import RecordingWriter
 
@@ -176,7 +176,6 @@ def aligned_depth_half_size(folder: Path) -> Path:
 
 
 CASES: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
-    poses_right, poses_mm, poses_cm, pose_upside_down, poses_body_frame, poses_yawed, poses_1s_late, pose_stamps_in_seconds,
-    poses_static_frames_moving, tf_two_parents, tf_cycle, tf_right, aligned_depth_transposed,
-    aligned_depth_half_width, aligned_depth_half_size)}
-__all__ = ["CASES", "H", "PERIOD_NS", "W"]
+    poses_right, poses_mm, poses_cm, pose_upside_down, poses_body_frame, poses_yawed, poses_1s_late,
+    pose_stamps_in_seconds, poses_static_frames_moving, tf_two_parents, tf_cycle, tf_right,
+    aligned_depth_transposed, aligned_depth_half_width, aligned_depth_half_size)}

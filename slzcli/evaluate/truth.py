@@ -24,15 +24,16 @@ from slzcli.synth.groundtruth import GroundTruth, load_ground_truth, sidecar_pat
 from slzcli.types import Frame, ScoreMap
 
 
-def ground_truth_of(path: Path, config: Config) -> GroundTruth | None:
+def ground_truth_of(path: Path, config: Config, cache: dict[str, Any] | None = None) -> GroundTruth | None:
     """The `slz synth` ground truth beside a recording, or None when it has no sidecar.
 
-    Its frames are looked up by stamp within ``synth.ground_truth.stamp_tolerance_ms``.
+    Its frames are looked up by stamp within ``synth.ground_truth.stamp_tolerance_ms``. A sidecar bound to
+    other recording files is refused (DatasetError); ``cache``: the recording's digests a run already took.
     """
     if not all(p.is_file() for p in sidecar_paths(path)):
         return None
     tolerance_ns = round(config.synth.ground_truth.stamp_tolerance_ms * 1e6)
-    return replace(load_ground_truth(path), stamp_tolerance_ns=tolerance_ns)
+    return replace(load_ground_truth(path, cache), stamp_tolerance_ns=tolerance_ns)
 
 
 def site_truth_of(truth: Any, frame: Any, center_camera: tuple[float, float, float]) -> SiteTruth:

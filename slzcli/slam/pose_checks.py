@@ -161,8 +161,8 @@ def check(frames: Sequence[Seen], pose_stamps: Sequence[int], config: Config, to
         if T_depth is None:
             continue
         T_rec = invert_pose(b.T_world_camera) @ a.T_world_camera  # T_b_a by the poses
-        t_rec = np.linalg.norm(T_rec[:3, 3])
-        t_dep = np.linalg.norm(T_depth[:3, 3])
+        t_rec = float(np.linalg.norm(T_rec[:3, 3]))
+        t_dep = float(np.linalg.norm(T_depth[:3, 3]))
         baseline = pc.min_baseline_fraction * a.median_depth_m
         rot_err.append(_angle_deg(T_rec[:3, :3].T @ T_depth[:3, :3]))
         tested.append((a.index, b.index, t_rec, t_dep))
@@ -288,7 +288,8 @@ def vet_recorded_poses(path: Path, rec: Any, info: RecordingInfo, config: Config
             config.slam, points_topic="")), False)
         notes.insert(0, f"recorded poses rejected: {verdict.problem}; tracking with {_NAMES.get(fallback, fallback)} "
                         f"instead (slam.backend {fallback})")
-        config = dataclasses.replace(config, slam=dataclasses.replace(config.slam, backend=fallback, points_topic=""))
+        slam = dataclasses.replace(config.slam, backend=fallback, points_topic="")  # type: ignore[arg-type]
+        config = dataclasses.replace(config, slam=slam)
     for note in notes:
         log.warning("%s: %s", path, note)
     if notes:

@@ -44,7 +44,13 @@ from slzcli.sources.topics import (
     normalise_msgtype,
 )
 from slzcli.sources.undistort import distortion_problem, has_distortion
-from slzcli.sources.validate import StampCounts, intrinsics_problem, size_problem, stamp_problem
+from slzcli.sources.validate import (
+    StampCounts,
+    depth_shape_problem,
+    intrinsics_problem,
+    size_problem,
+    stamp_problem,
+)
 from slzcli.sources.window import WindowFilter
 from slzcli.types import Frame, Intrinsics, MapCloud, PairingReport, RecordedFrames, StreamInfo
 
@@ -514,7 +520,8 @@ class MessageRecording(Recording):
         out: list[int] = []
         if not ch.pose.topic:
             return out
-        with closing(self._decoded(ch.pose.topic)) as messages:
+        messages = self._decoded(ch.pose.topic)
+        try:
             for m in messages:
                 try:
                     out += [s for s, *_ in decode.decode_tf(m)] if ch.pose_type == TF else [decode.decode_pose(m)[0]]
@@ -522,9 +529,11 @@ class MessageRecording(Recording):
                     continue
                 if len(out) >= limit:
                     break
+        finally:
+            messages.close()  # its recording pass ends here
         return out[:limit]
 
-    def _decoded(self, topic: str) -> Iterator[Any]:
+    def _decoded(self, topic: str) -> Generator[Any, None, None]:
         """The deserialised messages of one topic (undecodable ones skipped), closed when left early."""
         with closing(self._wrap(self.log.messages([topic]))) as messages:
             for msg in messages:
@@ -558,6 +567,10 @@ class MessageRecording(Recording):
             return None
         h, w = rgb.shape[:2]
         d2c = self._depth_to_color()
+        problem = None if d2c.mode == "register" else depth_shape_problem(
+            depth.shape[1], depth.shape[0], w, h, self.cfg.intrinsics.aspect_tolerance)
+        if problem is not None:
+            raise DatasetError(self.path, f"frame {state.yielded} ({ch.depth.topic}): {problem}")
         if depth.shape != (h, w) and d2c.mode != "register":
             state.note(f"depth {depth.shape[1]}x{depth.shape[0]} resized nearest-neighbour to colour {w}x{h} "
                        f"({d2c.describe})")

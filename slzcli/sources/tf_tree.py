@@ -48,7 +48,8 @@ def edge_problem(tree: Mapping[str, tuple[str, np.ndarray]], parent: str, child:
         while node is not None:
             node = parent_of(tree, node)
             if node == child:
-                return f"the transform {parent!r} -> {child!r} closes a cycle of child -> parent links {' -> '.join([*seen, child])}"
+                links = " -> ".join([*seen, child])
+                return f"the transform {parent!r} -> {child!r} closes a cycle of child -> parent links {links}"
             if node is not None:
                 if node in seen:  # a cycle already above (refused when it was added): stop walking
                     break

@@ -32,7 +32,13 @@ from slzcli.sources.presets import PresetChoice, choose_preset
 from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import PoseTrack, pair_stamps
 from slzcli.sources.undistort import distortion_problem, has_distortion
-from slzcli.sources.validate import intrinsics_problem, pose_problem, size_problem, stamp_problem
+from slzcli.sources.validate import (
+    depth_shape_problem,
+    intrinsics_problem,
+    pose_problem,
+    size_problem,
+    stamp_problem,
+)
 from slzcli.sources.window import WindowFilter
 from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
 
@@ -270,6 +276,10 @@ class TumRecording(Recording):
                 continue
             depth = decode.depth_to_metres(raw, 1.0 / self.cfg.tum_depth_scale, self.cfg.max_depth_m)
             rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            problem = depth_shape_problem(depth.shape[1], depth.shape[0], rgb.shape[1], rgb.shape[0],
+                                          self.cfg.intrinsics.aspect_tolerance)
+            if problem is not None:
+                raise DatasetError(self.path, f"frame {index} ({self._depth[j][1]}): {problem}")
             depth = decode.match_depth_to_color(depth, rgb.shape[:2])
             problem = size_problem(self._intr, rgb.shape[1], rgb.shape[0], self.cfg.intrinsics.aspect_tolerance)
             if problem is not None:
