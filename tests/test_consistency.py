@@ -139,7 +139,8 @@ def test_aligned_depth_of_another_shape_is_refused_not_stretched(runner: CliRunn
 
 def test_aligned_depth_at_half_the_colour_size_is_scaled_with_a_note(runner: CliRunner, tmp_path: Path) -> None:
     run, _ = detect(runner, C.aligned_depth_half_size(tmp_path), tmp_path / "run")
-    assert any("depth 80x60 resized nearest-neighbour to colour 160x120" in n for n in run["summary"]["pairing"]["notes"])
+    notes = run["summary"]["pairing"]["notes"]
+    assert any("depth 80x60 resized nearest-neighbour to colour 160x120" in n for n in notes)
 
 
 # ----------------------------------------------------------------------------- ground-truth sidecars
