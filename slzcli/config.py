@@ -102,6 +102,7 @@ class IntrinsicsCheckCfg:
     min_fov_deg: float = rng(0, 180, lo_open=True)
     max_fov_deg: float = rng(0, 180, lo_open=True)
     aspect_tolerance: float = rng(0, 1)
+    max_pixel_aspect: float = rng(1)
 
 
 @schema

@@ -35,6 +35,7 @@ import numpy as np
 from slzcli.errors import DatasetError
 from slzcli.geometry import invert_pose
 from slzcli.slam.features import detect, make_orb, ratio_matches
+from slzcli.sources.sync import stamp_offset_ns
 from slzcli.types import Frame
 
 if TYPE_CHECKING:
@@ -69,6 +70,8 @@ class Verdict:
     unchecked: tuple[str, ...] = ()
     scale_ratio: float | None = None  # median recorded / depth-implied translation over the pairs tested
     pairs: int = 0
+    rotation_deg: float | None = None   # median recorded vs depth-implied rotation difference
+    direction_deg: float | None = None  # median angle between the recorded and depth-implied motion
 
 
 def seen(frame: Frame, orb: cv2.ORB, min_depth_m: float, max_depth_m: float) -> Seen:
@@ -208,7 +211,8 @@ def check(frames: Sequence[Seen], pose_stamps: Sequence[int], config: Config, to
                                f"the direction the images show (median of {len(dir_err)} pairs; allowed "
                                f"slam.pose_check.max_direction_deg {pc.max_direction_deg:g}): poses of another frame "
                                "than the camera's optical frame", scale_ratio=ratio, pairs=len(ratios))
-    return Verdict(unchecked=tuple(unchecked), scale_ratio=ratio, pairs=len(ratios))
+    return Verdict(unchecked=tuple(unchecked), scale_ratio=ratio, pairs=len(ratios), rotation_deg=rot,
+                   direction_deg=float(np.median(dir_err)) if dir_err else None)
 
 
 def _angle_deg_vec(a: np.ndarray, b: np.ndarray) -> float:
@@ -224,7 +228,17 @@ def _stamp_problem(frames: Sequence[Seen], posed: Sequence[Seen], pose_stamps: S
         return f"{head}, and no pose on it could be read"
     stamps = np.sort(np.asarray(pose_stamps, np.int64))
     f = np.array([s.stamp_ns for s in frames], np.int64)
-    off = stamp_offset_ns(f, stamps, max(1, round(tol_ms * 1e6))) / NS_PER_S
+    distinct = np.unique(stamps)
+    if len(distinct) < len(stamps) / 2:  # a stuck clock: many poses, few stamps
+        return (f"{head}: {len(stamps)} recorded poses carry only {len(distinct)} distinct stamp(s) (a stuck or "
+                "unset clock in the pose publisher); fix its header stamps")
+    tol_ns = max(1, round(tol_ms * 1e6))
+    off = stamp_offset_ns(f, stamps, tol_ns) / NS_PER_S
+    inside = stamps[(stamps >= f.min() - tol_ns) & (stamps <= f.max() + tol_ns)]
+    if abs(off) * NS_PER_S <= tol_ns and len(inside) > 1:  # on time, but too few of them
+        gap = float(np.median(np.diff(inside))) / NS_PER_S
+        return (f"{head}: the poses are {gap:.3g} s apart, more than twice the tolerance; raise "
+                "sources.pose_tolerance_ms to interpolate between them, or record the poses at the frame rate")
     where = "after" if off > 0 else "before"
     unit = ""
     pose_mag, frame_mag = float(np.median(np.abs(stamps))), float(np.median(np.abs(f)))
@@ -233,22 +247,6 @@ def _stamp_problem(frames: Sequence[Seen], posed: Sequence[Seen], pose_stamps: S
     return (f"{head}: the recorded poses are {abs(off):.6g} s {where} the frames (the offset at which most "
             f"frames would find a pose){unit}; fix the "
             "recording's clocks, or raise sources.pose_tolerance_ms if that offset is how the poses are stamped")
-
-
-def stamp_offset_ns(frames_ns: np.ndarray, poses_ns: np.ndarray, tolerance_ns: int) -> float:
-    """The offset d (pose stamp - frame stamp) at which most frames have a pose within ``tolerance_ns``.
-
-    Every (frame, pose) difference is binned at the tolerance; the bin holding the most distinct frames
-    wins (ties: the smallest offset); its median difference is returned.
-    """
-    d = (poses_ns[None, :] - frames_ns[:, None]).astype(np.float64)  # frames x poses, both bounded
-    b = np.floor(d / tolerance_ns).astype(np.int64)
-    rows = np.broadcast_to(np.arange(len(frames_ns))[:, None], b.shape)
-    pairs = np.unique(np.stack([b.ravel(), rows.ravel()], axis=1), axis=0)  # one count per frame and bin
-    bins, counts = np.unique(pairs[:, 0], return_counts=True)
-    best = bins[counts == counts.max()]
-    pick = best[np.argmin(np.abs(best))]
-    return float(np.median(d[b == pick]))
 
 
 def seen_frames(frames: Iterable[Frame], config: Config) -> list[Seen]:

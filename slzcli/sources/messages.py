@@ -48,6 +48,7 @@ from slzcli.sources.validate import (
     StampCounts,
     depth_shape_problem,
     intrinsics_problem,
+    pixel_aspect_problem,
     size_problem,
     stamp_problem,
 )
@@ -304,6 +305,9 @@ class MessageRecording(Recording):
         if problem is not None:
             raise DatasetError(self.path, f"CameraInfo on {topic}: {problem}; fix the camera's calibration, or set "
                                           "sources.topics.camera_info to another CameraInfo topic")
+        problem = pixel_aspect_problem(k, lim.max_pixel_aspect)
+        if problem is not None:
+            self._warn(f"CameraInfo on {topic}: {problem}")
         return k
 
     def _stamp_report(self, ch: Choices, counts: dict[str, StampCounts], pairer: StreamPairer) -> list[str]:
@@ -394,6 +398,8 @@ class MessageRecording(Recording):
             extra += (f"{pairer.duplicates} duplicated colour/depth message(s) (same topic and stamp) were dropped",)
         window_note = win.note()
         extra += (window_note,) if window_note else ()
+        apart = pairer.never_paired()
+        extra += (apart,) if apart else ()
         return PairingReport(pairer.paired - win.left_out, pairer.unpaired["color"], pairer.unpaired["depth"],
                              without_pose, undecodable, tuple(notes) + extra + tuple(self.log.warnings),
                              win.left_out)

@@ -35,6 +35,7 @@ from slzcli.sources.undistort import distortion_problem, has_distortion
 from slzcli.sources.validate import (
     depth_shape_problem,
     intrinsics_problem,
+    pixel_aspect_problem,
     pose_problem,
     size_problem,
     stamp_problem,
@@ -172,6 +173,9 @@ class TumRecording(Recording):
             problem = intrinsics_problem(k, lim.min_fov_deg, lim.max_fov_deg)
             if problem is not None:
                 raise DatasetError(cam_file, problem)
+            problem = pixel_aspect_problem(k, lim.max_pixel_aspect)
+            if problem is not None:
+                self._warn(f"{cam_file.name}: {problem}")
             return k, str(cam_file)
         preset = self.preset.preset
         if preset is not None and preset.intrinsics is not None:

@@ -54,6 +54,19 @@ def size_problem(k: Intrinsics, width: int, height: int, aspect_tolerance: float
             "apart): not the calibration of this stream")
 
 
+def pixel_aspect_problem(k: Intrinsics, max_ratio: float) -> str | None:
+    """Why ``k``'s focal lengths look wrong together: pixels far from square (fx, fy swapped or one mis-scaled).
+
+    A warning, not a refusal: anamorphic cameras exist, depth cameras are not among them.
+    """
+    ratio = max(k.fx, k.fy) / min(k.fx, k.fy)
+    if ratio <= max_ratio:
+        return None
+    return (f"fx = {k.fx:g} px and fy = {k.fy:g} px differ by {ratio:.3g}x (more than "
+            f"sources.intrinsics.max_pixel_aspect = {max_ratio:g}): a depth camera's pixels are square, so K is "
+            "probably wrong (fx and fy swapped, or one of them scaled for another image size); used as given")
+
+
 def depth_shape_problem(depth_w: int, depth_h: int, width: int, height: int, aspect_tolerance: float) -> str | None:
     """Why a depth image cannot be resized onto a colour image of ``width x height`` (None: same shape or scale).
 
