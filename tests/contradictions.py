@@ -148,6 +148,46 @@ def tf_right(folder: Path) -> Path:
     return p
 
 
+POINTS_TOPIC = "/orb_slam3/map_points"
+
+
+def _write_cloud(w: RecordingWriter, stamp: int, xyz: np.ndarray) -> None:
+    data = np.concatenate([xyz.astype("<f4"), np.arange(len(xyz), dtype="<i4")[:, None].view("<f4")], 1)
+    fields = [w.message("sensor_msgs/msg/PointField", name=n, offset=4 * i, datatype=7 if n != "id" else 5,
+                        count=1) for i, n in enumerate(("x", "y", "z", "id"))]
+    msg = w.message("sensor_msgs/msg/PointCloud2", header=w.header(stamp, "world"), height=1, width=len(xyz),
+                    fields=fields, is_bigendian=False, point_step=16, row_step=16 * len(xyz),
+                    data=np.frombuffer(data.tobytes(), np.uint8).copy(), is_dense=True)
+    w.write_raw(POINTS_TOPIC, "sensor_msgs/msg/PointCloud2", msg, stamp)
+
+
+def _clouded(path: Path, scale: float) -> Path:
+    """A hover (the camera still: no motion to measure a scale by) with poses and a recorded map cloud of the
+    ground under the camera, both in metres times ``scale``."""
+    gx, gy = np.meshgrid(np.linspace(-2.5, 2.5, 12), np.linspace(-2.0, 2.0, 10))
+    ground = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    with RecordingWriter(path, "mcap") as w:
+        for i in range(N):
+            still = textured_frame(0)
+            f = textured_frame(i, rgb=still.rgb)
+            w.write_frame(f)
+            T = true_pose(0)
+            T[:3, 3] *= scale
+            w.write_pose("/camera/pose", f.stamp_ns, T)
+            if i % 3 == 0:
+                _write_cloud(w, f.stamp_ns, ground * scale)
+    return path
+
+
+def clouds_right(folder: Path) -> Path:
+    return _clouded(folder / "clouds_right.mcap", 1.0)
+
+
+def clouds_mm(folder: Path) -> Path:
+    """A hover whose poses and map points (one SLAM's) are in millimetres: only the map points' depth shows it."""
+    return _clouded(folder / "clouds_mm.mcap", 1000.0)
+
+
 def _aligned(path: Path, depth_of: Callable[[np.ndarray], np.ndarray], n: int = 4) -> Path:
     with RecordingWriter(path, "mcap") as w:
         for i in range(n):
@@ -178,4 +218,4 @@ def aligned_depth_half_size(folder: Path) -> Path:
 CASES: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
     poses_right, poses_mm, poses_cm, pose_upside_down, poses_body_frame, poses_yawed, poses_1s_late,
     pose_stamps_in_seconds, poses_static_frames_moving, tf_two_parents, tf_cycle, tf_right,
-    aligned_depth_transposed, aligned_depth_half_width, aligned_depth_half_size)}
+    aligned_depth_transposed, aligned_depth_half_width, aligned_depth_half_size, clouds_right, clouds_mm)}

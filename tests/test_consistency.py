@@ -67,6 +67,17 @@ def test_poses_that_contradict_the_frames_are_rejected_naming_the_fallback(runne
     assert warned[0] in stderr.replace("\n", " ") or REJECTIONS[case] in stderr
 
 
+def test_recorded_map_points_are_checked_against_the_depth(runner: CliRunner, tmp_path: Path) -> None:
+    points = ("--set", f"slam.points_topic={C.POINTS_TOPIC}")
+    run, stderr = detect(runner, C.clouds_right(tmp_path), tmp_path / "right", *points)
+    assert run["summary"]["slam_backend"] == "recorded" and REJECTED not in stderr
+    assert "not checked for scale" not in stderr  # a hover, but the map points' depth gave the scale
+    run, _ = detect(runner, C.clouds_mm(tmp_path), tmp_path / "mm", *points)
+    warned = [w for w in run["recording"]["warnings"] if w.startswith(REJECTED)]
+    assert run["summary"]["slam_backend"] != "recorded"
+    assert len(warned) == 1 and "the recorded map points put what the camera sees 1e+03x as far" in warned[0]
+
+
 @pytest.mark.parametrize(("case", "factor"), [("poses_mm", 1000.0), ("poses_cm", 100.0)])
 def test_the_scale_factor_is_measured_not_guessed(runner: CliRunner, tmp_path: Path, case: str,
                                                   factor: float) -> None:

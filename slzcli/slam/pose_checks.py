@@ -9,6 +9,8 @@ frames are read once ahead of the run and each property is checked against the d
   do not, the offset to the nearest recorded pose is reported;
 - the ground: in the pose's world frame what the camera measures (its depth points) must lie
   below it: an upside-down camera pose puts the ground overhead;
+- recorded map points (``slam.points_topic``): through the pose, their depth in the camera must be
+  the depth measured at their pixel (the scale even when the camera does not move);
 - scale, rotation and direction of motion: between frame pairs far enough apart, the camera
   motion the depth implies (ORB matches, 3D points from the first frame's depth, PnP in the
   second) is compared with the recorded relative pose.
@@ -33,7 +35,7 @@ import cv2
 import numpy as np
 
 from slzcli.errors import DatasetError
-from slzcli.geometry import invert_pose
+from slzcli.geometry import invert_pose, transform_points
 from slzcli.slam.features import detect, make_orb, ratio_matches
 from slzcli.sources.sync import stamp_offset_ns
 from slzcli.types import Frame
@@ -60,6 +62,7 @@ class Seen:
     K: np.ndarray
     ground_above_m: float   # median height of the depth points above the camera, in the pose's world (NaN: none)
     median_depth_m: float
+    cloud_ratios: np.ndarray  # recorded map points in view: their depth by the pose / the depth image's there
 
 
 @dataclass(frozen=True)
@@ -96,7 +99,27 @@ def seen(frame: Frame, orb: cv2.ORB, min_depth_m: float, max_depth_m: float) -> 
             up = np.asarray(frame.T_world_camera, np.float64)[2, :3]  # world z of camera axes
             above = float(np.median((rays @ up) * dz))
     T = None if frame.T_world_camera is None else np.asarray(frame.T_world_camera, np.float64)
-    return Seen(frame.index, frame.stamp_ns, T, px, desc, xyz, K, above, median_depth)
+    return Seen(frame.index, frame.stamp_ns, T, px, desc, xyz, K, above, median_depth,
+                _cloud_ratios(frame, T, min_depth_m, max_depth_m))
+
+
+def _cloud_ratios(frame: Frame, T: np.ndarray | None, min_depth_m: float, max_depth_m: float) -> np.ndarray:
+    """Per recorded map point in view: its depth in the camera by the pose, over the measured depth at its pixel."""
+    cloud = frame.map_points
+    if cloud is None or T is None or not len(cloud.xyz):
+        return np.zeros(0)
+    pc = transform_points(invert_pose(T), np.asarray(cloud.xyz, np.float64))
+    K, (h, w) = frame.K, frame.depth_m.shape
+    z = pc[:, 2]
+    ok = z > 0
+    u = np.full(len(z), -1.0)
+    v = np.full(len(z), -1.0)
+    u[ok] = K[0, 0] * pc[ok, 0] / z[ok] + K[0, 2]
+    v[ok] = K[1, 1] * pc[ok, 1] / z[ok] + K[1, 2]
+    ok &= (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    d = frame.depth_m[np.rint(v[ok]).astype(int), np.rint(u[ok]).astype(int)].astype(np.float64)
+    good = np.isfinite(d) & (d >= min_depth_m) & (d <= max_depth_m)
+    return z[ok][good] / d[good]
 
 
 def depth_motion(a: Seen, b: Seen, ratio: float, reprojection_px: float, min_inliers: int) -> np.ndarray | None:
@@ -154,6 +177,14 @@ def check(frames: Sequence[Seen], pose_stamps: Sequence[int], config: Config, to
                                "frame than the camera's optical frame (REP 103: world z up; camera z forward)")
     if not above.size:
         unchecked.append("the ground (no valid depth)")
+    cloud = np.concatenate([f.cloud_ratios for f in posed])
+    if cloud.size >= pc.min_matches:
+        r = float(np.exp(np.median(np.log(cloud))))
+        if not 1 / pc.max_scale_ratio <= r <= pc.max_scale_ratio:
+            return Verdict(problem=f"the recorded map points put what the camera sees {r:.3g}x as far as the depth "
+                                   f"measures (median of {cloud.size} points in view of the first {len(frames)} "
+                                   f"frames, through the poses on {topic}): map points or poses in another unit "
+                                   "than metres, or of another frame", scale_ratio=r)
     ratios, rot_err, dir_err, tested = [], [], [], []
     for i, j in _pairs(len(frames)):
         a, b = frames[i], frames[j]
@@ -179,7 +210,8 @@ def check(frames: Sequence[Seen], pose_stamps: Sequence[int], config: Config, to
             c_dep = -T_depth[:3, :3].T @ T_depth[:3, 3]
             dir_err.append(_angle_deg_vec(c_rec, c_dep))
     if not tested:
-        return Verdict(unchecked=(*unchecked, f"scale and motion (no two of the first {len(frames)} frames share "
+        what = "motion" if cloud.size >= pc.min_matches else "scale and motion"
+        return Verdict(unchecked=(*unchecked, f"{what} (no two of the first {len(frames)} frames share "
                                               f"{pc.min_matches} features with depth)"))
     rot = float(np.median(rot_err))
     if rot > pc.max_rotation_deg:
@@ -188,6 +220,8 @@ def check(frames: Sequence[Seen], pose_stamps: Sequence[int], config: Config, to
                                f"slam.pose_check.max_rotation_deg {pc.max_rotation_deg:g}): poses of another frame "
                                "than the camera's optical frame, or of another camera", pairs=len(rot_err))
     if not ratios:
+        if cloud.size >= pc.min_matches:  # the map points' depth gave the scale
+            return Verdict(unchecked=tuple(unchecked), pairs=len(tested), rotation_deg=rot)
         moved = max(max(t[2], t[3]) for t in tested)
         return Verdict(unchecked=(*unchecked, f"scale (the camera moved at most {moved:.3g} m over the first "
                                               f"{len(frames)} frames, below slam.pose_check.min_baseline_fraction "
