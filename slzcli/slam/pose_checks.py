@@ -308,8 +308,12 @@ def vet_recorded_poses(path: Path, rec: Any, info: RecordingInfo, config: Config
     topic = next((c.topic for c in info.choices if c.role == "pose" and c.topic), None)
     if topic is None or choose_backend(config, True) != "recorded" or not config.slam.pose_check.frames:
         return config, info
-    with closing(rec.frames()) as frames:
-        kept = seen_frames(frames, config)
+    rec.quiet_frames = True  # the run's own pass gives the per-frame warnings
+    try:
+        with closing(rec.frames()) as frames:
+            kept = seen_frames(frames, config)
+    finally:
+        rec.quiet_frames = False
     verdict = check(kept, rec.pose_stamps(config.slam.pose_check.max_pose_stamps), config, topic)
     notes: list[str] = [f"recorded poses not checked for {what}" for what in verdict.unchecked]
     if verdict.problem:

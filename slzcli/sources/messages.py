@@ -421,7 +421,7 @@ class MessageRecording(Recording):
         tol_pose = int(cfg.pose_tolerance_ms * NS_PER_MS)
         window = int(cfg.reorder_window_ms * NS_PER_MS)
         pairer = StreamPairer(int(cfg.sync_tolerance_ms * NS_PER_MS), window)
-        state = _FrameState(CloudBuffer(tol_pose) if points_topic else None)
+        state = _FrameState(CloudBuffer(tol_pose) if points_topic else None, self.quiet_frames)
         poses = _PoseSource(self, ch, PoseTrack(tol_pose), state)
         topics = {t for t in (ch.color.topic, ch.depth.topic, ch.camera_info.topic, ch.pose.topic, points_topic) if t}
         if ch.pose_type in (TF, ODOMETRY) and TF_STATIC in self._topics:
@@ -612,8 +612,9 @@ class MessageRecording(Recording):
 class _FrameState:
     """Mutable bookkeeping of one ``frames()`` pass (notes are de-duplicated, in order)."""
 
-    def __init__(self, clouds: CloudBuffer | None = None) -> None:
+    def __init__(self, clouds: CloudBuffer | None = None, quiet: bool = False) -> None:
         self.clouds = clouds
+        self.quiet = quiet  # a look-ahead pass (Recording.quiet_frames): count, warn nothing
         self.info: Intrinsics | None = None
         self.info_source = ""
         self.yielded = 0
@@ -635,8 +636,8 @@ class _FrameState:
         self.bad_poses += 1
         if not self.first_bad_pose:
             self.first_bad_pose = f"pose on {topic} not usable: {err}"
-            log.warning("%s: %s (the frames it would pose carry none; further unusable poses are counted, not "
-                        "shown)", path, self.first_bad_pose)
+            self._warning("%s: %s (the frames it would pose carry none; further unusable poses are counted, not "
+                          "shown)", path, self.first_bad_pose)
 
     def pose_summary(self) -> None:
         if self.bad_poses:
@@ -649,10 +650,14 @@ class _FrameState:
         if isinstance(err, FrameTooLarge):  # its own one warning: an oversized frame is not a torn message
             self.n_too_large += 1
             if self.n_too_large == 1:
-                log.warning("%s: %s: %s; skipped (further frames over the bound are counted, not shown)", path, topic,
-                            err)
+                self._warning("%s: %s: %s; skipped (further frames over the bound are counted, not shown)", path,
+                              topic, err)
         elif self.n_undecodable - self.n_too_large == 1:
-            log.warning("%s: %s: %s (further decode errors are counted, not shown)", path, topic, err)
+            self._warning("%s: %s: %s (further decode errors are counted, not shown)", path, topic, err)
+
+    def _warning(self, fmt: str, *args: object) -> None:
+        if not self.quiet:
+            log.warning(fmt, *args)
 
     def note_too_large(self, max_px: int) -> None:
         """The count of frames skipped for their size, in the run's notes (run.json summary.pairing)."""

@@ -71,6 +71,9 @@ class Recording(abc.ABC):
     def __init__(self, path: Path) -> None:
         self.path = path
         self.report = PairingReport()
+        # A frames() pass that only looks ahead (the recorded-pose check reads the first frames before the
+        # run) sets this: its per-frame warnings (a torn message, an unusable pose) are the run's to give.
+        self.quiet_frames = False
 
     def __enter__(self) -> Recording:
         self.open()

@@ -218,13 +218,14 @@ class TumRecording(Recording):
             for name, what in ((rgb_name, "colour"), (depth_name, "depth")):
                 check_file(self.path / name, self.cfg.max_image_px, f"{name}: {what} image")
         except FrameTooLarge as err:
-            if not too_large:
+            if not too_large and not self.quiet_frames:
                 log.warning("%s: %s; skipped (further frames over the bound are counted, not shown)", self.path, err)
             too_large.append(str(err))
             return False
         except DecodeError:   # neither PNG nor JPEG: not read (OpenCV would decode any size of TIFF, BMP, ...)
-            log.warning("%s: %s / %s: missing or not an 8-bit colour / 16-bit depth PNG", self.path, rgb_name,
-                        depth_name)
+            if not self.quiet_frames:
+                log.warning("%s: %s / %s: missing or not an 8-bit colour / 16-bit depth PNG", self.path, rgb_name,
+                            depth_name)
             return False
         except OSError:
             return True   # missing: cv2.imread below says so as before
@@ -276,7 +277,9 @@ class TumRecording(Recording):
                 undecodable += 1
                 if not first_error:  # one line; the rest are counted (run.json pairing.undecodable)
                     first_error = f"{rgb_name} / {self._depth[j][1]}: missing or not an 8-bit colour / 16-bit depth PNG"
-                    log.warning("%s: %s (further unreadable frames are counted, not shown)", self.path, first_error)
+                    if not self.quiet_frames:
+                        log.warning("%s: %s (further unreadable frames are counted, not shown)", self.path,
+                                    first_error)
                 continue
             depth = decode.depth_to_metres(raw, 1.0 / self.cfg.tum_depth_scale, self.cfg.max_depth_m)
             rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
