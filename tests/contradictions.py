@@ -98,6 +98,18 @@ def poses_1s_late(folder: Path) -> Path:
     return _posed(folder / "poses_1s_late.mcap", stamp_offset_ns=1_000_000_000)
 
 
+def poses_start_late(folder: Path) -> Path:
+    """Right poses, on time, but only from frame 4 on (a SLAM that publishes once initialised): not a contradiction."""
+    p = folder / "poses_start_late.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(N):
+            f = textured_frame(i)
+            w.write_frame(f)
+            if i >= 4:
+                w.write_pose("/camera/pose", f.stamp_ns, true_pose(i))
+    return p
+
+
 def pose_stamps_in_seconds(folder: Path) -> Path:
     """Pose stamps written as seconds counted in nanoseconds (1.7e9 ns) beside frame stamps in ns."""
     return _posed(folder / "pose_stamps_s.mcap", stamp_offset_ns=T0_NS // 10**9 - T0_NS)
@@ -217,5 +229,5 @@ def aligned_depth_half_size(folder: Path) -> Path:
 
 CASES: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
     poses_right, poses_mm, poses_cm, pose_upside_down, poses_body_frame, poses_yawed, poses_1s_late,
-    pose_stamps_in_seconds, poses_static_frames_moving, tf_two_parents, tf_cycle, tf_right,
+    poses_start_late, pose_stamps_in_seconds, poses_static_frames_moving, tf_two_parents, tf_cycle, tf_right,
     aligned_depth_transposed, aligned_depth_half_width, aligned_depth_half_size, clouds_right, clouds_mm)}

@@ -42,6 +42,12 @@ def test_poses_that_agree_with_the_frames_are_used(runner: CliRunner, tmp_path: 
     assert site is not None and abs(site[2]) < 0.05  # the ground is at z = 0 in the poses' world
 
 
+def test_poses_that_start_after_the_first_frames_are_used_from_there(runner: CliRunner, tmp_path: Path) -> None:
+    run, stderr = detect(runner, C.poses_start_late(tmp_path), tmp_path / "run")
+    assert run["summary"]["slam_backend"] == "recorded" and REJECTED not in stderr
+    assert "recorded poses not checked for the first 4 frames (the poses start after them)" in stderr
+
+
 # case -> what the warning must say (besides "recorded poses rejected" and the fallback)
 REJECTIONS = {
     "poses_mm": "their scale disagrees with the depth by",

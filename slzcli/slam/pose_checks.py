@@ -189,17 +189,23 @@ def check(frames: Sequence[Seen], pose_stamps: Sequence[int], config: Config, to
     posed = [f for f in frames if f.T_world_camera is not None]
     if not frames:
         return Verdict(unchecked=("no frame to check the recorded poses against",))
+    unchecked: list[str] = []
+    late = _late_start(frames, posed, pose_stamps, tol_ms)
+    if late:  # the pose stream starts on time but after the first frames (a SLAM initialising): check from there
+        unchecked.append(f"the first {late} frames (the poses start after them)")
+        frames = frames[late:]
     if len(posed) < pc.min_posed_fraction * len(frames):
         return Verdict(problem=_stamp_problem(frames, posed, pose_stamps, tol_ms, topic))
-    unchecked: list[str] = []
     above = np.array([f.ground_above_m for f in posed])
-    above = above[np.isfinite(above)]
-    if above.size and np.median(above) > 0:
-        worst = max(posed, key=lambda f: f.ground_above_m if np.isfinite(f.ground_above_m) else -np.inf)
-        assert worst.T_world_camera is not None
-        down = _angle_deg_vec(worst.T_world_camera[:3, 2], np.array([0.0, 0.0, -1.0]))
+    finite = np.isfinite(above)
+    down = np.array([_angle_deg_vec(f.T_world_camera[:3, 2], np.array([0.0, 0.0, -1.0]))
+                     for f in posed if f.T_world_camera is not None])
+    above, down = above[finite], down[finite]
+    # Overhead ground with the optical axis above the horizon: a level forward camera seeing buildings is not it.
+    if above.size and np.median(above) > 0 and np.median(down) > 90:
+        down_deg = float(np.median(down))
         return Verdict(problem=f"the poses on {topic} put what the camera sees {float(np.median(above)):.2f} m above "
-                               f"it (median over {above.size} frames; the optical axis is {down:.0f} deg from "
+                               f"it (median over {above.size} frames; the optical axis is {down_deg:.0f} deg from "
                                "straight down in the pose's world): an upside-down pose, or a pose of another "
                                "frame than the camera's optical frame (REP 103: world z up; camera z forward)")
     if not above.size:
@@ -288,6 +294,22 @@ def _times(r: float) -> str:
 def _angle_deg_vec(a: np.ndarray, b: np.ndarray) -> float:
     c = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def _late_start(frames: Sequence[Seen], posed: Sequence[Seen], pose_stamps: Sequence[int], tol_ms: float) -> int:
+    """How many leading frames come before an on-time pose stream starts (0: none, or the poses are off).
+
+    Every frame from the first pose on has a pose, every frame before it none, and the stamps line up
+    (``stamp_offset_ns`` within the tolerance)."""
+    if not posed or not pose_stamps or frames[0].T_world_camera is not None:
+        return 0
+    first = next(i for i, f in enumerate(frames) if f.T_world_camera is not None)
+    if any(f.T_world_camera is None for f in frames[first:]):
+        return 0
+    tol_ns = max(1, round(tol_ms * 1e6))
+    f = np.array([s.stamp_ns for s in frames], np.int64)
+    off = stamp_offset_ns(f, np.sort(np.asarray(pose_stamps, np.int64)), tol_ns)
+    return first if abs(off) <= tol_ns and min(pose_stamps) > frames[first - 1].stamp_ns else 0
 
 
 def _stamp_problem(frames: Sequence[Seen], posed: Sequence[Seen], pose_stamps: Sequence[int], tol_ms: float,
