@@ -11,7 +11,6 @@ import dataclasses
 import functools
 import logging
 import math
-import signal
 import sys
 import threading
 import warnings
@@ -25,6 +24,8 @@ from slzcli import __version__
 from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
 from slzcli.config import Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
+from slzcli.interrupt import sigterm_interrupts
+from slzcli.methods import registry as method_registry
 from slzcli.outputs.summary_json import envelope
 
 if TYPE_CHECKING:
@@ -63,7 +64,7 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         warned = _setup_logging(verbose)
         click.get_current_context().meta[LAYERS] = (profile, config_file, overrides)
         try:
-            with _sigterm_interrupts():
+            with sigterm_interrupts():
                 config = load_config(config_file, overrides, profile)
                 result = fn(config=config, **kwargs)
         except click.ClickException:  # a usage error found after parsing (exit 2): click prints it
@@ -135,25 +136,6 @@ def one_line(message: str, limit: int = MAX_LINE_CHARS) -> str:
         return text
     head = (2 * limit) // 3
     return f"{text[:head]} [...] {text[-(limit - head - 7):]}"
-
-
-@contextlib.contextmanager
-def _sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM stops every command the way Ctrl-C does: the exception unwinds through the atomic
-    writers (temporary files and folders are removed) and slz exits with 130, as a batch does.
-    Long native calls run where the signal can still be acted on (``slzcli/interrupt.py``)."""
-    def stop(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, stop)
-    except ValueError:  # not the main thread (slz called from a thread): leave signals alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _fail(message: str, json_err: BaseException | None = None) -> None:
@@ -376,12 +358,16 @@ def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: 
     """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames
     (within --start/--end/--stride/--max-frames when given)."""
     from slzcli.sources import open_recording
+    from slzcli.sources.depth_check import check_depth
     from slzcli.sources.info_text import info_text
 
     config = _windowed(config, win_start, win_end, stride, max_frames)
     with open_recording(bag, config) as rec:
         info = rec.info()
-    return info.to_dict(), info_text(info)
+    depth = check_depth(bag, config, info)  # a few frames decoded: the depth's range, a wrong unit warned of
+    if depth is not None and depth.warning:
+        log.warning("%s: %s", bag, depth.warning)
+    return {**info.to_dict(), "depth": None if depth is None else depth.to_dict()}, info_text(info, depth)
 
 
 @main.group("vocab")
@@ -649,8 +635,9 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="One recording: its run folder (default runs/<name>). Several, or a quoted glob pattern: "
                    "the folder for one run folder each plus summary.json and summary.csv (default runs/).")
-@click.option("--method", type=click.Choice(["fuzzy", "bayes", "px4slp"]), default=None,
-              help="Fusion method (default: scoring.method).")
+@click.option("--method", type=click.Choice(method_registry.names()), default=None,
+              help="Detection method (default: scoring.method): "
+                   + "; ".join(f"{n}, {e.summary}" for n, e in method_registry.METHODS.items()) + ".")
 @click.option("--force", is_flag=True, help="Replace finished runs (only the files slz writes in a run folder): "
               "redo one done for the same config and inputs, or replace one of another config.")
 @click.option("--workers", type=click.IntRange(1), default=None,
@@ -691,6 +678,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     rows = result.rows
     for r in rows:
         _warn_slam_maps(r.get("summary"))
+        _warn_untracked(r.get("summary"))
     # --json names paths as the user gave them (the run folders and summary files keep absolute ones)
     given = {str(p.absolute()): str(p) for p in paths}
     given_run = {str(t.run_dir): str(output) if output is not None and not is_batch else str(batch_dir / t.run_dir.name)
@@ -754,6 +742,13 @@ def _warn_slam_maps(s: dict[str, Any] | None) -> None:
     log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; %s in map %d (frames %d-%d, "
                 "%d tracked); run.json summary.slam lists them all", s["source"], slam["maps"], what,  # type: ignore[index]
                 slam["segment"], seg["first_frame"], seg["last_frame"], seg["frames_tracked"])
+
+
+def _warn_untracked(s: dict[str, Any] | None) -> None:
+    """One warning line when SLAM left more than slam.max_untracked_share of the frames without a pose."""
+    warning = ((s or {}).get("slam") or {}).get("warning")
+    if warning:
+        log.warning("%s: %s", s["source"], warning)  # type: ignore[index]
 
 
 def _batch_text(t: dict[str, Any], rows: list[dict[str, Any]]) -> str:
@@ -833,7 +828,9 @@ class _BatchDisplay:
 def _detect_text(out: Path, s: dict[str, Any]) -> str:
     t = s["timings_ms"]
     maps = _slam_maps(s)
-    head = (f"{s['source']}: {s['frames']} frames, {s['detections']} detections ({s['method']}, "
+    lost = (s.get("slam") or {}).get("frames_untracked")
+    head = (f"{s['source']}: {s['frames']} frames" + (f" ({lost} not tracked)" if lost else "")
+            + f", {s['detections']} detections ({s['method']}, "
             f"SLAM {s['slam_backend']}" + (f", {maps} maps)" if maps > 1 else ")"))
     if s.get("skipped"):
         head += " [skipped: done before with the same config and input bytes; --force redoes it]"
@@ -915,6 +912,7 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
         if _slam_maps(r) > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
+        _warn_untracked(r)
     return envelope("compare", summary), text_table(summary, str(out))
 
 

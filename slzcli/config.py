@@ -25,6 +25,7 @@ from typing import Any, Literal
 import yaml
 
 from slzcli.errors import ConfigError, short_repr
+from slzcli.methods import registry as method_registry
 
 
 def package_dir(*parts: str) -> Path:
@@ -51,6 +52,11 @@ def rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fal
     return field(metadata={"lo": lo, "hi": hi, "lo_open": lo_open, "odd": odd, "n": n})
 
 
+def one_of(names: typing.Callable[[], tuple[str, ...]]) -> Any:
+    """A string field (or each string of a list) that must be one of ``names()``, a registry read at check time."""
+    return field(metadata={"one_of": names})
+
+
 _C = typing.TypeVar("_C")
 _D = typing.TypeVar("_D", bound="DataclassInstance")
 
@@ -63,7 +69,7 @@ else:
         return lambda decorator: decorator
 
 
-@dataclass_transform(frozen_default=True, field_specifiers=(field, rng))
+@dataclass_transform(frozen_default=True, field_specifiers=(field, rng, one_of))
 def schema(cls: type[_C]) -> type[_C]:
     """``@dataclass(frozen=True)``, declared so that type checkers read ``rng(...)`` as a field without a default."""
     return dataclass(frozen=True)(cls)
@@ -116,6 +122,14 @@ class WindowCfg:
 
 
 @schema
+class DepthCheckCfg:
+    frames: int = rng(1, 1000)
+    min_range_m: float = rng(0, lo_open=True)
+    below_min_share: float = rng(0, 1)
+    max_median_m: float = rng(0, lo_open=True)
+
+
+@schema
 class SourcesCfg:
     topics: Topics
     intrinsics: IntrinsicsCheckCfg
@@ -131,6 +145,7 @@ class SourcesCfg:
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
     window: WindowCfg
     read_ahead_frames: int = rng(0, 64)
+    depth_check: DepthCheckCfg
 
 
 @schema
@@ -231,7 +246,7 @@ class Px4SlpCfg:  # the ranges of upstream's SafeLandingPlannerNode.cfg / Waypoi
 
 @schema
 class ScoringCfg:
-    method: Literal["fuzzy", "bayes", "px4slp"]
+    method: str = one_of(method_registry.names)
     fuzzy: FuzzyCfg
     bayes: BayesCfg
     px4slp: Px4SlpCfg
@@ -282,6 +297,7 @@ class LandingCfg:
     depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
     commit_radius_factor: float = rng(0)
+    commit_score_band: float = rng(0, 1)
     max_normal_pairs: int = rng(1)
     commit: Literal["agree", "latest"] = "agree"
 
@@ -595,6 +611,7 @@ class SlamCfg:
     vocabulary: str
     points_topic: str
     track_ahead: bool
+    max_untracked_share: float = rng(0, 1)
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
     pose_check: PoseCheckCfg
@@ -606,7 +623,7 @@ class SlamCfg:
 
 @schema
 class CompareCfg:
-    methods: tuple[str, ...]
+    methods: tuple[str, ...] = one_of(method_registry.names)
     pr_levels: int = rng(2, 10001)
     variants: tuple[str, ...]
 # --- end compare ---
@@ -1033,6 +1050,11 @@ def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str
     elif tp is str:
         if not isinstance(value, str):
             raise ConfigError(path, f"expected a string, got {_kind(value)} {short_repr(value)}", source)
+        names = meta.get("one_of")
+        if names is not None and value not in names():
+            choices = names()
+            raise ConfigError(path, f"must be one of {', '.join(choices)}; got {short_repr(value)}"
+                                    f"{_did_you_mean(short_repr(value, 200), choices)}", source)
         return value
     lo, hi = meta.get("lo"), meta.get("hi")
     if lo is not None and (value <= lo if meta.get("lo_open") else value < lo):
