@@ -402,6 +402,8 @@ def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[
             "per_frame_site_distance_m": {"mean": float(np.mean(per_frame)) if per_frame else None,
                                           "frames": len(per_frame)},
             "mask_iou": agree.iou,
+            # both masks empty in every frame: agreement says nothing (it would be 1 on any input)
+            "masks_empty": agree.tp + agree.fp + agree.fn == 0,
             "mask_agreement": (agree.tp + agree.tn) / max(agree.tp + agree.fp + agree.fn + agree.tn, 1)}
 
 

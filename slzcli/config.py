@@ -203,10 +203,25 @@ class LimitsCfg:
 
 
 @schema
+class FusionCfg:
+    cells_per_footprint: float = rng(1, 64)
+    window_m: float = rng(1, lo_open=False)
+    samples_per_cell: float = rng(1)
+    white_fraction: float = rng(0, 1)
+    fixed_fraction: float = rng(0, 1)
+    decorrelation_px: float = rng(0, lo_open=True)
+    gate_sigma: float = rng(0, lo_open=True)
+    two_heights_fraction: float = rng(0, 1, lo_open=True)
+    pose_sigma_m: float = rng(0)
+    pose_sigma_deg: float = rng(0)
+
+
+@schema
 class TerrainCfg:
     noise: Literal["auto"] | float = rng(0)
     noise_estimate: NoiseEstimateCfg
     limits: LimitsCfg
+    fusion: FusionCfg
     depth_variance: DepthVarianceCfg
     flatness: FlatnessCfg
     inclination: InclinationCfg

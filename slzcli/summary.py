@@ -150,6 +150,19 @@ def noise_summary(st: RunState) -> dict[str, Any]:
     return out
 
 
+def _height(center_world: list[float], st: RunState, table: list[Segment], primary: int | None,
+            config: Config) -> dict[str, Any]:
+    """landing.json ``site.height``: above the ground and above the start, in the site's map frame."""
+    from slzcli.landing.height import site_height
+
+    segment = primary if primary is not None else 0
+    first = next((s.first_frame for s in table if s.segment == segment), 0)
+    pose = st.trajectory.poses()[first] if len(st.trajectory) > first else None
+    xyz = st.keyframes.map_xyz(primary if len(table) > 1 else None)
+    return site_height(center_world, np.asarray(xyz)[:, 2], map_frame_of(segment, config.output.map_frame), first,
+                       0.0 if pose is None else float(pose[2, 3]))
+
+
 def site_truth(truth: Any | None, committed: dict[str, Any] | None) -> dict[str, Any] | None:
     """landing.json ``site.ground_truth`` of the committed site (None without truth or site)."""
     if truth is None or committed is None:
@@ -176,10 +189,13 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
     spread = None if committed is None or "ranked" not in committed else \
         spread_record(committed["ranked"], config.uav.footprint_m[0])
     landing = landing_record(source, method, committed, world, timings, reason, site_gt, primary, spread)
+    if committed is not None:
+        landing["site"]["height"] = _height(landing["site"]["center_world"], st, table, primary, config)
     noise = noise_summary(st)
     summary: dict[str, Any] = {
         "source": str(source), "method": method, "frames": st.frames, "detections": st.detections,
         "status": landing["status"], "site_world": landing.get("site", {}).get("center_world"),
+        "site_height": landing.get("site", {}).get("height"),
         "reason": landing.get("reason"), "site_spread_m": landing.get("site_spread_m"),
         "slam_backend": slam_name, "tracking": st.tracking,
         "slam": {**slam_summary(slam_name, table, primary, trajectory_files(st.trajectory), config.output.map_frame),
