@@ -11,7 +11,7 @@ EXTRAS := test,lint,orbslam3,dask
 LATEST := .venv-latest
 LINTED := slzcli tests benchmarks scripts
 
-.PHONY: demo test lint test-latest constraints sysdeps venv bench clean docs
+.PHONY: demo test test-fast lint test-latest constraints sysdeps venv bench clean docs
 
 # open3d's wheel links against libusb-1.0 and libgomp; install them when absent.
 sysdeps:
@@ -42,6 +42,11 @@ PYTEST_PAR := -n auto --dist loadfile
 
 test: lint
 	$(BIN)/python -m pytest $(PYTEST_PAR)
+
+# The edit-run loop: everything but the tests marked slow (whole commands on rendered recordings,
+# simulated descents, property tests: tests/conftest.py SLOW_FILES); `make test` still runs all.
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest $(PYTEST_PAR) -m "not slow"
 
 # The newest releases that meet pyproject's floors, in a scratch venv, through lint and the whole suite.
 # When it passes, `make constraints` records those versions as the new known-good set.

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from slzcli import __version__, render
+from slzcli import render
 from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
 from slzcli.config import Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
@@ -28,6 +28,7 @@ from slzcli.interrupt import sigterm_interrupts
 from slzcli.methods import registry as method_registry
 from slzcli.outputs.summary_json import envelope
 from slzcli.progress import DEFAULT_EVERY_S, Bar, BatchDisplay, RunsDisplay
+from slzcli.version import __version__
 
 if TYPE_CHECKING:
     from slzcli.synth.flight import PathKind

@@ -182,9 +182,9 @@ def test_site_log_gives_back_the_points_of_any_site(tmp_path, on_disk) -> None:
     for i in range(4):
         kept, chosen = rng.normal(size=(5 + i, 3)), rng.normal(size=(2 + i, 3))
         log.add_rows([dict.fromkeys(SITE_COLUMNS, i), dict.fromkeys(SITE_COLUMNS, i)])
-        log.add_site(f"frame {i}", f"site {i}", kept, chosen)
+        log.add_site(f"frame {i}", f"site {i}", kept, chosen)  # type: ignore[arg-type]  # the log stores them
         stored.append((kept, chosen))
-    assert log.rows == 8 and [s["site"] for s in log.sites] == [f"site {i}" for i in range(4)]
+    assert log.rows == 8 and [s.site for s in log.sites] == [f"site {i}" for i in range(4)]
     for entry, (kept, chosen) in zip(log.sites, stored, strict=True):
         got_kept, got_chosen = log.points(entry)
         np.testing.assert_array_equal(got_kept, kept)

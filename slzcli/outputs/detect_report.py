@@ -25,7 +25,7 @@ from slzcli.outputs.files import write_text
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
 from slzcli.render import height_text
-from slzcli.types import RunResult
+from slzcli.types import CommittedSite, RunResult
 
 # Display only (no result depends on these): the Figure 5 tiles' width and title band, tiles per row, the
 # trajectory drawing's size and margin (px). Drawn with OpenCV and SVG, not matplotlib: a matplotlib panel of
@@ -59,7 +59,7 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
     run_dir = Path(run_dir)
     s, landing, committed = result.summary, result.landing, result.committed
     detection_frames = _detection_frames(run_dir)
-    panel_frame = committed["frame"].index if committed is not None else \
+    panel_frame = committed.frame.index if committed is not None else \
         (detection_frames[-1] if detection_frames else None)
     from markupsafe import Markup
 
@@ -69,7 +69,7 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
         # the picture sections are drawn here (image panel, SVG); the rest is the template's
         result=Markup(_result(s, landing)),
         figure5=Markup(_figure5(run_dir, panel_frame, committed is not None and
-                                committed["frame"].index == panel_frame, level, reverse)),
+                                committed.frame.index == panel_frame, level, reverse)),
         trajectory=Markup(_trajectory(trajectory, sites, committed, result.primary_segment)),
         site_columns=SITE_COLUMNS, sites=_site_rows(sites, committed),
         detections=_detection_figures(detection_frames, sites, committed), level=level,
@@ -185,7 +185,7 @@ def _mosaic(tiles: list[tuple[str, np.ndarray]], per_row: int) -> np.ndarray:
     return np.vstack(rows)
 
 
-def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, segment: int | None) -> str:
+def _trajectory(log: PoseLog, sites: SiteLog, committed: CommittedSite | None, segment: int | None) -> str:
     """The camera path, every site and the committed square from above, as inline SVG (no rendering cost)."""
     head = "<h2 id=trajectory>Trajectory from above</h2>"
     poses = [p for p, k in zip(log.poses(), log.segments(), strict=True)
@@ -193,10 +193,10 @@ def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, 
     if not poses:
         return head + "<p class=note>No frame was tracked: no trajectory.</p>"
     path = np.array([p[:2, 3] for p in poses])
-    found = [e for e in sites.sites if segment is None or e["segment"] == segment]
-    centres = np.array([e["site"].center_world[:2] for e in found]).reshape(-1, 2)
-    accepted = np.array([e["site"].accepted for e in found], bool)
-    square = np.asarray(committed["site"].corners_world)[[0, 1, 3, 2], :2] if committed is not None else \
+    found = [e for e in sites.sites if segment is None or e.segment == segment]
+    centres = np.array([e.site.center_world[:2] for e in found]).reshape(-1, 2)
+    accepted = np.array([e.site.accepted for e in found], bool)
+    square = np.asarray(committed.site.corners_world)[[0, 1, 3, 2], :2] if committed is not None else \
         np.zeros((0, 2))
     everything = np.vstack([path, centres, square])
     lo, hi = everything.min(axis=0), everything.max(axis=0)
@@ -249,25 +249,25 @@ SITE_COLUMNS = ("frame", "map", "x m", "y m", "z m", "score", "accepted", "reaso
                 "normal var", "extent m", "points")
 
 
-def _site_rows(sites: SiteLog, committed: dict[str, Any] | None) -> list[dict[str, Any]]:
+def _site_rows(sites: SiteLog, committed: CommittedSite | None) -> list[dict[str, Any]]:
     """The site table's rows (``SITE_COLUMNS``), the committed site marked."""
-    chosen = None if committed is None else committed["id"]
+    chosen = None if committed is None else committed.found.id
     rows = []
     for e in sites.sites:
-        st = e["site"]
+        st = e.site
         x, y, z = st.center_world
-        cells = [str(e["frame"].index), str(e["segment"]), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}", f"{st.score:.2f}",
+        cells = [str(e.frame.index), str(e.segment), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}", f"{st.score:.2f}",
                  "yes" if st.accepted else "no", st.acceptance_reason or "", f"{st.tilt_deg:.1f}",
                  "n/a" if st.edge_clearance_m is None else f"{st.edge_clearance_m:.2f}",
                  f"{st.normal_variance:.2e}", f"{st.extent_m[0]:.2f} x {st.extent_m[1]:.2f}", str(st.cluster_points)]
-        rows.append({"cells": cells, "committed": e["id"] == chosen})
+        rows.append({"cells": cells, "committed": e.id == chosen})
     return rows
 
 
-def _detection_figures(frames: list[int], sites: SiteLog, committed: dict[str, Any] | None) -> list[dict[str, Any]]:
+def _detection_figures(frames: list[int], sites: SiteLog, committed: CommittedSite | None) -> list[dict[str, Any]]:
     """One figure per detection frame folder: its overlay, whether it gave a site, whether that was committed."""
-    by_frame = {e["frame"].index: e["site"] for e in sites.sites}
-    site_frame = None if committed is None else committed["frame"].index
+    by_frame = {e.frame.index: e.site for e in sites.sites}
+    site_frame = None if committed is None else committed.frame.index
     out = []
     for i in frames:
         st = by_frame.get(i)

@@ -64,7 +64,7 @@ from slzcli.geometry import Pose, back_project_every, invert_pose
 from slzcli.outputs import palette
 from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.recording import CAMERA_INFO, COMPRESSED, IMAGE, POSE_TYPES, RecordingWriter, TopicLayout
-from slzcli.types import RecordedFrames
+from slzcli.types import CommittedSite, RecordedFrames
 
 log = logging.getLogger(__name__)
 MAP_FRAME = "map"  # REP 105; output.map_frame
@@ -219,14 +219,14 @@ class ResultsMcap:
                                                   transform=tr))
         self.writer.write_raw(topic, POSE_TYPES["tf"], t[POSE_TYPES["tf"]](transforms=out), stamp)
 
-    def write_run(self, committed: dict[str, Any] | None) -> None:
+    def write_run(self, committed: CommittedSite | None) -> None:
         """The committed site (known at the end of the run)."""
         if committed is not None:
-            site = committed["site"]
-            label = (f"landing site: score {site.score:.2f}, seen in {committed['support']} of "
-                     f"{committed['detections']} detections")
-            self._markers("landing_site", site, COMMITTED_RGBA, label, committed["frame"].stamp_ns,
-                          self.frame_ids(committed["segment"])[0])
+            site = committed.site
+            label = (f"landing site: score {site.score:.2f}, seen in {committed.support} of "
+                     f"{committed.detections} detections")
+            self._markers("landing_site", site, COMMITTED_RGBA, label, committed.frame.stamp_ns,
+                          self.frame_ids(committed.segment)[0])
 
     # ------------------------------------------------------------------ messages
     def _raw(self, name: str, msgtype: str, msg: Any, stamp: int) -> None:
@@ -280,7 +280,7 @@ class NoResults:
                    recorded: np.ndarray | None = None) -> None:
         return None
 
-    def write_run(self, committed: dict[str, Any] | None) -> None:
+    def write_run(self, committed: CommittedSite | None) -> None:
         return None
 
 
