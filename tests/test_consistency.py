@@ -18,7 +18,9 @@ from click.testing import CliRunner
 from conftest import GAUSSIAN, synth_recording
 from test_bad_inputs import error_line, invoke
 
+from slzcli.config import load_config
 from slzcli.errors import DatasetError
+from slzcli.evaluate.truth import ground_truth_of
 from slzcli.slam.pose_checks import stamp_offset_ns
 from slzcli.sources import tf_tree
 from slzcli.synth.groundtruth import BINDING_KEY, sidecar_paths
@@ -196,13 +198,10 @@ def test_a_sidecar_of_another_scene_is_refused(two_scenes: tuple[Path, Path], tm
                                            "scene 'no_site'")
     assert set(tmp_path.iterdir()) == before
     with pytest.raises(DatasetError, match="ground truth of another recording"):
-        from slzcli.synth.groundtruth import load_ground_truth
-        load_ground_truth(rec)
+        ground_truth_of(rec, load_config())
 
 
 def test_an_edited_recording_no_longer_matches_its_sidecar(two_scenes: tuple[Path, Path], tmp_path: Path) -> None:
-    from slzcli.synth.groundtruth import load_ground_truth
-
     rec = _copy(two_scenes[0], tmp_path)
     with open(rec, "r+b") as fh:  # one byte of the recording changed
         fh.seek(rec.stat().st_size // 2)
@@ -210,7 +209,7 @@ def test_an_edited_recording_no_longer_matches_its_sidecar(two_scenes: tuple[Pat
         fh.seek(-1, 1)
         fh.write(bytes([byte[0] ^ 0xFF]))
     with pytest.raises(DatasetError, match="ground truth of another recording"):
-        load_ground_truth(rec)
+        ground_truth_of(rec, load_config())
 
 
 def test_an_unbound_sidecar_is_used_with_a_warning(two_scenes: tuple[Path, Path], tmp_path: Path,

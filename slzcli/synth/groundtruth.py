@@ -19,7 +19,6 @@ full-size frames then costs one frame of memory, not N.
 from __future__ import annotations
 
 import json
-import logging
 import struct
 import zipfile
 from dataclasses import dataclass, field
@@ -32,7 +31,6 @@ import numpy as np
 from slzcli.config import GroundTruthCfg, UavCfg
 from slzcli.errors import DatasetError
 
-log = logging.getLogger(__name__)
 
 GT_FORMAT = "slz-ground-truth"
 GT_VERSION = 2
@@ -277,48 +275,15 @@ def _lazy_member(path: Path, name: str) -> np.ndarray | ZipMemberFrames:
     return ZipMemberFrames(path, info.filename, shape, dtype, data_offset)
 
 
-def recording_binding(recording: Path, cache: dict[str, Any] | None = None) -> list[dict[str, Any]]:
-    """What binds a sidecar to its recording: size and sha256 of every file the recording's reader reads
-    (``fingerprint.recording_files``), sorted by digest (names are left out: renaming a recording and its
-    sidecars together keeps them bound). ``cache``: digests already taken (``fingerprint.digest``)."""
-    from slzcli import fingerprint
-
-    entries = [fingerprint.digest(q, cache or {}) for q in fingerprint.recording_files(Path(recording))]
-    return sorted(({"size": int(e["size"]), "sha256": str(e["sha256"])} for e in entries),
-                  key=lambda e: (e["sha256"], e["size"]))
-
-
-def binding_problem(header: dict[str, Any], recording: Path, cache: dict[str, Any] | None = None) -> str | None:
-    """Why the sidecar with ``header`` is not the ground truth of ``recording`` (None: it is bound to it).
-
-    A sidecar without a binding (written before slz bound them) cannot be checked: None, and the
-    caller warns (``UNBOUND``)."""
-    bound = header.get(BINDING_KEY)
-    if bound is None:
-        return None
-    now = recording_binding(recording, cache)
-    if bound == now:
-        return None
-    def short(entries: Any) -> str:
-        try:
-            return ", ".join(f"{e['sha256'][:12]} ({e['size']} B)" for e in entries) or "no file"
-        except (TypeError, KeyError, IndexError):
-            return "unreadable"
-    return (f"ground truth of another recording: it was written for {header.get('recording', '?')!r} of scene "
-            f"{header.get('scene', '?')!r} (files {short(bound)}), and this recording's files are {short(now)}; "
-            "move the sidecar away, or write both again with slz synth")
-
-
 BINDING_KEY = "recording_files"   # .gt.json: the recording's files this truth belongs to (size, sha256)
 UNBOUND = ("is not bound to its recording (written by an slz before sidecars were bound): it is used unchecked; "
            "write it again with slz synth to bind it")
 
 
-def load_ground_truth(recording_path: str | Path, cache: dict[str, Any] | None = None) -> GroundTruth:
+def load_ground_truth(recording_path: str | Path) -> GroundTruth:
     """Read the ground-truth sidecar of a recording written by ``slz synth`` (per-frame arrays lazily).
 
-    DatasetError when the sidecar is bound to other recording files (``binding_problem``); ``cache``:
-    digests of the recording's files already taken (``fingerprint.digest``), so a run hashes them once.
+    Its binding to the recording (``BINDING_KEY``) is checked by ``evaluate.truth.ground_truth_of``.
     """
     npz_path, json_path = sidecar_paths(recording_path)
     if not npz_path.is_file() or not json_path.is_file():
@@ -331,11 +296,6 @@ def load_ground_truth(recording_path: str | Path, cache: dict[str, Any] | None =
     if not isinstance(header, dict) or header.get("format") != GT_FORMAT \
             or header.get("version") not in READABLE_VERSIONS:
         raise DatasetError(json_path, f"not a {GT_FORMAT} v{'/'.join(map(str, READABLE_VERSIONS))} header")
-    problem = binding_problem(header, Path(recording_path), cache)
-    if problem is not None:
-        raise DatasetError(json_path, problem)
-    if BINDING_KEY not in header:
-        log.warning("%s: %s", json_path, UNBOUND)
     try:
         width = int(header["image"]["width"])
         with np.load(npz_path) as z:   # an NpzFile reads a member only when asked
