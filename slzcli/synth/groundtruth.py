@@ -31,7 +31,6 @@ import numpy as np
 from slzcli.config import GroundTruthCfg, UavCfg
 from slzcli.errors import DatasetError
 
-
 GT_FORMAT = "slz-ground-truth"
 GT_VERSION = 2
 READABLE_VERSIONS = (1, 2)            # v1: every member deflated (read the same way, masks kept packed)
