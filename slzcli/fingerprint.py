@@ -194,3 +194,36 @@ def _first_difference(a: Any, b: Any, prefix: str = "") -> str:
                 return d
         return ""
     return "" if a == b else f"{prefix} {a!r} -> {b!r}"
+
+
+# ----------------------------------------------------------------------------- ground-truth sidecars
+def recording_binding(recording: Path, cache: dict[str, Entry] | None = None) -> list[dict[str, Any]]:
+    """What binds a sidecar to its recording: size and sha256 of every file the recording's reader reads
+    (``fingerprint.recording_files``), sorted by digest (names are left out: renaming a recording and its
+    sidecars together keeps them bound). ``cache``: digests already taken (``fingerprint.digest``)."""
+    entries = [digest(q, cache or {}) for q in recording_files(Path(recording))]
+    return sorted(({"size": int(e["size"]), "sha256": str(e["sha256"])} for e in entries),
+                  key=lambda e: (e["sha256"], e["size"]))
+
+
+def binding_problem(header: dict[str, Any], recording: Path, cache: dict[str, Entry] | None = None) -> str | None:
+    """Why the sidecar with ``header`` is not the ground truth of ``recording`` (None: it is bound to it).
+
+    A sidecar without a binding (written before slz bound them) cannot be checked: None, and the
+    caller warns (``UNBOUND``)."""
+    from slzcli.synth.groundtruth import BINDING_KEY
+
+    bound = header.get(BINDING_KEY)
+    if bound is None:
+        return None
+    now = recording_binding(recording, cache)
+    if bound == now:
+        return None
+    def short(entries: Any) -> str:
+        try:
+            return ", ".join(f"{e['sha256'][:12]} ({e['size']} B)" for e in entries) or "no file"
+        except (TypeError, KeyError, IndexError):
+            return "unreadable"
+    return (f"ground truth of another recording: it was written for {header.get('recording', '?')!r} of scene "
+            f"{header.get('scene', '?')!r} (files {short(bound)}), and this recording's files are {short(now)}; "
+            "move the sidecar away, or write both again with slz synth")

@@ -184,6 +184,7 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
             unavailable: dict[str, str]) -> tuple[list[tuple[int, np.ndarray]], float]:
     """The recorded poses' and the scene's estimates from the first frames; their (stamp, R_world_camera) and
     the median frame's share of points on a plane level under camera.mount (``terrain.gravity.level_share``)."""
+    from slzcli.slam import choose_backend
     from slzcli.sources import open_recording
 
     cfg = config.camera.gravity.scene
@@ -194,6 +195,7 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
     planes: list[g.Plane] = []
     read = 0
     last = (cfg.frames - 1) * cfg.stride
+    use_poses = choose_backend(config, True) == "recorded"  # poses rejected or not chosen: no gravity source
     try:
         with _quiet_readers(), open_recording(path, config) as other:
             frames = other.frames()
@@ -203,7 +205,7 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
                 if frame.index % cfg.stride:
                     continue
                 read += 1
-                if frame.T_world_camera is not None:
+                if use_poses and frame.T_world_camera is not None:
                     pose_ups.append(np.asarray(frame.T_world_camera, np.float64)[2, :3])
                     poses.append((frame.stamp_ns, np.asarray(frame.T_world_camera, np.float64)[:3, :3]))
                 plane = g.dominant_plane(frame.depth_m, frame.intrinsics, prior, cfg.max_prior_deg, cfg,

@@ -484,7 +484,7 @@ def pose_nan(folder: Path) -> Path:
             w.write_frame(f)
             T = np.eye(4)
             T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # looking down
-            T[:3, 3] = (0.01 * i, 0.0, ALTITUDE_M)
+            T[:3, 3] = (-2 * ALTITUDE_M / (0.8 * W) * i, 0.0, ALTITUDE_M)  # the motion the images show (2 px a frame)
             if i == 1:
                 T[0, 3] = np.nan
             w.write_pose("/camera/pose", f.stamp_ns, T)

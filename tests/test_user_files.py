@@ -422,7 +422,8 @@ def test_odometry_and_recorded_runs_are_bit_reproducible_alone_and_in_a_batch(ru
         for i in range(5):
             f = B.textured_frame(i)
             w.write_frame(f)
-            T = [[1, 0, 0, 0.02 * i], [0, -1, 0, 0], [0, 0, -1, B.ALTITUDE_M], [0, 0, 0, 1]]  # looking down
+            x = -2 * B.ALTITUDE_M / (0.8 * B.W) * i  # the motion the images show (2 px a frame)
+            T = [[1, 0, 0, x], [0, -1, 0, 0], [0, 0, -1, B.ALTITUDE_M], [0, 0, 0, 1]]  # looking down
             w.write_pose("/camera/pose", f.stamp_ns, np.array(T, float))
     opts = ("--set", f"slam.backend={backend}")
     runs = [tmp_path / "r1", tmp_path / "r2"]

@@ -130,6 +130,7 @@ class IntrinsicsCheckCfg:
     min_fov_deg: float = rng(0, 180, lo_open=True)
     max_fov_deg: float = rng(0, 180, lo_open=True)
     aspect_tolerance: float = rng(0, 1)
+    max_pixel_aspect: float = rng(1)
 
 
 @schema
@@ -598,6 +599,18 @@ class OrbCfg:
 
 
 @schema
+class PoseCheckCfg:
+    frames: int = rng(0, 10000)
+    min_posed_fraction: float = rng(0, 1)
+    min_matches: int = rng(6)
+    min_baseline_fraction: float = rng(0, lo_open=True)
+    max_scale_ratio: float = rng(1, lo_open=True)
+    max_rotation_deg: float = rng(0, 180, lo_open=True)
+    max_direction_deg: float = rng(0, 180, lo_open=True)
+    max_pose_stamps: int = rng(1, 1000000)
+
+
+@schema
 class SlamKeyframeCfg:
     min_translation_m: float = rng(0, lo_open=True)
     min_rotation_deg: float = rng(0, 180, lo_open=True)
@@ -655,6 +668,7 @@ class SlamCfg:
     max_untracked_share: float = rng(0, 1)
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
+    pose_check: PoseCheckCfg
     orbslam3: OrbSlam3Cfg
     odometry: OdometryCfg
     vocab: VocabCfg

@@ -8,6 +8,7 @@ reads the ground truth, the evaluator is handed every frame's stamp and every de
 
 from __future__ import annotations
 
+import logging
 from array import array
 from collections.abc import Sequence
 from dataclasses import replace
@@ -16,23 +17,34 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from slzcli import fingerprint
 from slzcli.config import Config
 from slzcli.errors import DatasetError
 from slzcli.evaluate.safety import MaskCounts, SiteTruth, mask_counts, site_truth, total, visible_cells
 from slzcli.evaluate.slam import ate_by_segment, rpe
-from slzcli.synth.groundtruth import GroundTruth, load_ground_truth, sidecar_paths
+from slzcli.synth.groundtruth import BINDING_KEY, UNBOUND, GroundTruth, load_ground_truth, sidecar_paths
 from slzcli.types import Frame, ScoreMap
 
+log = logging.getLogger(__name__)
 
-def ground_truth_of(path: Path, config: Config) -> GroundTruth | None:
+
+def ground_truth_of(path: Path, config: Config, cache: dict[str, Any] | None = None) -> GroundTruth | None:
     """The `slz synth` ground truth beside a recording, or None when it has no sidecar.
 
-    Its frames are looked up by stamp within ``synth.ground_truth.stamp_tolerance_ms``.
+    Its frames are looked up by stamp within ``synth.ground_truth.stamp_tolerance_ms``. A sidecar bound to
+    other recording files is refused (DatasetError); ``cache``: the recording's digests a run already took.
     """
     if not all(p.is_file() for p in sidecar_paths(path)):
         return None
     tolerance_ns = round(config.synth.ground_truth.stamp_tolerance_ms * 1e6)
-    return replace(load_ground_truth(path), stamp_tolerance_ns=tolerance_ns)
+    gt = load_ground_truth(path)
+    json_path = sidecar_paths(path)[1]
+    problem = fingerprint.binding_problem(gt.header, Path(path), cache)
+    if problem is not None:
+        raise DatasetError(json_path, problem)
+    if BINDING_KEY not in gt.header:
+        log.warning("%s: %s", json_path, UNBOUND)
+    return replace(gt, stamp_tolerance_ns=tolerance_ns)
 
 
 def site_truth_of(truth: Any, frame: Any, center_camera: tuple[float, float, float]) -> SiteTruth:

@@ -16,6 +16,7 @@ from slzcli.config import Config
 from slzcli.errors import DatasetError
 from slzcli.gravity import RecordingGravity
 from slzcli.slam import with_frame_period
+from slzcli.slam.pose_checks import vet_recorded_poses
 from slzcli.slam.recorded import has_recorded_clouds
 from slzcli.sources import Recording, RecordingInfo, open_recording
 from slzcli.sources.presets import with_noise_prior
@@ -93,11 +94,14 @@ Source = RecordingSource | FramesSource
 
 
 def open_source(path: Path, config: Config, stack: ExitStack) -> tuple[RecordingSource, Config]:
-    """The open recording (closed with ``stack``) and ``config`` with what the recording decides: its gravity
-    (``slzcli/gravity.py``: ``camera.mount``, each frame's own), the camera preset's depth noise prior and the
-    frame period ORB-SLAM3 is told (``slam.orbslam3.nominal_period_s: auto``)."""
+    """The open recording (closed with ``stack``) and ``config`` with what the recording decides: the backend
+    when the recorded poses contradict the frames (``slam.pose_checks``; the reason is in the info's
+    warnings), then its gravity (``slzcli/gravity.py``: ``camera.mount``, each frame's own; rejected poses
+    are no source of it), the camera preset's depth noise prior and the frame period ORB-SLAM3 is told
+    (``slam.orbslam3.nominal_period_s: auto``)."""
     rec = stack.enter_context(open_recording(path, config))
-    resolved, info, config = gravity.apply(path, rec, rec.info(), config)
+    config, info = vet_recorded_poses(path, rec, rec.info(), config)  # rejected poses: an error, or another backend
+    resolved, info, config = gravity.apply(path, rec, info, config)
     config = with_frame_period(with_noise_prior(config, info.camera_preset), info)
     return RecordingSource(path, rec, info, has_recorded_clouds(info, config), resolved), config
 

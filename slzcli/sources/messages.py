@@ -25,7 +25,7 @@ import numpy as np
 
 from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError, SlzError
-from slzcli.sources import decode, tf
+from slzcli.sources import decode, tf, tf_tree
 from slzcli.sources.clouds import CloudBuffer
 from slzcli.sources.color_camera import ALIGNED, DepthToColor, extrinsics, same_camera, to_color_camera
 from slzcli.sources.image_limits import FrameTooLarge
@@ -44,7 +44,14 @@ from slzcli.sources.topics import (
     normalise_msgtype,
 )
 from slzcli.sources.undistort import distortion_problem, has_distortion
-from slzcli.sources.validate import StampCounts, intrinsics_problem, size_problem, stamp_problem
+from slzcli.sources.validate import (
+    StampCounts,
+    depth_shape_problem,
+    intrinsics_problem,
+    pixel_aspect_problem,
+    size_problem,
+    stamp_problem,
+)
 from slzcli.sources.window import WindowFilter
 from slzcli.types import Frame, Intrinsics, MapCloud, PairingReport, RecordedFrames, StreamInfo
 
@@ -224,13 +231,14 @@ class MessageRecording(Recording):
                     elif msg.topic == ch.camera_info.topic and k_color is None:
                         k_color = decode.decode_camera_info(self.log.deserialize(msg.topic, msg.data))
                     elif msg.topic == TF_STATIC:
-                        for _, parent, child, T in decode.decode_tf(self.log.deserialize(msg.topic, msg.data)):
-                            tree[child] = (parent, T)
+                        tf_tree.add_edges(tree, decode.decode_tf(self.log.deserialize(msg.topic, msg.data)))
                     elif msg.topic in stream_topics and msg.topic not in stream_tf:
                         m = self.log.deserialize(msg.topic, msg.data)
                         stream_tf[msg.topic] = decode.transform_matrix(m.translation, m.rotation)
                 except DecodeError as err:
                     self._warn(f"{msg.topic}: {err} (while reading the camera set-up)")
+                except tf_tree.TfTreeError as err:
+                    raise DatasetError(self.path, f"{msg.topic}: {err}") from err
                 have_all = k_depth is not None and len(frames) == 2 and (k_color or not ch.camera_info.topic)
                 if have_all and (len(stream_tf) >= 2 or extrinsics(tree, frames["color"], frames["depth"])[0]
                                  is not None):
@@ -297,6 +305,9 @@ class MessageRecording(Recording):
         if problem is not None:
             raise DatasetError(self.path, f"CameraInfo on {topic}: {problem}; fix the camera's calibration, or set "
                                           "sources.topics.camera_info to another CameraInfo topic")
+        problem = pixel_aspect_problem(k, lim.max_pixel_aspect)
+        if problem is not None:
+            self._warn(f"CameraInfo on {topic}: {problem}")
         return k
 
     def _stamp_report(self, ch: Choices, counts: dict[str, StampCounts], pairer: StreamPairer) -> list[str]:
@@ -387,6 +398,8 @@ class MessageRecording(Recording):
             extra += (f"{pairer.duplicates} duplicated colour/depth message(s) (same topic and stamp) were dropped",)
         window_note = win.note()
         extra += (window_note,) if window_note else ()
+        apart = pairer.never_paired()
+        extra += (apart,) if apart else ()
         return PairingReport(pairer.paired - win.left_out, pairer.unpaired["color"], pairer.unpaired["depth"],
                              without_pose, undecodable, tuple(notes) + extra + tuple(self.log.warnings),
                              win.left_out)
@@ -408,7 +421,7 @@ class MessageRecording(Recording):
         tol_pose = int(cfg.pose_tolerance_ms * NS_PER_MS)
         window = int(cfg.reorder_window_ms * NS_PER_MS)
         pairer = StreamPairer(int(cfg.sync_tolerance_ms * NS_PER_MS), window)
-        state = _FrameState(CloudBuffer(tol_pose) if points_topic else None)
+        state = _FrameState(CloudBuffer(tol_pose) if points_topic else None, self.quiet_frames)
         poses = _PoseSource(self, ch, PoseTrack(tol_pose), state)
         topics = {t for t in (ch.color.topic, ch.depth.topic, ch.camera_info.topic, ch.pose.topic, points_topic) if t}
         if ch.pose_type in (TF, ODOMETRY) and TF_STATIC in self._topics:
@@ -493,15 +506,40 @@ class MessageRecording(Recording):
         """The recording's camera, static tf chain and pose frame ids (``sources.tf``), in short passes."""
         ch = self._need_choices()
         camera = self._first_color_frame_id() or ""
-        static = tf.static_tree(self._decoded(TF_STATIC)) if TF_STATIC in self._topics else {}
+        try:
+            static = tf.static_tree(self._decoded(TF_STATIC)) if TF_STATIC in self._topics else {}
+        except tf_tree.TfTreeError as err:
+            raise DatasetError(self.path, f"{TF_STATIC}: {err}") from err
         pose_frame = ""
         if ch.pose.topic and ch.pose_type == TF:
-            pose_frame = tf.tf_root(self._decoded(ch.pose.topic), static, self.cfg.pose_frame or camera)
+            try:
+                pose_frame = tf.tf_root(self._decoded(ch.pose.topic), static, self.cfg.pose_frame or camera)
+            except tf_tree.TfTreeError as err:
+                raise DatasetError(self.path, f"{ch.pose.topic}: {err}") from err
         elif ch.pose.topic:
             pose_frame = tf.first_pose_frame(self._decoded(ch.pose.topic))
         return tf.recorded_frames(camera, static, pose_frame, ch.pose_type == TF)
 
-    def _decoded(self, topic: str) -> Iterator[Any]:
+    def pose_stamps(self, limit: int) -> list[int]:
+        """The header stamps of the first ``limit`` poses on the pose topic (every transform's, for /tf)."""
+        ch = self._need_choices()
+        out: list[int] = []
+        if not ch.pose.topic:
+            return out
+        messages = self._decoded(ch.pose.topic)
+        try:
+            for m in messages:
+                try:
+                    out += [s for s, *_ in decode.decode_tf(m)] if ch.pose_type == TF else [decode.decode_pose(m)[0]]
+                except (DecodeError, AttributeError):
+                    continue
+                if len(out) >= limit:
+                    break
+        finally:
+            messages.close()  # its recording pass ends here
+        return out[:limit]
+
+    def _decoded(self, topic: str) -> Generator[Any, None, None]:
         """The deserialised messages of one topic (undecodable ones skipped), closed when left early."""
         with closing(self._wrap(self.log.messages([topic]))) as messages:
             for msg in messages:
@@ -535,6 +573,10 @@ class MessageRecording(Recording):
             return None
         h, w = rgb.shape[:2]
         d2c = self._depth_to_color()
+        problem = None if d2c.mode == "register" else depth_shape_problem(
+            depth.shape[1], depth.shape[0], w, h, self.cfg.intrinsics.aspect_tolerance)
+        if problem is not None:
+            raise DatasetError(self.path, f"frame {state.yielded} ({ch.depth.topic}): {problem}")
         if depth.shape != (h, w) and d2c.mode != "register":
             state.note(f"depth {depth.shape[1]}x{depth.shape[0]} resized nearest-neighbour to colour {w}x{h} "
                        f"({d2c.describe})")
@@ -570,8 +612,9 @@ class MessageRecording(Recording):
 class _FrameState:
     """Mutable bookkeeping of one ``frames()`` pass (notes are de-duplicated, in order)."""
 
-    def __init__(self, clouds: CloudBuffer | None = None) -> None:
+    def __init__(self, clouds: CloudBuffer | None = None, quiet: bool = False) -> None:
         self.clouds = clouds
+        self.quiet = quiet  # a look-ahead pass (Recording.quiet_frames): count, warn nothing
         self.info: Intrinsics | None = None
         self.info_source = ""
         self.yielded = 0
@@ -593,8 +636,8 @@ class _FrameState:
         self.bad_poses += 1
         if not self.first_bad_pose:
             self.first_bad_pose = f"pose on {topic} not usable: {err}"
-            log.warning("%s: %s (the frames it would pose carry none; further unusable poses are counted, not "
-                        "shown)", path, self.first_bad_pose)
+            self._warning("%s: %s (the frames it would pose carry none; further unusable poses are counted, not "
+                          "shown)", path, self.first_bad_pose)
 
     def pose_summary(self) -> None:
         if self.bad_poses:
@@ -607,10 +650,14 @@ class _FrameState:
         if isinstance(err, FrameTooLarge):  # its own one warning: an oversized frame is not a torn message
             self.n_too_large += 1
             if self.n_too_large == 1:
-                log.warning("%s: %s: %s; skipped (further frames over the bound are counted, not shown)", path, topic,
-                            err)
+                self._warning("%s: %s: %s; skipped (further frames over the bound are counted, not shown)", path,
+                              topic, err)
         elif self.n_undecodable - self.n_too_large == 1:
-            log.warning("%s: %s: %s (further decode errors are counted, not shown)", path, topic, err)
+            self._warning("%s: %s: %s (further decode errors are counted, not shown)", path, topic, err)
+
+    def _warning(self, fmt: str, *args: object) -> None:
+        if not self.quiet:
+            log.warning(fmt, *args)
 
     def note_too_large(self, max_px: int) -> None:
         """The count of frames skipped for their size, in the run's notes (run.json summary.pairing)."""
@@ -640,6 +687,7 @@ class _PoseSource:
             m = self.rec.log.deserialize(msg.topic, msg.data)
             if msg.topic == TF_STATIC:
                 for _, parent, child, T in decode.decode_tf(m):
+                    tf_tree.add_edge(self._tree(), parent, child, T)  # checked against /tf too; the copy is dropped
                     self.static[child] = (parent, T)
             elif self.ch.pose_type == TF:
                 self._feed_tf(decode.decode_tf(m))
@@ -647,11 +695,15 @@ class _PoseSource:
                 self._feed_pose(*decode.decode_pose(m))
         except DecodeError as err:
             self.state.bad_pose(self.rec.path, msg.topic, err)
+        except tf_tree.TfTreeError as err:
+            raise DatasetError(self.rec.path, f"{msg.topic}: {err}; fix the recording's tf broadcasters "
+                                              "(see docs/FAILURE_MODES.md)") from err
 
     def _feed_tf(self, transforms: list[tuple[int, str, str, np.ndarray]]) -> None:
         if not self.camera_frame:
             return
         for _, parent, child, T in transforms:
+            tf_tree.add_edge(self._tree(), parent, child, T)  # checked against /tf and /tf_static together
             self.dynamic[child] = (parent, T)
         tree = self._tree()
         chain = _chain_frames(tree, self.camera_frame)

@@ -73,6 +73,9 @@ class Recording(abc.ABC):
     def __init__(self, path: Path) -> None:
         self.path = path
         self.report = PairingReport()
+        # A frames() pass that only looks ahead (the recorded-pose check reads the first frames before the
+        # run) sets this: its per-frame warnings (a torn message, an unusable pose) are the run's to give.
+        self.quiet_frames = False
 
     def __enter__(self) -> Recording:
         self.open()
@@ -97,6 +100,10 @@ class Recording(abc.ABC):
     def recorded_frames(self) -> RecordedFrames:
         """The recording's own frame ids (camera, tf, poses); none for a format without them (TUM)."""
         return RecordedFrames()
+
+    def pose_stamps(self, limit: int) -> list[int]:
+        """The stamps (ns) of the first ``limit`` recorded poses of the chosen pose stream ([] without one)."""
+        return []
 
     @abc.abstractmethod
     def frames(self) -> Iterator[Frame]:

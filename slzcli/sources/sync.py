@@ -31,6 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 Stream = Literal["color", "depth"]
+FIRST_KEPT = 64  # stamps of each stream kept to say how far apart two streams that never pair are; project
 
 
 def pair_stamps(color_ns: Sequence[int], depth_ns: Sequence[int], tolerance_ns: int) -> list[tuple[int, int]]:
@@ -62,6 +63,24 @@ def pair_stamps(color_ns: Sequence[int], depth_ns: Sequence[int], tolerance_ns: 
             pairs.append((i, j))
     pairs.sort(key=lambda p: (int(c[p[0]]), p[0]))
     return pairs
+
+
+def stamp_offset_ns(frames_ns: np.ndarray, poses_ns: np.ndarray, tolerance_ns: int) -> float:
+    """The offset d (other stamp - frame stamp) at which most frames have another message within ``tolerance_ns``.
+
+    What a stream that never pairs is off by (poses against frames, depth against colour).
+
+    Every (frame, pose) difference is binned at the tolerance; the bin holding the most distinct frames
+    wins (ties: the smallest offset); its median difference is returned.
+    """
+    d = (poses_ns[None, :] - frames_ns[:, None]).astype(np.float64)  # frames x poses, both bounded
+    b = np.floor(d / tolerance_ns).astype(np.int64)
+    rows = np.broadcast_to(np.arange(len(frames_ns))[:, None], b.shape)
+    pairs = np.unique(np.stack([b.ravel(), rows.ravel()], axis=1), axis=0)  # one count per frame and bin
+    bins, counts = np.unique(pairs[:, 0], return_counts=True)
+    best = bins[counts == counts.max()]
+    pick = best[np.argmin(np.abs(best))]
+    return float(np.median(d[b == pick]))
 
 
 @dataclass(frozen=True)
@@ -97,9 +116,23 @@ class StreamPairer:
         self.late = 0
         self.duplicates = 0
         self.repeated = {"color": 0, "depth": 0}
+        self.first: dict[str, list[int]] = {"color": [], "depth": []}  # the first FIRST_KEPT stamps of each
+
+    def never_paired(self) -> str | None:
+        """Why colour and depth never paired, with how far apart they are (None: some did, or a stream is empty)."""
+        c, d = self.first["color"], self.first["depth"]
+        if self.paired or not c or not d:
+            return None
+        off = stamp_offset_ns(np.asarray(c, np.int64), np.asarray(d, np.int64), max(1, self.tolerance_ns)) / 1e9
+        return (f"colour and depth never pair within sources.sync_tolerance_ms {self.tolerance_ns / 1e6:g} ms: the "
+                f"depth stamps are {abs(off):.6g} s {'after' if off > 0 else 'before'} the colour ones (the offset at "
+                "which most colour frames would find a depth); fix the recording's clocks, or raise "
+                "sources.sync_tolerance_ms if the two streams are stamped that far apart")
 
     def push(self, stream: Stream, stamp_ns: int, payload: Any = None) -> list[Pair]:
         """Add one message; returns the pairs that can no longer change, in stamp order."""
+        if len(self.first[stream]) < FIRST_KEPT:
+            self.first[stream].append(int(stamp_ns))
         if self._settled_until is not None and stamp_ns <= self._settled_until:
             self.late += 1
             self.unpaired[stream] += 1

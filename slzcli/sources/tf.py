@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from slzcli.errors import DecodeError
-from slzcli.sources import decode
+from slzcli.sources import decode, tf_tree
 from slzcli.types import RecordedFrames
 
 log = logging.getLogger(__name__)
@@ -37,11 +37,12 @@ def transforms(msg: Any) -> Transforms:
 
 
 def static_tree(messages: Iterable[Any]) -> dict[str, tuple[str, np.ndarray]]:
-    """child -> (parent, T_parent_child) of every /tf_static message (a later one for a child wins)."""
+    """child -> (parent, T_parent_child) of every /tf_static message (a later one for a child wins).
+
+    ``tf_tree.TfTreeError`` when they do not make a tree (a frame with two parents, a cycle)."""
     tree: dict[str, tuple[str, np.ndarray]] = {}
     for msg in messages:
-        for _, parent, child, T in transforms(msg):
-            tree[child] = (parent, T)
+        tf_tree.add_edges(tree, transforms(msg))
     return tree
 
 
@@ -52,8 +53,7 @@ def tf_root(messages: Iterable[Any], static: dict[str, tuple[str, np.ndarray]], 
     for i, msg in enumerate(messages):
         if i >= MAX_TF_MESSAGES:
             break
-        for _, parent, child, T in transforms(msg):
-            tree.setdefault(child, (parent, T))
+        tf_tree.add_edges(tree, transforms(msg))  # TfTreeError: not a tree with the static one
         top = _top(tree, camera)
         if top != static_top:
             return top

@@ -35,7 +35,14 @@ from slzcli.sources.presets import PresetChoice, choose_preset
 from slzcli.sources.recording import Recording, RecordingInfo
 from slzcli.sources.sync import PoseTrack, pair_stamps
 from slzcli.sources.undistort import distortion_problem, has_distortion
-from slzcli.sources.validate import intrinsics_problem, pose_problem, size_problem, stamp_problem
+from slzcli.sources.validate import (
+    depth_shape_problem,
+    intrinsics_problem,
+    pixel_aspect_problem,
+    pose_problem,
+    size_problem,
+    stamp_problem,
+)
 from slzcli.sources.window import WindowFilter
 from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamInfo
 
@@ -187,6 +194,9 @@ class TumRecording(Recording):
             problem = intrinsics_problem(k, lim.min_fov_deg, lim.max_fov_deg)
             if problem is not None:
                 raise DatasetError(cam_file, problem)
+            problem = pixel_aspect_problem(k, lim.max_pixel_aspect)
+            if problem is not None:
+                self._warn(f"{cam_file.name}: {problem}")
             if "depth_scale" in c:
                 self._depth_scale, self._depth_scale_source = _depth_scale(cam_file, c["depth_scale"]), str(cam_file)
             return k, str(cam_file)
@@ -232,13 +242,14 @@ class TumRecording(Recording):
             for name, what in ((rgb_name, "colour"), (depth_name, "depth")):
                 check_file(self.path / name, self.cfg.max_image_px, f"{name}: {what} image")
         except FrameTooLarge as err:
-            if not too_large:
+            if not too_large and not self.quiet_frames:
                 log.warning("%s: %s; skipped (further frames over the bound are counted, not shown)", self.path, err)
             too_large.append(str(err))
             return False
         except DecodeError:   # neither PNG nor JPEG: not read (OpenCV would decode any size of TIFF, BMP, ...)
-            log.warning("%s: %s / %s: missing or not an 8-bit colour / 16-bit depth PNG", self.path, rgb_name,
-                        depth_name)
+            if not self.quiet_frames:
+                log.warning("%s: %s / %s: missing or not an 8-bit colour / 16-bit depth PNG", self.path, rgb_name,
+                            depth_name)
             return False
         except OSError:
             return True   # missing: cv2.imread below says so as before
@@ -257,6 +268,10 @@ class TumRecording(Recording):
                              tuple(streams), self._choices(), self._intr, self._intr_source, self._report(0, 0),
                              tuple(self.camera_warnings), self.preset.name, self.preset.reason,
                              "registered to colour by the camera's driver (TUM)")
+
+    def pose_stamps(self, limit: int) -> list[int]:
+        """The stamps of the first ``limit`` rows of groundtruth.txt when it is the pose input."""
+        return [s for s, _ in self._gt[:limit]] if self._pose_choice().topic else []
 
     def frames(self) -> Iterator[Frame]:
         """The frames (see Recording); a configured points topic is refused here: TUM has no point clouds."""
@@ -286,10 +301,16 @@ class TumRecording(Recording):
                 undecodable += 1
                 if not first_error:  # one line; the rest are counted (run.json pairing.undecodable)
                     first_error = f"{rgb_name} / {self._depth[j][1]}: missing or not an 8-bit colour / 16-bit depth PNG"
-                    log.warning("%s: %s (further unreadable frames are counted, not shown)", self.path, first_error)
+                    if not self.quiet_frames:
+                        log.warning("%s: %s (further unreadable frames are counted, not shown)", self.path,
+                                    first_error)
                 continue
             depth = decode.depth_to_metres(raw, 1.0 / self._depth_scale, self.cfg.max_depth_m)
             rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            problem = depth_shape_problem(depth.shape[1], depth.shape[0], rgb.shape[1], rgb.shape[0],
+                                          self.cfg.intrinsics.aspect_tolerance)
+            if problem is not None:
+                raise DatasetError(self.path, f"frame {index} ({self._depth[j][1]}): {problem}")
             depth = decode.match_depth_to_color(depth, rgb.shape[:2])
             problem = size_problem(self._intr, rgb.shape[1], rgb.shape[0], self.cfg.intrinsics.aspect_tolerance)
             if problem is not None:

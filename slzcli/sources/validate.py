@@ -29,6 +29,37 @@ def size_problem(k: Intrinsics, width: int, height: int, aspect_tolerance: float
             "apart): not the calibration of this stream")
 
 
+def pixel_aspect_problem(k: Intrinsics, max_ratio: float) -> str | None:
+    """Why ``k``'s focal lengths look wrong together: pixels far from square (fx, fy swapped or one mis-scaled).
+
+    A warning, not a refusal: anamorphic cameras exist, depth cameras are not among them.
+    """
+    ratio = max(k.fx, k.fy) / min(k.fx, k.fy)
+    if ratio <= max_ratio:
+        return None
+    return (f"fx = {k.fx:g} px and fy = {k.fy:g} px differ by {ratio:.3g}x (more than "
+            f"sources.intrinsics.max_pixel_aspect = {max_ratio:g}): a depth camera's pixels are square, so K is "
+            "probably wrong (fx and fy swapped, or one of them scaled for another image size); used as given")
+
+
+def depth_shape_problem(depth_w: int, depth_h: int, width: int, height: int, aspect_tolerance: float) -> str | None:
+    """Why a depth image cannot be resized onto a colour image of ``width x height`` (None: same shape or scale).
+
+    A depth image of the colour's aspect ratio is the colour grid at another resolution (a decimated
+    aligned stream) and is resized; any other shape (transposed, half width, a row step misread) would
+    be stretched, every depth landing on the wrong pixel, and is refused.
+    """
+    if (depth_w, depth_h) == (width, height):
+        return None
+    ours, theirs = depth_w / depth_h, width / height
+    if abs(ours - theirs) <= aspect_tolerance * theirs:
+        return None
+    return (f"depth {depth_w}x{depth_h} px is not of the colour's shape {width}x{height} px (aspect ratio {ours:.3f} "
+            f"vs {theirs:.3f}, more than sources.intrinsics.aspect_tolerance = {aspect_tolerance:g} apart): slz never "
+            "stretches depth onto colour; record depth aligned at the colour's shape, or a depth stream with its own "
+            "CameraInfo of its size and the depth->colour extrinsics (/tf_static), which is registered")
+
+
 def stamp_problem(stamp_ns: int) -> str | None:
     """Why a stamp cannot be used (negative, or beyond int64 nanoseconds), or None."""
     if stamp_ns < 0:

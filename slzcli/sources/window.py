@@ -142,4 +142,5 @@ def no_frames_reason(report: Any) -> str:
     notes = [n for n in getattr(report, "notes", ()) if n.startswith("window ")]
     if getattr(report, "outside_window", 0) and notes:
         return f"no RGB-D frame in the window ({notes[-1]})"
-    return "no RGB-D frame could be read"
+    apart = [n for n in getattr(report, "notes", ()) if n.startswith("colour and depth never pair")]
+    return f"no RGB-D frame could be read: {apart[0]}" if apart else "no RGB-D frame could be read"

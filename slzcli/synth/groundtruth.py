@@ -274,8 +274,16 @@ def _lazy_member(path: Path, name: str) -> np.ndarray | ZipMemberFrames:
     return ZipMemberFrames(path, info.filename, shape, dtype, data_offset)
 
 
+BINDING_KEY = "recording_files"   # .gt.json: the recording's files this truth belongs to (size, sha256)
+UNBOUND = ("is not bound to its recording (written by an slz before sidecars were bound): it is used unchecked; "
+           "write it again with slz synth to bind it")
+
+
 def load_ground_truth(recording_path: str | Path) -> GroundTruth:
-    """Read the ground-truth sidecar of a recording written by ``slz synth`` (per-frame arrays lazily)."""
+    """Read the ground-truth sidecar of a recording written by ``slz synth`` (per-frame arrays lazily).
+
+    Its binding to the recording (``BINDING_KEY``) is checked by ``evaluate.truth.ground_truth_of``.
+    """
     npz_path, json_path = sidecar_paths(recording_path)
     if not npz_path.is_file() or not json_path.is_file():
         raise DatasetError(recording_path, f"no ground truth ({npz_path.name} and {json_path.name} expected "
@@ -284,7 +292,8 @@ def load_ground_truth(recording_path: str | Path) -> GroundTruth:
         header = json.loads(json_path.read_text())
     except (OSError, ValueError) as err:
         raise DatasetError(json_path, f"unreadable ground truth header ({err})") from err
-    if header.get("format") != GT_FORMAT or header.get("version") not in READABLE_VERSIONS:
+    if not isinstance(header, dict) or header.get("format") != GT_FORMAT \
+            or header.get("version") not in READABLE_VERSIONS:
         raise DatasetError(json_path, f"not a {GT_FORMAT} v{'/'.join(map(str, READABLE_VERSIONS))} header")
     try:
         width = int(header["image"]["width"])

@@ -24,7 +24,7 @@ from typing import Any, BinaryIO
 import cv2
 import numpy as np
 
-from slzcli import bounds
+from slzcli import bounds, fingerprint
 from slzcli.config import Config
 from slzcli.errors import ConfigError, OutputError
 from slzcli.outputs import files, run_lock
@@ -32,6 +32,7 @@ from slzcli.outputs.recording import FORMATS, RecordingWriter
 from slzcli.synth.flight import Flight, PathKind, make_flight
 from slzcli.synth.geometry import SceneMeshes, build_meshes
 from slzcli.synth.groundtruth import (
+    BINDING_KEY,
     GT_FORMAT,
     GT_VERSION,
     STORED_MEMBERS,
@@ -250,6 +251,7 @@ def _render_into(stage: Path, out: Path, options: SynthOptions, scene: Scene, co
         objects = tuple({"id": o.id, "name": o.name, "kind": o.kind, "landable": o.landable}
                         for o in world.meshes.objects)
         header = _header(out, options, scene, world, len(flight.stamps_ns), objects, config)
+        header[BINDING_KEY] = fingerprint.recording_binding(staged)  # the truth names the bytes it belongs to
         members: dict[str, np.ndarray | Path] = {
             "stamps_ns": np.asarray(flight.stamps_ns, np.int64),
             "T_world_camera": np.asarray(flight.T_world_camera, np.float64),

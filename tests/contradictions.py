@@ -1,0 +1,233 @@
+"""Recordings whose parts disagree with each other, generated into a folder (nothing binary is committed).
+
+Each looks well formed on its own: poses, tf, stamps, CameraInfo and images all decode. What is
+wrong is that one part contradicts another (poses in millimetres against depth in metres, a
+camera pose upside down against the ground it measures, ...). ``CASES[name](folder) -> path``;
+``tests/test_consistency.py`` says what slz must do with each.
+
+The frames: a camera 6 m above flat textured ground looking straight down, moving 0.094 m per
+frame along -x (the texture rolls 2 px per frame; 0.8 x width focal length). ``POSES`` are the
+true poses of that motion in REP 103 (world z up, the camera's optical frame).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from bad_inputs import ALTITUDE_M, T0_NS, W, textured_frame
+
+from slzcli.outputs.recording import RecordingWriter
+
+N = 12
+STEP_M = 2 * ALTITUDE_M / (0.8 * W)  # 2 px at 6 m through fx = 0.8 W
+DOWN = np.diag([1.0, -1.0, -1.0])    # optical axis straight down, camera x along world x
+
+
+def true_pose(i: int) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = DOWN
+    T[:3, 3] = (-STEP_M * i, 0.0, ALTITUDE_M)
+    return T
+
+
+def _posed(path: Path, pose: Callable[[int], np.ndarray] = true_pose, stamp_offset_ns: int = 0,
+           kind: str = "PoseStamped", n: int = N, **kw: object) -> Path:
+    with RecordingWriter(path, "mcap", **kw) as w:  # type: ignore[arg-type]
+        for i in range(n):
+            f = textured_frame(i)
+            w.write_frame(f)
+            w.write_pose("/camera/pose", f.stamp_ns + stamp_offset_ns, pose(i), kind=kind)  # type: ignore[arg-type]
+    return path
+
+
+def poses_right(folder: Path) -> Path:
+    """The reference: poses that agree with the frames."""
+    return _posed(folder / "poses_right.mcap")
+
+
+def poses_mm(folder: Path) -> Path:
+    """Recorded poses in millimetres (the depth in metres)."""
+    def mm(i: int) -> np.ndarray:
+        T = true_pose(i)
+        T[:3, 3] *= 1000.0
+        return T
+    return _posed(folder / "poses_mm.mcap", mm)
+
+
+def poses_cm(folder: Path) -> Path:
+    def cm(i: int) -> np.ndarray:
+        T = true_pose(i)
+        T[:3, 3] *= 100.0
+        return T
+    return _posed(folder / "poses_cm.mcap", cm)
+
+
+def pose_upside_down(folder: Path) -> Path:
+    """The camera pose rotated 180 deg about x: the optical axis points up, the ground is measured below."""
+    def up(i: int) -> np.ndarray:
+        T = true_pose(i)
+        T[:3, :3] = np.eye(3)
+        return T
+    return _posed(folder / "upside_down.mcap", up)
+
+
+def poses_body_frame(folder: Path) -> Path:
+    """Poses of a body frame (x forward, z up, camera looking down along -z) given as the camera's."""
+    def body(i: int) -> np.ndarray:
+        T = true_pose(i)
+        T[:3, :3] = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # yaw 90 deg, z up
+        return T
+    return _posed(folder / "body_frame.mcap", body)
+
+
+def poses_yawed(folder: Path) -> Path:
+    """Poses looking down but turned 90 deg about the vertical: they move the camera sideways to what it sees."""
+    yaw = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+    def turned(i: int) -> np.ndarray:
+        T = true_pose(i)
+        T[:3, :3] = yaw @ DOWN
+        return T
+    return _posed(folder / "yawed.mcap", turned)
+
+
+def poses_1s_late(folder: Path) -> Path:
+    """Right poses, stamped 1 s after the frames they belong to."""
+    return _posed(folder / "poses_1s_late.mcap", stamp_offset_ns=1_000_000_000)
+
+
+def poses_start_late(folder: Path) -> Path:
+    """Right poses, on time, but only from frame 4 on (a SLAM that publishes once initialised): not a contradiction."""
+    p = folder / "poses_start_late.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(N):
+            f = textured_frame(i)
+            w.write_frame(f)
+            if i >= 4:
+                w.write_pose("/camera/pose", f.stamp_ns, true_pose(i))
+    return p
+
+
+def pose_stamps_in_seconds(folder: Path) -> Path:
+    """Pose stamps written as seconds counted in nanoseconds (1.7e9 ns) beside frame stamps in ns."""
+    return _posed(folder / "pose_stamps_s.mcap", stamp_offset_ns=T0_NS // 10**9 - T0_NS)
+
+
+def poses_static_frames_moving(folder: Path) -> Path:
+    """Poses that stay put while the images show the camera moving 1 m."""
+    def still(i: int) -> np.ndarray:
+        return true_pose(0)
+    return _posed(folder / "poses_still.mcap", still)
+
+
+def tf_two_parents(folder: Path) -> Path:
+    """/tf gives the camera frame two parents: 'world' (the right pose) and 'map' (100 m off)."""
+    p = folder / "tf_two_parents.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(N):
+            f = textured_frame(i)
+            w.write_frame(f)
+            w.write_pose("/tf", f.stamp_ns, true_pose(i), kind="tf", parent="world")
+            off = true_pose(i)
+            off[:3, 3] += (100.0, 100.0, 100.0)
+            w.write_pose("/tf", f.stamp_ns, off, kind="tf", parent="map")
+    return p
+
+
+def tf_cycle(folder: Path) -> Path:
+    """/tf: world -> camera, and camera -> world: a cycle."""
+    p = folder / "tf_cycle.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(N):
+            f = textured_frame(i)
+            w.write_frame(f)
+            w.write_pose("/tf", f.stamp_ns, true_pose(i), kind="tf", parent="world")
+            w.write_pose("/tf", f.stamp_ns, np.linalg.inv(true_pose(i)), kind="tf",
+                         parent="camera_color_optical_frame", child="world")
+    return p
+
+
+def tf_right(folder: Path) -> Path:
+    """/tf world -> camera: the reference for the tf cases."""
+    p = folder / "tf_right.mcap"
+    with RecordingWriter(p, "mcap") as w:
+        for i in range(N):
+            f = textured_frame(i)
+            w.write_frame(f)
+            w.write_pose("/tf", f.stamp_ns, true_pose(i), kind="tf", parent="world")
+    return p
+
+
+POINTS_TOPIC = "/orb_slam3/map_points"
+
+
+def _write_cloud(w: RecordingWriter, stamp: int, xyz: np.ndarray) -> None:
+    data = np.concatenate([xyz.astype("<f4"), np.arange(len(xyz), dtype="<i4")[:, None].view("<f4")], 1)
+    fields = [w.message("sensor_msgs/msg/PointField", name=n, offset=4 * i, datatype=7 if n != "id" else 5,
+                        count=1) for i, n in enumerate(("x", "y", "z", "id"))]
+    msg = w.message("sensor_msgs/msg/PointCloud2", header=w.header(stamp, "world"), height=1, width=len(xyz),
+                    fields=fields, is_bigendian=False, point_step=16, row_step=16 * len(xyz),
+                    data=np.frombuffer(data.tobytes(), np.uint8).copy(), is_dense=True)
+    w.write_raw(POINTS_TOPIC, "sensor_msgs/msg/PointCloud2", msg, stamp)
+
+
+def _clouded(path: Path, scale: float) -> Path:
+    """A hover (the camera still: no motion to measure a scale by) with poses and a recorded map cloud of the
+    ground under the camera, both in metres times ``scale``."""
+    gx, gy = np.meshgrid(np.linspace(-2.5, 2.5, 12), np.linspace(-2.0, 2.0, 10))
+    ground = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    with RecordingWriter(path, "mcap") as w:
+        for i in range(N):
+            still = textured_frame(0)
+            f = textured_frame(i, rgb=still.rgb)
+            w.write_frame(f)
+            T = true_pose(0)
+            T[:3, 3] *= scale
+            w.write_pose("/camera/pose", f.stamp_ns, T)
+            if i % 3 == 0:
+                _write_cloud(w, f.stamp_ns, ground * scale)
+    return path
+
+
+def clouds_right(folder: Path) -> Path:
+    return _clouded(folder / "clouds_right.mcap", 1.0)
+
+
+def clouds_mm(folder: Path) -> Path:
+    """A hover whose poses and map points (one SLAM's) are in millimetres: only the map points' depth shows it."""
+    return _clouded(folder / "clouds_mm.mcap", 1000.0)
+
+
+def _aligned(path: Path, depth_of: Callable[[np.ndarray], np.ndarray], n: int = 4) -> Path:
+    with RecordingWriter(path, "mcap") as w:
+        for i in range(n):
+            f = textured_frame(i)
+            f.depth_m[:, : W // 2] = 3.0  # a box on the left half: where depth lands matters
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.depth_topic, *w.depth_message(depth_of(f.depth_m), f.stamp_ns), f.stamp_ns)
+            w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, f.stamp_ns),
+                        f.stamp_ns)
+    return path
+
+
+def aligned_depth_transposed(folder: Path) -> Path:
+    """Aligned depth 120x160 beside 160x120 colour: the depth image transposed."""
+    return _aligned(folder / "depth_transposed.mcap", lambda d: np.ascontiguousarray(d.T))
+
+
+def aligned_depth_half_width(folder: Path) -> Path:
+    """Aligned depth of half the colour width, full height (every other column)."""
+    return _aligned(folder / "depth_half_width.mcap", lambda d: np.ascontiguousarray(d[:, ::2]))
+
+
+def aligned_depth_half_size(folder: Path) -> Path:
+    """Aligned depth at half the colour size both ways (a decimated aligned stream): same shape, scaled."""
+    return _aligned(folder / "depth_half_size.mcap", lambda d: np.ascontiguousarray(d[::2, ::2]))
+
+
+CASES: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
+    poses_right, poses_mm, poses_cm, pose_upside_down, poses_body_frame, poses_yawed, poses_1s_late,
+    poses_start_late, pose_stamps_in_seconds, poses_static_frames_moving, tf_two_parents, tf_cycle, tf_right,
+    aligned_depth_transposed, aligned_depth_half_width, aligned_depth_half_size, clouds_right, clouds_mm)}
