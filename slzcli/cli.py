@@ -394,12 +394,13 @@ def vocab_group() -> None:
 @click.option("-o", "--output", "output", required=True,
               type=click.Path(dir_okay=False, path_type=Path, readable=False),
               help="Vocabulary file to write (DBoW2 text format).")
+@click.option("--force", is_flag=True, help="Replace an existing vocabulary file (never any other file).")
 @common_options
-def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path) -> tuple[dict[str, Any], str]:
+def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path, force: bool) -> tuple[dict[str, Any], str]:
     """Train a DBoW2 ORB vocabulary from recordings (slam.vocab.* sets k, levels, frames)."""
     from slzcli.slam.vocabulary import build_from_recordings
 
-    r = build_from_recordings(list(recordings), output, config)
+    r = build_from_recordings(list(recordings), output, config, force=force)
     summary = {"path": r.path, "recordings": r.recordings, "frames": r.frames, "descriptors": r.descriptors,
                "nodes": r.nodes, "words": r.words, "size_bytes": r.size_bytes, "seconds": round(r.seconds, 3)}
     text = (f"{r.path}: {r.words} words ({r.nodes} nodes, k={config.slam.vocab.k}, L={config.slam.vocab.levels}) "
@@ -477,29 +478,30 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
                           config.control.sim.target_tolerance)
     out = output or ibvs_out.landing_path(run).parent / "ibvs"
     start_world = resolve_start(target, config, scenario, start, offset)
-    cam = config.camera
+    mc_seed = config.control.noise.seed if seed is None else seed
+    with ibvs_out.output_folder(out, ibvs_out.landing_path(run), runs) as tmp:
+        if runs == 1:
+            result = simulate(target, start_world[None], config, log=True, seed=seed)
+            metrics = result.metrics(0)
+            ibvs_out.write_single(tmp, result, metrics, target, config.camera)
+        else:
+            with ibvs_out.montecarlo_rows(tmp) as add_rows, _RunsProgress(runs, config.control.montecarlo.chunk_runs) \
+                    as tick:
+                mc = montecarlo.run_chunked(target, start_world, runs, mc_seed, config, on_chunk=add_rows,
+                                            progress=tick)
+            mc_summary = {**montecarlo.summarise(mc), "seed": mc_seed, "start_world": start_world.tolist()}
+            ibvs_out.write_montecarlo(tmp, mc, mc_summary, rows_written=True)
+            ibvs_plots.montecarlo_histograms(tmp / "montecarlo_hist.png", mc)
+        names = sorted(p.name for p in tmp.iterdir() if not p.name.startswith("."))
     if runs == 1:
-        result = simulate(target, start_world[None], config, log=True, seed=seed)
-        metrics = result.metrics(0)
-        files = ibvs_out.write_run(out, result, metrics, cam.cx, cam.cy)
-        files += [ibvs_plots.image_plane(out / "image_plane.png", result, cam.width, cam.height, cam.cx, cam.cy),
-                  ibvs_plots.feature_error(out / "feature_error.png", result),
-                  ibvs_plots.trajectory_3d(out / "trajectory_3d.png", result, target)]
-        summary = {**metrics, "output": str(out), "files": [p.name for p in files]}
+        summary = {**metrics, "output": str(out), "files": names}
         s = metrics
         text = (f"{'landed' if s['success'] else 'FAILED'} ({s['reason']}) after {s['landing_time_s']} s; "
                 f"stabilisation {s['stabilisation_time_s']} s, final feature error {s['final_feature_error_px']} px, "
                 f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg; phases (s) "
                 f"{s['phases_s']}, {s['recoveries']} recoveries -> {out}")
         return summary, text
-    mc_seed = config.control.noise.seed if seed is None else seed
-    with _remove_if_left_empty(out), ibvs_out.montecarlo_rows(out) as add_rows, \
-            _RunsProgress(runs, config.control.montecarlo.chunk_runs) as tick:
-        result = montecarlo.run_chunked(target, start_world, runs, mc_seed, config, on_chunk=add_rows, progress=tick)
-    summary = {**montecarlo.summarise(result), "seed": mc_seed, "start_world": start_world.tolist()}
-    files = ibvs_out.write_montecarlo(out, result, summary, rows_written=True)
-    files.append(ibvs_plots.montecarlo_histograms(out / "montecarlo_hist.png", result))
-    return {**summary, "output": str(out), "files": [p.name for p in files]}, f"{montecarlo.table(summary)}\n-> {out}"
+    return {**mc_summary, "output": str(out), "files": names}, f"{montecarlo.table(mc_summary)}\n-> {out}"
 
 
 @main.command("synth")
@@ -592,19 +594,6 @@ class _progress:
     def __exit__(self, *exc: Any) -> None:
         if self.bar is not None:
             self.bar.stop()
-
-
-@contextlib.contextmanager
-def _remove_if_left_empty(folder: Path) -> Iterator[None]:
-    """A folder this command creates is removed again when the command stops before writing into it."""
-    existed = folder.exists()
-    try:
-        yield
-    except BaseException:
-        if not existed:
-            with contextlib.suppress(OSError):
-                folder.rmdir()   # only if empty: nothing of the user's, nothing written
-        raise
 
 
 class _RunsProgress:
