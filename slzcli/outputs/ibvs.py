@@ -12,7 +12,6 @@ slz did not write, never over a file it did not write.
 from __future__ import annotations
 
 import io
-import json
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -48,12 +47,9 @@ def read_target(path: Path, footprint_m: tuple[float, ...]) -> tuple[Target, dic
     Parsed only: whether the corners are this UAV's Eq. 10 square is ``control.simulate.check_target``.
     """
     file = landing_path(path)
-    try:
-        doc = json.loads(file.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise DatasetError(file, f"not readable JSON ({err})") from err
-    except RecursionError as err:
-        raise DatasetError(file, "not a landing.json: nested too deeply to read") from err
+    from slzcli.bounds import load_json
+
+    doc = load_json(file, "landing.json")
     if not isinstance(doc, dict) or "status" not in doc:
         raise DatasetError(file, "missing key 'status' (expected the landing.json of `slz detect`)")
     if doc["status"] == "no_safe_site":

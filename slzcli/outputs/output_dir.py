@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from slzcli.errors import OutputError
+from slzcli.errors import OutputError, SlzError
 from slzcli.outputs import files, safe_output
 
 MARKER_KEY = "slz_output"
@@ -64,9 +64,11 @@ class Existing:
 
 def read_marker(path: Path, kind: Kind) -> dict[str, Any] | None:
     """The marker document of ``path`` when it is a folder of ``kind`` (any state), else None."""
+    from slzcli.bounds import load_json
+
     try:
-        doc = json.loads((Path(path) / kind.marker).read_text())
-    except (OSError, ValueError):
+        doc = load_json(Path(path) / kind.marker, kind.marker)
+    except SlzError:  # missing, not JSON, not a file, too large or deep: not slz's
         return None
     if not isinstance(doc, dict):
         return None
