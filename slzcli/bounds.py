@@ -112,6 +112,9 @@ def synth_sizes(config: Config, extent_xy: tuple[float, float, float, float] | N
 MAX_JSON_BYTES = 64 << 20  # bytes; the largest, a batch summary.json, is ~0.6 KB a recording: 100,000 recordings
 MAX_JSON_DEPTH = 64        # levels; slz's own JSON nests under 10 deep (run.json: summary, config)
 MAX_TEXT_LIST_BYTES = 256 << 20  # bytes; a TUM rgb.txt / depth.txt / groundtruth.txt line is ~50 B: 5 million frames
+# bytes; a chunk holds whole messages, the largest a frame at sources.max_image_px (16.7 MP x 4 B = 64 MiB);
+# recorders chunk at 1-4 MiB
+MAX_MCAP_CHUNK_BYTES = 1 << 30
 MAX_BAG_METADATA_BYTES = 64 << 20  # bytes; a rosbag2 metadata.yaml is ~1 KB plus ~0.2 KB a file and a topic
 
 
@@ -128,7 +131,7 @@ def read_regular(path: Path | str, limit: int, what: str) -> bytes:
     with os.fdopen(fd, "rb") as fh:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise DatasetError(path, f"not a regular file ({_file_kind(st.st_mode)}); a {what} is a file")
+            raise DatasetError(path, f"not a regular file ({file_kind(st.st_mode)}); a {what} is a file")
         too_big = f"larger than {limit / 2**20:.0f} MiB; a {what} is far smaller (is this the right file?)"
         if st.st_size > limit:
             raise DatasetError(path, f"is {st.st_size / 2**20:.0f} MiB, {too_big}")
@@ -141,7 +144,7 @@ def read_regular(path: Path | str, limit: int, what: str) -> bytes:
     return data
 
 
-def _file_kind(mode: int) -> str:
+def file_kind(mode: int) -> str:
     for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
                        (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device")):
         if test(mode):

@@ -23,7 +23,7 @@ import click
 
 from slzcli import __version__
 from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
-from slzcli.config import Config, OutputLevel, dump, layer_sources
+from slzcli.config import MAX_FLOAT_MAGNITUDE, Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
 from slzcli.outputs.summary_json import envelope
 
@@ -269,8 +269,8 @@ def _time_bound(ctx: click.Context, param: click.Parameter, value: str | None) -
     except ValueError:
         raise click.BadParameter(f"expected seconds (e.g. 12.5) or @STAMP (e.g. @1712345678.25), got {value!r}") \
             from None
-    if not math.isfinite(seconds) or seconds < 0:
-        raise click.BadParameter(f"must be a finite number of seconds >= 0, got {value!r}")
+    if not math.isfinite(seconds) or not 0 <= seconds <= MAX_FLOAT_MAGNITUDE:
+        raise click.BadParameter(f"must be a number of seconds from 0 to {MAX_FLOAT_MAGNITUDE:g}, got {value!r}")
     return kind, seconds
 
 
@@ -419,8 +419,8 @@ def _start_floats(ctx: click.Context, param: click.Parameter, value: str | None)
         values = tuple(float(v) for v in value.split(","))
     except ValueError:
         raise click.BadParameter(f"expected comma-separated numbers, got {value!r}") from None
-    if not all(math.isfinite(v) for v in values):
-        raise click.BadParameter(f"every value must be a finite number, got {value!r}")
+    if not all(math.isfinite(v) and abs(v) <= MAX_FLOAT_MAGNITUDE for v in values):
+        raise click.BadParameter(f"every value must be a finite number within +-{MAX_FLOAT_MAGNITUDE:g}, got {value!r}")
     if len(values) not in (3, 4):
         raise click.BadParameter(f"expected X,Y,Z or X,Y,Z,YAW, got {len(values)} value(s)")
     return values

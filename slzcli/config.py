@@ -759,6 +759,11 @@ def _leaf_comments(text: str) -> dict[str, str]:
 # Limits of the reader itself (a config cannot set them: they guard reading the config). Configs
 # are small: default.yaml is ~21 KB, ~330 values, 4 levels deep, no aliases; a scene file ~6 KB.
 MAX_YAML_BYTES = 1 << 20     # 1 MiB
+# Magnitudes no parameter means: past them a value is a unit mistake, and arithmetic on it overflows
+# (a 1e300 ms tolerance in ns, a noise coefficient squared). The largest float a default holds is
+# sources' stamp window in Unix seconds (~1.7e9); the largest int a stamp in ns (1.7e18).
+MAX_FLOAT_MAGNITUDE = 1e10
+MAX_INT_MAGNITUDE = 2**63 - 1
 MAX_YAML_ALIASES = 100       # anchors may be reused, but not a billion times
 MAX_YAML_VALUES = 100_000    # values once every alias is expanded (what a loop over the data visits)
 MAX_YAML_DEPTH = 32          # nesting of mappings and lists
@@ -1008,6 +1013,8 @@ def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(path, f"expected an integer, got {_kind(value)} {short_repr(value)}", source)
+        if abs(value) > MAX_INT_MAGNITUDE:
+            raise ConfigError(path, f"{short_repr(value)} does not fit a 64-bit integer", source)
     elif tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(path, f"expected a number, got {_kind(value)} {short_repr(value)}", source)
@@ -1016,6 +1023,9 @@ def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str
             raise ConfigError(path, "NaN is not allowed", source)
         if value in (float("inf"), float("-inf")):  # no parameter means "unbounded"; 0 disables where allowed
             raise ConfigError(path, f"must be finite, got {value}", source)
+        if abs(value) > MAX_FLOAT_MAGNITUDE:
+            raise ConfigError(path, f"{short_repr(value)} is beyond +-{MAX_FLOAT_MAGNITUDE:g}, which no slz parameter "
+                                    "means in its unit (a unit mistake?)", source)
     elif tp is str:
         if not isinstance(value, str):
             raise ConfigError(path, f"expected a string, got {_kind(value)} {short_repr(value)}", source)

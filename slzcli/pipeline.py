@@ -49,7 +49,7 @@ import numpy as np
 
 from slzcli import fingerprint
 from slzcli.config import Config
-from slzcli.errors import DatasetError, OutputError
+from slzcli.errors import DatasetError, FrameError, OutputError
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator
 from slzcli.evaluate.truth import ground_truth_of as ground_truth_of  # slz compare and tests use it from here
@@ -323,7 +323,10 @@ def detect(frames: Iterable[TrackedFrame], tracker: Tracker, fusion: Fusion, noi
     for frame, T, due in frames:
         if due:
             with limit.stage(f"detection on frame {frame.index}"):
-                d = call_interruptibly(detect_frame, frame, T, tracker, fusion, noise)  # seconds of native work
+                try:
+                    d = call_interruptibly(detect_frame, frame, T, tracker, fusion, noise)  # seconds of native work
+                except FrameError as err:
+                    raise DatasetError(limit.where, f"frame {frame.index}: {err}") from err
             yield d
 
 
