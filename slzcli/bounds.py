@@ -89,6 +89,12 @@ def _default_config() -> Config:
 
 
 # ----------------------------------------------------------------------------- slz synth
+def synth_frames(config: Config, frames: int) -> list[Implied]:
+    """The frames of one ``slz synth`` flight (arrays of that length are made before the first render)."""
+    return [Implied("--frames", "frames of the flight", frames, "frames", config.synth.max_frames,
+                    "synth.max_frames", f"--frames {frames}")]
+
+
 def synth_sizes(config: Config, extent_xy: tuple[float, float, float, float] | None = None) -> list[Implied]:
     """The rendered image (against ``sources.max_image_px``: slz would not read a larger frame) and the
     ground-truth raster of a scene of ``extent_xy`` (xmin, xmax, ymin, ymax in metres)."""
@@ -115,6 +121,7 @@ MAX_TEXT_LIST_BYTES = 256 << 20  # bytes; a TUM rgb.txt / depth.txt / groundtrut
 # bytes; a chunk holds whole messages, the largest a frame at sources.max_image_px (16.7 MP x 4 B = 64 MiB);
 # recorders chunk at 1-4 MiB
 MAX_MCAP_CHUNK_BYTES = 1 << 30
+MAX_VOCABULARY_BYTES = 1 << 30  # bytes; ORB-SLAM3's ORBvoc.txt (k 10, L 6), the largest in use, is 145 MB
 MAX_BAG_METADATA_BYTES = 64 << 20  # bytes; a rosbag2 metadata.yaml is ~1 KB plus ~0.2 KB a file and a topic
 
 

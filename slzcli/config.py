@@ -505,6 +505,7 @@ class GroundTruthCfg:
 @schema
 class SynthCfg:
     frames: int = rng(1)
+    max_frames: int = rng(1)
     rate_hz: float = rng(1, 200)
     path: Literal["hover", "descent", "transect"]
     seed: int = rng(0)
@@ -862,7 +863,8 @@ def read_yaml_text(path: Path) -> str:
 
 def read_yaml_mapping(path: Path) -> dict[str, Any]:
     if not path.is_file():
-        raise ConfigError("", "config file not found", source=str(path))
+        what = "not a regular file (a FIFO, device or folder)" if path.exists() else "config file not found"
+        raise ConfigError("", what, source=str(path))
     data = _load_yaml_file(path)
     if data is None:
         return {}

@@ -21,7 +21,6 @@ from click.testing import CliRunner
 from test_control_cli import write_landing
 from test_user_files import FAST, SYNTH, invoke, refused, snapshot
 
-from slzcli.cli import main
 from slzcli.outputs import safe_output
 
 VOCAB = ("--set", "slam.vocab.levels=2", "--set", "slam.vocab.k=4")
@@ -141,7 +140,7 @@ def test_a_second_batch_into_one_folder_keeps_the_first_batchs_rows(runner, tmp_
     assert sorted(Path(r["run"]).name for r in rows) == ["depth_constant", "good", "third"]
     doc = json.loads((out / "summary.json").read_text())
     assert doc["batch"]["earlier_rows"] == 1 and len(doc["recordings"]) == 3
-    assert [Path(r["run"]).name for r in doc["recordings"]][0] == "good"  # the earlier row first
+    assert Path(doc["recordings"][0]["run"]).name == "good"  # the earlier row first
 
 
 # ----------------------------------------------------------------------------- slz land simulate

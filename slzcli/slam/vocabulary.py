@@ -266,12 +266,14 @@ def _numeric_table(body: str, n_lines: int, source: str) -> np.ndarray:
 
 def read_vocabulary(path: str | Path) -> Vocabulary:
     """Read and validate a vocabulary file (plain text; the native loader reads no gzip)."""
+    from slzcli.bounds import MAX_VOCABULARY_BYTES, read_regular
+
     p = Path(path)
     if not p.is_file():
         raise DatasetError(p, "vocabulary file not found")
     try:
-        text = p.read_text(encoding="ascii")
-    except (OSError, UnicodeDecodeError) as err:
+        text = read_regular(p, MAX_VOCABULARY_BYTES, "vocabulary").decode("ascii")
+    except UnicodeDecodeError as err:
         raise DatasetError(p, f"vocabulary is not a readable text file ({err})") from err
     return parse_vocabulary(text, str(p))
 

@@ -158,6 +158,7 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
                                f"{'a name ending in ' + want if want else 'a folder name without .mcap/.bag'} "
                                "(readers guess the format from the path)")
     check_replaceable(out, options.fmt, force)
+    bounds.check(bounds.synth_frames(config, options.frames))
     scene = load_scene(options.scene, options.variants)
     if options.start_m is None:
         options = dataclasses.replace(options, start_m=scenario_start(config, scene.scenario))
