@@ -1003,9 +1003,9 @@ def _check(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str 
                 errors.append(err)
         if len(args) == 1:
             raise errors[0]
-        for arg, err in zip(args, errors, strict=True):  # a number out of range: say so, not "expected a number"
+        for arg, refusal in zip(args, errors, strict=True):  # a number out of range: say so, not "expected a number"
             if arg in (int, float) and isinstance(value, (int, float)) and not isinstance(value, bool):
-                raise err
+                raise refusal
         raise ConfigError(path, f"expected {_alternatives(args)}, got {_kind(value)} {value!r}", source)
     return _scalar(tp, value, path, meta, source)
 
