@@ -743,5 +743,11 @@ def mcap_huge_chunk(folder: Path) -> Path:
     return p
 
 
-RECORDINGS.update({f.__name__: f for f in (depth_metres_in_16uc1, depth_bigendian_flag, depth_1e27, fifo_recording,
+def depth_3e38(folder: Path) -> Path:
+    """32FC1 depth of 3e38 m (near float32's limit): the plan raster's indices overflowed."""
+    return _depth_as(folder, "depth_3e38.mcap", "32FC1", lambda msg: None, depth=np.full((H, W), 3e38, np.float32))
+
+
+RECORDINGS.update({f.__name__: f for f in (depth_3e38, depth_metres_in_16uc1, depth_bigendian_flag, depth_1e27,
+                                           fifo_recording,
                                            tum_sparse_rgb_txt, ros2_sparse_metadata, mcap_huge_chunk)})

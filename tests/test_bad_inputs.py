@@ -65,7 +65,7 @@ OVERSIZED = {"huge_png_frame": "12000x9000 px", "over_opencv_limit_frame": "4000
 RESULTS = ("cut_middle", "cut_before_footer", "mismatched_sizes", "camera_info_zeros", "depth_all_nan",
            "depth_constant", "stamps_backwards", "duplicated_messages", "no_texture", "short_image_data",
            "camera_info_nan", "stamps_all_zero", "stamps_all_zero_log_zero", "stamps_duplicated", "two_depth_topics",
-           "pose_nan", "tum_missing_images")
+           "pose_nan", "tum_missing_images", "depth_3e38")
 OTHER = {"very_large", "log_time_near_2_64", "mcap_huge_chunk"}  # tests of their own below
 assert set(FAILS) | set(RESULTS) | set(OVERSIZED) | OTHER == set(B.RECORDINGS)
 

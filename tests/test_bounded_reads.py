@@ -121,6 +121,13 @@ def test_an_absurd_config_value_is_refused_naming_the_key(runner, tmp_path, key)
     assert not (tmp_path / "run").exists()
 
 
+def test_synth_frames_beyond_the_bound_is_one_line(runner, tmp_path) -> None:
+    """--frames 2^40 was a MemoryError (8 TiB of stamps) before the first frame."""
+    res = invoke(runner, "synth", "clear_field", "-o", str(tmp_path / "f.mcap"), "--frames", str(2**40))
+    refused(res, "--frames", "synth.max_frames")
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("args", [["info", "{rec}", "--start", "1e300"], ["detect", "{rec}", "--end", "1e300"],
                                   ["land", "simulate", "{run}", "--start", "0,0,1e300"]])
 def test_absurd_starts_are_usage_errors(runner, tmp_path, args) -> None:
@@ -128,3 +135,11 @@ def test_absurd_starts_are_usage_errors(runner, tmp_path, args) -> None:
     write_landing(run)
     res = invoke(runner, *(a.format(rec=rec, run=run) for a in args))
     assert res.exit_code == 2 and "1e300" in res.output and "Traceback" not in res.output
+
+
+def test_depth_near_the_float32_limit_is_an_answer_not_an_index_error(runner, tmp_path) -> None:
+    """3e38 m overflowed the plan raster's indices (IndexError); now no site, and why."""
+    path = B.depth_3e38(tmp_path)
+    res = invoke(runner, "detect", str(path), "-o", str(tmp_path / "run"), "--json")
+    assert res.exit_code == 0, res.stderr
+    assert json.loads((tmp_path / "run" / "landing.json").read_text())["status"] == "no_safe_site"
