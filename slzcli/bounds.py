@@ -142,11 +142,16 @@ def read_regular(path: Path | str, limit: int, what: str) -> bytes:
         too_big = f"larger than {limit / 2**20:.0f} MiB; a {what} is far smaller (is this the right file?)"
         if st.st_size > limit:
             raise DatasetError(path, f"is {st.st_size / 2**20:.0f} MiB, {too_big}")
-        try:
-            data = fh.read(limit + 1)
+        try:  # read(n) allocates n bytes first: ask for what fstat says, then more only if there is more
+            parts = [fh.read(st.st_size + 1)]
+            got = len(parts[0])
+            while got > st.st_size and got <= limit and parts[-1]:
+                parts.append(fh.read(min(1 << 20, limit + 1 - got)))
+                got += len(parts[-1])
         except OSError as err:
             raise DatasetError(path, f"cannot read ({err.strerror or err})") from err
-    if len(data) > limit:  # grew while read, or a file whose size fstat does not tell
+        data = parts[0] if len(parts) == 1 else b"".join(parts)
+    if len(data) > limit:  # grew while read, or a file whose size fstat does not tell (/proc)
         raise DatasetError(path, f"is {too_big}")
     return data
 
