@@ -38,14 +38,14 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError, SlzError
+from slzcli.interrupt import sigterm_interrupts
 from slzcli.pipeline import RunOptions
 
 log = logging.getLogger(__name__)
@@ -291,7 +291,7 @@ def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, schedu
     rows: list[dict[str, Any] | None] = [None] * len(tasks)
     emit = on_progress or (lambda p: None)
     interrupted = False
-    with _sigterm_interrupts():
+    with sigterm_interrupts():
         try:
             engine.start()
             emit(BatchProgress(0, len(tasks), 0, 0.0))
@@ -366,23 +366,6 @@ def _row_of(task: Task, outcome: Any) -> dict[str, Any]:
         return {**base, "status": "interrupted", "error": "cancelled"}
     except Exception as err:  # e.g. a worker process died (BrokenProcessPool), a lost Dask worker
         return {**base, "status": "failed", "error": f"{type(err).__name__}: {err}"}
-
-
-@contextmanager
-def _sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM behaves like Ctrl-C while the batch runs (main thread only: signals live there)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    old = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
 
 
 # ----------------------------------------------------------------------------- engines

@@ -6,16 +6,14 @@ config or a failure with a one-line reason naming the file or key, 2 usage.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import logging
 import math
-import signal
 import sys
 import threading
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,6 +23,8 @@ from slzcli import __version__
 from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
 from slzcli.config import MAX_FLOAT_MAGNITUDE, Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
+from slzcli.interrupt import sigterm_interrupts
+from slzcli.methods import registry as method_registry
 from slzcli.outputs.summary_json import envelope
 
 if TYPE_CHECKING:
@@ -63,7 +63,7 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
         warned = _setup_logging(verbose)
         click.get_current_context().meta[LAYERS] = (profile, config_file, overrides)
         try:
-            with _sigterm_interrupts():
+            with sigterm_interrupts():
                 config = load_config(config_file, overrides, profile)
                 result = fn(config=config, **kwargs)
         except click.ClickException:  # a usage error found after parsing (exit 2): click prints it
@@ -135,25 +135,6 @@ def one_line(message: str, limit: int = MAX_LINE_CHARS) -> str:
         return text
     head = (2 * limit) // 3
     return f"{text[:head]} [...] {text[-(limit - head - 7):]}"
-
-
-@contextlib.contextmanager
-def _sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM stops every command the way Ctrl-C does: the exception unwinds through the atomic
-    writers (temporary files and folders are removed) and slz exits with 130, as a batch does.
-    Long native calls run where the signal can still be acted on (``slzcli/interrupt.py``)."""
-    def stop(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, stop)
-    except ValueError:  # not the main thread (slz called from a thread): leave signals alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _fail(message: str, json_err: BaseException | None = None) -> None:
@@ -638,8 +619,9 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="One recording: its run folder (default runs/<name>). Several, or a quoted glob pattern: "
                    "the folder for one run folder each plus summary.json and summary.csv (default runs/).")
-@click.option("--method", type=click.Choice(["fuzzy", "bayes", "px4slp"]), default=None,
-              help="Fusion method (default: scoring.method).")
+@click.option("--method", type=click.Choice(method_registry.names()), default=None,
+              help="Detection method (default: scoring.method): "
+                   + "; ".join(f"{n}, {e.summary}" for n, e in method_registry.METHODS.items()) + ".")
 @click.option("--force", is_flag=True, help="Replace finished runs (only the files slz writes in a run folder): "
               "redo one done for the same config and inputs, or replace one of another config.")
 @click.option("--workers", type=click.IntRange(1), default=None,

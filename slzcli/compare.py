@@ -3,12 +3,12 @@ grid planner (issue 21, PX4SLP.md) on the same frames.
 
 Only the fusion may differ. SLAM tracks every frame ONCE and the four terrain maps are
 computed ONCE per detection frame; each method then scores, masks and selects on those
-very arrays and the very same map points (one ``pipeline.Tracker``, a ``pipeline.Fusion`` per method). Every detection
+very arrays and the very same map points (one ``pipeline.run`` over all the methods). Every detection
 records what it was given (frame index, stamp, a digest of the map points and of the
 maps) and ``check_same_inputs`` refuses a comparison whose methods saw different inputs.
 
 Reported per recording and method: time per stage and per frame (median, p90), the
-committed site (``pipeline.commit_site``, as ``slz detect``), the distance between the
+committed site (``pipeline.commit``, as ``slz detect``), the distance between the
 methods' sites (the paper's 1.249 m), the IoU of the methods' masks, and with ground
 truth (``slz synth``): mask precision / recall / IoU, whether the site is truly safe, its
 clearance, and a precision-recall sweep of every score map (and every single terrain map)
@@ -46,28 +46,23 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
-from slzcli.interrupt import call_interruptibly
+from slzcli.evaluate.truth import ground_truth_of
+from slzcli.methods.base import build
+from slzcli.methods.registry import names as method_names
 from slzcli.outputs import output_dir, run_lock
 from slzcli.outputs.run_folder import landing_record
-from slzcli.pipeline import (
-    Fusion,
-    Tracker,
-    commit_radius_m,
-    commit_site,
-    ground_truth_of,
-    open_inputs,
-    posed_maps,
-    tally,
-    tracked_frames,
-)
-from slzcli.scoring import METHODS
+from slzcli.pipeline.commit import commit
+from slzcli.pipeline.run import MethodRun as PipelineRun
+from slzcli.pipeline.run import Sink
+from slzcli.pipeline.run import run as run_methods
+from slzcli.pipeline.source import open_source
+from slzcli.pipeline.tracking import Tracker
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
-from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunState, no_site_reason, site_truth
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
-from slzcli.types import Detection, FigureFrame, TerrainMaps
+from slzcli.types import Detection, FigureFrame, TerrainMaps, TrackedFrame
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
@@ -125,17 +120,20 @@ class CurveCounts:
 # ----------------------------------------------------------------------------- per-method state
 @dataclass
 class MethodRun:
-    """One method's fusion, its own accumulators and what only the comparison needs."""
+    """One method of the comparison: its run (the method and its accumulators) and what only the comparison needs."""
 
     name: str
-    fusion: Fusion
-    state: RunState
+    run: PipelineRun
     truth: list[MaskCounts] = field(default_factory=list)  # each detection's mask against the true safe mask
     inputs: list[tuple[int, int, str, str]] = field(default_factory=list)
     frame_ms: list[float] = field(default_factory=list)
     pr: CurveCounts | None = None
     mask_fractions: list[float] = field(default_factory=list)
     views: dict[int, dict[str, Any]] = field(default_factory=dict)
+
+    @property
+    def state(self) -> RunState:
+        return self.run.state
 
 
 def digest(*arrays: np.ndarray | None) -> str:
@@ -164,8 +162,8 @@ def resolve_methods(methods: tuple[str, ...] | list[str], key: str = "--methods"
     out: list[str] = []
     for m in methods:
         m = m.strip()
-        if m not in METHODS:
-            raise ConfigError(key, f"unknown method {m!r}; known: {', '.join(METHODS)}")
+        if m not in method_names():
+            raise ConfigError(key, f"unknown method {m!r}; known: {', '.join(method_names())}")
         if m not in out:
             out.append(m)
     if len(out) < 2:
@@ -183,60 +181,65 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
     path = Path(path)
     limit = StageLimit(timeout_s, str(path))
     levels = config.compare.pr_levels
-    runs: dict[str, MethodRun] = {}
-    map_curves = {n: CurveCounts.empty(levels) for n in TerrainMaps.NAMES}
-    map_means: dict[str, list[float]] = {f"{n}_{c}": [] for n in TerrainMaps.NAMES for c in ("safe", "unsafe")}
-    agreement: dict[str, list[MaskCounts]] = {}
     t_start = time.perf_counter()
     with ExitStack() as stack:
         with limit.stage("opening the recording"):
             truth = ground_truth_of(path, config)
-            rec, info, clouds, config = open_inputs(path, config, stack)
-        has_poses = any(c.role == "pose" and c.topic for c in info.choices)
-        with get_backend(config, has_poses, clouds=clouds) as slam:
-            tracker = Tracker(config, slam)
-            noise = NoiseTracker(config.terrain.noise, config.terrain.noise_estimate)  # the maps', shared
-            for m in methods:
-                runs[m] = MethodRun(m, Fusion.of(config, m), RunState(),
-                                    pr=CurveCounts.empty(levels) if truth is not None else None)
-            for frame, T, due in tracked_frames(path, rec, tracker, limit):
-                slam_ms = tracker.latest_slam_ms()
-                if due:
-                    with limit.stage(f"detection on frame {frame.index}"):
-                        maps, maps_ms = call_interruptibly(posed_maps, frame, T, config, noise.update(frame.depth_m))
-                        gt_mask = truth.safe_mask(frame.stamp_ns) if truth is not None else None
-                        dets = {m: _fuse(run, config, tracker, frame, T, maps, maps_ms, slam_ms, gt_mask)
-                                for m, run in runs.items()}
-                        _agree(dets, agreement)
-                        _forget_views(runs, methods[0], frame.index)
-                        if gt_mask is not None:
-                            _map_truth(maps, gt_mask, map_curves, map_means)
-                if progress is not None:
-                    progress(tracker.frames, info.expected_frames)
-    if tracker.frames == 0:
-        raise DatasetError(path, no_frames_reason(rec.report))
+            source, config = open_source(path, config, stack)
+        slam = stack.enter_context(get_backend(config, source.has_poses, clouds=source.clouds))
+        tracker = Tracker(config, slam)
+        noise = NoiseTracker(config.terrain.noise, config.terrain.noise_estimate)  # the maps', shared
+        runs = {m: MethodRun(m, PipelineRun(build(m, config), RunState()),
+                             pr=CurveCounts.empty(levels) if truth is not None else None) for m in methods}
+        sink = CompareSink(runs, truth, levels, tracker, source.expected_frames, progress)
+        run_methods(source, tracker, [r.run for r in runs.values()], noise, limit, [sink])
     check_same_inputs({m: r.inputs for m, r in runs.items()})
-    return _summarise(path, config, methods, runs, tracker, noise, truth, map_curves, map_means, agreement,
-                      time.perf_counter() - t_start)
+    return _summarise(path, config, methods, runs, tracker, noise, truth, sink.map_curves, sink.map_means,
+                      sink.agreement, time.perf_counter() - t_start)
 
 
-def _fuse(run: MethodRun, config: Config, tracker: Tracker, frame: Any, T: np.ndarray | None, maps: TerrainMaps,
-          maps_ms: float, slam_ms: float, gt_mask: np.ndarray | None) -> Detection:
-    d = call_interruptibly(run.fusion, frame, T, maps, maps_ms, tracker.points, tracker.segment)
-    tally(run.state, d, config)
+class CompareSink(Sink):
+    """What the comparison adds up over the shared frames: each method's inputs, times, masks against the
+    truth and the other methods, the single maps' curves, the Figure 6 arrays."""
+
+    def __init__(self, runs: dict[str, MethodRun], truth: Any | None, levels: int, tracker: Tracker,
+                 expected: int | None, progress: Progress | None) -> None:
+        self.runs, self.truth, self.tracker, self.expected, self.progress = runs, truth, tracker, expected, progress
+        self.map_curves = {n: CurveCounts.empty(levels) for n in TerrainMaps.NAMES}
+        self.map_means: dict[str, list[float]] = {f"{n}_{c}": [] for n in TerrainMaps.NAMES for c in ("safe", "unsafe")}
+        self.agreement: dict[str, list[MaskCounts]] = {}
+
+    def detected(self, t: TrackedFrame, maps: TerrainMaps, detections: Sequence[Detection]) -> None:
+        truth = self.truth
+        gt_mask = truth.safe_mask(t.frame.stamp_ns) if truth is not None else None
+        dets = dict(zip(self.runs, detections, strict=True))
+        for m, d in dets.items():
+            _account(self.runs[m], t, maps, d, gt_mask)
+        _agree(dets, self.agreement)
+        _forget_views(self.runs, next(iter(self.runs)), t.frame.index)
+        if gt_mask is not None:
+            _map_truth(maps, gt_mask, self.map_curves, self.map_means)
+
+    def done(self, t: TrackedFrame) -> None:
+        if self.progress is not None:
+            self.progress(self.tracker.frames, self.expected)
+
+
+def _account(run: MethodRun, t: TrackedFrame, maps: TerrainMaps, d: Detection, gt_mask: np.ndarray | None) -> None:
+    """One method's detection of a shared frame, in the comparison's own tables."""
     if gt_mask is not None:
         run.truth.append(mask_counts(d.score.mask, gt_mask))
-    run.state.timer.add("slam", slam_ms)  # the shared tracking time of the frame, as each method would pay it
+    run.state.timer.add("slam", t.slam_ms)  # the shared tracking time of the frame, as each method would pay it
     pts = d.points
+    frame = t.frame
     run.inputs.append((frame.index, frame.stamp_ns, digest(None if pts is None else pts.ids,
                                                            None if pts is None else pts.xyz_world),
                        maps_digest(maps)))
-    run.frame_ms.append(slam_ms + sum(d.timings_ms[k] for k in ("maps", "score", "mask", "select")))
+    run.frame_ms.append(t.slam_ms + sum(d.timings_ms[k] for k in ("maps", "score", "mask", "select")))
     if run.pr is not None and gt_mask is not None:
         run.pr.add(d.score.score, gt_mask)
     run.mask_fractions.append(float(d.score.mask.mean()))
     run.views[frame.index] = _view(d)
-    return d
 
 
 def _forget_views(runs: dict[str, MethodRun], first: str, current: int) -> None:
@@ -293,12 +296,11 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                noise: NoiseTracker, truth: Any | None, map_curves: dict[str, CurveCounts],
                map_means: dict[str, list[float]], agreement: dict[str, list[MaskCounts]],
                wall_s: float) -> dict[str, Any]:
-    side = commit_radius_m(config)
     per: dict[str, Any] = {}
     committed_of: dict[str, dict[str, Any] | None] = {}
     for m, run in runs.items():
         st = run.state
-        committed = commit_site(st.sites.sites, side, config.landing.commit)
+        committed = commit(st.sites.sites, config)
         committed_of[m] = committed
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)
@@ -537,8 +539,8 @@ def compare_profiles(paths: list[Path], configs: dict[str, Config], out_dir: Pat
 
     if len(configs) < 2:
         raise ConfigError("--profiles", f"give at least two different profiles to compare, got {', '.join(configs)}")
-    if method is not None and method not in METHODS:
-        raise ConfigError("--methods", f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    if method is not None and method not in method_names():
+        raise ConfigError("--methods", f"unknown method {method!r}; known: {', '.join(method_names())}")
     for p in paths:
         if not Path(p).exists():
             raise DatasetError(p, "no such file or folder")

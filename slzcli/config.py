@@ -25,6 +25,7 @@ from typing import Any, Literal
 import yaml
 
 from slzcli.errors import ConfigError, short_repr
+from slzcli.methods import registry as method_registry
 
 
 def package_dir(*parts: str) -> Path:
@@ -51,6 +52,11 @@ def rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fal
     return field(metadata={"lo": lo, "hi": hi, "lo_open": lo_open, "odd": odd, "n": n})
 
 
+def one_of(names: typing.Callable[[], tuple[str, ...]]) -> Any:
+    """A string field (or each string of a list) that must be one of ``names()``, a registry read at check time."""
+    return field(metadata={"one_of": names})
+
+
 _C = typing.TypeVar("_C")
 _D = typing.TypeVar("_D", bound="DataclassInstance")
 
@@ -63,7 +69,7 @@ else:
         return lambda decorator: decorator
 
 
-@dataclass_transform(frozen_default=True, field_specifiers=(field, rng))
+@dataclass_transform(frozen_default=True, field_specifiers=(field, rng, one_of))
 def schema(cls: type[_C]) -> type[_C]:
     """``@dataclass(frozen=True)``, declared so that type checkers read ``rng(...)`` as a field without a default."""
     return dataclass(frozen=True)(cls)
@@ -230,7 +236,7 @@ class Px4SlpCfg:  # the ranges of upstream's SafeLandingPlannerNode.cfg / Waypoi
 
 @schema
 class ScoringCfg:
-    method: Literal["fuzzy", "bayes", "px4slp"]
+    method: str = one_of(method_registry.names)
     fuzzy: FuzzyCfg
     bayes: BayesCfg
     px4slp: Px4SlpCfg
@@ -593,7 +599,7 @@ class SlamCfg:
 
 @schema
 class CompareCfg:
-    methods: tuple[str, ...]
+    methods: tuple[str, ...] = one_of(method_registry.names)
     pr_levels: int = rng(2, 10001)
     variants: tuple[str, ...]
 # --- end compare ---
@@ -1034,6 +1040,11 @@ def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str
     elif tp is str:
         if not isinstance(value, str):
             raise ConfigError(path, f"expected a string, got {_kind(value)} {short_repr(value)}", source)
+        names = meta.get("one_of")
+        if names is not None and value not in names():
+            choices = names()
+            raise ConfigError(path, f"must be one of {', '.join(choices)}; got {short_repr(value)}"
+                                    f"{_did_you_mean(short_repr(value, 200), choices)}", source)
         return value
     lo, hi = meta.get("lo"), meta.get("hi")
     if lo is not None and (value <= lo if meta.get("lo_open") else value < lo):

@@ -50,7 +50,7 @@ class RunState:
     worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
     unvouched_reason: str = ""         # limits.limit_reason of that frame
     column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
-    grid_reason: str = ""              # px4slp: why its latest detection frame gave no site (docs/PX4SLP.md)
+    method_reason: str = ""            # a method the maps do not gate (px4slp): why its latest frame gave no site
 
 
 def versions() -> dict[str, str]:
@@ -103,8 +103,8 @@ def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
     if st.detections_without_depth == st.detections:
         return (f"no valid depth in any of the {st.detections} detection frames (all NaN or 0): check the depth "
                 "topic's encoding, sources.depth_unit_16u_m and sources.max_depth_m")
-    if st.grid_reason:  # px4slp: the grid planner's own reason; slz's noise limits do not gate it
-        return f"{st.grid_reason} (the last of {st.detections} detection frames without a site)"
+    if st.method_reason:  # a method the maps do not gate says why itself (px4slp: the grid planner)
+        return f"{st.method_reason} (the last of {st.detections} detection frames without a site)"
     if st.unvouched and st.unvouched == st.detections:
         return st.unvouched_reason
     if not keyframes:

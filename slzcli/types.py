@@ -219,7 +219,23 @@ class MapPoints:
                          stamp_ns, T_world_camera)
 
 
-# ----------------------------------------------------------------------------- slz compare
+@dataclass(frozen=True, eq=False)
+class TrackedFrame:
+    """One frame after SLAM, as every detection method sees it (``methods.base.Method``).
+
+    ``T_world_camera``: the gravity-aligned world pose (None: not tracked); ``segment``: its SLAM map
+    segment; ``points``: the latest keyframe's map points of that segment (None: none yet); ``due``:
+    detection is due on this frame; ``slam_ms``: its tracking time.
+    """
+
+    frame: Frame
+    T_world_camera: np.ndarray | None
+    segment: int
+    points: MapPoints | None
+    due: bool
+    slam_ms: float
+
+
 # ----------------------------------------------------------------------------- detection
 @dataclass(frozen=True, eq=False)
 class Detection:
@@ -304,7 +320,7 @@ class RunResult:
     """What one detection run sums up to (``summary.summarise``), as the run folder writes it.
 
     ``landing``: landing.json; ``run``: run.json (its ``summary`` is what ``slz detect`` returns);
-    ``committed``: the committed site entry (``pipeline.commit_site``) or None; ``primary_segment``:
+    ``committed``: the committed site entry (``pipeline.commit.commit_site``) or None; ``primary_segment``:
     the run's map segment (trajectory.tum); ``points_segment``: the segment whose map points
     points.ply holds (None: all, a run of one segment).
     """

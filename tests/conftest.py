@@ -49,20 +49,20 @@ def realsense_dir() -> Path:
 
 @contextlib.contextmanager
 def fusion_spy() -> Iterator[list[tuple[str, Any]]]:
-    """(method, Detection) of every detection each method's ``pipeline.Fusion`` makes inside the block: what a
-    test of `slz compare` checks beyond its JSON (the detections themselves, per method)."""
-    from slzcli import pipeline
+    """(method, Detection) of every detection each method makes inside the block (``pipeline.step.detect_one``):
+    what a test of `slz compare` checks beyond its JSON (the detections themselves, per method)."""
+    from slzcli.pipeline import step
 
     seen: list[tuple[str, Any]] = []
-    original = pipeline.Fusion.__call__
+    original = step.detect_one
 
-    def spy(self: Any, *args: Any, **kwargs: Any) -> Any:
-        d = original(self, *args, **kwargs)
-        seen.append((self.method, d))
+    def spy(method: Any, *args: Any, **kwargs: Any) -> Any:
+        d = original(method, *args, **kwargs)
+        seen.append((method.name, d))
         return d
 
     mp = pytest.MonkeyPatch()
-    mp.setattr(pipeline.Fusion, "__call__", spy)
+    mp.setattr(step, "detect_one", spy)
     try:
         yield seen
     finally:

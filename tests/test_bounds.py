@@ -299,11 +299,11 @@ def test_sigterm_stops_a_monte_carlo_batch_and_leaves_no_table(tmp_path: Path) -
 LONG_NATIVE_CALL = textwrap.dedent("""
     import sys
     import cv2, numpy as np
-    from slzcli.cli import _sigterm_interrupts
+    from slzcli.interrupt import sigterm_interrupts
     from slzcli import interrupt
     img = np.ones((3000, 3000), np.float32)
     try:
-        with _sigterm_interrupts():
+        with sigterm_interrupts():
             print("ready", flush=True)
             # one OpenCV call of ~10^12 multiply-adds: tens of minutes here, minutes on a fast machine
             interrupt.call_interruptibly(cv2.GaussianBlur, img, (32001, 32001), 4000.0)

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from conftest import GAUSSIAN, fusion_spy, synth_recording
 
-from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.compare import CurveCounts, check_same_inputs, resolve_methods
 from slzcli.errors import ConfigError
 from slzcli.outputs.summary_json import rounded
+from slzcli.types import Detection
 
 SMALL = (*GAUSSIAN, "--set", "camera.width=320", "--set", "camera.height=240", "--set", "camera.fx=231.0685",
          "--set", "camera.fy=231.0685", "--set", "camera.cx=160", "--set", "camera.cy=120")
@@ -44,7 +44,7 @@ def compared(clear_field, tmp_path_factory):
 
 
 def _by_method(seen):
-    out: dict[str, list[pipeline.Detection]] = {}
+    out: dict[str, list[Detection]] = {}
     for m, d in seen:
         out.setdefault(m, []).append(d)
     return out

@@ -135,14 +135,14 @@ def _nest_plain(parts: list[str], leaf: dict) -> dict:
 
 def test_one_slope_limit_reaches_the_steepness_map_and_the_tilt_test() -> None:
     """uav.max_slope_deg is psi_ref of Eq. 9 and the site acceptance test's tilt limit."""
-    from slzcli.pipeline import select_params
+    from slzcli.methods.maps import bayes, fuzzy
     from slzcli.terrain.maps import steepness_map
 
     cfg = load_config(overrides=["uav.max_slope_deg=10"])
     psi = np.radians(np.array([[10.0]], np.float32))
     assert float(steepness_map(psi, cfg.terrain.steepness, cfg.uav.max_slope_deg)[0, 0]) == pytest.approx(
         np.exp(-1.0), rel=1e-6)
-    assert select_params(cfg, "fuzzy").max_tilt_deg == select_params(cfg, "bayes").max_tilt_deg == 10.0
+    assert fuzzy(cfg).params.max_tilt_deg == bayes(cfg).params.max_tilt_deg == 10.0
 
 
 @pytest.mark.parametrize(

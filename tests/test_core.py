@@ -1,6 +1,7 @@
-"""The detection core (issue 17): ``detect`` over tracked frames, a stateless ``Fusion``, ground truth as a sink.
+"""The detection core: the one frame loop (``pipeline.run``) over tracked frames, stateless map methods,
+ground truth as a sink.
 
-The core is run by hand here, with no run folder, and must give what ``slz detect`` writes.
+The loop is run here with no run folder and must give what ``slz detect`` writes.
 """
 
 from __future__ import annotations
@@ -17,21 +18,16 @@ from slzcli.cli import main
 from slzcli.config import Config, load_config
 from slzcli.evaluate.safety import total
 from slzcli.evaluate.truth import TruthEvaluator, ground_truth_of
-from slzcli.pipeline import (
-    Fusion,
-    Tracker,
-    commit_radius_m,
-    commit_site,
-    detect,
-    open_inputs,
-    run_state,
-    tally,
-    tracked_frames,
-)
+from slzcli.methods.base import Method
+from slzcli.pipeline import run as run_module
+from slzcli.pipeline.commit import commit
+from slzcli.pipeline.run import Sink, TruthSink, method_run, run
+from slzcli.pipeline.source import open_source
+from slzcli.pipeline.tracking import Tracker
 from slzcli.slam import get_backend
 from slzcli.summary import RunState
 from slzcli.timeout import StageLimit
-from slzcli.types import Detection
+from slzcli.types import Detection, TrackedFrame
 
 FRAMES = 4
 
@@ -41,29 +37,36 @@ def recording(tmp_path_factory) -> Path:
     return synth_recording(tmp_path_factory.mktemp("flights") / "parking_lot.mcap", "parking_lot", FRAMES, *GAUSSIAN)
 
 
-def run_core(path: Path, config: Config, fusion: Fusion) -> tuple[list[Detection], RunState, TruthEvaluator]:
-    """open / track / detect / sinks, as detect_recording does, with the detections kept."""
+class Kept(Sink):
+    """The detections of a run, kept."""
+
+    def __init__(self) -> None:
+        self.detections: list[Detection] = []
+
+    def detected(self, t: TrackedFrame, maps, detections) -> None:
+        self.detections.extend(detections)
+
+
+def run_core(path: Path, config: Config,
+             method: str) -> tuple[list[Detection], RunState, TruthEvaluator, Method]:
+    """open / track / the frame loop with the ground truth and a sink that keeps the detections."""
     gt = ground_truth_of(path, config)
     assert gt is not None
     truth = TruthEvaluator(gt)
     limit = StageLimit(None, str(path))
+    kept = Kept()
     with ExitStack() as stack:
-        rec, info, clouds, config = open_inputs(path, config, stack)
-        has_poses = any(c.role == "pose" and c.topic for c in info.choices)
-        tracker = Tracker(config, stack.enter_context(get_backend(config, has_poses, clouds=clouds)))
-        state = run_state(tracker, config)
-        assert state.noise is not None
-        dets = []
-        for d in detect(tracked_frames(path, rec, tracker, limit), tracker, fusion, state.noise, limit):
-            tally(state, d, config)
-            truth.detection(d)
-            dets.append(d)
-    return dets, state, truth
+        source, config = open_source(path, config, stack)
+        tracker = Tracker(config, stack.enter_context(get_backend(config, source.has_poses, clouds=source.clouds)))
+        mr = method_run(config, method, tracker)
+        assert mr.state.noise is not None
+        run(source, tracker, [mr], mr.state.noise, limit, [TruthSink(truth), kept])
+    return kept.detections, mr.state, truth, mr.method
 
 
 def test_the_core_gives_what_slz_detect_writes(runner, recording, tmp_path) -> None:
     config = load_config()
-    dets, state, truth = run_core(recording, config, Fusion.of(config, config.scoring.method))
+    dets, state, truth, _ = run_core(recording, config, config.scoring.method)
     assert dets, "no detection frame: the test would compare nothing"
     res = runner.invoke(main, ["detect", str(recording), "-o", str(tmp_path / "run"), "--json"])
     assert res.exit_code == 0, res.output + res.stderr
@@ -71,7 +74,7 @@ def test_the_core_gives_what_slz_detect_writes(runner, recording, tmp_path) -> N
     summary = json.loads((tmp_path / "run" / "run.json").read_text())["summary"]
     assert summary["detections"] == len(dets) == state.detections
     assert total(truth.masks).as_dict() == summary["ground_truth"]["mask"]
-    committed = commit_site(state.sites.sites, commit_radius_m(config))
+    committed = commit(state.sites.sites, config)
     assert (committed is None) == (landing["status"] != "site")
     if committed is not None:
         assert landing["frame"]["index"] == committed["frame"].index
@@ -79,13 +82,12 @@ def test_the_core_gives_what_slz_detect_writes(runner, recording, tmp_path) -> N
 
 
 @pytest.mark.parametrize("method", ["fuzzy", "bayes"])
-def test_fusion_keeps_no_state(recording, method) -> None:
+def test_map_methods_keep_no_state(recording, method) -> None:
     """The same inputs give the same mask and site, after any number of other frames."""
     config = load_config()
-    fusion = Fusion.of(config, method)
-    dets, _, _ = run_core(recording, config, fusion)
+    dets, _, _, m = run_core(recording, config, method)
     for d in reversed(dets):  # the other order: nothing carried over from the previous frame
-        again = fusion(d.frame, d.T_world_camera, d.maps, 0.0, d.points, d.segment)
+        again = m.detect(TrackedFrame(d.frame, d.T_world_camera, d.segment, d.points, True, 0.0), d.maps, 0.0)
         assert np.array_equal(again.score.mask, d.score.mask)
         assert np.array_equal(again.score.score, d.score.score, equal_nan=True)
         assert (again.selection is None) == (d.selection is None)
@@ -124,20 +126,18 @@ def test_overlapping_the_stages_changes_no_result(runner, recording, tmp_path) -
 
 def test_slam_is_handed_the_next_frame_before_this_frames_detection(recording, monkeypatch) -> None:
     """track_ahead: frame n+1 goes to the backend (a worker process starts on it) before frame n is detected."""
-    import slzcli.pipeline as pipeline
-
     events: list[str] = []
-    real_detect = pipeline.detect_frame
+    real_step = run_module.step
 
-    def detect_frame(frame, *args):
-        events.append(f"detect {frame.index}")
-        return real_detect(frame, *args)
+    def step(tracked, *args):
+        events.append(f"detect {tracked.frame.index}")
+        return real_step(tracked, *args)
 
-    monkeypatch.setattr(pipeline, "detect_frame", detect_frame)
+    monkeypatch.setattr(run_module, "step", step)
     config = load_config(None, ["slam.backend=odometry", "landing.detect_on=every_nth", "landing.every_nth_frame=1"])
     limit = StageLimit(None, str(recording))
     with ExitStack() as stack:
-        rec, _, _, _ = open_inputs(recording, config, stack)
+        source, config = open_source(recording, config, stack)
         slam = stack.enter_context(get_backend(config, False))
         real_submit, real_collect = slam.submit, slam.collect
         def submit(frame):
@@ -151,10 +151,9 @@ def test_slam_is_handed_the_next_frame_before_this_frames_detection(recording, m
         monkeypatch.setattr(slam, "submit", submit)
         monkeypatch.setattr(slam, "collect", collect)
         tracker = Tracker(config, slam)
-        state = run_state(tracker, config)
-        assert state.noise is not None
-        list(detect(tracked_frames(recording, rec, tracker, limit), tracker, Fusion.of(config, "fuzzy"),
-                    state.noise, limit))
+        mr = method_run(config, "fuzzy", tracker)
+        assert mr.state.noise is not None
+        run(source, tracker, [mr], mr.state.noise, limit)
     want = ["submit 0", "collect"]
     for i in range(FRAMES):
         want += [f"submit {i + 1}"] if i + 1 < FRAMES else []

@@ -15,8 +15,11 @@ The rules, one line each (``RULES``: importing package -> packages it must not i
   helpers of outputs/, a leaf, to store a downloaded vocabulary).
 - sources/ reads recordings; it knows nothing of what is done with the frames.
 - control/ simulates the landing from a site; it does not import detection or the writers.
+- methods/ are the detection methods (plug-ins of the run): they use the per-frame steps, never
+  the run machinery that runs them nor the writers; the steps below do not import them (only
+  config reads ``methods.registry``, a leaf, for the names).
 - summary (what a run sums up to) does not import the run machinery that calls it; pipeline
-  (``slz detect``) does not import the commands built on it (compare, batch, cli).
+  (the run assembly) does not import the commands built on it (compare, batch, cli).
 - Only ``slzcli.cli`` may import ``slzcli.cli`` (``FORBIDDEN_FOR_ALL``).
 - No import cycle among slzcli modules counting module-level imports (``test_no_cycle``).
 """
@@ -30,7 +33,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "slzcli"
 
-DETECTION = ("pipeline", "summary", "compare", "batch")  # the run machinery: detect, summarise, compare, batch
+DETECTION = ("pipeline", "summary", "compare", "batch", "methods")  # the run machinery and the methods it runs
 COMMANDS = ("cli", "api")  # the entry points: the command line and the Python API
 RULES: dict[str, tuple[str, ...]] = {
     # package: packages (slzcli.<name>, module or subpackage) it must not import
@@ -44,7 +47,8 @@ RULES: dict[str, tuple[str, ...]] = {
     "sources": (*DETECTION, "outputs", "evaluate", "landing", "scoring", "terrain", "slam", "control", "synth",
                 *COMMANDS),
     "control": (*DETECTION, "outputs", "evaluate", "scoring", "terrain", "slam", "synth", *COMMANDS),
-    "summary": ("pipeline", "compare", "batch", *COMMANDS),
+    "methods": ("pipeline", "summary", "compare", "batch", "outputs", "evaluate", "control", "synth", *COMMANDS),
+    "summary": ("pipeline", "compare", "batch", "methods", *COMMANDS),
     "pipeline": ("compare", "batch", *COMMANDS),
 }
 FORBIDDEN_FOR_ALL = ("cli",)
@@ -165,4 +169,27 @@ def test_backends_are_told_apart_by_capability_not_by_name() -> None:
                 consts = {c.value for c in (node.left, *node.comparators) if isinstance(c, ast.Constant)}
                 if consts & BACKEND_NAMES:
                     bad.append(f"{m}:{node.lineno}")
+    assert not bad, bad
+
+
+METHOD_NAMES = {"fuzzy", "bayes", "px4slp"}
+RUN_MACHINERY = ("pipeline", "summary", "compare", "batch")
+
+
+def test_the_run_machinery_asks_no_method_its_name() -> None:
+    """The run (pipeline/, summary, compare, batch) tells methods apart by what they say of themselves
+    (``methods.base.Method``), never by comparing a name; nor by ``isinstance`` on a method's class."""
+    method_classes = {"MapMethod", "GridMethod", "FuzzyScorer", "BayesScorer", "Px4SlpPlanner"}
+    bad = []
+    for m, path in MODULES.items():
+        if _top(m) not in RUN_MACHINERY:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare):
+                consts = {c.value for c in (node.left, *node.comparators) if isinstance(c, ast.Constant)}
+                if consts & METHOD_NAMES:
+                    bad.append(f"{m}:{node.lineno} compares with a method name")
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "isinstance" \
+                    and {n.id for n in ast.walk(node) if isinstance(n, ast.Name)} & method_classes:
+                bad.append(f"{m}:{node.lineno} isinstance on a method")
     assert not bad, bad

@@ -149,7 +149,7 @@ def test_the_paper_depth_variance_keeps_a_ramp_the_plane_fit_removes() -> None:
 def test_commit_latest_takes_the_last_detection_not_the_best_supported() -> None:
     from types import SimpleNamespace
 
-    from slzcli.pipeline import commit_site
+    from slzcli.pipeline.commit import commit_site
 
     def entry(i: int, x: float, accepted: bool) -> dict[str, Any]:
         site = SimpleNamespace(center_world=(x, 0.0, 0.0), accepted=accepted, normal_variance=0.01)

@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from slzcli.config import load_config
 from slzcli.errors import ConfigError
 from slzcli.landing.select import select_site
+from slzcli.methods.maps import fuzzy
 from slzcli.outputs.recording import RecordingWriter
-from slzcli.pipeline import select_params
 from slzcli.scoring import get_scorer
 from slzcli.sources import decode
 from slzcli.terrain.maps import compute_maps
@@ -275,7 +275,7 @@ def test_site_never_lies_on_a_pixel_the_mask_rejects(seed, n) -> None:
         u0, v0 = rng.integers(0, w), rng.integers(0, h)
         mask[v0:v0 + rng.integers(5, h), u0:u0 + rng.integers(5, w)] = True
     score = mask.astype(np.float32)
-    sel = select_site(xyz, T, K, mask, score, select_params(CONFIG, "fuzzy"))
+    sel = select_site(xyz, T, K, mask, score, fuzzy(CONFIG).params)
     assert sel.kept.sum() <= n
     if sel.site is None:
         assert sel.reason

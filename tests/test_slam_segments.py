@@ -19,12 +19,14 @@ import pytest
 from conftest import GAUSSIAN, synth_recording
 from scipy.spatial.transform import Rotation
 
-from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.evaluate.slam import ate, ate_by_segment, rpe, umeyama
 from slzcli.geometry import invert_pose
-from slzcli.pipeline import RunOptions, commit_site, detect_recording, gravity_alignment
+from slzcli.pipeline import RunOptions, detect_recording
+from slzcli.pipeline import run as run_module
+from slzcli.pipeline.commit import commit_site
+from slzcli.pipeline.tracking import depth_points, gravity_alignment
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
 from slzcli.slam.segments import Segment, primary_segment, segment_table
 from slzcli.synth.groundtruth import load_ground_truth
@@ -82,7 +84,7 @@ class TwoMaps(BackendBase):
         T_true = self.truth.T_world_camera[self.truth.index_of(frame.stamp_ns, TOL_NS)]
         T = world @ invert_pose(first) @ T_true
         if segment in self.keyframes_in:
-            self._kf = pipeline.depth_points(frame, T, POINT_STRIDE_PX)
+            self._kf = depth_points(frame, T, POINT_STRIDE_PX)
         return TrackResult(frame.index, frame.stamp_ns, TrackingState.OK, T, self._kf is not None,
                            0 if self._kf is None else len(self._kf), segment)
 
@@ -98,7 +100,7 @@ def flight(tmp_path_factory) -> Path:
 @pytest.fixture
 def two_maps(monkeypatch, flight):
     truth = load_ground_truth(flight)
-    monkeypatch.setattr(pipeline, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth))
+    monkeypatch.setattr(run_module, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth))
     return truth
 
 
@@ -221,7 +223,7 @@ def test_two_maps_stay_apart_in_every_output(two_maps, flight, tmp_path) -> None
 def test_a_new_map_never_uses_the_old_maps_points(monkeypatch, flight, tmp_path) -> None:
     """Map 1 makes no keyframe: its frames have no map points to select from (map 0's are in another frame)."""
     truth = load_ground_truth(flight)
-    monkeypatch.setattr(pipeline, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth, (0,)))
+    monkeypatch.setattr(run_module, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth, (0,)))
     config = load_config(overrides=["landing.detect_on=every_nth", "landing.every_nth_frame=1"])
     summary = detect_recording(flight, config, tmp_path / "run", RunOptions())
     assert summary["detections"] == FRAMES

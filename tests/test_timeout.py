@@ -20,9 +20,11 @@ from pathlib import Path
 import pytest
 from conftest import GAUSSIAN
 
-from slzcli import pipeline
 from slzcli.cli import main
 from slzcli.errors import StageTimeout
+from slzcli.pipeline import run as run_module
+from slzcli.pipeline import source as source_module
+from slzcli.pipeline import step as step_module
 from slzcli.timeout import StageLimit
 
 STUCK_S = 20.0  # how long a "stuck" stage blocks if the bound failed: the test then fails, it does not hang
@@ -132,14 +134,14 @@ def bound_only(monkeypatch, stage_name: str, recording: str = "") -> None:
 
 
 def _stuck_detection(monkeypatch, only: str = "") -> None:
-    real = pipeline.detect_frame
+    real = run_module.step
 
-    def detect(frame, T, *args):
-        if not only or only in frame.source:
+    def detect(tracked, *args):
+        if not only or only in tracked.frame.source:
             stuck()
-        return real(frame, T, *args)
+        return real(tracked, *args)
 
-    monkeypatch.setattr(pipeline, "detect_frame", detect)
+    monkeypatch.setattr(run_module, "step", detect)
 
 
 def test_detect_stops_a_stuck_stage_names_it_and_leaves_nothing(runner, flights, tmp_path, monkeypatch) -> None:
@@ -156,7 +158,7 @@ def test_detect_stops_a_stuck_stage_names_it_and_leaves_nothing(runner, flights,
 
 def test_a_stuck_read_is_bounded_too(runner, flights, tmp_path, monkeypatch) -> None:
     """A recording whose third frame never arrives (a hung network filesystem)."""
-    real = pipeline.open_recording
+    real = source_module.open_recording
 
     class Hanging:
         def __init__(self, rec) -> None:
@@ -181,7 +183,7 @@ def test_a_stuck_read_is_bounded_too(runner, flights, tmp_path, monkeypatch) -> 
         def __exit__(self, *exc):
             return self.cm.__exit__(*exc)
 
-    monkeypatch.setattr(pipeline, "open_recording", Opener)
+    monkeypatch.setattr(source_module, "open_recording", Opener)
     bound_only(monkeypatch, "reading frame 2")
     out = tmp_path / "run"
     res = runner.invoke(main, ["detect", str(flights["calm"]), "-o", str(out), "--timeout", "0.5"])
@@ -221,15 +223,13 @@ def test_timeout_must_be_positive(runner, flights, tmp_path) -> None:
 
 
 def test_compare_takes_the_same_bound(runner, flights, tmp_path, monkeypatch) -> None:
-    from slzcli import compare
-
-    real = compare.posed_maps
+    real = step_module.posed_maps
 
     def slow_maps(*args, **kwargs):
         stuck()
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(compare, "posed_maps", slow_maps)
+    monkeypatch.setattr(step_module, "posed_maps", slow_maps)
     bound_only(monkeypatch, "detection on frame 0")
     out = tmp_path / "cmp"
     res = runner.invoke(main, ["compare", str(flights["calm"]), "-o", str(out), "--timeout", "0.5"])

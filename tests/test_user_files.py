@@ -381,7 +381,7 @@ def test_synth_force_never_replaces_a_folder_with_a_users_files(runner, tmp_path
 def test_synth_force_never_pairs_a_recording_with_the_old_truth(runner, tmp_path, monkeypatch) -> None:
     """Killed between putting the new recording in place and its sidecar: no truth, not the old scene's."""
     from slzcli.config import load_config
-    from slzcli.pipeline import ground_truth_of
+    from slzcli.evaluate.truth import ground_truth_of
     from slzcli.synth import record
 
     out = tmp_path / "f.mcap"

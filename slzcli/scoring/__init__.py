@@ -1,6 +1,6 @@
 """Scoring stage: TerrainMaps -> landing score -> ScoreMap (score + landing mask).
 
-``SCORERS`` maps ``scoring.method`` to a scorer class; ``get_scorer(config)`` builds one.
+``SCORERS`` maps a map-scoring method's name to its scorer class; ``get_scorer(config)`` builds one.
 A scorer maps the four terrain maps to a float32 score in [0, 1] (1 = good for landing);
 pixels without depth (``valid`` False) score 0. ``score_frame`` adds the landing mask.
 """
@@ -118,9 +118,7 @@ def score_maps(scorer: Scorer, maps: TerrainMaps) -> np.ndarray:
     return _zero_invalid(score, known & maps.valid)
 
 SCORERS: dict[str, type[FuzzyScorer] | type[BayesScorer]] = {"fuzzy": FuzzyScorer, "bayes": BayesScorer}
-# every detection method: the two fusions of the four maps, and the PX4 grid planner (scoring/px4slp.py),
-# which scores depth points binned in the world, not the maps (``pipeline.Fusion`` runs it)
-METHODS: tuple[str, ...] = (*SCORERS, "px4slp")
+# the scorers of the four maps; the detection methods (these two and px4slp) are slzcli.methods.registry's
 
 
 def get_scorer(config: Config, method: str | None = None) -> Scorer:

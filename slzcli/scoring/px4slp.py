@@ -87,7 +87,7 @@ class GridState:
 class Px4SlpMemory:
     """The planner's state across the detection frames of one recording: the previous grid update.
 
-    Mutable on purpose (upstream's ``previous_grid_``); owned by one ``pipeline.Fusion``, so every
+    Mutable on purpose (upstream's ``previous_grid_``); owned by one ``methods.px4slp.GridMethod``, so every
     recording and every method of ``slz compare`` has its own. A new map segment starts afresh.
     """
 

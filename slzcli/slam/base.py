@@ -116,7 +116,7 @@ class BackendBase:
     _submitted: Frame | None = None
 
     # A backend that tracks in a worker process overrides submit/collect so that the worker starts on a frame
-    # while the caller computes on the one before (pipeline.tracked_frames); here the work is done in collect.
+    # while the caller computes on the one before (pipeline.tracking.track); here the work is done in collect.
     def track(self, frame: Frame) -> TrackResult:  # pragma: no cover - every backend defines it
         raise NotImplementedError
 

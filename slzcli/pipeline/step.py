@@ -1,0 +1,94 @@
+"""The per-frame method step: a frame due gets its terrain maps once, then every method's detection on
+them; each detection is added to its method's run accumulators (``tally``).
+
+Compute first, write after: every frame's stages are timed on their own (maps, score, mask, slam,
+select); what the sinks do with a detection (writing it) is timed apart.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.landing.select import Candidate, Site
+from slzcli.methods.base import Method
+from slzcli.outputs.site_log import SiteLog
+from slzcli.summary import RunState
+from slzcli.terrain.limits import limit_reason
+from slzcli.terrain.maps import frame_maps
+from slzcli.terrain.noise import DepthNoise, NoiseTracker
+from slzcli.types import Detection, Frame, TerrainMaps, TrackedFrame
+
+
+def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
+               noise: DepthNoise | None = None) -> tuple[TerrainMaps, float]:
+    """The four terrain maps of a frame (with its SLAM pose, when there is one) and their time in ms.
+
+    ``noise``: the run's depth noise (``NoiseTracker.update``); None measures it on this frame alone.
+    """
+    posed = frame if T_world_camera is None else replace(frame, T_world_camera=T_world_camera)
+    t0 = time.perf_counter()
+    maps = frame_maps(posed, config, noise)
+    return maps, (time.perf_counter() - t0) * 1e3
+
+
+def step(tracked: TrackedFrame, methods: Sequence[Method], config: Config,
+         noise: NoiseTracker) -> tuple[TerrainMaps, list[Detection]]:
+    """A frame due: its maps (with the run's depth noise), then each method's detection on them, in order."""
+    maps, maps_ms = posed_maps(tracked.frame, tracked.T_world_camera, config, noise.update(tracked.frame.depth_m))
+    return maps, [detect_one(m, tracked, maps, maps_ms) for m in methods]
+
+
+def detect_one(method: Method, tracked: TrackedFrame, maps: TerrainMaps, maps_ms: float) -> Detection:
+    """One method's detection of a frame due (the one call every detection goes through)."""
+    return method.detect(tracked, maps, maps_ms)
+
+
+def tally(state: RunState, det: Detection, method: Method, config: Config) -> None:
+    """Add one detection to a run's accumulators: stage times, counts, the no-site evidence, sites."""
+    score, work = det.score, det.maps.work
+    if score.column_cut > 0 or score.mask.any():
+        cut = state.column_cut
+        state.column_cut = score.column_cut if cut is None else min(cut, score.column_cut)
+    if not method.reads_maps and det.selection is not None and det.selection.site is None:
+        state.method_reason = det.selection.reason  # a method the maps do not gate says why itself
+    if method.reads_maps and work is not None and not work.vouched:
+        state.unvouched += 1
+        worst = state.worst_unvouched
+        if worst is None or work.altitude_m > worst.altitude_m:
+            state.worst_unvouched = work
+            state.unvouched_reason = limit_reason(work, config.terrain, config.uav)
+    for name, ms in det.timings_ms.items():
+        state.timer.add(name, ms)
+    state.detections += 1
+    state.detections_without_depth += not det.maps.valid.any()
+    record(state.sites, det)
+
+
+def record(sites: SiteLog, det: Detection) -> None:
+    """Add a detection's site and candidates to the run's tables."""
+    sel = det.selection
+    if sel is None:
+        return
+    chosen = _chosen_cluster(sel.candidates, sel.site) if sel.site is not None else None
+    sites.add_rows([{
+        "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
+        "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
+        "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
+        "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment}
+        for c in sel.candidates])
+    if sel.site is not None:
+        assert det.points is not None  # a site is chosen among the map points
+        pts = det.points.xyz_world
+        limits = det.maps.work.as_dict() if det.maps.work is not None else None
+        sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits, det.segment,
+                       kept_cluster=sel.labels[sel.kept])
+
+
+def _chosen_cluster(candidates: Sequence[Candidate], site: Site) -> int:
+    centre = np.asarray(site.center_world)
+    return min(candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre))).cluster
