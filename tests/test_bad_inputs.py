@@ -9,6 +9,7 @@ Never a traceback, never an "internal error".
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -421,7 +422,7 @@ def test_missing_tum_images_are_one_warning_and_a_count(runner: CliRunner, tmp_p
     ("landing_collinear", "site.corners_world: corners 0 and 1 are 0.6 m apart; the Eq. 10 square of uav.footprint_m"),
     ("landing_tiny", "site.corners_world: corners 0 and 1 are 2e-09 m apart"),
     ("landing_identical", "site.corners_world: corners 0 and 1 are 0 m apart"),
-    ("landing_deep", "nested too deeply"),
+    ("landing_deep", "nested more than 64 levels deep"),
 ])
 def test_a_landing_target_that_is_not_the_footprint_square_is_refused(runner: CliRunner, tmp_path: Path, case: str,
                                                                       cause: str) -> None:
@@ -518,7 +519,7 @@ def test_an_unreadable_tum_list_names_the_file(runner: CliRunner, tmp_path: Path
     import errno
 
     folder = B.tum_missing_images(tmp_path)
-    _fail_for(monkeypatch, Path, "read_text", folder / "rgb.txt", errno.EACCES, "Permission denied")
+    _fail_for(monkeypatch, os, "open", folder / "rgb.txt", errno.EACCES, "Permission denied")  # bounds.read_regular
     error_line(invoke(runner, "info", str(folder)), folder / "rgb.txt", "rgb.txt: cannot read (Permission denied)")
 
 

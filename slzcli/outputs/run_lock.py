@@ -115,7 +115,8 @@ def _open_marked(path: Path) -> int:
     except FileExistsError:
         pass
     except OSError as err:
-        raise OutputError(path, f"cannot create lock file ({err.strerror})") from err
+        raise OutputError(path.parent / path.name[1:-len(".lock")], f"cannot write ({err.strerror}) (its lock file "
+                                                                   f"{path.name} cannot be made)") from err
     try:
         fd = os.open(path, os.O_RDWR | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:

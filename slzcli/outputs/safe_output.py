@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import stat
 import tempfile
 from collections.abc import Callable, Sequence
@@ -34,9 +35,13 @@ def make_temp_dir(beside: Path, suffix: str) -> Path:
     beside = Path(beside)
     tmp = Path(tempfile.mkdtemp(prefix=f".{beside.name}.", suffix=suffix, dir=beside.parent))
     try:
-        (tmp / TEMP_MARKER).write_bytes(_TEMP_TEXT)
+        fd = os.open(tmp / TEMP_MARKER, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        try:
+            os.write(fd, _TEMP_TEXT)
+        finally:
+            os.close(fd)
     except BaseException:
-        os.rmdir(tmp)
+        shutil.rmtree(tmp, ignore_errors=True)
         raise
     return tmp
 
