@@ -357,12 +357,16 @@ def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: 
     """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames
     (within --start/--end/--stride/--max-frames when given)."""
     from slzcli.sources import open_recording
+    from slzcli.sources.depth_check import check_depth
     from slzcli.sources.info_text import info_text
 
     config = _windowed(config, win_start, win_end, stride, max_frames)
     with open_recording(bag, config) as rec:
         info = rec.info()
-    return info.to_dict(), info_text(info)
+    depth = check_depth(bag, config, info)  # a few frames decoded: the depth's range, a wrong unit warned of
+    if depth is not None and depth.warning:
+        log.warning("%s: %s", bag, depth.warning)
+    return {**info.to_dict(), "depth": None if depth is None else depth.to_dict()}, info_text(info, depth)
 
 
 @main.group("vocab")
@@ -662,6 +666,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     rows = result.rows
     for r in rows:
         _warn_slam_maps(r.get("summary"))
+        _warn_untracked(r.get("summary"))
     # --json names paths as the user gave them (the run folders and summary files keep absolute ones)
     given = {str(p.absolute()): str(p) for p in paths}
     given_run = {str(t.run_dir): str(output) if output is not None and not is_batch else str(batch_dir / t.run_dir.name)
@@ -725,6 +730,13 @@ def _warn_slam_maps(s: dict[str, Any] | None) -> None:
     log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; %s in map %d (frames %d-%d, "
                 "%d tracked); run.json summary.slam lists them all", s["source"], slam["maps"], what,  # type: ignore[index]
                 slam["segment"], seg["first_frame"], seg["last_frame"], seg["frames_tracked"])
+
+
+def _warn_untracked(s: dict[str, Any] | None) -> None:
+    """One warning line when SLAM left more than slam.max_untracked_share of the frames without a pose."""
+    warning = ((s or {}).get("slam") or {}).get("warning")
+    if warning:
+        log.warning("%s: %s", s["source"], warning)  # type: ignore[index]
 
 
 def _batch_text(t: dict[str, Any], rows: list[dict[str, Any]]) -> str:
@@ -804,7 +816,9 @@ class _BatchDisplay:
 def _detect_text(out: Path, s: dict[str, Any]) -> str:
     t = s["timings_ms"]
     maps = _slam_maps(s)
-    head = (f"{s['source']}: {s['frames']} frames, {s['detections']} detections ({s['method']}, "
+    lost = (s.get("slam") or {}).get("frames_untracked")
+    head = (f"{s['source']}: {s['frames']} frames" + (f" ({lost} not tracked)" if lost else "")
+            + f", {s['detections']} detections ({s['method']}, "
             f"SLAM {s['slam_backend']}" + (f", {maps} maps)" if maps > 1 else ")"))
     if s.get("skipped"):
         head += " [skipped: done before with the same config and input bytes; --force redoes it]"
@@ -886,6 +900,7 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
         if _slam_maps(r) > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
+        _warn_untracked(r)
     return envelope("compare", summary), text_table(summary, str(out))
 
 

@@ -59,7 +59,7 @@ from slzcli.pipeline.source import open_source
 from slzcli.pipeline.tracking import Tracker
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
-from slzcli.summary import RunState, no_site_reason, site_truth
+from slzcli.summary import RunState, no_site_reason, site_truth, untracked_frames
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
 from slzcli.types import Detection, FigureFrame, TerrainMaps, TrackedFrame
@@ -341,7 +341,9 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         "slam": {"maps": len(segment_table(tracker.trajectory.segments(), tracker.trajectory.has_pose(),
                                            tracker.keyframes.per_segment)),
                  "ate_rmse_m": _ate_rmse(tracker, truth),
-                 "frames_digest": digest(np.asarray(tracker.trajectory.stamps))},
+                 "frames_digest": digest(np.asarray(tracker.trajectory.stamps)),
+                 **untracked_frames(tracker.trajectory.has_pose(), tracker.tracking, tracker.slam_name,
+                                    config.slam.max_untracked_share)},
         "inputs_identical": True,
         "methods": per, "pairs": pairs, "wall_s": round(wall_s, 3), "ground_truth": truth is not None,
         "depth_noise": noise.summary(),

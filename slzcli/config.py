@@ -121,6 +121,14 @@ class WindowCfg:
 
 
 @schema
+class DepthCheckCfg:
+    frames: int = rng(1, 1000)
+    min_range_m: float = rng(0, lo_open=True)
+    below_min_share: float = rng(0, 1)
+    max_median_m: float = rng(0, lo_open=True)
+
+
+@schema
 class SourcesCfg:
     topics: Topics
     intrinsics: IntrinsicsCheckCfg
@@ -136,6 +144,7 @@ class SourcesCfg:
     max_image_px: int = rng(1, 2**30)   # OpenCV refuses to decode more (CV_IO_MAX_IMAGE_PIXELS)
     window: WindowCfg
     read_ahead_frames: int = rng(0, 64)
+    depth_check: DepthCheckCfg
 
 
 @schema
@@ -193,10 +202,25 @@ class LimitsCfg:
 
 
 @schema
+class FusionCfg:
+    cells_per_footprint: float = rng(1, 64)
+    window_m: float = rng(1, lo_open=False)
+    samples_per_cell: float = rng(1)
+    white_fraction: float = rng(0, 1)
+    fixed_fraction: float = rng(0, 1)
+    decorrelation_px: float = rng(0, lo_open=True)
+    gate_sigma: float = rng(0, lo_open=True)
+    two_heights_fraction: float = rng(0, 1, lo_open=True)
+    pose_sigma_m: float = rng(0)
+    pose_sigma_deg: float = rng(0)
+
+
+@schema
 class TerrainCfg:
     noise: Literal["auto"] | float = rng(0)
     noise_estimate: NoiseEstimateCfg
     limits: LimitsCfg
+    fusion: FusionCfg
     depth_variance: DepthVarianceCfg
     flatness: FlatnessCfg
     inclination: InclinationCfg
@@ -287,6 +311,7 @@ class LandingCfg:
     depth_points_stride_px: int = rng(1, 256)
     edge_clearance_factor: float = rng(0)
     commit_radius_factor: float = rng(0)
+    commit_score_band: float = rng(0, 1)
     max_normal_pairs: int = rng(1)
     commit: Literal["agree", "latest"] = "agree"
 
@@ -589,6 +614,7 @@ class SlamCfg:
     vocabulary: str
     points_topic: str
     track_ahead: bool
+    max_untracked_share: float = rng(0, 1)
     orb: OrbCfg
     keyframe: SlamKeyframeCfg
     orbslam3: OrbSlam3Cfg

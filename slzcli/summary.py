@@ -20,6 +20,7 @@ from slzcli import __version__
 from slzcli.config import Config
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
+from slzcli.landing.commit import spread_record
 from slzcli.outputs.results_mcap import MAP_FRAME, map_frame_of
 from slzcli.outputs.run_folder import landing_record
 from slzcli.outputs.site_log import SiteLog
@@ -96,6 +97,22 @@ def slam_summary(slam_name: str, table: list[Segment], primary: int | None,
          "mcap_frame": map_frame_of(s.segment, map_frame)} for s in table]}
 
 
+def untracked_frames(has_pose: np.ndarray, tracking: dict[str, int], slam_name: str,
+                     max_share: float) -> dict[str, Any]:
+    """run.json ``summary.slam``'s count of the frames the backend gave no pose (every backend alike: a frame
+    the tracker logged without a pose), their share, and a warning above ``slam.max_untracked_share``."""
+    n = len(has_pose)
+    lost = int(n - np.count_nonzero(has_pose))
+    share = lost / n if n else 0.0
+    warning = ""
+    if share > max_share:
+        states = ", ".join(f"{count} {state}" for state, count in sorted(tracking.items()) if state != "ok")
+        warning = (f"{slam_name} could not track {lost} of {n} frames ({share:.0%}: {states or 'no pose'}), more than "
+                   f"slam.max_untracked_share {max_share:.0%}: those frames have no pose and no detection, the result "
+                   f"rests on the {n - lost} tracked ones (slower motion, a higher frame rate or more texture helps)")
+    return {"frames_untracked": lost, "untracked_share": round(share, 4), "warning": warning}
+
+
 def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
     """Why a run found no site, from its RunState (``slz detect`` and ``slz compare``)."""
     if st.detections == 0:
@@ -156,13 +173,17 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
     world = world_frame_text(slam_name, poses_are_recorded, table, primary)
     reason = no_site_reason(st, slam_name, len(st.keyframes))
     site_gt = site_truth(None if truth is None else truth.truth, committed)
-    landing = landing_record(source, method, committed, world, timings, reason, site_gt, primary)
+    spread = None if committed is None or "ranked" not in committed else \
+        spread_record(committed["ranked"], config.uav.footprint_m[0])
+    landing = landing_record(source, method, committed, world, timings, reason, site_gt, primary, spread)
     noise = noise_summary(st)
     summary: dict[str, Any] = {
         "source": str(source), "method": method, "frames": st.frames, "detections": st.detections,
         "status": landing["status"], "site_world": landing.get("site", {}).get("center_world"),
-        "reason": landing.get("reason"), "slam_backend": slam_name, "tracking": st.tracking,
-        "slam": slam_summary(slam_name, table, primary, trajectory_files(st.trajectory), config.output.map_frame),
+        "reason": landing.get("reason"), "site_spread_m": landing.get("site_spread_m"),
+        "slam_backend": slam_name, "tracking": st.tracking,
+        "slam": {**slam_summary(slam_name, table, primary, trajectory_files(st.trajectory), config.output.map_frame),
+                 **untracked_frames(st.trajectory.has_pose(), st.tracking, slam_name, config.slam.max_untracked_share)},
         "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
         "outputs": config.output.level,
         "depth_noise": noise,

@@ -152,7 +152,8 @@ def test_commit_latest_takes_the_last_detection_not_the_best_supported() -> None
     from slzcli.pipeline.commit import commit_site
 
     def entry(i: int, x: float, accepted: bool) -> dict[str, Any]:
-        site = SimpleNamespace(center_world=(x, 0.0, 0.0), accepted=accepted, normal_variance=0.01)
+        site = SimpleNamespace(center_world=(x, 0.0, 0.0), accepted=accepted, normal_variance=0.01, score=0.8,
+                               edge_clearance_m=1.0)
         return {"site": site, "frame": SimpleNamespace(index=i), "segment": 0}
 
     sites = [entry(0, 0.0, True), entry(1, 0.1, True), entry(2, 5.0, False)]

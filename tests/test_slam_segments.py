@@ -110,12 +110,13 @@ class _Site:
     """The fields commit_site reads."""
 
     center_world: tuple[float, float, float]
-    normal_variance: float
+    score: float
     accepted: bool
+    edge_clearance_m: float | None = None
 
 
-def _site(x: float, y: float, normal_variance: float, accepted: bool = True) -> _Site:
-    return _Site((x, y, 0.0), normal_variance, accepted)
+def _site(x: float, y: float, score: float, accepted: bool = True) -> _Site:
+    return _Site((x, y, 0.0), score, accepted)
 
 
 class _Frame:
@@ -124,17 +125,18 @@ class _Frame:
 
 
 def test_commit_site_counts_support_only_within_a_segment() -> None:
-    """Map 1's site at (0, 0) is not confirmed by map 0's two sites there: different frames."""
-    sites = [{"frame": _Frame(0), "site": _site(0.0, 0.0, 0.02), "segment": 0},
-             {"frame": _Frame(1), "site": _site(0.1, 0.0, 0.02), "segment": 0},
-             {"frame": _Frame(5), "site": _site(0.0, 0.1, 0.001), "segment": 1},
-             {"frame": _Frame(6), "site": _site(9.0, 9.0, 0.01), "segment": 1},
-             {"frame": _Frame(7), "site": _site(9.1, 9.0, 0.01), "segment": 1}]
+    """Map 1's site at (0, 0.1) is not confirmed by map 0's two sites there: different frames."""
+    sites = [{"frame": _Frame(0), "site": _site(0.0, 0.0, 0.80), "segment": 0},
+             {"frame": _Frame(1), "site": _site(0.1, 0.0, 0.80), "segment": 0},
+             {"frame": _Frame(5), "site": _site(0.0, 0.1, 0.95), "segment": 1},
+             {"frame": _Frame(6), "site": _site(9.0, 9.0, 0.85), "segment": 1},
+             {"frame": _Frame(7), "site": _site(9.1, 9.0, 0.85), "segment": 1}]
     best = commit_site(sites, side_m=1.0)
     assert best is not None
-    # Four sites confirmed by two detections each: the lower normal variance (map 1's pair at (9, 9))
-    # wins, the later frame of the pair. Counting across maps, frame 5's site would have support 3.
-    assert (best["frame"].index, best["segment"], best["support"]) == (7, 1, 2)
+    # Four sites confirmed by two detections each: the higher score (map 1's pair at (9, 9)) wins; of the pair,
+    # equal in score and centrality, the lower x. Counting across maps, frame 5's site (the best score) would be
+    # confirmed and win.
+    assert (best["frame"].index, best["segment"], best["support"]) == (6, 1, 2)
     assert best["detections"] == 5 and best["segment_detections"] == 3
 
 

@@ -158,7 +158,8 @@ def test_unsupported_encoding_in_every_frame_is_an_error_naming_it(tmp_path: Pat
 
 
 def test_info_reads_stamps_only_and_accepts_the_db3_path(tmp_path: Path, runner: CliRunner) -> None:
-    # An encoding slz cannot decode still counts and pairs in `slz info`: info never decodes images.
+    # An encoding slz cannot decode still counts and pairs in `slz info`: its pairing decodes no image; the depth
+    # check, which decodes a few frames, says it could not read them.
     path = tmp_path / "yuv.mcap"
     with RecordingWriter(path, "mcap") as w:
         for i in range(3):
@@ -169,6 +170,7 @@ def test_info_reads_stamps_only_and_accepts_the_db3_path(tmp_path: Path, runner:
             w.write_raw(w.depth_topic, *w.depth_message(f.depth_m, f.stamp_ns), f.stamp_ns)
     result = run(runner, "--json", str(path))
     assert result.exit_code == 0 and json.loads(result.stdout)["frames"] == 3
+    assert "yuv422" in json.loads(result.stdout)["depth"]["unread"]
     bag = tmp_path / "bag2"
     write_frames(bag, "ros2-sqlite", n=2)
     result = run(runner, "--json", str(bag / "bag2.db3"))

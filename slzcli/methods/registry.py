@@ -26,6 +26,8 @@ METHODS: dict[str, Entry] = {
     "fuzzy": Entry("slzcli.methods.maps:fuzzy", "Mamdani fuzzy score of the four terrain maps (METHOD 2.4)"),
     "bayes": Entry("slzcli.methods.maps:bayes", "naive Bayes fusion of the four terrain maps (BASELINE.md)"),
     "px4slp": Entry("slzcli.methods.px4slp:px4slp", "PX4-Avoidance's grid planner on depth points (PX4SLP.md)"),
+    "fused": Entry("slzcli.methods.fused:fused", "the fuzzy rules on the terrain fused over every tracked frame, "
+                   "safe / unsafe / undecided per cell (METHOD 2.3.6)"),
 }
 
 

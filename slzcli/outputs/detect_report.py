@@ -88,6 +88,9 @@ def _result(s: dict[str, Any], landing: dict[str, Any]) -> str:
         gt = site.get("ground_truth")
         if gt:
             what += f" Ground truth: {'safe' if gt.get('safe') else 'NOT safe'}."
+        spread = landing.get("site_spread")
+        if spread:   # how far another run (ORB-SLAM3's threads) may commit from this one
+            what += f" Stability: {html.escape(str(spread['note']))}."
     else:
         what = f"<b>No safe site</b>: {html.escape(str(landing.get('reason')))}"
     return (f"<h2 id=result>Result</h2><p>{what}</p><p class=note>{html.escape(s['source'])}: {s['frames']} frames, "

@@ -93,10 +93,11 @@ def write_detection(run_dir: Path, det: Any, config: Config, overlay: np.ndarray
 
 def landing_record(source: Path, method: str, committed: dict[str, Any] | None, world_frame: str,
                    timings: dict[str, float], reason: str, site_truth: dict[str, Any] | None,
-                   map_segment: int | None = None) -> dict[str, Any]:
+                   map_segment: int | None = None, spread: dict[str, Any] | None = None) -> dict[str, Any]:
     """landing.json: the contract in DESIGN.md, plus the acceptance test, ground-truth check and map segment.
 
     ``site_truth``: the committed site against the ground truth (``evaluate.truth.site_truth_of``), or None.
+    ``spread``: ``site_spread_m`` and ``site_spread`` (``landing.commit.spread_record``), with a site.
     """
     rec: dict[str, Any] = {"status": "site" if committed else "no_safe_site", "method": method,
                            "source": str(source)}
@@ -119,6 +120,7 @@ def landing_record(source: Path, method: str, committed: dict[str, Any] | None, 
         }
         if site_truth is not None:
             rec["site"]["ground_truth"] = site_truth
+        rec.update(spread or {})
     rec["world_frame"] = world_frame
     rec["map_segment"] = map_segment
     rec["timings_ms"] = timings

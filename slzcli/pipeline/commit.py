@@ -1,21 +1,19 @@
-"""The commit rule: which of a run's detected sites ``landing.json`` holds.
+"""The commit rule: which of a run's detected sites ``landing.json`` holds (every run commits here).
 
-Every detection frame may give a site; the one written to ``landing.json`` is the site confirmed by
-the most detections (other sites within ``landing.commit_radius_factor`` footprint sides of it in
-plan, two by default, in the same map segment: positions in different segments are in different
-frames), among those that pass the acceptance test when any do; ties go to the lower normal
-variance, then to the later frame. One lucky keyframe cannot outvote a site seen again and again.
-The committed site's segment is the run's world frame. ``landing.commit: latest`` (the paper's
-"current keyframe") takes the last detection's site instead.
+The ranking is ``slzcli.landing.commit``'s: by what the ground gives each site (confirmed by
+another detection of the same map segment within ``landing.commit_radius_factor`` footprint
+sides, within ``landing.commit_score_band`` of the best score, the plan medoid of those), never
+by the order detections arrived, which ORB-SLAM3's threads change from run to run. The committed
+site's segment is the run's world frame. ``landing.commit: latest`` (the paper's "current
+keyframe") takes the last detection's site instead.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from slzcli.config import Config
+from slzcli.landing.commit import commit as rank_sites
 
 
 def commit_radius_m(config: Config) -> float:
@@ -24,33 +22,22 @@ def commit_radius_m(config: Config) -> float:
 
 
 def commit(sites: list[dict[str, Any]], config: Config) -> dict[str, Any] | None:
-    """The committed site of a run's sites under the config's rule and radius (every run commits here)."""
-    return commit_site(sites, commit_radius_m(config), config.landing.commit)
+    """The committed site of a run's sites under the config's rule, radius and score band."""
+    return commit_site(sites, commit_radius_m(config), config.landing.commit, config.landing.commit_score_band)
 
 
-def commit_site(sites: list[dict[str, Any]], side_m: float, rule: str = "agree") -> dict[str, Any] | None:
-    """The site confirmed by the most detections of its own map segment (see the module docstring).
+def commit_site(sites: list[dict[str, Any]], side_m: float, rule: str = "agree",
+                score_band: float = 0.0) -> dict[str, Any] | None:
+    """The committed site (``slzcli.landing.commit``; ``score_band``: ``landing.commit_score_band``).
 
     Adds ``support`` (agreeing detections, this one included), ``detections`` (sites of the run),
-    ``segment`` and ``segment_detections`` (sites of that segment) to the chosen entry.
-    ``rule`` ``latest``: the last detection's site, accepted or not; its support is still counted.
+    ``segment``, ``segment_detections`` (sites of that segment) and ``ranked`` (its equally good sites,
+    the sites another run may commit and their spread) to the chosen entry.
     """
-    if not sites:
+    found = rank_sites(sites, side_m, score_band, rule)
+    if found is None:
         return None
-    pool = [s for s in sites if s["site"].accepted] or sites
-    if rule == "latest":
-        pool = sites
-    centres = np.array([s["site"].center_world for s in pool])
-    seg = np.array([s["segment"] for s in pool])
-    near = np.linalg.norm(centres[:, None, :2] - centres[None, :, :2], axis=2) <= side_m
-    support = (near & (seg[:, None] == seg[None, :])).sum(axis=1)
-    order = sorted(range(len(pool)), key=lambda i: (-support[i], pool[i]["site"].normal_variance,
-                                                      -pool[i]["frame"].index))
-    if rule == "latest":
-        order = [max(range(len(pool)), key=lambda i: pool[i]["frame"].index)]
-    best = dict(pool[order[0]])
-    best["support"] = int(support[order[0]])
-    best["detections"] = len(sites)
-    best["segment"] = int(seg[order[0]])
-    best["segment_detections"] = sum(s["segment"] == best["segment"] for s in sites)
+    best, ranked = found
+    best.update(support=ranked.support, detections=len(sites), segment=int(best["segment"]), ranked=ranked,
+                segment_detections=sum(s["segment"] == best["segment"] for s in sites))
     return best

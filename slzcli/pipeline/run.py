@@ -248,6 +248,9 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         run(source, tracker, [mr], state.noise, limit, sinks)
         with limit.stage("writing the run folder"):
             writer.close()  # every frame written before the run's own files and results.mcap's end
+            outputs = getattr(mr.method, "write_outputs", None)  # a method's own run-wide files (fused: its map)
+            if outputs is not None:
+                outputs(tmp)
             result = finish(source, config, mr, tracker, truth, time.perf_counter() - t_start, key)
             results.write_run(result.committed)
             run_folder.write_run(tmp, result, state.sites, state.trajectory, state.keyframes)

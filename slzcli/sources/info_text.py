@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from slzcli.sources.depth_check import PERCENTILES, DepthRange
 from slzcli.sources.recording import RecordingInfo
 
 
@@ -14,8 +15,18 @@ def _table(rows: Sequence[tuple[str, ...]]) -> list[str]:
             for r in rows]
 
 
-def info_text(info: RecordingInfo) -> str:
-    """Several lines: header, topic table, chosen streams with reasons, intrinsics, pairing."""
+def depth_text(d: DepthRange) -> list[str]:
+    """The depth stream's range over the frames read (the warning is printed by the log)."""
+    if d.unread:
+        return [f"depth ({d.stream}): not read ({d.unread})"]
+    pct = "  ".join(f"p{p} {v:.3f} m" for p, v in zip(PERCENTILES, d.percentiles_m, strict=True))
+    return [f"depth ({d.stream}, {d.frames} frame(s) read):",
+            f"  {pct}  valid {d.valid_share:.0%}  nearer than {d.min_range_m:g} m ({d.min_range_source}) "
+            f"{d.below_min_share:.0%}"]
+
+
+def info_text(info: RecordingInfo, depth: DepthRange | None = None) -> str:
+    """Several lines: header, topic table, chosen streams with reasons, intrinsics, pairing, the depth's range."""
     lines = [f"{info.path}", f"  format: {info.format}   duration: {info.duration_s:.3f} s", "", "topics:"]
     rows = [("topic", "type", "count", "rate")]
     for s in info.streams:
@@ -37,5 +48,7 @@ def info_text(info: RecordingInfo) -> str:
     lines += ["", f"RGB-D frames that pair: {p.paired}  (unpaired colour {p.unpaired_color}, "
                   f"unpaired depth {p.unpaired_depth}, unreadable {p.undecodable})"]
     lines += [f"  note: {n}" for n in p.notes]
+    if depth is not None:
+        lines += ["", *depth_text(depth)]
     lines += [f"warning: {w}" for w in info.warnings if w not in p.notes]
     return "\n".join(lines)

@@ -39,6 +39,7 @@ class CameraPreset:
     folder: str
     intrinsics: Intrinsics | None
     noise_prior_a_per_m: float
+    min_range_m: float | None = None   # m; nearest depth the camera measures (None: sources.depth_check.min_range_m)
 
     def topic_for(self, role: str, topics: Collection[str]) -> str | None:
         """The first topic (sorted) matching the role's pattern, or None."""
@@ -78,7 +79,8 @@ def _load(path: Path) -> CameraPreset:
             re.compile(pattern)
         return CameraPreset(str(d["name"]), str(d["description"]), int(d["order"]), str(d.get("hint") or ""),
                             topics, bool(d["depth_aligned"]), str(d.get("folder") or ""), intr,
-                            float(d["noise_prior_a_per_m"]))
+                            float(d["noise_prior_a_per_m"]),
+                            None if d["min_range_m"] is None else float(d["min_range_m"]))
     except (yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError, re.error) as err:
         raise ConfigError("", f"{path}: not a camera preset ({type(err).__name__}: {err})") from err
 

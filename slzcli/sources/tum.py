@@ -1,15 +1,18 @@
 """TUM RGB-D benchmark folders: ``rgb.txt``, ``depth.txt``, optional ``groundtruth.txt``.
 
 Lists hold ``timestamp filename`` lines (``#`` comments); depth PNGs are 16-bit counts
-of 1 / ``sources.tum_depth_scale`` metres (5000 per metre in the benchmark), 0 = no
-data. Ground truth lines are ``t tx ty tz qx qy qz qw``, the colour camera's optical
-centre in the world; being ground truth, it is used as the pose input only with
+of 1 / ``depth_scale`` metres, 0 = no data: camera.yaml's ``depth_scale`` (counts per
+metre: Open3D's name, ORB-SLAM's DepthMapFactor; 1000 for the millimetre PNGs RealSense
+tools write) when given, else ``sources.tum_depth_scale`` (5000 per metre in the benchmark).
+Ground truth lines are ``t tx ty tz qx qy qz qw``, the colour camera's optical centre in
+the world; being ground truth, it is used as the pose input only with
 ``sources.use_ground_truth_pose``. TUM has no intrinsics file: an optional
 ``camera.yaml`` in the folder (fx, fy, cx, cy, width, height [, distortion_model,
-distortion]) is read, else the camera preset's (tum_fr1/2/3: the benchmark's published
-calibration, guessed from a folder name such as rgbd_dataset_freiburg1_xyz, or --camera),
-else the config camera section (with a warning). Distortion is removed from colour and depth
-alike (the depth is registered to the distorted colour image by the camera's driver).
+distortion, depth_scale]; any other key is refused, naming it) is read, else the camera
+preset's (tum_fr1/2/3: the benchmark's published calibration, guessed from a folder name
+such as rgbd_dataset_freiburg1_xyz, or --camera), else the config camera section (with a
+warning). Distortion is removed from colour and depth alike (the depth is registered to
+the distorted colour image by the camera's driver).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from slzcli.types import Frame, Intrinsics, PairingReport, StreamChoice, StreamI
 
 log = logging.getLogger(__name__)
 NS_PER_MS = 1_000_000
+CAMERA_YAML_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion_model", "distortion", "depth_scale")
 
 
 def parse_stamp(text: str) -> int:
@@ -87,6 +91,18 @@ def read_list(path: Path, min_fields: int) -> list[list[str]]:
     return rows
 
 
+def _depth_scale(cam_file: Path, value: object) -> float:
+    """camera.yaml's ``depth_scale``: a finite number of counts per metre above 0, else DatasetError naming it."""
+    try:
+        scale = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError) as err:
+        raise DatasetError(cam_file, f"depth_scale {value!r} is not a number (counts per metre: 1000 for "
+                                     "millimetre PNGs, 5000 for the TUM benchmark)") from err
+    if not (np.isfinite(scale) and scale > 0):
+        raise DatasetError(cam_file, f"depth_scale {value!r} must be a finite number of counts per metre above 0")
+    return scale
+
+
 class TumRecording(Recording):
     """A TUM RGB-D folder; lists are read at open, images one frame at a time."""
 
@@ -99,6 +115,8 @@ class TumRecording(Recording):
         self._gt: list[tuple[int, np.ndarray]] = []
         self._intr: Intrinsics | None = None
         self._intr_source = ""
+        self._depth_scale = config.sources.tum_depth_scale  # counts per metre (camera.yaml's depth_scale beats it)
+        self._depth_scale_source = "sources.tum_depth_scale"
         self._pairs: list[tuple[int, int]] = []
         self._notes: list[str] = []
         self.preset = PresetChoice(None, "")
@@ -157,6 +175,9 @@ class TumRecording(Recording):
         if cam_file.is_file():
             try:
                 c = safe_yaml_load(read_yaml_text(cam_file))
+                unknown = sorted(str(key) for key in c if key not in CAMERA_YAML_KEYS) if isinstance(c, dict) else []
+                if unknown:
+                    raise DatasetError(cam_file, f"unknown key {unknown[0]!r} (keys: {', '.join(CAMERA_YAML_KEYS)})")
                 k = Intrinsics(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]), int(c["width"]),
                                int(c["height"]), str(c.get("distortion_model", "")),
                                tuple(float(v) for v in c.get("distortion", ())))
@@ -166,6 +187,8 @@ class TumRecording(Recording):
             problem = intrinsics_problem(k, lim.min_fov_deg, lim.max_fov_deg)
             if problem is not None:
                 raise DatasetError(cam_file, problem)
+            if "depth_scale" in c:
+                self._depth_scale, self._depth_scale_source = _depth_scale(cam_file, c["depth_scale"]), str(cam_file)
             return k, str(cam_file)
         preset = self.preset.preset
         if preset is not None and preset.intrinsics is not None:
@@ -186,7 +209,8 @@ class TumRecording(Recording):
 
     def _choices(self) -> tuple[StreamChoice, ...]:
         return (StreamChoice("color", "rgb.txt", "TUM colour list"),
-                StreamChoice("depth", "depth.txt", f"TUM depth list, {self.cfg.tum_depth_scale:g} counts per metre"),
+                StreamChoice("depth", "depth.txt", f"TUM depth list, {self._depth_scale:g} counts per metre "
+                                                   f"({self._depth_scale_source})"),
                 StreamChoice("camera_info", None, f"intrinsics from {self._intr_source}"),
                 self._pose_choice())
 
@@ -264,7 +288,7 @@ class TumRecording(Recording):
                     first_error = f"{rgb_name} / {self._depth[j][1]}: missing or not an 8-bit colour / 16-bit depth PNG"
                     log.warning("%s: %s (further unreadable frames are counted, not shown)", self.path, first_error)
                 continue
-            depth = decode.depth_to_metres(raw, 1.0 / self.cfg.tum_depth_scale, self.cfg.max_depth_m)
+            depth = decode.depth_to_metres(raw, 1.0 / self._depth_scale, self.cfg.max_depth_m)
             rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
             depth = decode.match_depth_to_color(depth, rgb.shape[:2])
             problem = size_problem(self._intr, rgb.shape[1], rgb.shape[0], self.cfg.intrinsics.aspect_tolerance)

@@ -1,0 +1,138 @@
+"""What would decide undecided ground: "N more frames", "X m of sideways flight" or "descend to Z m".
+
+For the undecided landing square with the best cleared score, the factor its fused noise must still
+shrink by is ``r = m max(step_min / max_step, tan(slope_min) / tan(max_slope))`` over the square, m the
+limits' ``target_margin`` (2): ``verdict`` calls a square safe when the fitted step plus its limit stays
+within the UAV's tolerance, and over a square of cells the largest fitted step of level ground is about
+the limit itself. The cell's own Kalman filter (``grid``'s model: a shared error that decorrelates as
+exp(-shift / decorrelation_px) with the cell's shift in the image, and a white part) is then run forward:
+- frames: at the image shift per frame the flight has now; when the variance cannot get below the target
+  that way (a hover: the shared error never decorrelates), the answer is to move;
+- sideways: one look every ``decorrelation_px`` of image shift (metres at the altitude: px x z / f);
+- descend: the per-frame limits grow as z^2 (sigma_z = a z^2 over metric windows), so one frame decides
+  from ``z / sqrt(r1)``, r1 the factor of a single frame at the current altitude.
+A loop over future frames of a handful of cells, never over pixels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from slzcli.fusion.grid import Region
+from slzcli.fusion.measure import FusionParams
+from slzcli.fusion.verdict import UNDECIDED, FusedMaps
+
+_MAX_FRAMES = 1800      # frames; beyond a minute at 30 Hz "N more frames" is not an answer (fly instead)
+_STILL_PX = 0.05        # px; image shifts below this are the estimate's own jitter, not motion
+
+
+@dataclass(frozen=True)
+class Advice:
+    """What would decide the best undecided square (None fields: that way cannot)."""
+
+    x_m: float
+    y_m: float
+    factor: float                  # how much its fused std must still shrink
+    frames: int | None             # more frames at the current motion
+    sideways_m: float | None       # metres of sideways flight
+    descend_to_m: float | None     # altitude from which one frame decides it
+    hover: bool                    # the current motion is (nearly) a hover
+
+    def text(self) -> str:
+        parts = []
+        if self.frames is not None:
+            parts.append(f"{self.frames} more frames")
+        if self.sideways_m is not None:
+            parts.append(f"{self.sideways_m:.1f} m of sideways flight")
+        if self.descend_to_m is not None:
+            parts.append(f"descend to {self.descend_to_m:.1f} m")
+        where = f"the ground at ({self.x_m:.1f}, {self.y_m:.1f}) m"
+        if not parts:
+            return f"{where} cannot be decided with this sensor"
+        lead = "hovering cannot decide " + where + ": move" if self.hover and self.frames is None else \
+            "to decide " + where
+        return f"{lead}: " + " or ".join(parts)
+
+    def as_dict(self) -> dict[str, object]:
+        return {"x_m": round(self.x_m, 3), "y_m": round(self.y_m, 3), "factor": round(self.factor, 3),
+                "frames": self.frames, "sideways_m": None if self.sideways_m is None else round(self.sideways_m, 2),
+                "descend_to_m": None if self.descend_to_m is None else round(self.descend_to_m, 2),
+                "hover": self.hover, "text": self.text()}
+
+
+def frames_to_variance(p_hh: float, p_hc: float, p_cc: float, sigma_c: float, sigma_w: float, shift_px: float,
+                       target: float, params: FusionParams, limit: int = _MAX_FRAMES) -> int | None:
+    """Frames, each shifting the cell ``shift_px`` in the image, until its height variance is <= ``target``
+    (None: not within ``limit``, or never: the variance stalls above the target)."""
+    rho = 1.0 if shift_px < _STILL_PX else math.exp(-shift_px / params.decorrelation_px)
+    rho = min(rho, 1.0 - 1e-9)
+    rv, sc2 = sigma_w * sigma_w, sigma_c * sigma_c
+    if rho > 1.0 - 1e-6:
+        # a hover: the shared error never decorrelates; endless frames learn h + c exactly, leaving h's
+        # variance given h + c
+        floor = p_hh - (p_hh + p_hc) ** 2 / max(p_hh + 2.0 * p_hc + p_cc, 1e-300)
+        if target <= floor * (1.0 + 1e-6):
+            return None
+    for n in range(1, limit + 1):
+        p_hc_p = rho * p_hc
+        p_cc_p = rho * rho * p_cc + (1 - rho * rho) * sc2
+        s = p_hh + 2 * p_hc_p + p_cc_p + rv
+        kh, kc = (p_hh + p_hc_p) / s, (p_hc_p + p_cc_p) / s
+        new_hh = p_hh - kh * kh * s
+        p_hc, p_cc = p_hc_p - kh * kc * s, p_cc_p - kc * kc * s
+        if new_hh <= target:
+            return n
+        if p_hh - new_hh <= 1e-12 * p_hh:       # stalled: no frame of this motion will get there
+            return None
+        p_hh = new_hh
+    return None
+
+
+def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth_m: float, focal_px: float,
+           single_step_m: float, single_tan: float) -> Advice | None:
+    """Advice for the undecided square with the best cleared score (None: nothing undecided is a candidate).
+
+    ``shift_px_per_frame``: the current motion (median image shift of cells between frames);
+    ``single_step_m`` / ``single_tan``: one frame's limits at ``depth_m`` (``limits.working_scale``).
+    """
+    reg: Region = fm.region
+    cand = (fm.verdict == UNDECIDED) & (fm.clear_score > 0)
+    if not cand.any():
+        return None
+    j, i = np.unravel_index(int(np.argmax(np.where(cand, fm.clear_score, -1.0))), cand.shape)
+    n = max(1, 2 * math.ceil((params.square_m / reg.cell_m - 1) / 2) + 1)
+    sl = (slice(max(0, j - n // 2), j + n // 2 + 1), slice(max(0, i - n // 2), i + n // 2 + 1))
+    ok = reg.seen[sl]
+    tan_max = math.tan(math.radians(params.max_slope_deg))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r_cells = params.target_margin * np.maximum(fm.step_min_m[sl] / params.max_step_m,
+                                                    np.tan(np.radians(fm.slope_min_deg[sl])) / tan_max)
+    r_cells = np.where(ok, r_cells, np.inf)
+    jj, ii = np.unravel_index(int(np.argmax(r_cells)), r_cells.shape)
+    r = float(r_cells[jj, ii])
+    x0, y0 = reg.origin_m
+    x, y = x0 + (i + 0.5) * reg.cell_m, y0 + (j + 0.5) * reg.cell_m
+    hover = shift_px_per_frame < 0.1 * params.decorrelation_px
+    if not math.isfinite(r):
+        return Advice(x, y, r, None, None, None, hover)
+    var = float(reg.var[sl][jj, ii])
+    sc = float(reg.sigma_c[sl][jj, ii])
+    sigma1 = float(reg.sigma_1[sl][jj, ii])
+    fixed = params.fixed_fraction * sigma1 * sigma1          # the part fixed to the ground: no flight removes it
+    p_now = var - fixed
+    target = var / (r * r) - fixed
+    sw = math.sqrt(max(sigma1 * sigma1 * (1.0 - params.fixed_fraction) - sc * sc, 0.0))
+    p_hc, p_cc = float(reg.p_hc[sl][jj, ii]), float(reg.p_cc[sl][jj, ii])
+    frames = side = None
+    if target > 0:
+        frames = frames_to_variance(p_now, p_hc, p_cc, sc, sw, shift_px_per_frame, target, params)
+        side = frames_to_variance(p_now, p_hc, p_cc, sc, sw, params.decorrelation_px, target, params)
+    sideways = None if side is None else side * params.decorrelation_px * depth_m / focal_px
+    r1 = params.target_margin * max(single_step_m / params.max_step_m, single_tan / tan_max)
+    descend = depth_m / math.sqrt(r1) if r1 > 1 else None
+    if descend is not None and descend < params.column_m:
+        descend = None     # below the final-descent hover: not an answer
+    return Advice(x, y, r, frames, sideways, descend, hover)

@@ -1,0 +1,271 @@
+"""The fused grid: world-fixed, gravity-aligned cells of one map segment, and the per-cell Kalman update.
+
+Cells. Cell (ix, iy) covers world x in [ix c, (ix + 1) c), y likewise, c = ``FusionParams.cell_m`` (the
+footprint / ``cells_per_footprint``): fixed in the map frame, so a cell means the same ground in every
+frame (a grid centred on the vehicle and blended index by index, as PX4's safe_landing_planner does,
+mixes ground whenever the vehicle moves). Memory is a window of ``side_cells`` x ``side_cells`` slots
+that follows the UAV: cell (ix, iy) lives in slot (iy mod side, ix mod side) with its indices as the
+slot's owner; a cell that comes into view where an older one, ``side_cells`` away, still sits takes the
+slot over. Memory is fixed (31 MB at the defaults) however long the flight.
+
+State per cell. The measurement of a frame (``measure.FrameCells``) is ``y = h + c + w``: the height h,
+an error c that the frame's stereo pattern shares with the next frames as long as the cell stays where
+it was in the image, and an error w new in every frame. c is an Ornstein-Uhlenbeck process in the cell's
+image position: between two looks that moved the cell by d pixels in the image, ``c' = rho c + e`` with
+``rho = exp(-d / decorrelation_px)`` (measured, METHOD 2.3.6). A two-state Kalman filter per cell on (h, c)
+is then the exact least-squares estimate under that model: hovering, c never decorrelates and the
+height's variance stops at var(c); flying, every decorrelation length adds a look. The update is
+vectorised over the frame's cells.
+
+Gating. A measurement is rejected when its innovation exceeds ``gate_sigma`` times the std of the
+innovation, which holds the cell's variance *and* the measurement's (and the pose's): a new cell's
+variance is its first measurement's, so nothing is wiped for being noisy (ETH elevation_mapping's
+variance clamp sets cells above 0.03^2 m^2 to infinity, every D435 cell at 8 m). A cell whose frames are
+rejected more than ``two_heights_fraction`` of the time holds two heights (an overhang seen from two
+sides, a pole, something moving): it is refused, never safe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from slzcli.fusion.measure import FrameCells, FusionParams, project_cells
+
+_EMPTY = np.iinfo(np.int64).min      # owner of a slot no cell has used yet
+_RHO_MAX = 1.0 - 1e-9               # guards 1 - rho^2 against round-off
+# the float state of a cell, one row per slot (one gather and one scatter per frame)
+H, C, PHH, PHC, PCC, SIGC, SIG1, U, V, SPREAD, POSEV, STEPR, TANR = range(13)
+_FIELDS = 13
+
+
+def cell_key(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+    """One int64 per cell (indices within +-2^31 cells: +-176,000 km at 8 cm)."""
+    return (np.asarray(ix, np.int64) << 32) ^ (np.asarray(iy, np.int64) & 0xFFFFFFFF)
+
+
+@dataclass(frozen=True, eq=False)
+class FusedGrid:
+    """The cells of one map segment (arrays updated in place by ``fuse``; the dataclass itself never changes).
+
+    Slot k = (iy mod side) side + (ix mod side). ``state[k]`` holds the float fields (H, C: the height and
+    the shared error; PHH, PHC, PCC: their covariance; SIGC, SIG1: the shared error's std and one frame's
+    std at the last look; U, V: the cell's image position then; SPREAD: the largest within-cell height
+    std of an accepted frame; POSEV: the smallest pose variance; STEPR, TANR: the last look's limit ratios).
+    """
+
+    params: FusionParams
+    owner: np.ndarray       # int64 (side^2,): cell_key of the cell in each slot (_EMPTY: none)
+    state: np.ndarray       # float64 (side^2, 13)
+    frames: np.ndarray      # int32 frames that measured the cell
+    rejected: np.ndarray    # int32 of them rejected by the gate
+    column: np.ndarray      # bool: some frame saw the column ``column_m`` above the cell
+    last_frame: np.ndarray  # int64 index of the last frame that measured it
+    swept_at: np.ndarray    # int64 (2,): the camera's cell at the last sweep of cells left behind
+
+    @classmethod
+    def empty(cls, params: FusionParams) -> FusedGrid:
+        n = params.side_cells * params.side_cells
+        return cls(params, np.full(n, _EMPTY, np.int64), np.zeros((n, _FIELDS), np.float64), np.zeros(n, np.int32),
+                   np.zeros(n, np.int32), np.zeros(n, bool), np.full(n, -1, np.int64),
+                   np.array([_EMPTY, _EMPTY], np.int64))
+
+    def nbytes(self) -> int:
+        return sum(getattr(self, f).nbytes for f in self.__dataclass_fields__ if f != "params")
+
+    def slots(self, ix: np.ndarray, iy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(slot, owned) of cells: their slot, and whether it holds that cell (else: unseen there)."""
+        s = self.params.side_cells
+        k = np.mod(iy, s) * s + np.mod(ix, s)
+        return k, self.owner[k] == cell_key(ix, iy)
+
+
+@dataclass(frozen=True)
+class FuseStats:
+    """What one frame did to the grid."""
+
+    cells: int           # cells it measured
+    new: int             # of them seen for the first time (or taking over a slot)
+    rejected: int        # measurements the gate rejected
+    median_shift_px: float   # median image shift of its cells since their last look
+    nis_median: float        # median normalised innovation squared of its cells seen before (chi-square 1: 0.455)
+
+
+def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
+    """Add one frame's measurements to the grid (in place)."""
+    p = grid.params
+    k, owned = grid.slots(m.ix, m.iy)
+    st = grid.state[k]                                   # a gathered copy, written back at the end
+    sw2 = m.sigma_w_m * m.sigma_w_m
+    sc2 = m.sigma_c_m * m.sigma_c_m
+    y = m.height_m
+    # --- predict the shared error by the cell's image shift since its last look: the cell's centre at its
+    # estimated height projected into the frame (the mean pixel of its samples jitters with the depth
+    # noise, which moves samples across cell borders: a hover would seem to move)
+    h_ref = np.where(owned, st[:, H], y)
+    u_px, v_px, _ = _project(m, h_ref, grid.params.cell_m)
+    shift = np.hypot(u_px - st[:, U], v_px - st[:, V])
+    rho = np.minimum(np.exp(-shift / p.decorrelation_px), _RHO_MAX)
+    sc_old = st[:, SIGC]
+    g = rho * np.divide(m.sigma_c_m, sc_old, out=np.ones_like(sc_old), where=sc_old > 0)
+    c = g * st[:, C]
+    p_hh = st[:, PHH]
+    p_hc = g * st[:, PHC]
+    p_cc = g * g * st[:, PCC] + (1.0 - rho * rho) * sc2
+    innov = y - (st[:, H] + c)
+    s_t = p_hh + 2.0 * p_hc + p_cc + sw2
+    # the gate holds the cell's variance, the measurement's and the pose's
+    ok = innov * innov <= (p.gate_sigma ** 2) * (s_t + m.pose_var_m2)
+    # the update proper leaves the pose out: a frame's pose error is common to its cells (a height offset,
+    # a tilt over the view), not terrain; it widens the gate and the reported variance only
+    with np.errstate(invalid="ignore", divide="ignore"):
+        kh = (p_hh + p_hc) / s_t
+        kc = (p_hc + p_cc) / s_t
+    acc = owned & ok
+    new = ~owned
+    look = acc | new
+    # whole columns with np.where (cheaper than a dozen boolean gathers and scatters): accepted looks are
+    # updated, new cells start at h = y, c = 0 with the covariance of a flat prior, rejected ones keep theirs
+    st[:, H] = np.where(acc, st[:, H] + kh * innov, np.where(new, y, st[:, H]))
+    st[:, C] = np.where(acc, c + kc * innov, np.where(new, 0.0, st[:, C]))
+    st[:, PHH] = np.where(acc, p_hh - kh * kh * s_t, np.where(new, sc2 + sw2, st[:, PHH]))
+    st[:, PHC] = np.where(acc, p_hc - kh * kc * s_t, np.where(new, -sc2, st[:, PHC]))
+    st[:, PCC] = np.where(acc, p_cc - kc * kc * s_t, np.where(new, sc2, st[:, PCC]))
+    st[:, SPREAD] = np.where(new, m.spread_m, np.where(acc, np.maximum(st[:, SPREAD], m.spread_m), st[:, SPREAD]))
+    st[:, POSEV] = np.where(new, m.pose_var_m2, np.where(acc, np.minimum(st[:, POSEV], m.pose_var_m2),
+                                                         st[:, POSEV]))
+    st[:, U] = np.where(look, u_px, st[:, U])
+    st[:, V] = np.where(look, v_px, st[:, V])
+    st[:, SIGC] = np.where(look, m.sigma_c_m, st[:, SIGC])
+    st[:, SIG1] = np.where(look, np.sqrt((sc2 + sw2) / max(1.0 - p.fixed_fraction, 1e-9)), st[:, SIG1])
+    st[:, STEPR] = np.where(look, m.step_per_sigma, st[:, STEPR])
+    st[:, TANR] = np.where(look, m.tan_slope_per_sigma, st[:, TANR])
+    grid.state[k] = st
+    kn = k[new]
+    grid.owner[kn] = cell_key(m.ix[new], m.iy[new])
+    grid.frames[kn] = 0
+    grid.rejected[kn] = 0
+    grid.column[kn] = False
+    grid.frames[k] += 1
+    grid.rejected[k[owned & ~ok]] += 1
+    grid.last_frame[k] = frame_index
+    _column(grid, m, k, st[:, H])
+    _sweep(grid, m)
+    so = shift[owned]
+    med = float(np.median(so)) if so.size else float("nan")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nis = innov[owned] ** 2 / s_t[owned]
+    nis_med = float(np.median(nis)) if nis.size else float("nan")
+    return FuseStats(len(m), int(np.count_nonzero(new)), int(np.count_nonzero(owned & ~ok)), med, nis_med)
+
+
+def _sweep(grid: FusedGrid, m: FrameCells) -> None:
+    """Forget the cells more than half a window from the camera (in x or y), each time it has moved an
+    eighth of a window: the window holds the ground around the UAV, nothing it left behind."""
+    s = grid.params.side_cells
+    cx = int(np.floor(m.camera_m[0] / grid.params.cell_m))
+    cy = int(np.floor(m.camera_m[1] / grid.params.cell_m))
+    last = grid.swept_at
+    if last[0] != _EMPTY and max(abs(cx - int(last[0])), abs(cy - int(last[1]))) < max(1, s // 8):
+        return
+    grid.swept_at[:] = (cx, cy)
+    held = grid.owner != _EMPTY
+    keys = grid.owner
+    xs = keys >> 32
+    ys = (keys & 0xFFFFFFFF).astype(np.int64)
+    ys = np.where(ys >= 1 << 31, ys - (1 << 32), ys)
+    far = held & ((np.abs(xs - cx) > s // 2) | (np.abs(ys - cy) > s // 2))
+    grid.owner[far] = _EMPTY
+
+
+def _project(m: FrameCells, h: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel (u, v) of the frame's cells' centres at heights ``h``, and whether they are in front of it."""
+    return project_cells(m.ix, m.iy, h, m.T_world_camera, m.intrinsics, cell_m)
+
+
+def _column(grid: FusedGrid, m: FrameCells, k: np.ndarray, h: np.ndarray) -> None:
+    """A cell's descent column counts as seen once any frame had the point ``column_m`` above it in view."""
+    u, v, front = _project(m, h + grid.params.column_m, grid.params.cell_m)
+    intr = m.intrinsics
+    with np.errstate(invalid="ignore"):
+        inside = front & (u >= -0.5) & (u <= intr.width - 0.5) & (v >= -0.5) & (v <= intr.height - 0.5)
+    grid.column[k[inside]] = True
+
+
+@dataclass(frozen=True, eq=False)
+class Region:
+    """A rectangle of cells copied out of the window: row j, column i is cell (x0 + i, y0 + j)."""
+
+    x0: int
+    y0: int
+    cell_m: float
+    seen: np.ndarray        # bool: the slot holds this cell
+    h: np.ndarray           # float64 (NaN unseen)
+    var: np.ndarray         # float64 height variance of the terrain estimate (NaN unseen)
+    pose_var: np.ndarray    # float64
+    looks: np.ndarray       # float32 independent looks: one frame's variance / the fused one
+    frames: np.ndarray      # int32
+    rejected: np.ndarray    # int32
+    spread: np.ndarray      # float32
+    step_ratio: np.ndarray  # float32
+    tan_ratio: np.ndarray   # float32
+    column: np.ndarray      # bool
+    p_hc: np.ndarray        # float64 the Kalman state's other covariances (for ``advice``)
+    p_cc: np.ndarray
+    sigma_c: np.ndarray     # float64 std of the shared error at the last look
+    sigma_1: np.ndarray     # float64 std of one frame's measurement at the last look
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.seen.shape
+
+    @property
+    def origin_m(self) -> tuple[float, float]:
+        return self.x0 * self.cell_m, self.y0 * self.cell_m
+
+
+def region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
+    """Cells x0..x0+nx-1, y0..y0+ny-1 as dense arrays (``nx``, ``ny`` at most the window's side)."""
+    s = grid.params.side_cells
+    nx, ny = min(nx, s), min(ny, s)
+    ix = np.arange(x0, x0 + nx, dtype=np.int64)[None, :]
+    iy = np.arange(y0, y0 + ny, dtype=np.int64)[:, None]
+    k = np.mod(iy, s) * s + np.mod(ix, s)
+    seen = grid.owner[k] == cell_key(ix, iy)
+    st = grid.state[k]                                     # (ny, nx, 13)
+
+    def f(i: int) -> np.ndarray:
+        return np.where(seen, st[..., i], np.nan)
+
+    sig1 = f(SIG1)
+    var = f(PHH) + grid.params.fixed_fraction * sig1 * sig1     # the part fixed to the ground never averages
+    with np.errstate(invalid="ignore", divide="ignore"):
+        looks = np.where(seen, sig1 * sig1 / var, 0.0).astype(np.float32)
+    zero = np.zeros(seen.shape)
+    return Region(x0, y0, grid.params.cell_m, seen, f(H), var, f(POSEV), looks,
+                  np.where(seen, grid.frames[k], 0), np.where(seen, grid.rejected[k], 0),
+                  np.where(seen, st[..., SPREAD], zero).astype(np.float32),
+                  np.where(seen, st[..., STEPR], zero).astype(np.float32),
+                  np.where(seen, st[..., TANR], zero).astype(np.float32), seen & grid.column[k],
+                  f(PHC), f(PCC), f(SIGC), sig1)
+
+
+def region_around(grid: FusedGrid, x_m: float, y_m: float, side_m: float) -> Region:
+    """The square of ``side_m`` (at most the window) centred on world (x_m, y_m)."""
+    cm = grid.params.cell_m
+    n = min(grid.params.side_cells, max(1, int(np.ceil(side_m / cm))))
+    return region(grid, int(np.floor(x_m / cm)) - n // 2, int(np.floor(y_m / cm)) - n // 2, n, n)
+
+
+def seen_bounds(grid: FusedGrid) -> tuple[int, int, int, int] | None:
+    """(x0, y0, nx, ny) of the cells the window holds (None: none)."""
+    held = grid.owner != _EMPTY
+    if not held.any():
+        return None
+    keys = grid.owner[held]
+    xs = keys >> 32
+    ys = (keys & 0xFFFFFFFF).astype(np.int64)
+    ys = np.where(ys >= 1 << 31, ys - (1 << 32), ys)
+    x0, y0 = int(xs.min()), int(ys.min())
+    return x0, y0, int(xs.max()) - x0 + 1, int(ys.max()) - y0 + 1

@@ -1,0 +1,163 @@
+"""The fused terrain of one run: a grid per map segment, fed every tracked frame, asked for its verdict.
+
+This is the state the fusion keeps across frames; everything it does is in ``measure``, ``grid``,
+``verdict`` and ``advice``. Only the current map segment's grid is kept: a new segment's poses are in
+another frame, so its cells start empty (``slam/segments.py``), and the memory stays one window.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.fusion.advice import Advice, advise
+from slzcli.fusion.grid import FusedGrid, FuseStats, fuse, region_around
+from slzcli.fusion.measure import FusionParams, frame_limit_ratios, measure_frame
+from slzcli.fusion.verdict import SAFE, FusedMaps, FusedSite, best_site, fused_maps
+from slzcli.geometry import fit_intrinsics, pixel_rays, valid_depth
+from slzcli.terrain.geometry import median_depth_m
+from slzcli.terrain.noise import DepthNoise
+from slzcli.types import Intrinsics
+
+_RECENT = 15                 # frames the motion and the noise scale are taken over (1 s at 15 Hz)
+_CHI2_1_MEDIAN = 0.454936   # median of a chi-square variable of one degree of freedom
+
+
+@dataclass
+class FusedTerrain:
+    """The run's fused terrain (mutable: it is the state of a stateful method)."""
+
+    config: Config
+    scorer: object
+    params: FusionParams = field(init=False)
+    segment: int | None = None
+    grid: FusedGrid | None = None
+    frames: int = 0
+    fuse_ms: list[float] = field(default_factory=list)
+    last: FuseStats | None = None
+    shifts: list[float] = field(default_factory=list)     # recent median image shifts per frame
+    depth_m: float = math.nan
+    focal_px: float = math.nan
+    noise: DepthNoise | None = None
+    camera_m: np.ndarray | None = None
+    nis: list[float] = field(default_factory=list)         # recent frames' noise scale the innovations asked for
+
+    def __post_init__(self) -> None:
+        self.params = FusionParams.from_config(self.config)
+
+    def add(self, depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray | None,
+            noise: DepthNoise, segment: int, frame_index: int) -> FuseStats | None:
+        """Fuse one tracked frame (no pose: nothing to fuse)."""
+        if T_world_camera is None:
+            return None
+        t0 = time.perf_counter()
+        if segment != self.segment or self.grid is None:
+            self.segment, self.grid = segment, FusedGrid.empty(self.params)
+            self.shifts.clear()
+            self.nis.clear()
+        cells = measure_frame(depth_m, intrinsics, T_world_camera, noise, self.config, self.params)
+        stats = None
+        if cells is not None:
+            g = math.sqrt(self.noise_scale())
+            if g > 1.0:
+                cells = replace(cells, sigma_w_m=cells.sigma_w_m * g, sigma_c_m=cells.sigma_c_m * g)
+            stats = fuse(self.grid, cells, frame_index)
+            if math.isfinite(stats.nis_median):
+                self.nis = [*self.nis, stats.nis_median / _CHI2_1_MEDIAN * g * g][-_RECENT:]
+            self.last = stats
+            if math.isfinite(stats.median_shift_px):
+                self.shifts = [*self.shifts, stats.median_shift_px][-_RECENT:]
+            self.depth_m = cells.depth_m
+            self.focal_px = 0.5 * (cells.intrinsics.fx + cells.intrinsics.fy)
+            self.noise = noise
+            self.camera_m = cells.camera_m
+        self.frames += 1
+        self.fuse_ms.append((time.perf_counter() - t0) * 1e3)
+        return stats
+
+    def noise_scale(self) -> float:
+        """How much the measurement variance must grow for the innovations to fit the model (>= 1).
+
+        The noise estimate (``terrain/noise.py``) can read low (synth D435 on asphalt at 7.5 m: a cell's
+        error 0.145 m against 0.091 m estimated); the filter's own innovations then exceed their predicted
+        variance. The running median of their normalised squares over the recent frames, over its chi-square
+        median, scales the variance up, never down (an adaptive Kalman filter's noise scaling).
+        """
+        return max(1.0, float(np.median(self.nis))) if self.nis else 1.0
+
+    def shift_per_frame_px(self) -> float:
+        return float(np.median(self.shifts)) if self.shifts else 0.0
+
+    def maps_around(self, x_m: float, y_m: float, side_m: float) -> FusedMaps | None:
+        if self.grid is None:
+            return None
+        return fused_maps(region_around(self.grid, x_m, y_m, side_m), self.config, self.params, self.scorer)
+
+    def maps_in_view(self) -> FusedMaps | None:
+        """The fused maps of a square around the camera wide enough for its view (at most the window)."""
+        if self.grid is None or self.camera_m is None or not math.isfinite(self.depth_m):
+            return None
+        side = min(self.config.terrain.fusion.window_m, 2.5 * self.depth_m + 4 * self.params.square_m)
+        return self.maps_around(float(self.camera_m[0]), float(self.camera_m[1]), side)
+
+    def site(self, fm: FusedMaps) -> FusedSite | None:
+        return best_site(fm)
+
+    def advice(self, fm: FusedMaps) -> Advice | None:
+        if self.noise is None or not math.isfinite(self.depth_m):
+            return None
+        from slzcli.terrain.limits import working_scale
+
+        work = working_scale(self.noise, self.depth_m, self.focal_px, self.config.terrain, self.config.uav)
+        step_ratio, _ = frame_limit_ratios(self.noise, self.depth_m, self.focal_px, self.config, self.params)
+        del step_ratio
+        return advise(fm, self.params, self.shift_per_frame_px(), self.depth_m, self.focal_px, work.step_min_m,
+                      math.tan(math.radians(work.slope_min_deg)))
+
+
+def _pixel_cells(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
+                 T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(row j, column i, inside) of every pixel's cell in the region (its point on the ground, by its depth)."""
+    depth = np.asarray(depth_m, dtype=np.float32)
+    intr = fit_intrinsics(intrinsics, depth.shape)
+    rx, ry = pixel_rays(intr)
+    valid = valid_depth(depth)
+    T = np.asarray(T_world_camera, dtype=np.float64)
+    R, t = T[:3, :3].astype(np.float32), T[:3, 3]
+    z = np.where(valid, depth, np.float32(0))
+    reg = fm.region
+    ox, oy = reg.origin_m
+    wx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * z + np.float32(t[0] - ox)
+    wy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * z + np.float32(t[1] - oy)
+    inv = np.float32(1.0 / reg.cell_m)
+    i = np.floor(wx * inv).astype(np.int64)
+    j = np.floor(wy * inv).astype(np.int64)
+    ny, nx = reg.shape
+    inside = valid & (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
+    return j, i, inside
+
+
+def render_in_frame(values: np.ndarray, fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
+                    T_world_camera: np.ndarray) -> np.ndarray:
+    """A per-cell float map of the region at every pixel of a frame (0 where no depth or outside)."""
+    j, i, inside = _pixel_cells(fm, depth_m, intrinsics, T_world_camera)
+    out = np.zeros(inside.shape, np.float32)
+    out[inside] = values[j[inside], i[inside]]
+    return out
+
+
+def verdict_in_frame(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
+                     T_world_camera: np.ndarray) -> np.ndarray:
+    """Per pixel of a frame: its cell's verdict is SAFE (the fused mask rendered into the frame's pixels)."""
+    j, i, inside = _pixel_cells(fm, depth_m, intrinsics, T_world_camera)
+    out = np.zeros(inside.shape, bool)
+    out[inside] = fm.verdict[j[inside], i[inside]] == SAFE
+    return out
+
+
+def frame_depth_m(depth_m: np.ndarray) -> float | None:
+    return median_depth_m(np.asarray(depth_m))

@@ -1,0 +1,308 @@
+"""The four maps, score, mask and the verdict per cell on the fused heights (METHOD 2.3.6).
+
+The maps keep their METHOD 2.3 meaning, on cells instead of pixels (a height field seen from above):
+  depth variance  exp(-s / s0): s the residual height std about the plane of 3 x 3 cells, the fused
+                  noise's share removed (2.3.1)
+  flatness        min(d / clearance_m, 1): d the distance (m) to the nearest cell where a step to a
+                  4-neighbour exceeds uav.max_step_m significantly (k sigma of the difference) or a refused
+                  cell (2.3.2; an unseen cell keeps its square from being decided instead)
+  inclination     exp(-C / curvature_ref): C = l0 / (l0 + l1 + l2) of the cells within radius_m (2.3.3)
+  steepness       exp(-(psi / max_slope)^2): psi the slope of the plane over the footprint's cells (2.3.4)
+The fuzzy rules score them (``Scorer.score_arrays``, the rules stay data); the mask is the score smoothed
+by ``mask.smooth_m``, its minimum over the landing square (footprint + margins), over the threshold.
+
+Verdict per cell:
+  SAFE       the mask holds, every cell of its landing square is *decided* (its fused variance no longer
+             hides a step of uav.max_step_m nor a slope of max_slope_deg: the per-frame limits of
+             ``limits.working_scale`` scaled by the cell's fused std, ``limits.target_margin`` within them),
+             the step fitted across every cell of the square and the slope of its plane stay within the
+             tolerances by those limits (estimate + limit <= tolerance) and its descent column was seen;
+  UNSAFE     a defect is known in its square (a step or slope beyond the tolerance by more than (k + 1) / k
+             times its limit, a refused cell), or the mask fails on a decided square;
+  UNDECIDED  seen, neither of the above: the noise still hides what the UAV cannot take;
+  UNSEEN     no frame measured it.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.fusion.grid import Region
+from slzcli.fusion.measure import FusionParams
+from slzcli.terrain.geometry import eigvalsh3
+
+UNSEEN, UNSAFE, UNDECIDED, SAFE = 0, 1, 2, 3
+VERDICT_NAMES = {UNSEEN: "unseen", UNSAFE: "unsafe", UNDECIDED: "undecided", SAFE: "safe"}
+_EQUAL_AREA_HALF_SIDE = math.sqrt(math.pi) / 2.0
+
+
+@dataclass(frozen=True, eq=False)
+class FusedMaps:
+    """Everything the fused terrain says about a region (arrays of the region's shape)."""
+
+    region: Region
+    depth_variance: np.ndarray
+    flatness: np.ndarray
+    inclination: np.ndarray
+    steepness: np.ndarray
+    slope_deg: np.ndarray
+    score: np.ndarray
+    mask: np.ndarray          # the min-filtered score over the threshold
+    clear_score: np.ndarray   # the min-filtered score itself (ranks candidates)
+    step_min_m: np.ndarray    # smallest step the cell's fused noise lets through (per cell)
+    slope_min_deg: np.ndarray
+    decided: np.ndarray       # the whole landing square's noise limits target_margin within the UAV's tolerances
+    defect: np.ndarray        # a known defect in the landing square
+    refused: np.ndarray       # two heights
+    verdict: np.ndarray       # uint8 UNSEEN / UNSAFE / UNDECIDED / SAFE
+
+    def counts(self) -> dict[str, int]:
+        return {name: int(np.count_nonzero(self.verdict == code)) for code, name in VERDICT_NAMES.items()}
+
+
+def _box(a: np.ndarray, n: int) -> np.ndarray:
+    return cv2.boxFilter(a, cv2.CV_64F, (n, n), normalize=False, borderType=cv2.BORDER_CONSTANT)
+
+
+def _plane_fit(h: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                          np.ndarray]:
+    """Least-squares plane over every n x n window of cells: (slope gradient gx, gy (m/m), residual variance,
+    valid). A window needs 3/4 of its cells seen."""
+    w = ok.astype(np.float64)
+    ny, nx = h.shape
+    x = np.broadcast_to(np.arange(nx, dtype=np.float64)[None, :] * cell, h.shape)
+    y = np.broadcast_to(np.arange(ny, dtype=np.float64)[:, None] * cell, h.shape)
+    hz = np.where(ok, h, 0.0)
+    s1 = _box(w, n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # local coordinates about each window's own centroid keep the sums well conditioned
+        mx, my, mh = _box(w * x, n) / s1, _box(w * y, n) / s1, _box(w * hz, n) / s1
+        sxx = _box(w * x * x, n) / s1 - mx * mx
+        syy = _box(w * y * y, n) / s1 - my * my
+        sxy = _box(w * x * y, n) / s1 - mx * my
+        sxh = _box(w * x * hz, n) / s1 - mx * mh
+        syh = _box(w * y * hz, n) / s1 - my * mh
+        shh = _box(w * hz * hz, n) / s1 - mh * mh
+        det = sxx * syy - sxy * sxy
+        gx = (syy * sxh - sxy * syh) / det
+        gy = (sxx * syh - sxy * sxh) / det
+        res = np.maximum(shh - gx * sxh - gy * syh, 0.0)
+    valid = ok & (s1 >= 0.75 * n * n) & (det > 0)
+    return gx, gy, res, valid
+
+
+def _odd(x: float) -> int:
+    k = max(1, math.floor(x))
+    return k if k % 2 == 1 else max(1, k - 1)
+
+
+@functools.lru_cache(maxsize=8)
+def step_kernel(rows: int, half: int) -> tuple[np.ndarray, float]:
+    """The least-squares estimate of a step across the middle column of a ``rows`` x ``2 half + 1`` window,
+    fitted together with a plane (h = a + b x + c y + s [x > 0]) over every column but the middle one: the
+    kernel giving s as a weighted sum of the window's heights (0 on the middle column), and its squared norm
+    (var(s) = norm x sigma^2 for independent cell errors). The middle column is left out because a step
+    rarely falls on a cell border: the cell it crosses averages both levels, and a step fitted at a border
+    would see two half steps. A plane, tilted any way, gives s = 0."""
+    x = np.arange(2 * half + 1, dtype=np.float64) - half
+    y = np.arange(rows, dtype=np.float64) - (rows - 1) / 2.0
+    X, Y = np.meshgrid(x, y)
+    use = (X != 0).ravel()
+    A = np.stack([np.ones(X.size), X.ravel(), Y.ravel(), (X.ravel() > 0).astype(np.float64)], axis=1)
+    flat = np.zeros(X.size)
+    flat[use] = np.linalg.pinv(A[use])[3]
+    w = flat.reshape(X.shape)
+    return w, float(np.sum(w * w))
+
+
+def _steps(hc: np.ndarray, ok: np.ndarray, var: np.ndarray, rows: int, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """(|s|, std of s) of the step fitted across every cell along x and along y (the direction with the larger
+    |s|), NaN where the window is not fully seen."""
+    w, norm = step_kernel(rows, half)
+    out_s = np.full(hc.shape, np.nan)
+    out_sd = np.full(hc.shape, np.nan)
+    okf = ok.astype(np.float64)
+    for kern in (w, np.ascontiguousarray(w.T)):
+        ones = (kern != 0).astype(np.float64)
+        est = cv2.filter2D(hc, cv2.CV_64F, kern, borderType=cv2.BORDER_CONSTANT)
+        full = cv2.filter2D(okf, cv2.CV_64F, ones, borderType=cv2.BORDER_CONSTANT) >= ones.sum() - 0.5
+        vm = cv2.filter2D(var, cv2.CV_64F, ones / ones.sum(), borderType=cv2.BORDER_CONSTANT)
+        a = np.where(full, np.abs(est), np.nan)
+        sd = np.where(full, np.sqrt(np.maximum(vm, 0.0) * norm), np.nan)
+        take = ~(np.nan_to_num(out_s, nan=-1.0) >= np.nan_to_num(a, nan=-1.0))
+        out_s = np.where(take, a, out_s)
+        out_sd = np.where(take, sd, out_sd)
+    return out_s, out_sd
+
+
+def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object) -> FusedMaps:
+    """The maps, score, mask and verdict of a region of the fused grid."""
+    cell = reg.cell_m
+    terrain, uav = config.terrain, config.uav
+    k = params.confidence_sigma
+    seen = reg.seen
+    refused = seen & (reg.rejected > params.two_heights_fraction * np.maximum(reg.frames, 1))
+    ok = seen & ~refused
+    h = np.where(ok, reg.h, np.nan)
+    ref = float(np.nanmedian(h)) if ok.any() else 0.0
+    hc = np.where(ok, h - ref, 0.0)
+    var = np.where(ok, reg.var, 0.0)
+    var_mean = np.where(ok, var, 0.0)
+
+    # depth variance: residual std about the 3 x 3 plane, the fused noise's share removed
+    dv = terrain.depth_variance
+    _, _, res3, ok3 = _plane_fit(hc, ok, 3, cell)
+    n3 = _box(ok.astype(np.float64), 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        noise3 = _box(var_mean, 3) / np.maximum(n3, 1) * (n3 - 3) / np.maximum(n3, 1)
+    s = np.sqrt(np.maximum(res3 - noise3, 0.0))
+    depth_variance = np.where(ok3, np.exp(-s / dv.s0_m), 0.0)
+
+    # steepness: the plane over the footprint's cells (the widest window the per-frame path uses)
+    n_fp = max(3, _odd(max(uav.footprint_m) / cell))
+    gx, gy, _, okf = _plane_fit(hc, ok, n_fp, cell)
+    tan_psi = np.hypot(np.nan_to_num(gx), np.nan_to_num(gy))
+    psi = np.arctan(tan_psi)
+    slope_deg = np.where(okf, np.degrees(psi), np.nan)
+    steepness = np.where(okf, np.exp(-(psi / math.radians(uav.max_slope_deg)) ** 2), 0.0)
+
+    # inclination: surface variation of the cells within radius_m (an equal-area square)
+    inc = terrain.inclination
+    n_r = max(3, _odd(2.0 * _EQUAL_AREA_HALF_SIDE * inc.radius_m / cell))
+    w = ok.astype(np.float64)
+    ny, nx = hc.shape
+    x = np.broadcast_to(np.arange(nx, dtype=np.float64)[None, :] * cell, hc.shape)
+    y = np.broadcast_to(np.arange(ny, dtype=np.float64)[:, None] * cell, hc.shape)
+    s1 = _box(w, n_r)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mx, my, mh = _box(w * x, n_r) / s1, _box(w * y, n_r) / s1, _box(w * hc, n_r) / s1
+        cxx = _box(w * x * x, n_r) / s1 - mx * mx
+        cyy = _box(w * y * y, n_r) / s1 - my * my
+        cxy = _box(w * x * y, n_r) / s1 - mx * my
+        cxh = _box(w * x * hc, n_r) / s1 - mx * mh
+        cyh = _box(w * y * hc, n_r) / s1 - my * mh
+        chh = _box(w * hc * hc, n_r) / s1 - mh * mh - _box(var_mean, n_r) / s1
+        chh = np.maximum(chh, 0.0)
+        lam = eigvalsh3(cxx, cxy, cxh, cyy, cyh, chh)
+        lam = np.maximum(lam, 0.0)
+        curv = lam[..., 0] / np.sum(lam, axis=-1)
+    okr = ok & (s1 >= max(inc.min_points, 0.5 * n_r * n_r))
+    inclination = np.where(okr & np.isfinite(curv), np.exp(-np.nan_to_num(curv) / inc.curvature_ref), 0.0)
+
+    # flatness: distance to the nearest significant step, refused or unseen cell
+    step_edge = np.zeros(hc.shape, bool)
+    for dy, dx in ((0, 1), (1, 0)):
+        a, b = hc[: ny - dy, : nx - dx], hc[dy:, dx:]
+        both = ok[: ny - dy, : nx - dx] & ok[dy:, dx:]
+        sd = np.sqrt(var[: ny - dy, : nx - dx] + var[dy:, dx:])
+        big = both & (np.abs(a - b) > np.maximum(uav.max_step_m, k * sd))
+        step_edge[: ny - dy, : nx - dx] |= big
+        step_edge[dy:, dx:] |= big
+    # unseen cells are not edges here (as the image border is not in 2.3.2): a landing square must be seen
+    # whole to be decided, so what an unseen cell may hide already keeps every square over it from SAFE,
+    # while counting the edge of the seen ground as an edge called ground beside it unsafe
+    clear = (~refused & ~step_edge).astype(np.uint8)
+    dist = cv2.distanceTransform(clear, cv2.DIST_L2, 5) * cell if not clear.all() else \
+        np.full(hc.shape, float(max(hc.shape)) * cell, np.float32)
+    flatness = np.where(ok, np.minimum(dist / terrain.flatness.clearance_m, 1.0), 0.0)
+
+    maps = {"depth_variance": depth_variance, "flatness": flatness, "inclination": inclination,
+            "steepness": steepness}
+    score = scorer.score_arrays({n: m.astype(np.float32) for n, m in maps.items()}, ok)  # type: ignore[attr-defined]
+
+    # the mask: smoothed score, its minimum over the landing square, the threshold
+    mc = config.mask
+    sm = score
+    kk = 1
+    if mc.smooth_m > 0:
+        sg = mc.smooth_m / cell
+        kk = max(3, round(sg * 8 + 1) | 1)
+        sm = cv2.GaussianBlur(score.astype(np.float32), (kk, kk), sg)
+        sm = np.where(ok, sm, 0.0).astype(np.float32)
+    n_sq = max(1, 2 * math.ceil((params.square_m / cell - 1) / 2) + 1)
+    kernel = np.ones((n_sq, n_sq), np.uint8)
+    clear_score = cv2.erode(sm.astype(np.float32), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    thr = scorer.threshold(config)  # type: ignore[attr-defined]
+    mask = clear_score > thr
+
+    # the limits of the per-frame path, scaled by the cell's fused std (correlated noise at coarser scales
+    # included, as limits.working_scale evaluates it)
+    sd_cell = np.sqrt(np.where(ok, var, 0.0))
+    step_min = np.where(ok, reg.step_ratio * sd_cell, np.inf)        # an unseen cell hides everything
+    tan_min = np.where(ok, reg.tan_ratio * sd_cell, np.inf)
+    slope_min = np.degrees(np.arctan(tan_min))
+    m = params.target_margin
+    limit_ok = ok & (m * step_min <= uav.max_step_m) & (m * tan_min <= math.tan(math.radians(uav.max_slope_deg)))
+    # a step across every cell, fitted with a plane over the footprint's window, and the plane's slope. Their
+    # noise at k sigma is the per-frame path's limit scaled by the fused std (step_min, tan_min: it holds the
+    # noise's correlation between neighbouring cells, which a sum over independent cells would not). SAFE
+    # needs both upper bounds (estimate + limit) within the UAV's tolerance, UNSAFE a lower bound beyond it;
+    # in between the noise still hides what the UAV cannot take
+    half = max(2, n_fp // 2)
+    s_abs, _ = _steps(hc, ok, var, n_fp, half)
+    tan_lim = math.tan(math.radians(uav.max_slope_deg))
+    # (a known defect at k + 1 sigma: a square holds ~240 step estimates, and at k alone noise would mark
+    # some level squares unsafe)
+    kb = (k + 1.0) / k
+    with np.errstate(invalid="ignore"):
+        step_fine = s_abs + step_min <= uav.max_step_m
+        step_bad = s_abs - kb * step_min > uav.max_step_m
+        # the limits hold for a full window: a plane over a window cut by the edge of the seen ground is neither
+        full = _box(ok.astype(np.float64), n_fp) >= n_fp * n_fp - 0.5
+        slope_fine = okf & full & (tan_psi + tan_min <= tan_lim)
+        steep = okf & full & (tan_psi - kb * tan_min > tan_lim)
+    # decided over the square and the widest window around it (the maps' and the smoothing's): every score of
+    # the square then rests on full windows (a window cut by the edge of the seen ground scores 0, which is
+    # not a finding)
+    n_dec = n_sq + 2 * max(n_fp // 2, n_r // 2, 1) + 2 * (kk // 2)
+    decided = cv2.erode(limit_ok.astype(np.uint8), np.ones((n_dec, n_dec), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                        borderValue=0) > 0
+    fine = cv2.erode((step_fine & slope_fine).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT,
+                     borderValue=0) > 0
+    bad = steep | refused | step_bad      # a step between two neighbours only lowers the flatness map
+    defect = cv2.dilate(bad.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+
+    verdict = np.full(hc.shape, UNSEEN, np.uint8)
+    safe = ok & mask & decided & fine & reg.column
+    unsafe = seen & ~safe & (defect | (~mask & decided) | refused)
+    verdict[seen] = UNDECIDED
+    verdict[unsafe] = UNSAFE
+    verdict[safe] = SAFE
+    f32 = {n: m.astype(np.float32) for n, m in maps.items()}
+    return FusedMaps(reg, f32["depth_variance"], f32["flatness"], f32["inclination"], f32["steepness"],
+                     slope_deg.astype(np.float32), score.astype(np.float32), mask, clear_score,
+                     step_min.astype(np.float32), slope_min.astype(np.float32), decided, defect, refused, verdict)
+
+
+@dataclass(frozen=True)
+class FusedSite:
+    """The landing site the fused verdict gives: the safe cell deepest inside safe ground."""
+
+    x_m: float
+    y_m: float
+    z_m: float
+    clearance_m: float     # distance to the nearest cell that is not safe
+    score: float
+    looks: float
+    step_min_m: float
+
+
+def best_site(fm: FusedMaps) -> FusedSite | None:
+    """The safe cell farthest from any cell that is not safe (ties: the higher cleared score); None: none."""
+    safe = fm.verdict == SAFE
+    if not safe.any():
+        return None
+    reg = fm.region
+    dist = cv2.distanceTransform(safe.astype(np.uint8), cv2.DIST_L2, 5).astype(np.float64)
+    rank = dist + 1e-3 * fm.clear_score
+    j, i = np.unravel_index(int(np.argmax(np.where(safe, rank, -1.0))), safe.shape)
+    x0, y0 = reg.origin_m
+    return FusedSite(x0 + (i + 0.5) * reg.cell_m, y0 + (j + 0.5) * reg.cell_m, float(reg.h[j, i]),
+                     float(dist[j, i] * reg.cell_m), float(fm.score[j, i]), float(reg.looks[j, i]),
+                     float(fm.step_min_m[j, i]))

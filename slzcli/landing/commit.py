@@ -1,0 +1,107 @@
+"""The committed site: which of a run's detections' sites landing.json names, and how far another run may differ.
+
+ORB-SLAM3 tracks in threads, so which frames become keyframes, and so which detections a run
+makes and in what order, changes from run to run of the same recording. The rule therefore
+uses only what the ground gives a site, never the order detections arrived:
+
+1. the pool: the sites that pass the acceptance test (all sites when none does);
+2. confirmed: sites that another detection of the same map segment confirms (a site within
+   ``radius_m`` in plan), when any is; one lucky keyframe does not commit a site alone;
+3. equally good: confirmed sites of the best-scoring confirmed site's map segment whose score
+   is within ``score_band`` of its score (the score is the landing score of the cluster's
+   points, a property of the ground; positions in different segments are in different frames);
+4. of those, the medoid in plan: the site with the least summed distance to the others, the
+   middle of the good ground seen, whichever detections happened to see it. Ties go to the
+   higher score, then the larger edge clearance, then the position (x, then y): never to a frame.
+
+The spread: another run sees other keyframes, so it may commit any site of this run's pool in
+the committed site's map segment (its equals change with the score's run-to-run noise). The
+largest plan distance between two of them is how far apart runs may land (``site_spread_m``
+in landing.json), an estimate from one run: with fewer than ``MIN_SITES_FOR_SPREAD`` sites
+there is too little to estimate it from, and the record says so. Over two sets of 8 ORB-SLAM3
+runs of the demo flight the committed sites lay 1.13 m and 2.13 m apart; each run of the second
+set estimated 1.31-2.98 m (docs/DESIGN.md, "The committed site"). ``latest`` (``landing.commit``, the paper's current
+keyframe) commits the last detection's site, accepted or not.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+MIN_SITES_FOR_SPREAD = 3  # equally good sites needed to estimate the spread (two give one distance, no spread)
+
+
+@dataclass(frozen=True)
+class Ranked:
+    """The committed site's index into the sites given, its support, its equals and the spread of its pool."""
+
+    index: int
+    support: int              # detections of its segment within radius_m of it, itself included
+    equals: tuple[int, ...]   # indices of the equally good sites (the committed one included)
+    pool: tuple[int, ...]     # indices of the sites another run may commit: the pool in the committed segment
+    spread_m: float           # largest plan distance between two of the pool (0 with one)
+
+
+def support_counts(xy: np.ndarray, segment: np.ndarray, radius_m: float) -> np.ndarray:
+    """Per site: the sites of its own map segment within ``radius_m`` in plan, itself included."""
+    near = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=2) <= radius_m
+    return (near & (segment[:, None] == segment[None, :])).sum(axis=1)
+
+
+def rank(xy: np.ndarray, segment: np.ndarray, score: np.ndarray, clearance: np.ndarray, accepted: np.ndarray,
+         radius_m: float, score_band: float) -> Ranked:
+    """The committed site (module docstring) among sites given as arrays: plan centres (n, 2), map segment,
+    score, edge clearance (NaN: not measured) and whether each passed the acceptance test."""
+    n = len(xy)
+    pool = np.flatnonzero(accepted) if accepted.any() else np.arange(n)
+    sup = np.zeros(n, np.int64)
+    sup[pool] = support_counts(xy[pool], segment[pool], radius_m)
+    confirmed = pool[sup[pool] >= 2] if (sup[pool] >= 2).any() else pool
+    top = confirmed[np.lexsort((segment[confirmed], -score[confirmed]))[0]]   # best score; a tie: lower segment
+    same = confirmed[segment[confirmed] == segment[top]]
+    equals = same[score[same] >= score[top] - score_band]
+    total = np.linalg.norm(xy[equals, None, :] - xy[None, equals, :], axis=2).sum(axis=1)
+    clear = np.nan_to_num(clearance[equals], nan=-1.0)
+    # np.lexsort sorts by the last key first: least summed distance, then higher score, larger clearance, x, y
+    order = np.lexsort((xy[equals, 1], xy[equals, 0], -clear, -score[equals], np.round(total, 9)))
+    chosen = int(equals[order[0]])
+    alike = pool[segment[pool] == segment[chosen]]
+    spread = float(np.linalg.norm(xy[alike, None, :] - xy[None, alike, :], axis=2).max(initial=0.0))
+    return Ranked(chosen, int(sup[chosen]), tuple(int(i) for i in equals), tuple(int(i) for i in alike), spread)
+
+
+def commit(sites: Sequence[dict[str, Any]], radius_m: float, score_band: float,
+           rule: str = "agree") -> tuple[dict[str, Any], Ranked] | None:
+    """The committed entry of ``sites`` (SiteLog entries: "site", "segment", "frame") and its ranking.
+
+    ``rule`` ``latest``: the last detection's site (by frame index), its support still counted."""
+    if not sites:
+        return None
+    xy = np.array([s["site"].center_world[:2] for s in sites], dtype=np.float64)
+    segment = np.array([s["segment"] for s in sites])
+    score = np.array([s["site"].score for s in sites], dtype=np.float64)
+    clearance = np.array([np.nan if s["site"].edge_clearance_m is None else s["site"].edge_clearance_m
+                          for s in sites], dtype=np.float64)
+    accepted = np.array([bool(s["site"].accepted) for s in sites])
+    ranked = rank(xy, segment, np.nan_to_num(score, nan=-np.inf), clearance, accepted, radius_m, score_band)
+    if rule == "latest":
+        last = max(range(len(sites)), key=lambda i: sites[i]["frame"].index)
+        ranked = Ranked(last, int(support_counts(xy, segment, radius_m)[last]), (last,), (last,), 0.0)
+    return dict(sites[ranked.index]), ranked
+
+
+def spread_record(ranked: Ranked, footprint_side_m: float) -> dict[str, Any]:
+    """landing.json's ``site_spread_m`` and what it means for this run (``stable``: runs stay within a footprint)."""
+    n = len(ranked.pool)
+    if n < MIN_SITES_FOR_SPREAD:
+        note = (f"{n} site(s) this run could commit: too few to estimate how far another run (ORB-SLAM3's "
+                "threads) may commit from this one; it may commit elsewhere")
+        return {"site_spread_m": None, "site_spread": {"sites": n, "stable": False, "note": note}}
+    stable = ranked.spread_m <= footprint_side_m
+    note = (f"another run may commit any of the {n} sites this one could, at most {ranked.spread_m:.2f} m apart: "
+            + ("within" if stable else "more than") + f" one footprint side ({footprint_side_m:.3f} m)")
+    return {"site_spread_m": ranked.spread_m, "site_spread": {"sites": n, "stable": stable, "note": note}}

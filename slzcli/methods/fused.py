@@ -1,0 +1,109 @@
+"""fused: the fuzzy rules on the terrain fused over the flight (``slzcli/fusion``, METHOD 2.3.6).
+
+It keeps state across frames: every tracked frame with a pose goes into the fused grid of its map segment
+(``observe``); on a frame due, the verdict of the cells in view is rendered into the frame's pixels as its
+mask (SAFE cells only) and its score, and the site is chosen among the SLAM map points on that mask as the
+paper's clustering does (``landing.select``: a confirmation by the map points of what the fused map calls
+safe). The per-frame maps are not what gates it (their noise limits are the fused map's business, per
+cell); when nothing in view is safe its reason says what would decide the best undecided ground.
+
+The depth noise of a frame that is not due is the last one the run measured on a frame due (the maps'
+``work.noise``); before any, the method's own estimate of that frame.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from slzcli.config import Config
+from slzcli.fusion.grid import region, seen_bounds
+from slzcli.fusion.output import write_landing_map
+from slzcli.fusion.session import FusedTerrain, render_in_frame, verdict_in_frame
+from slzcli.fusion.verdict import fused_maps
+from slzcli.landing.select import Selection, SelectParams, select_site
+from slzcli.methods.maps import select_params
+from slzcli.scoring import SCORERS
+from slzcli.terrain.noise import DepthNoise, NoiseTracker
+from slzcli.types import Detection, ScoreMap, TerrainMaps, TrackedFrame
+
+NAME = "fused"
+
+
+@dataclass(eq=False)
+class FusedMethod:
+    """The run's fused terrain and the site selection on its verdict."""
+
+    config: Config
+    terrain: FusedTerrain
+    params: SelectParams
+    tracker: NoiseTracker
+    noise: DepthNoise | None = None
+    name: str = NAME
+    reads_maps: bool = False
+    selects: str = ("the cluster of the least normal variance among the map points on cells the fused map calls "
+                    "safe (METHOD 2.3.6)")
+    fuse_ms: list[float] = field(default_factory=list)
+
+    def observe(self, tracked: TrackedFrame) -> None:
+        frame = tracked.frame
+        noise = self.noise if self.noise is not None else self.tracker.update(frame.depth_m)
+        t0 = time.perf_counter()
+        self.terrain.add(frame.depth_m, frame.intrinsics, tracked.T_world_camera, noise, tracked.segment,
+                         frame.index)
+        self.fuse_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def detect(self, tracked: TrackedFrame, maps: TerrainMaps, maps_ms: float) -> Detection:
+        frame, T, points = tracked.frame, tracked.T_world_camera, tracked.points
+        if maps.work is not None:
+            self.noise = maps.work.noise
+        t: dict[str, float] = {"maps": maps_ms, "fuse": self.fuse_ms[-1] if self.fuse_ms else 0.0}
+        shape = frame.depth_m.shape
+        t0 = time.perf_counter()
+        fm = self.terrain.maps_in_view() if T is not None else None
+        t["score"] = _lap(t0)
+        t0 = time.perf_counter()
+        if fm is None or T is None:
+            score = ScoreMap(self.name, np.zeros(shape, np.float32), np.zeros(shape, bool))
+        else:
+            score = ScoreMap(self.name, render_in_frame(fm.score, fm, frame.depth_m, frame.intrinsics, T),
+                             verdict_in_frame(fm, frame.depth_m, frame.intrinsics, T))
+        t["mask"] = _lap(t0)
+        t0 = time.perf_counter()
+        selection: Selection | None = None
+        if T is not None and points is not None:
+            selection = select_site(points.xyz_world, T, frame.K, score.mask, score.score, self.params,
+                                    edge_distance_m=maps.edge_distance_m)
+            if selection.site is None and fm is not None and not score.mask.any():
+                advice = self.terrain.advice(fm)
+                why = "nothing in view is decided safe by the fused terrain"
+                selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
+                                      selection.candidates, selection.projected, selection.kept, selection.labels)
+        t["select"] = _lap(t0)
+        return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment)
+
+
+    def write_outputs(self, folder: Path) -> None:
+        """The flight-wide landing map of the run's last map segment (``fusion/output.py``), when it has one."""
+        grid = self.terrain.grid
+        if grid is None:
+            return
+        bounds = seen_bounds(grid)
+        if bounds is None:
+            return
+        fm = fused_maps(region(grid, *bounds), self.config, self.terrain.params, self.terrain.scorer)
+        write_landing_map(folder, fm, self.terrain.segment or 0, self.terrain.frames - 1)
+
+
+def fused(config: Config) -> FusedMethod:
+    scorer = SCORERS["fuzzy"].from_config(config)
+    return FusedMethod(config, FusedTerrain(config, scorer),
+                       select_params(config, "min_normal_variance", config.landing.min_extent_factor),
+                       NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
+
+
+def _lap(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1e3

@@ -1,0 +1,129 @@
+"""The committed site: ranked by the ground (support, score, the middle of the equally good), never by frame order;
+its spread in landing.json."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from conftest import GAUSSIAN, HALF_SIZE, synth_recording
+
+from slzcli.cli import main
+from slzcli.config import load_config
+from slzcli.landing.commit import MIN_SITES_FOR_SPREAD, commit, rank, spread_record
+from slzcli.pipeline.commit import commit_site
+
+BAND = load_config().landing.commit_score_band
+FOOTPRINT = load_config().uav.footprint_m[0]
+
+
+@dataclass(frozen=True)
+class _Site:
+    center_world: tuple[float, float, float]
+    score: float
+    accepted: bool = True
+    edge_clearance_m: float | None = 2.0
+
+
+@dataclass(frozen=True)
+class _Frame:
+    index: int
+
+
+def entries(rows: list[tuple[int, float, float, float]], accepted: bool = True, segment: int = 0) -> list[dict]:
+    return [{"frame": _Frame(i), "site": _Site((x, y, 0.0), sc, accepted), "segment": segment}
+            for i, x, y, sc in rows]
+
+
+def test_the_order_detections_arrive_in_does_not_change_the_committed_site() -> None:
+    rng = np.random.default_rng(0)
+    for trial in range(50):
+        n = int(rng.integers(2, 12))
+        xy = rng.uniform(-2, 2, (n, 2))
+        rows = [(i, float(x), float(y), float(rng.uniform(0.6, 0.9))) for i, (x, y) in enumerate(xy)]
+        sites = entries(rows)
+        for s in sites[: n // 3]:
+            s["site"] = _Site(s["site"].center_world, s["site"].score, accepted=False)
+        first = commit(sites, 1.3, BAND)
+        assert first is not None
+        for _ in range(5):   # the same sites, arriving in another order and from other frames
+            perm = rng.permutation(n)
+            shuffled = [dict(sites[j], frame=_Frame(int(k))) for k, j in enumerate(perm)]
+            other = commit(shuffled, 1.3, BAND)
+            assert other is not None
+            assert other[0]["site"].center_world == first[0]["site"].center_world, trial
+            assert other[1].spread_m == pytest.approx(first[1].spread_m)
+
+
+def test_the_middle_of_the_equally_good_sites_is_committed_and_their_spread_reported() -> None:
+    # four confirmed sites on a line 0.3 m apart, equal in score: the middle ones are medoids (the lower x wins)
+    sites = entries([(0, 0.0, 0.0, 0.80), (1, 0.3, 0.0, 0.82), (2, 0.6, 0.0, 0.81), (3, 0.9, 0.0, 0.80)])
+    found = commit(sites, 1.3, BAND)
+    assert found is not None
+    best, ranked = found
+    assert best["site"].center_world[0] == 0.3 and ranked.support == 4
+    assert len(ranked.equals) == len(ranked.pool) == 4 and ranked.spread_m == pytest.approx(0.9)
+    record = spread_record(ranked, FOOTPRINT)
+    assert record["site_spread_m"] == pytest.approx(0.9) and record["site_spread"]["stable"] is False
+    assert "more than one footprint side" in record["site_spread"]["note"]
+    # a site far below the best score is not among the equals, however central, but another run may commit it
+    sites += entries([(4, 0.45, 0.0, 0.50), (5, 0.45, 3.0, 0.50)])
+    ranked = commit(sites, 1.3, BAND)[1]  # type: ignore[index]
+    assert ranked.equals == (0, 1, 2, 3) and ranked.pool == (0, 1, 2, 3, 4, 5)
+    assert ranked.spread_m == pytest.approx(np.hypot(0.45, 3.0))
+
+
+def test_a_lone_detection_does_not_outvote_confirmed_sites_nor_does_a_rejected_one() -> None:
+    sites = entries([(0, 0.0, 0.0, 0.70), (1, 0.2, 0.0, 0.70), (2, 5.0, 5.0, 0.99)])   # the lone one scores best
+    assert commit(sites, 1.3, BAND)[0]["site"].center_world[:2] == (0.0, 0.0)  # type: ignore[index]
+    rejected = entries([(3, 9.0, 9.0, 0.99), (4, 9.1, 9.0, 0.99)], accepted=False)
+    assert commit(sites + rejected, 1.3, BAND)[0]["site"].accepted  # type: ignore[index]
+    only_rejected = commit(rejected, 1.3, BAND)   # none accepted: the best of those, still named
+    assert only_rejected is not None and not only_rejected[0]["site"].accepted
+
+
+def test_too_few_equal_sites_say_the_spread_is_unknown() -> None:
+    ranked = rank(np.array([[0.0, 0.0], [0.1, 0.0]]), np.zeros(2, int), np.array([0.8, 0.8]),
+                  np.array([1.0, np.nan]), np.ones(2, bool), 1.3, BAND)
+    assert len(ranked.pool) < MIN_SITES_FOR_SPREAD
+    record = spread_record(ranked, FOOTPRINT)
+    assert record["site_spread_m"] is None and "too few" in record["site_spread"]["note"]
+    close = spread_record(rank(np.array([[0.0, 0.0], [0.1, 0.0], [0.2, 0.0]]), np.zeros(3, int),
+                               np.full(3, 0.8), np.full(3, 1.0), np.ones(3, bool), 1.3, BAND), FOOTPRINT)
+    assert close["site_spread"]["stable"] is True and close["site_spread_m"] == pytest.approx(0.2)
+
+
+def test_commit_site_keeps_its_fields_and_latest_takes_the_last_frame() -> None:
+    sites = entries([(3, 0.0, 0.0, 0.8), (1, 0.1, 0.0, 0.8), (2, 0.2, 0.0, 0.8), (0, 4.0, 0.0, 0.6)])
+    best = commit_site(sites, 1.3, "agree", BAND)
+    assert best is not None and best["support"] == 3 and best["detections"] == 4 and best["segment_detections"] == 4
+    assert best["site"].center_world[0] == 0.1
+    latest = commit_site(sites, 1.3, "latest", BAND)
+    assert latest is not None and latest["frame"].index == 3 and latest["support"] == 3
+
+
+@pytest.fixture(scope="module")
+def descent(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return synth_recording(tmp_path_factory.mktemp("descent") / "d.mcap", "parking_lot", 12, "--rate", "4",
+                           "--path", "descent", "--start", "0,0,8", *GAUSSIAN, *HALF_SIZE)
+
+
+def test_landing_json_and_the_report_carry_the_spread(descent: Path, tmp_path: Path, runner: CliRunner) -> None:
+    res = runner.invoke(main, ["detect", str(descent), "-o", str(tmp_path / "run"), "--json", *HALF_SIZE,
+                               "--set", "slam.backend=odometry"])
+    assert res.exit_code == 0, res.output
+    landing: dict[str, Any] = json.loads((tmp_path / "run" / "landing.json").read_text())
+    summary = json.loads(res.stdout)
+    if landing["status"] != "site":
+        pytest.fail(f"the descent gave no site: {landing.get('reason')}")
+    spread = landing["site_spread"]
+    assert spread["sites"] >= 1 and isinstance(spread["stable"], bool) and spread["note"]
+    assert summary["site_spread_m"] == pytest.approx(landing["site_spread_m"], abs=1e-6)   # --json rounds
+    if landing["site_spread_m"] is not None:
+        assert spread["stable"] == (landing["site_spread_m"] <= FOOTPRINT)
+    assert "Stability: " in (tmp_path / "run" / "report.html").read_text()
