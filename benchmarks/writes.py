@@ -46,7 +46,7 @@ import numpy as np
 
 import slzcli.pipeline as pipeline
 from slzcli.config import load_config
-from slzcli.outputs import files, images, results_mcap, run_folder
+from slzcli.outputs import files, images, palette, results_mcap, run_folder
 from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.pipeline import RunOptions, detect_recording
 from slzcli.synth.record import SynthOptions, synthesize
@@ -93,7 +93,7 @@ def before_site_overlay_bgr(rgb: np.ndarray, mask: np.ndarray, projected: np.nda
 def before_heatmap_bgr(values: np.ndarray, *, reverse: bool = False, valid: np.ndarray | None = None) -> np.ndarray:
     v = np.nan_to_num(values.astype(np.float32), nan=0.0)
     v = np.clip(1.0 - v if reverse else v, 0.0, 1.0)
-    img = cv2.applyColorMap((v * 255.0 + 0.5).astype(np.uint8), cv2.COLORMAP_JET)
+    img = cv2.applyColorMap((v * 255.0 + 0.5).astype(np.uint8), palette.CV2_COLORMAP)
     img[~np.isfinite(values) if valid is None else ~valid] = 0
     return img
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from slzcli.version import __version__
+
 __all__ = ["Config", "Frame", "Intrinsics", "RunResult", "SlzError", "__version__", "detect", "load_config"]
 
 if TYPE_CHECKING:

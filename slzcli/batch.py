@@ -164,16 +164,19 @@ def default_workers() -> int:
 
 # ----------------------------------------------------------------------------- one task
 class FrameTick:
-    """``detect_recording``'s progress(done, total) -> frame increments for a sink (picklable state only)."""
+    """``detect_recording``'s progress(done, total) -> increments of frames done and of frames expected
+    (the recording's total, once known) for a sink (picklable state only)."""
 
-    def __init__(self, sink: Callable[[int], None]) -> None:
+    def __init__(self, sink: Callable[[int, int], None]) -> None:
         self.sink = sink
         self.done = 0
+        self.total = 0
 
     def __call__(self, done: int, total: int | None) -> None:
-        if done > self.done:
-            self.sink(done - self.done)
-            self.done = done
+        more = max(0, (total or 0) - self.total)
+        if done > self.done or more:
+            self.sink(max(0, done - self.done), more)
+            self.done, self.total = max(done, self.done), self.total + more
 
 
 def error_detail(err: SlzError) -> dict[str, str]:
@@ -242,6 +245,7 @@ class BatchProgress:
     frames: int
     elapsed_s: float
     row: dict[str, Any] | None = None
+    frames_expected: int = 0  # the frame totals of the recordings started so far
 
     @property
     def frames_per_s(self) -> float:
@@ -323,7 +327,7 @@ def _collect(engine: _Engine, tasks: Sequence[Task], config: Config, options: Ru
     """Submit everything, then record rows as tasks finish (in this thread) and refresh the frame count."""
     def progress(row: dict[str, Any] | None = None) -> BatchProgress:
         return BatchProgress(sum(r is not None for r in rows), len(tasks), engine.frames(),
-                             time.perf_counter() - t0, row)
+                             time.perf_counter() - t0, row, engine.expected())
 
     def finish(i: int, outcome: Any) -> None:
         rows[i] = _row_of(tasks[i], outcome)
@@ -387,6 +391,9 @@ class _Engine:
     def frames(self) -> int:
         return 0
 
+    def expected(self) -> int:
+        return 0
+
     def stop(self) -> None:
         return None
 
@@ -402,11 +409,13 @@ class _InlineEngine(_Engine):
 
     def __init__(self) -> None:
         self._frames = 0
+        self._expected = 0
 
     def submit_all(self, tasks: Sequence[Task], config: Config, options: RunOptions, done: Done,
                    tick: Callable[[], None]) -> None:
-        def count(n: int) -> None:
+        def count(n: int, more: int) -> None:
             self._frames += n
+            self._expected += more
             tick()
 
         for i, task in enumerate(tasks):
@@ -415,8 +424,11 @@ class _InlineEngine(_Engine):
     def frames(self) -> int:
         return self._frames
 
+    def expected(self) -> int:
+        return self._expected
 
-_FRAMES: Any = None  # in a pool worker: the shared frame counter (set by _init_worker)
+
+_FRAMES: Any = None  # in a pool worker: the shared counters, frames done and expected (set by _init_worker)
 _RUNNING = False     # in a pool worker: a task is running
 _STOPPING = False    # in a pool worker: told to stop once; later signals must not break the clean-up
 
@@ -452,9 +464,10 @@ def _watch_parent(parent_pid: int) -> None:
     os._exit(1)
 
 
-def _count_frames(n: int) -> None:
+def _count_frames(n: int, more: int) -> None:
     with _FRAMES.get_lock():
-        _FRAMES.value += n
+        _FRAMES[0] += n
+        _FRAMES[1] += more
 
 
 def _pool_task(task: Task, config: Config, options: RunOptions) -> dict[str, Any]:
@@ -476,7 +489,7 @@ class _LocalEngine(_Engine):
     def __init__(self, workers: int) -> None:
         self.workers = workers
         ctx = mp.get_context("spawn")
-        self._counter = ctx.Value("q", 0)
+        self._counter = ctx.Array("q", 2)  # frames done, frames expected
         self._pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                             initargs=(self._counter, os.getpid()))
 
@@ -487,7 +500,10 @@ class _LocalEngine(_Engine):
             fut.add_done_callback(functools.partial(done, i))
 
     def frames(self) -> int:
-        return int(self._counter.value)
+        return int(self._counter[0])
+
+    def expected(self) -> int:
+        return int(self._counter[1])
 
     def stop(self) -> None:
         """Interrupt running tasks (SIGINT: they remove their temporary folders), cancel the rest."""
@@ -513,7 +529,7 @@ def _dask_task(task: Task, config: Config, options: RunOptions, topic: str) -> d
     from distributed import get_worker
 
     worker = get_worker()
-    return run_task(task, config, options, FrameTick(lambda n: worker.log_event(topic, n)))
+    return run_task(task, config, options, FrameTick(lambda n, more: worker.log_event(topic, (n, more))))
 
 
 class _DaskEngine(_Engine):
@@ -527,6 +543,7 @@ class _DaskEngine(_Engine):
         self.futures: list[Any] = []
         self.topic = f"slz-frames-{uuid.uuid4().hex[:12]}"
         self._frames = 0
+        self._expected = 0
         self._lock = threading.Lock()
 
     def start(self) -> None:
@@ -543,9 +560,10 @@ class _DaskEngine(_Engine):
         self.client.subscribe_topic(self.topic, self._on_frames)
 
     def _on_frames(self, event: Any) -> None:
-        _, n = event
+        _, (n, more) = event
         with self._lock:
             self._frames += int(n)
+            self._expected += int(more)
 
     def submit_all(self, tasks: Sequence[Task], config: Config, options: RunOptions, done: Done,
                    tick: Callable[[], None]) -> None:
@@ -559,6 +577,10 @@ class _DaskEngine(_Engine):
     def frames(self) -> int:
         with self._lock:
             return self._frames
+
+    def expected(self) -> int:
+        with self._lock:
+            return self._expected
 
     def stop(self) -> None:
         if self.client is not None and self.futures:

@@ -19,13 +19,15 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from slzcli import __version__
+from slzcli import render
 from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
 from slzcli.config import MAX_FLOAT_MAGNITUDE, Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
 from slzcli.interrupt import sigterm_interrupts
 from slzcli.methods import registry as method_registry
 from slzcli.outputs.summary_json import envelope
+from slzcli.progress import DEFAULT_EVERY_S, Bar, BatchDisplay, RunsDisplay
+from slzcli.version import __version__
 
 if TYPE_CHECKING:
     from slzcli.synth.flight import PathKind
@@ -55,7 +57,8 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
                   help="YAML file layered over configs/default.yaml.")
     @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", callback=_check_overrides,
                   help="Override one key, e.g. --set mask.threshold=0.6 (repeatable).")
-    @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object.")
+    @click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON object on stdout (for "
+                  "scripts; the text goes away).")
     @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
     @functools.wraps(fn)
     def wrapper(profile: str | None, config_file: Path | None, overrides: tuple[str, ...], as_json: bool,
@@ -167,23 +170,34 @@ def _check_overrides(ctx: click.Context, param: click.Parameter, value: tuple[st
 
 
 class _SlzGroup(click.Group):
-    """The ``slz`` group: under ``--json`` a usage error (exit 2) is also the error object on stdout."""
+    """The ``slz`` group: usage errors (exit 2) in slz's one error style, ``slz: error: ...`` after the
+    usage line; under ``--json`` also the error object on stdout."""
 
     def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
              standalone_mode: bool = True, **extra: Any) -> Any:
         argv = list(sys.argv[1:] if args is None else args)
-        if "--json" not in argv or not standalone_mode:
+        if not standalone_mode:
             return super().main(argv, prog_name, complete_var, standalone_mode, **extra)
         try:
-            rv = super().main(argv, prog_name, complete_var, standalone_mode=False, **extra)
+            rv = super().main(argv, prog_name or "slz", complete_var, standalone_mode=False, **extra)
         except click.ClickException as err:
-            err.show()
-            _echo_json_error(one_line(err.format_message()), err.exit_code, None)
+            _show_usage_error(err)
+            if "--json" in argv:
+                _echo_json_error(one_line(err.format_message()), err.exit_code, None)
             sys.exit(err.exit_code)
         except click.exceptions.Abort:
-            click.echo("Aborted!", err=True)
-            sys.exit(1)
+            click.echo("slz: interrupted", err=True)
+            sys.exit(130)
         sys.exit(rv if isinstance(rv, int) else 0)
+
+
+def _show_usage_error(err: click.ClickException) -> None:
+    """click's usage error in slz's style: the usage and where help is, then ``slz: error: ...``."""
+    ctx = getattr(err, "ctx", None)
+    if ctx is not None:
+        click.echo(ctx.get_usage(), err=True)
+        click.echo(f"Try '{ctx.command_path} {ctx.help_option_names[0]}' for help.", err=True)
+    click.echo(f"slz: error: {one_line(err.format_message())}", err=True)
 
 
 class _WarningLines:
@@ -302,7 +316,14 @@ def _windowed(config: Config, start: WindowBound | None, end: WindowBound | None
 @click.group(cls=_SlzGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="slz")
 def main() -> None:
-    """slz: safe landing zones from recorded RGB-D flights (ROS 1/2 bags, MCAP, TUM folders)."""
+    """slz finds safe landing zones in recorded RGB-D flights (ROS 1/2 bags, MCAP, TUM folders).
+
+    \b
+    Start with:
+      slz info flight.bag                 what slz reads from the recording
+      slz detect flight.bag -o runs/f1    the landing site; open runs/f1/report.html
+    Every command has -h with an example.
+    """
     _keep_heap_warm()
 
 
@@ -333,13 +354,20 @@ def _keep_heap_warm() -> None:
 
 @main.group("config")
 def config_group() -> None:
-    """Inspect the configuration."""
+    """Show the configuration slz would use."""
 
 
-@config_group.command("dump")
+@config_group.command("dump", short_help="Print the resolved config with each key's source.")
 @common_options
 def config_dump(config: Config) -> tuple[dict[str, Any], str]:
-    """Print the resolved config (defaults + --profile + --config + --set), every key commented with its source."""
+    """Print the resolved config (defaults + --profile + --config + --set), each key with its source.
+
+    With --json: the config as one JSON object (no comments).
+
+    \b
+    Example:
+      slz config dump --set camera.mount=pitch_down_30
+    """
     from slzcli.outputs.summary_json import Exact
 
     profile, config_file, overrides = _layers()
@@ -347,15 +375,21 @@ def config_dump(config: Config) -> tuple[dict[str, Any], str]:
     return Exact(config.to_dict()), dump(config, layer_sources(profile, config_file, overrides)).rstrip("\n")
 
 
-@main.command("info")
+@main.command("info", short_help="Show what slz reads from a recording.")
 @click.argument("bag", type=click.Path(path_type=Path, readable=False))
 @window_options
 @camera_option
 @common_options
 def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: WindowBound | None,
              stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
-    """Topics, types, counts and rates, the streams slz would use and why, intrinsics, pairable frames
-    (within --start/--end/--stride/--max-frames when given)."""
+    """Show what slz reads from BAG: topics, rates, the streams it would use and why, intrinsics, frames.
+
+    Pairable frames are counted within --start/--end/--stride/--max-frames when given.
+
+    \b
+    Example:
+      slz info flight.bag --camera d435
+    """
     from slzcli.sources import open_recording
     from slzcli.sources.depth_check import check_depth
     from slzcli.sources.info_text import info_text
@@ -371,10 +405,10 @@ def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: 
 
 @main.group("vocab")
 def vocab_group() -> None:
-    """ORB vocabularies for ORB-SLAM3."""
+    """Build ORB vocabularies for ORB-SLAM3."""
 
 
-@vocab_group.command("build")
+@vocab_group.command("build", short_help="Train an ORB vocabulary from recordings.")
 @click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path, readable=False))
 @click.option("-o", "--output", "output", required=True,
               type=click.Path(dir_okay=False, path_type=Path, readable=False),
@@ -382,7 +416,12 @@ def vocab_group() -> None:
 @click.option("--force", is_flag=True, help="Replace an existing vocabulary file (never any other file).")
 @common_options
 def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path, force: bool) -> tuple[dict[str, Any], str]:
-    """Train a DBoW2 ORB vocabulary from recordings (slam.vocab.* sets k, levels, frames)."""
+    """Train a DBoW2 ORB vocabulary from RECORDINGS (slam.vocab.* sets k, levels, frames).
+
+    \b
+    Example:
+      slz vocab build flight1.bag flight2.bag -o my_vocab.txt
+    """
     from slzcli.slam.vocabulary import build_from_recordings
 
     r = build_from_recordings(list(recordings), output, config, force=force)
@@ -412,7 +451,14 @@ def _start_floats(ctx: click.Context, param: click.Parameter, value: str | None)
 
 
 class FiniteFloatRange(click.FloatRange):
-    """click's FloatRange lets NaN through (every comparison with NaN is false); this one does not."""
+    """click's FloatRange lets NaN through (every comparison with NaN is false); this one does not.
+
+    Its range in --help leaves out a bound only there for the platform (``x>0``, not ``0<x<=9223372036.0``)."""
+
+    def _describe_range(self) -> str:
+        if self.max is not None and self.max >= threading.TIMEOUT_MAX:
+            return f"x{'>' if self.min_open else '>='}{self.min:g}"
+        return super()._describe_range()
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         rv = super().convert(value, param, ctx)
@@ -423,10 +469,10 @@ class FiniteFloatRange(click.FloatRange):
 
 @main.group("land")
 def land_group() -> None:
-    """Landing on a chosen site."""
+    """Simulate the landing on a site slz detect chose."""
 
 
-@land_group.command("simulate")
+@land_group.command("simulate", short_help="Simulate the IBVS descent onto a run's site.")
 @click.argument("run", type=click.Path(path_type=Path, readable=False))
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="Output folder (default: RUN/ibvs).")
@@ -446,7 +492,12 @@ def land_group() -> None:
 def land_simulate(config: Config, run: Path, output: Path | None, scenario: int | None,
                   start: tuple[float, ...] | None, offset: tuple[float, ...] | None, runs: int,
                   seed: int | None) -> tuple[dict[str, Any], str]:
-    """Simulate the image-moment IBVS descent onto the site of RUN/landing.json (METHOD 2.6-2.9)."""
+    """Simulate the image-moment IBVS descent onto the site of RUN/landing.json (docs/METHOD.md 2.6-2.9).
+
+    \b
+    Example:
+      slz land simulate runs/f1 --offset 2,-1.5,8 --runs 100
+    """
     from slzcli.control import montecarlo
     from slzcli.control.simulate import check_target, resolve_start, simulate
     from slzcli.outputs import ibvs as ibvs_out
@@ -479,17 +530,26 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
             ibvs_plots.montecarlo_histograms(tmp / "montecarlo_hist.png", mc)
         names = sorted(p.name for p in tmp.iterdir() if not p.name.startswith("."))
     if runs == 1:
-        summary = {**metrics, "output": str(out), "files": names}
-        s = metrics
-        text = (f"{'landed' if s['success'] else 'FAILED'} ({s['reason']}) after {s['landing_time_s']} s; "
-                f"stabilisation {s['stabilisation_time_s']} s, final feature error {s['final_feature_error_px']} px, "
-                f"touch-down error {s['touchdown_error_m']} m, max tilt {s['max_tilt_deg']} deg; phases (s) "
-                f"{s['phases_s']}, {s['recoveries']} recoveries -> {out}")
+        result = simulate(target, start_world[None], config, log=True, seed=seed)
+        metrics = result.metrics(0)
+        files = ibvs_out.write_run(out, result, metrics, cam.cx, cam.cy)
+        files += [ibvs_plots.image_plane(out / "image_plane.png", result, cam.width, cam.height, cam.cx, cam.cy),
+                  ibvs_plots.feature_error(out / "feature_error.png", result),
+                  ibvs_plots.trajectory_3d(out / "trajectory_3d.png", result, target)]
+        summary = {**metrics, "output": str(out), "files": [p.name for p in files]}
+        text = render.simulate_text(metrics, out)
         return summary, text
-    return {**mc_summary, "output": str(out), "files": names}, f"{montecarlo.table(mc_summary)}\n-> {out}"
+    mc_seed = config.control.noise.seed if seed is None else seed
+    with _remove_if_left_empty(out), ibvs_out.montecarlo_rows(out) as add_rows, \
+            RunsDisplay(runs, config.control.montecarlo.chunk_runs, config.output.progress_every_s) as tick:
+        result = montecarlo.run_chunked(target, start_world, runs, mc_seed, config, on_chunk=add_rows, progress=tick)
+    summary = {**montecarlo.summarise(result), "seed": mc_seed, "start_world": start_world.tolist()}
+    files = ibvs_out.write_montecarlo(out, result, summary, rows_written=True)
+    files.append(ibvs_plots.montecarlo_histograms(out / "montecarlo_hist.png", result))
+    return {**summary, "output": str(out), "files": [p.name for p in files]}, f"{montecarlo.table(summary)}\n-> {out}"
 
 
-@main.command("synth")
+@main.command("synth", short_help="Render a ground-truthed synthetic flight.")
 @click.argument("scene", required=False)
 @click.option("-o", "--output", "output", type=click.Path(path_type=Path, readable=False),
               help="Recording to write (default: SCENE[_VARIANTS]_s{seed}.mcap/.bag or a bag folder, here).")
@@ -521,7 +581,12 @@ def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scene
               scenario: int | None, start: tuple[float, ...] | None, seed: int | None, fmt: str,
               depth_encoding: str, color_encoding: str, rate_hz: float | None, path_kind: PathKind | None,
               variants: tuple[str, ...], sheet: Path | None, force: bool) -> tuple[dict[str, Any], str]:
-    """Render a ground-truthed RGB-D recording of SCENE (datasets/scenes), with a .gt.npz sidecar."""
+    """Render a ground-truthed RGB-D recording of SCENE (datasets/scenes) with a .gt.npz sidecar.
+
+    \b
+    Example:
+      slz synth parking_lot -o parking_lot.mcap --frames 20 --path descent
+    """
     from slzcli.synth import record
     from slzcli.synth.scenes import list_scenes as scene_list
     from slzcli.synth.scenes import split_spec
@@ -545,70 +610,23 @@ def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scene
         name, spec_variants = split_spec(scene)
         stem = "_".join([Path(name).stem, *spec_variants, *variants, f"s{options.seed}"])
         output = Path(stem + record.SUFFIX_OF_FORMAT.get(fmt, ""))
-    with _progress(f"synth {scene}") as tick:
-        summary = record.synthesize(output, options, config, preview=sheet, progress=tick, force=force)
-    text = (f"{summary['recording']}: {summary['frames']} frames of {summary['scene']}"
-            f"{'+' + '+'.join(summary['variants']) if summary['variants'] else ''} ({fmt}, {color_encoding}/"
-            f"{depth_encoding}) from {tuple(summary['start_m'])} m, seed {summary['seed']}; ground truth "
-            f"{summary['ground_truth']} ({100 * summary['safe_fraction_first_frame']:.1f} % of frame 0 safe); "
-            f"preview {summary['preview']}")
+    with Bar(f"synth {scene}", "frames", config.output.progress_every_s) as bar:
+        summary = record.synthesize(output, options, config, preview=sheet, progress=bar.tick, force=force)
+    text = render.synth_text(summary, fmt, color_encoding, depth_encoding)
     return summary, text
 
 
-class _progress:
-    """A rich progress bar on a terminal (stderr), nothing otherwise; yields tick(done, total)."""
-
-    def __init__(self, label: str) -> None:
-        self.label = label
-        self.bar: Any = None
-
-    def __enter__(self) -> Callable[[int, int | None], None]:
-        if sys.stderr.isatty():
-            from rich.console import Console
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-            self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                                TimeRemainingColumn(), console=Console(stderr=True), transient=True)
-            self.bar.start()
-            self.task = self.bar.add_task(self.label, total=None)
-
-        def tick(done: int, total: int | None) -> None:   # None: a total not known (yet)
-            if self.bar is not None:
-                self.bar.update(self.task, completed=done, total=total)
-        return tick
-
-    def __exit__(self, *exc: Any) -> None:
-        if self.bar is not None:
-            self.bar.stop()
-
-
-class _RunsProgress:
-    """Monte Carlo progress on stderr: a rich bar on a terminal, else one line per finished chunk of runs
-    (none for a batch of one chunk); yields tick(done, total, successes)."""
-
-    def __init__(self, runs: int, chunk: int) -> None:
-        self.lines = runs > chunk
-        self.bar: Any = None
-
-    def __enter__(self) -> Callable[[int, int, int], None]:
-        if sys.stderr.isatty():
-            from rich.console import Console
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-            self.bar = Progress(TextColumn("monte carlo"), BarColumn(), MofNCompleteColumn(), TextColumn("runs"),
-                                TimeRemainingColumn(), console=Console(stderr=True), transient=True)
-            self.bar.start()
-            self.task = self.bar.add_task("runs", total=None)
-        return self.tick
-
-    def tick(self, done: int, total: int, successes: int) -> None:
-        if self.bar is not None:
-            self.bar.update(self.task, completed=done, total=total)
-        elif self.lines:
-            click.echo(f"slz: monte carlo: {done}/{total} runs ({100 * done / total:.0f} %), {successes} landed",
-                       err=True)
-
-    def __exit__(self, *exc: Any) -> None:
-        if self.bar is not None:
-            self.bar.stop()
+@contextlib.contextmanager
+def _remove_if_left_empty(folder: Path) -> Iterator[None]:
+    """A folder this command creates is removed again when the command stops before writing into it."""
+    existed = folder.exists()
+    try:
+        yield
+    except BaseException:
+        if not existed:
+            with contextlib.suppress(OSError):
+                folder.rmdir()   # only if empty: nothing of the user's, nothing written
+        raise
 
 
 def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
@@ -618,7 +636,7 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
                         default=None, metavar="SECONDS", help=help_text)
 
 
-@main.command("detect")
+@main.command("detect", short_help="Find the landing site in recordings.")
 @click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path, readable=False))
 @click.option("-o", "--output", "output", type=click.Path(file_okay=False, path_type=Path, readable=False),
               help="One recording: its run folder (default runs/<name>). Several, or a quoted glob pattern: "
@@ -646,7 +664,15 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
                force: bool, workers: int | None, scheduler: str | None, outputs: OutputLevel | None,
                timeout_s: float | None, win_start: WindowBound | None, win_end: WindowBound | None,
                stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
-    """Maps, fuzzy score, mask, SLAM map points and the landing site of each recording (paths or globs)."""
+    """Find the landing site in each recording: terrain maps, fuzzy score, safety mask, SLAM points, site.
+
+    RECORDINGS are paths or quoted glob patterns; each gets a run folder with report.html.
+
+    \b
+    Examples:
+      slz detect flight.bag -o runs/f1
+      slz detect 'flights/*.bag' -o runs/ --workers 2
+    """
     from slzcli import batch
     from slzcli.pipeline import RunOptions
 
@@ -659,7 +685,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     tasks = batch.plan(paths, output, batch=is_batch)
     batch_dir = output or Path("runs")
     summary_dir = batch_dir if is_batch else None
-    with _BatchDisplay(is_batch, config.output.progress_every_s) as show:
+    with BatchDisplay(is_batch, config.output.progress_every_s) as show:
         result = batch.run_batch(tasks, config, workers=workers or batch.default_workers(), scheduler=scheduler,
                                  options=RunOptions(force, method, timeout_s), summary_dir=summary_dir,
                                  on_progress=show)
@@ -680,14 +706,14 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
         t = s.get("timings_ms") or {}
         if s.get("method") in t:  # "score" as in slz compare; the method's own key stays for older scripts
             out["timings_ms"] = {**t, "score": t[s["method"]]}
-        return envelope("detect", out), _detect_text(Path(row["run"]), s)
+        return envelope("detect", out), render.detect_text(Path(row["run"]), s)
     failed = [r for r in rows if r["status"] == "failed"]
     if failed:
         raise SlzError(f"{len(failed)} of {len(rows)} recordings failed (first: {failed[0]['error']}); "
                        f"status of each in {batch_dir / 'summary.csv'}")
     totals = {**result.totals(), "summary_files": [str(p) for p in result.summary_files]}
     runs = [_batch_row(r, given, given_run) for r in rows]
-    return envelope("batch", {"batch": totals, "runs": runs}), _batch_text(totals, rows)
+    return envelope("batch", {"batch": totals, "runs": runs}), render.batch_text(totals, rows)
 
 
 def _given_paths(err: SlzError, detail: dict[str, str] | None, given: dict[str, str]) -> SlzError:
@@ -715,14 +741,9 @@ def _batch_row(r: dict[str, Any], given: dict[str, str], given_run: dict[str, st
     return row
 
 
-def _slam_maps(s: dict[str, Any] | None) -> int:
-    """How many SLAM maps a run's summary reports (1 for a summary written before maps were counted)."""
-    return int(((s or {}).get("slam") or {}).get("maps", 1))
-
-
 def _warn_slam_maps(s: dict[str, Any] | None) -> None:
     """One warning line when SLAM started several maps: a run's results are in one map's frame."""
-    if _slam_maps(s) <= 1:
+    if render.slam_maps(s) <= 1:
         return
     slam = s["slam"]  # type: ignore[index]
     seg = next(g for g in slam["segments"] if g["segment"] == slam["segment"])
@@ -739,125 +760,7 @@ def _warn_untracked(s: dict[str, Any] | None) -> None:
         log.warning("%s: %s", s["source"], warning)  # type: ignore[index]
 
 
-def _batch_text(t: dict[str, Any], rows: list[dict[str, Any]]) -> str:
-    lines = []
-    for r in rows:
-        name = Path(r["run"]).name
-        if r["status"] == "site":
-            x, y, z = r["site_world"]
-            what = f"site at ({x:.2f}, {y:.2f}, {z:.2f}) m"
-        else:
-            what = "no safe site" + (f": {r['summary']['reason']}" if r.get("summary") else "")
-        done = "skipped (done before)" if r.get("skipped") else f"{r['frames']} frames in {r['wall_s']:.1f} s"
-        maps = _slam_maps(r.get("summary"))
-        lines.append(f"  {name}: {what}; {done}" + (f"; {maps} SLAM maps" if maps > 1 else ""))
-    fps = "n/a" if t["frames_per_s"] is None else f"{t['frames_per_s']:.2f}"
-    rpm = "n/a" if t["recordings_per_min"] is None else f"{t['recordings_per_min']:.1f}"
-    return "\n".join([
-        f"{t['recordings']} recordings ({t['engine']}, {t['workers']} worker(s)): {t['site']} with a site, "
-        f"{t['no_safe_site']} without, {t['skipped']} skipped as done before",
-        *lines,
-        f"  {t['processed']} processed: {t['frames']} frames in {t['wall_s']:.1f} s = {fps} frames/s, "
-        f"{rpm} recordings/min",
-        f"  summary: {', '.join(t['summary_files'])}"])
-
-
-class _BatchDisplay:
-    """Batch progress on stderr: a rich bar on a terminal (recordings done, frames, frames/s);
-    otherwise (a log, a pipe, CI) a plain line at most every ``every_s`` seconds while frames advance
-    (``output.progress_every_s``), and for a batch one line per finished recording."""
-
-    def __init__(self, lines: bool, every_s: float = 0.0) -> None:
-        self.lines = lines
-        self.every_s = every_s
-        self.bar: Any = None
-        self.task: Any = None
-        self.shown_s: float | None = None  # elapsed time of the last plain progress line
-        self.shown_frames = 0
-
-    def __enter__(self) -> Callable[[Any], None]:
-        if sys.stderr.isatty():
-            from rich.console import Console
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-            self.bar = Progress(TextColumn("detect"), BarColumn(), MofNCompleteColumn(), TextColumn("recordings"),
-                                TextColumn("{task.fields[frames]} frames, {task.fields[fps]:.1f} frames/s"),
-                                TimeElapsedColumn(), console=Console(stderr=True), transient=True)
-            self.bar.start()
-        return self.show
-
-    def show(self, p: Any) -> None:
-        if self.bar is not None:
-            if self.task is None:
-                self.task = self.bar.add_task("detect", total=p.total, frames=0, fps=0.0)
-            self.bar.update(self.task, completed=p.done, frames=p.frames, fps=p.frames_per_s)
-            return
-        if p.row is None and p.frames > self.shown_frames and \
-                (self.shown_s is None or p.elapsed_s - self.shown_s >= self.every_s):
-            self.shown_s, self.shown_frames = p.elapsed_s, p.frames
-            of = f" ({p.done}/{p.total} recordings done)" if p.total > 1 else ""
-            click.echo(f"slz: detect: {p.frames} frames in {p.elapsed_s:.1f} s, {p.frames_per_s:.1f} frames/s{of}",
-                       err=True)
-        if self.lines and p.row is not None:
-            r = p.row
-            what = r["status"] + (" (skipped: done before)" if r.get("skipped") else "")
-            if r["status"] == "failed":
-                what += f": {r['error']}"
-            elif not r.get("skipped") and r.get("frames") is not None:
-                what += f", {r['frames']} frames in {r['wall_s']:.1f} s"
-            click.echo(f"slz: [{p.done}/{p.total}] {Path(r['run']).name}: {what}; "
-                       f"{p.frames_per_s:.1f} frames/s overall", err=True)
-
-    def __exit__(self, *exc: object) -> None:
-        if self.bar is not None:
-            self.bar.stop()
-
-
-def _detect_text(out: Path, s: dict[str, Any]) -> str:
-    t = s["timings_ms"]
-    maps = _slam_maps(s)
-    lost = (s.get("slam") or {}).get("frames_untracked")
-    head = (f"{s['source']}: {s['frames']} frames" + (f" ({lost} not tracked)" if lost else "")
-            + f", {s['detections']} detections ({s['method']}, "
-            f"SLAM {s['slam_backend']}" + (f", {maps} maps)" if maps > 1 else ")"))
-    if s.get("skipped"):
-        head += " [skipped: done before with the same config and input bytes; --force redoes it]"
-    if s["status"] == "site":
-        x, y, z = s["site_world"]
-        where = f"SLAM map {s['slam']['segment']}'s world frame" if maps > 1 else "the run's world frame"
-        result = f"landing site at ({x:.2f}, {y:.2f}, {z:.2f}) m in {where}"
-    else:
-        result = f"no safe site: {s['reason']}"
-    lines = [head, "  " + result]
-    noise, lim = s.get("depth_noise") or {}, s.get("depth_limits")
-    if lim:
-        a = noise.get("a_per_m_median", noise.get("a_per_m"))
-        where = f"a = {a:.4f} 1/m ({noise.get('source')}), " if a is not None else ""
-        lines.append(f"  depth noise: {where}sigma {lim['sigma_m']:.3f} m at {lim['altitude_m']:.1f} m; maps on "
-                     f"{lim['block_px']} px blocks; steps >= {lim['step_min_m']:.2f} m and slopes >= "
-                     f"{lim['slope_min_deg']:.1f} deg detectable"
-                     + ("" if noise.get("detections_not_vouched", 0) == 0 else
-                        f"; {noise['detections_not_vouched']} detection frame(s) could not vouch"))
-    write = f", write {t['write']:.1f} ms" if "write" in t else ""  # a run.json from before write was summarised
-    if "write_wait" in t:  # the writer runs beside the loop: what it cost the loop is the wait
-        write += f" in the background (the loop waited {t['write_wait']:.1f} ms)"
-    lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, "
-                 f"mask {t['mask']:.1f} ms, slam {t['slam']:.1f} ms, select {t['select']:.1f} ms{write} (medians)")
-    gt = s.get("ground_truth")
-    if gt and gt.get("mask"):
-        m = gt["mask"]
-        fmt = lambda v: "n/a" if v is None else f"{v:.3f}"  # noqa: E731
-        lines.append(f"  vs ground truth: mask precision {fmt(m['precision'])}, recall {fmt(m['recall'])}, "
-                     f"IoU {fmt(m['iou'])}" + (f"; site safe: {gt['site']['safe']}, clearance "
-                                               f"{gt['site']['clearance_m']:.2f} m" if gt.get("site") else ""))
-    frames = {"summary": "", "maps": ", frames/ (maps.npz, overlay.png)", "all": ", frames/"}.get(
-        s.get("outputs", "all"), ", frames/")
-    mcap = ", results.mcap" if (out / "results.mcap").exists() else ""
-    lines.append(f"  results: {out}/ (report.html, landing.json, run.json, sites.csv, points.ply{mcap}{frames})")
-    return "\n".join(lines)
-
-
-@main.command("compare")
+@main.command("compare", short_help="Compare fusion methods or profiles on the same frames.")
 @click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path, readable=False))
 @click.option("--methods", default=None, metavar="A,B", help="Methods to compare (default: compare.methods, "
               "fuzzy,bayes). With --profiles: the one method every profile uses (default: each profile's).")
@@ -879,9 +782,15 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
                 output: Path | None, variants: bool, force: bool, timeout_s: float | None,
                 win_start: WindowBound | None, win_end: WindowBound | None, stride: int | None,
                 max_frames: int | None) -> tuple[dict[str, Any], str]:
-    """Fuzzy vs Bayes on the same frames and SLAM points: time, agreement, accuracy against ground truth.
+    """Compare fusion methods (fuzzy, Bayes, px4slp) on the same frames and SLAM points.
 
-    With --profiles: whole configs (e.g. the paper as published against slz's defaults) on the same recordings."""
+    Time, agreement and, for slz synth recordings, accuracy against ground truth. With --profiles:
+    whole configs (e.g. the paper as published against slz's defaults) on the same recordings.
+
+    \b
+    Example:
+      slz compare parking_lot.mcap --methods fuzzy,bayes -o runs/cmp
+    """
     from slzcli.compare import compare, recording_name
     from slzcli.outputs.report import text_table
 
@@ -893,11 +802,11 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
                                    max_frames=max_frames)
         return _compare_profiles(recordings, profiles, methods, out, variants, force, timeout_s, window)
     chosen = tuple(methods.split(",")) if methods is not None else None
-    with _progress("compare") as progress:
-        summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=progress,
+    with Bar("compare", "frames", config.output.progress_every_s) as bar:
+        summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=bar.tick,
                           timeout_s=timeout_s)
     for r in summary.get("recordings", []):
-        if _slam_maps(r) > 1:
+        if render.slam_maps(r) > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
                         "committed within one map", r["source"], r["slam"]["maps"])
         _warn_untracked(r)
@@ -922,8 +831,9 @@ def _compare_profiles(recordings: tuple[Path, ...], profiles: str, methods: str 
     _, config_file, overrides = _layers()
     names = list(dict.fromkeys(n.strip() for n in profiles.split(",") if n.strip()))
     configs = {n: window(load_config(config_file, overrides, n)) for n in names}  # the same frame window each
-    with _progress("compare") as progress:
-        summary = compare_profiles(list(recordings), configs, out, method, force=force, progress=progress,
+    every_s = next(iter(configs.values())).output.progress_every_s if configs else DEFAULT_EVERY_S
+    with Bar("compare", "frames", every_s) as bar:
+        summary = compare_profiles(list(recordings), configs, out, method, force=force, progress=bar.tick,
                                    timeout_s=timeout_s)
     return summary, profile_table(summary["rows"]) + f"\n  results: {out}/ (compare.json, compare.csv)"
 

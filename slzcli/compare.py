@@ -62,7 +62,7 @@ from slzcli.slam.segments import segment_table
 from slzcli.summary import RunState, no_site_reason, site_truth, untracked_frames
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
-from slzcli.types import Detection, FigureFrame, TerrainMaps, TrackedFrame
+from slzcli.types import CommittedSite, Detection, FigureFrame, TerrainMaps, TrackedFrame
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
@@ -248,7 +248,7 @@ def _forget_views(runs: dict[str, MethodRun], first: str, current: int) -> None:
     The committed site (known at the end) is one of the first method's sites, so the other
     frames' arrays can go: memory grows with the frames that gave a site, not with the recording.
     """
-    with_site = {s["frame"].index for s in runs[first].state.sites.sites}
+    with_site = {s.frame.index for s in runs[first].state.sites.sites}
     for run in runs.values():
         for k in [k for k in run.views if k != current and k not in with_site]:
             del run.views[k]
@@ -297,7 +297,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                map_means: dict[str, list[float]], agreement: dict[str, list[MaskCounts]],
                wall_s: float) -> dict[str, Any]:
     per: dict[str, Any] = {}
-    committed_of: dict[str, dict[str, Any] | None] = {}
+    committed_of: dict[str, CommittedSite | None] = {}
     for m, run in runs.items():
         st = run.state
         committed = commit(st.sites.sites, config)
@@ -315,7 +315,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                 "center_world": rec["site"]["center_world"], "center_camera": rec["site"]["center_camera"],
                 "score": rec["site"]["score"], "cluster_points": rec["site"]["cluster"]["points"],
                 "acceptance": rec["site"]["acceptance"], "support": rec["site"]["support"],
-                "map_segment": committed["segment"]},
+                "map_segment": committed.segment},
             "mask_fraction": _mask_fraction(run),
             "detections_not_vouched": st.unvouched,
             "inputs": [{"frame": i, "stamp_ns": t, "points": p, "maps": q} for i, t, p, q in run.inputs],
@@ -385,15 +385,15 @@ def _mask_fraction(run: MethodRun) -> float | None:
     return float(np.mean(run.mask_fractions)) if run.mask_fractions else None
 
 
-def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[str, Any] | None],
+def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, CommittedSite | None],
           counts: list[MaskCounts]) -> dict[str, Any]:
     ca, cb = committed[a], committed[b]
     dist = None
-    if ca is not None and cb is not None and ca["segment"] == cb["segment"]:  # else: two unrelated SLAM maps
-        dist = float(np.linalg.norm(np.asarray(ca["site"].center_world) - np.asarray(cb["site"].center_world)))
+    if ca is not None and cb is not None and ca.segment == cb.segment:  # else: two unrelated SLAM maps
+        dist = float(np.linalg.norm(np.asarray(ca.site.center_world) - np.asarray(cb.site.center_world)))
     per_frame = []
-    sites_a = {s["frame"].index: s["site"] for s in runs[a].state.sites.sites}
-    sites_b = {s["frame"].index: s["site"] for s in runs[b].state.sites.sites}
+    sites_a = {s.frame.index: s.site for s in runs[a].state.sites.sites}
+    sites_b = {s.frame.index: s.site for s in runs[b].state.sites.sites}
     for k in sorted(set(sites_a) & set(sites_b)):
         gap = np.asarray(sites_a[k].center_world) - np.asarray(sites_b[k].center_world)
         per_frame.append(float(np.linalg.norm(gap)))
@@ -402,10 +402,12 @@ def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, dict[
             "per_frame_site_distance_m": {"mean": float(np.mean(per_frame)) if per_frame else None,
                                           "frames": len(per_frame)},
             "mask_iou": agree.iou,
+            # both masks empty in every frame: agreement says nothing (it would be 1 on any input)
+            "masks_empty": agree.tp + agree.fp + agree.fn == 0,
             "mask_agreement": (agree.tp + agree.tn) / max(agree.tp + agree.fp + agree.fn + agree.tn, 1)}
 
 
-def _arrays(runs: dict[str, MethodRun], committed: dict[str, dict[str, Any] | None],
+def _arrays(runs: dict[str, MethodRun], committed: dict[str, CommittedSite | None],
             map_curves: dict[str, CurveCounts], has_truth: bool) -> dict[str, Any]:
     """Arrays for the figures (not JSON): the Figure 6 frame, PR curves, timing samples."""
     first = next(iter(runs))
@@ -413,7 +415,7 @@ def _arrays(runs: dict[str, MethodRun], committed: dict[str, dict[str, Any] | No
     fig_frame = None
     if frames:
         c = committed[first]
-        index = c["frame"].index if c is not None else frames[-1]
+        index = c.frame.index if c is not None else frames[-1]
         fig_frame = FigureFrame(index, runs[first].views[index]["rgb"],
                                 {m: r.views[index] for m, r in runs.items()})
     curves = {}

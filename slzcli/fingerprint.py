@@ -23,8 +23,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from slzcli import __version__
 from slzcli.config import Config
+from slzcli.version import __version__
 
 HASH_BLOCK = 1 << 20  # bytes read per step while hashing; I/O housekeeping, not tuning
 Entry = dict[str, Any]  # {"path", "size", "mtime_ns", "ctime_ns", "inode", "sha256"}

@@ -16,7 +16,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from slzcli import __version__
 from slzcli.config import Config
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
@@ -26,9 +25,9 @@ from slzcli.outputs.run_folder import landing_record
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog, trajectory_files
 from slzcli.slam.segments import Segment, primary_segment, segment_table
-from slzcli.terrain.limits import Working
 from slzcli.terrain.noise import NoiseTracker
-from slzcli.types import RunResult
+from slzcli.types import CommittedSite, RunResult, Working
+from slzcli.version import __version__
 
 PER_FRAME_STAGES = ("maps", "score", "mask", "slam", "select")  # the per-frame total; "write" is apart
 _COLUMN_CUT_NOTED = 0.5  # the column rule is named in a no-site reason when it removed at least this share
@@ -150,15 +149,28 @@ def noise_summary(st: RunState) -> dict[str, Any]:
     return out
 
 
-def site_truth(truth: Any | None, committed: dict[str, Any] | None) -> dict[str, Any] | None:
+def _height(center_world: list[float], st: RunState, table: list[Segment], primary: int | None,
+            config: Config) -> dict[str, Any]:
+    """landing.json ``site.height``: above the ground and above the start, in the site's map frame."""
+    from slzcli.landing.height import site_height
+
+    segment = primary if primary is not None else 0
+    first = next((s.first_frame for s in table if s.segment == segment), 0)
+    pose = st.trajectory.poses()[first] if len(st.trajectory) > first else None
+    xyz = st.keyframes.map_xyz(primary if len(table) > 1 else None)
+    return site_height(center_world, np.asarray(xyz)[:, 2], map_frame_of(segment, config.output.map_frame), first,
+                       0.0 if pose is None else float(pose[2, 3]))
+
+
+def site_truth(truth: Any | None, committed: CommittedSite | None) -> dict[str, Any] | None:
     """landing.json ``site.ground_truth`` of the committed site (None without truth or site)."""
     if truth is None or committed is None:
         return None
-    return site_truth_of(truth, committed["frame"], committed["site"].center_camera).as_dict()
+    return site_truth_of(truth, committed.frame, committed.site.center_camera).as_dict()
 
 
 def summarise(source: Path, config: Config, method: str, info: Any, report: Any, st: RunState, slam_name: str,
-              poses_are_recorded: bool, committed: dict[str, Any] | None, truth: TruthEvaluator | None,
+              poses_are_recorded: bool, committed: CommittedSite | None, truth: TruthEvaluator | None,
               wall_s: float, key: dict[str, Any]) -> RunResult:
     """landing.json and run.json of a finished run (nothing is written here).
 
@@ -169,17 +181,19 @@ def summarise(source: Path, config: Config, method: str, info: Any, report: Any,
     timing = st.timer.summary()
     timings = stage_timings(timing, method)
     table = segment_table(st.trajectory.segments(), st.trajectory.has_pose(), st.keyframes.per_segment)
-    primary = primary_segment(table, None if committed is None else committed["segment"])
+    primary = primary_segment(table, None if committed is None else committed.segment)
     world = world_frame_text(slam_name, poses_are_recorded, table, primary)
     reason = no_site_reason(st, slam_name, len(st.keyframes))
     site_gt = site_truth(None if truth is None else truth.truth, committed)
-    spread = None if committed is None or "ranked" not in committed else \
-        spread_record(committed["ranked"], config.uav.footprint_m[0])
+    spread = None if committed is None else spread_record(committed.ranked, config.uav.footprint_m[0])
     landing = landing_record(source, method, committed, world, timings, reason, site_gt, primary, spread)
+    if committed is not None:
+        landing["site"]["height"] = _height(landing["site"]["center_world"], st, table, primary, config)
     noise = noise_summary(st)
     summary: dict[str, Any] = {
         "source": str(source), "method": method, "frames": st.frames, "detections": st.detections,
         "status": landing["status"], "site_world": landing.get("site", {}).get("center_world"),
+        "site_height": landing.get("site", {}).get("height"),
         "reason": landing.get("reason"), "site_spread_m": landing.get("site_spread_m"),
         "slam_backend": slam_name, "tracking": st.tracking,
         "slam": {**slam_summary(slam_name, table, primary, trajectory_files(st.trajectory), config.output.map_frame),

@@ -9,13 +9,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-
-if TYPE_CHECKING:  # types only: terrain and landing import types, not the other way round
-    from slzcli.landing.select import Selection
-    from slzcli.terrain.limits import Working
 
 
 @dataclass(frozen=True)
@@ -143,6 +139,99 @@ class PairingReport:
     outside_window: int = 0  # pairs left out by sources.window (--start/--end/--stride/--max-frames)
 
 
+# ----------------------------------------------------------------------------- depth noise and the working scale
+SCALES_PX = (1, 2, 4, 8, 16)            # block sides of the noise pyramid, px (each level halves the last)
+
+
+@dataclass(frozen=True)
+class DepthNoise:
+    """``sigma_z(z, b) = a_b z^2``: the depth noise of b x b block means at range z.
+
+    ``a_per_m[i]`` belongs to ``SCALES_PX[i]`` (1/m). ``source``: "estimated" (from this frame or
+    the smoothed recent ones), "config" (``terrain.noise`` set to a number: white noise assumed,
+    a_b = a / b) or "prior" (no estimate possible: ``terrain.noise_estimate.prior_a_per_m`` at
+    every scale, i.e. no credit for averaging). ``residuals``: pixels the pixel-scale estimate used.
+    """
+
+    a_per_m: tuple[float, ...]
+    source: str
+    residuals: int = 0
+    quantum_m: float = 0.0   # the depth's smallest step (16UC1 millimetres: 0.001); 0 for continuous depth
+
+    @property
+    def a1_per_m(self) -> float:
+        """The pixel-scale coefficient, the one a sensor datasheet quotes."""
+        return self.a_per_m[0]
+
+    def a_at(self, block_px: float) -> float:
+        """a at any block side: log-log interpolation; beyond the pyramid, no further reduction."""
+        b = max(1.0, float(block_px))
+        logs = np.log(SCALES_PX[: len(self.a_per_m)])
+        vals = np.asarray(self.a_per_m, dtype=np.float64)
+        if np.any(vals <= 0):   # exact depth (or a level of it): interpolate linearly, zero stays zero
+            return float(np.interp(math.log(b), logs, vals))
+        return float(np.exp(np.interp(math.log(b), logs, np.log(vals))))
+
+    def sigma_m(self, depth_m: float, block_px: float = 1.0) -> float:
+        return self.a_at(block_px) * depth_m * depth_m
+
+    @classmethod
+    def white(cls, a_per_m: float, source: str) -> DepthNoise:
+        """Uncorrelated noise of pixel-scale coefficient a: a_b = a / b."""
+        return cls(tuple(a_per_m / b for b in SCALES_PX), source)
+
+    @classmethod
+    def flat(cls, a_per_m: float, source: str) -> DepthNoise:
+        """Noise that averaging does not reduce (a_b = a): the cautious assumption without data."""
+        return cls(tuple(a_per_m for _ in SCALES_PX), source)
+
+    def as_dict(self) -> dict[str, object]:
+        return {"model": "sigma_z = a_b z^2 (b x b pixel blocks)", "source": self.source,
+                "a_per_m": {str(b): round(a, 7) for b, a in zip(SCALES_PX, self.a_per_m, strict=False)},
+                "residuals": self.residuals, "quantum_m": self.quantum_m}
+
+
+@dataclass(frozen=True)
+class Working:
+    """How one frame's maps are computed, and what they can and cannot see (see the module doc)."""
+
+    altitude_m: float          # the frame's median depth: the windows are sized there
+    sigma_m: float             # depth noise there, in the noisiest band of the pyramid (pixel scale for white noise)
+    block_px: int              # the maps run on block_px x block_px block means
+    block_m: float             # a block's side on the ground at altitude_m
+    slope_window_blocks: int   # odd; the steepness plane fit's window, in blocks
+    metres_per_level: float    # flatness: Canny's depth scaling (``edge_scaling_m``)
+    step_min_m: float          # smallest step distinguishable from the noise
+    slope_min_deg: float       # smallest slope distinguishable from the noise
+    vouch_depth_m: float       # the limits hold up to this depth (inf: everywhere)
+    vouched: bool              # both limits within the UAV's tolerance at altitude_m
+    max_step_m: float
+    max_slope_deg: float
+    focal_px: float            # the camera's, for the altitude at which the limits would hold
+    noise: DepthNoise          # what the windows were derived from
+
+    @property
+    def slope_window_m(self) -> float:
+        return self.slope_window_blocks * self.block_m
+
+    def as_dict(self) -> dict[str, object]:
+        return {"altitude_m": round(self.altitude_m, 3), "sigma_m": round(self.sigma_m, 4),
+                "block_px": self.block_px, "block_m": round(self.block_m, 4),
+                "slope_window_m": round(self.slope_window_m, 3), "metres_per_level": round(self.metres_per_level, 5),
+                "step_min_m": round(self.step_min_m, 4), "slope_min_deg": round(self.slope_min_deg, 2),
+                "vouch_depth_m": None if math.isinf(self.vouch_depth_m) else round(self.vouch_depth_m, 2),
+                "vouched": self.vouched}
+
+    def hidden(self) -> str:
+        """What the noise hides, in words ("" when nothing the UAV cares about)."""
+        parts = []
+        if self.step_min_m > self.max_step_m:
+            parts.append(f"steps below {self.step_min_m:.2f} m (the UAV tolerates {self.max_step_m:.2f} m)")
+        if self.slope_min_deg > self.max_slope_deg:
+            parts.append(f"slopes below {self.slope_min_deg:.0f} deg (limit {self.max_slope_deg:.0f} deg)")
+        return " and ".join(parts)
+
+
 @dataclass(frozen=True, eq=False)
 class BlockGrid:
     """The four maps on the b x b block grid (b > 1) they were computed on, where the score is made too.
@@ -236,6 +325,104 @@ class TrackedFrame:
     slam_ms: float
 
 
+# ----------------------------------------------------------------------------- sites
+@dataclass(frozen=True)
+class Candidate:
+    """One k-means cluster and why it did or did not qualify (a row of sites.csv)."""
+
+    cluster: int
+    points: int
+    centroid_world: tuple[float, float, float]
+    normal_variance: float
+    extent_m: tuple[float, float]
+    qualifies: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class Site:
+    pixel: tuple[float, float]
+    center_camera: tuple[float, float, float]
+    center_world: tuple[float, float, float]
+    corners_world: tuple[tuple[float, float, float], ...]
+    normal_world: tuple[float, float, float]
+    cluster_points: int
+    normal_variance: float
+    extent_m: tuple[float, float]
+    score: float
+    tilt_deg: float
+    edge_clearance_m: float | None
+    accepted: bool
+    acceptance_reason: str
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The result for one keyframe: the site (or None), why not, and every candidate."""
+
+    site: Site | None
+    reason: str
+    candidates: tuple[Candidate, ...]
+    projected: np.ndarray  # (N, 2) pixels of all map points in the image
+    kept: np.ndarray       # (N,) bool: under the mask
+    labels: np.ndarray     # (N,) int: cluster of each kept point, -1 for the rest
+
+
+@dataclass(frozen=True)
+class FoundSite:
+    """A site one detection frame gave, as the run's site log keeps it (``outputs.site_log.SiteLog``).
+
+    ``id``: its place in the log (its points in the spool); ``limits``: what the frame's depth noise let
+    the maps see (``Working.as_dict``); ``segment``: the SLAM map segment whose world frame it is in.
+    """
+
+    frame: FrameRef
+    site: Site
+    id: int
+    limits: dict[str, object] | None
+    segment: int
+
+
+@dataclass(frozen=True)
+class Ranked:
+    """How a run's found sites rank (``landing.commit``): the committed site's index into the sites given, its
+    support, its equals and the spread of its pool."""
+
+    index: int
+    support: int              # detections of its segment within radius_m of it, itself included
+    equals: tuple[int, ...]   # indices of the equally good sites (the committed one included)
+    pool: tuple[int, ...]     # indices of the sites another run may commit: the pool in the committed segment
+    spread_m: float           # largest plan distance between two of the pool (0 with one)
+
+
+@dataclass(frozen=True)
+class CommittedSite:
+    """The site landing.json holds (``pipeline.commit``): a found site and how many detections confirm it.
+
+    ``support``: detections of its segment within the commit radius, itself included; ``detections``:
+    sites of the run; ``segment_detections``: sites of its map segment; ``ranked``: how the run's sites
+    ranked (its equally good sites: the sites another run may commit, and their spread).
+    """
+
+    found: FoundSite
+    support: int
+    detections: int
+    segment_detections: int
+    ranked: Ranked
+
+    @property
+    def site(self) -> Site:
+        return self.found.site
+
+    @property
+    def frame(self) -> FrameRef:
+        return self.found.frame
+
+    @property
+    def segment(self) -> int:
+        return self.found.segment
+
+
 # ----------------------------------------------------------------------------- detection
 @dataclass(frozen=True, eq=False)
 class Detection:
@@ -327,7 +514,7 @@ class RunResult:
 
     landing: dict[str, Any]
     run: dict[str, Any]
-    committed: dict[str, Any] | None
+    committed: CommittedSite | None
     primary_segment: int | None
     points_segment: int | None
 

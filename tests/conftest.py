@@ -35,6 +35,27 @@ def synth_recording(path: Path, scene: str, frames: int, *options: str) -> Path:
     return path
 
 
+# Test files that run whole commands on rendered recordings (synth, detect, compare, batch, SLAM) or whole
+# simulated descents, and the property tests (measured: each such test 10-50 s on a loaded machine): marked
+# ``slow``, left out by ``make test-fast`` (the edit-run loop); ``make test`` runs everything. A test
+# elsewhere can be marked on its own with ``@pytest.mark.slow``.
+SLOW_FILES = frozenset({
+    "test_api.py", "test_bad_inputs.py", "test_batch.py", "test_bounds.py", "test_column.py", "test_compare.py",
+    "test_control_cli.py", "test_control_montecarlo.py", "test_control_simulate.py", "test_properties.py",
+    "test_core.py", "test_detect.py", "test_docs.py", "test_json_schema.py", "test_limits.py", "test_monocular.py",
+    "test_outputs_frames.py", "test_outputs_report.py", "test_packaging.py", "test_profiles.py", "test_px4slp.py",
+    "test_run_assembly.py", "test_sensor_cells.py", "test_slam.py", "test_slam_segments.py", "test_synth.py",
+    "test_synth_sensor.py", "test_timeout.py", "test_touchdown_dispersion.py", "test_user_files.py",
+    "test_window.py", "test_writes.py",
+})
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.name in SLOW_FILES:
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.fixture
 def runner() -> CliRunner:
     return CliRunner()

@@ -1,4 +1,4 @@
-"""The Python API (``slzcli.detect``, ``slzcli.load_config``, the types): the README example runs as written,
+"""The Python API (``slzcli.detect``, ``slzcli.load_config``, the types): the docs/USAGE.md example runs as written,
 frames in memory write nothing, a recording gives the same site in memory, in a run folder and through the CLI."""
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from slzcli.errors import ConfigError, DatasetError
 
 
 def readme_example() -> str:
-    text = (REPO / "README.md").read_text()
+    text = (REPO / "docs" / "USAGE.md").read_text()
     section = text[text.index("## Python API"):]
     match = re.search(r"```python\n(.*?)```", section, re.S)
     assert match, "no python block under ## Python API"
@@ -37,7 +37,7 @@ def test_readme_example_runs_as_written(flight: Path, tmp_path: Path, monkeypatc
         (tmp_path / f.name).symlink_to(f)
     monkeypatch.chdir(tmp_path)
     namespace: dict[str, object] = {}
-    exec(compile(readme_example(), "README.md", "exec"), namespace)  # our own README
+    exec(compile(readme_example(), "docs/USAGE.md", "exec"), namespace)  # our own docs
     printed = capsys.readouterr().out.splitlines()
     assert printed[0].startswith("site [") and printed[1] == "site site", printed
     assert (tmp_path / "runs" / "flight" / "run.json").is_file()      # the out_dir call, as slz detect -o

@@ -261,11 +261,13 @@ def test_monte_carlo_rows_are_streamed_with_progress_lines(tmp_path: Path, runne
     run = tmp_path / "RUN"
     write_landing(run)
     res = runner.invoke(main, ["land", "simulate", str(run), "--offset", "0,0,3", "--runs", "5", "--json",
-                               "--set", "control.sim.timeout_s=1", "--set", "control.montecarlo.chunk_runs=2"])
+                               "--set", "control.sim.timeout_s=1", "--set", "control.montecarlo.chunk_runs=2",
+                               "--set", "output.progress_every_s=0"])
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["runs"] == 5
     progress = [ln for ln in res.stderr.splitlines() if ln.startswith("slz: monte carlo:")]
-    assert [ln.split()[3] for ln in progress] == ["2/5", "4/5", "5/5"], res.stderr
+    assert [ln.split()[3:6] for ln in progress] == [["2", "of", "5"], ["4", "of", "5"], ["5", "of", "5"]], res.stderr
+    assert all(ln.endswith(" landed") for ln in progress), res.stderr  # successes so far, after the count
     rows = (run / "ibvs" / "montecarlo_runs.csv").read_text().splitlines()
     assert len(rows) == 6 and [r.split(",")[0] for r in rows[1:]] == ["0", "1", "2", "3", "4"]
     assert not [p for p in (run / "ibvs").iterdir() if p.name.startswith(".")]
@@ -288,7 +290,7 @@ def test_sigterm_stops_a_monte_carlo_batch_and_leaves_no_table(tmp_path: Path) -
                             "--set", "control.montecarlo.chunk_runs=2"], tmp_path)
     assert proc.stderr is not None
     first = proc.stderr.readline()          # the first chunk is done: the batch is under way
-    assert first.startswith("slz: monte carlo: 2/100000 runs"), first
+    assert first.startswith("slz: monte carlo: 2 of 100000 runs"), first
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)  # a hang guard: the batch itself would run for days
     assert proc.returncode == 130, err

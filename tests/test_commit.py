@@ -4,7 +4,7 @@ its spread in landing.json."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +17,7 @@ from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.landing.commit import MIN_SITES_FOR_SPREAD, commit, rank, spread_record
 from slzcli.pipeline.commit import commit_site
+from slzcli.types import FoundSite
 
 BAND = load_config().landing.commit_score_band
 FOOTPRINT = load_config().uav.footprint_m[0]
@@ -35,8 +36,9 @@ class _Frame:
     index: int
 
 
-def entries(rows: list[tuple[int, float, float, float]], accepted: bool = True, segment: int = 0) -> list[dict]:
-    return [{"frame": _Frame(i), "site": _Site((x, y, 0.0), sc, accepted), "segment": segment}
+def entries(rows: list[tuple[int, float, float, float]], accepted: bool = True,
+            segment: int = 0) -> list[FoundSite]:
+    return [FoundSite(_Frame(i), _Site((x, y, 0.0), sc, accepted), i, None, segment)  # type: ignore[arg-type]
             for i, x, y, sc in rows]
 
 
@@ -47,16 +49,16 @@ def test_the_order_detections_arrive_in_does_not_change_the_committed_site() -> 
         xy = rng.uniform(-2, 2, (n, 2))
         rows = [(i, float(x), float(y), float(rng.uniform(0.6, 0.9))) for i, (x, y) in enumerate(xy)]
         sites = entries(rows)
-        for s in sites[: n // 3]:
-            s["site"] = _Site(s["site"].center_world, s["site"].score, accepted=False)
+        sites = [replace(s, site=_Site(s.site.center_world, s.site.score, accepted=False))  # type: ignore[arg-type]
+                 if k < n // 3 else s for k, s in enumerate(sites)]
         first = commit(sites, 1.3, BAND)
         assert first is not None
         for _ in range(5):   # the same sites, arriving in another order and from other frames
             perm = rng.permutation(n)
-            shuffled = [dict(sites[j], frame=_Frame(int(k))) for k, j in enumerate(perm)]
+            shuffled = [replace(sites[j], frame=_Frame(int(k))) for k, j in enumerate(perm)]
             other = commit(shuffled, 1.3, BAND)
             assert other is not None
-            assert other[0]["site"].center_world == first[0]["site"].center_world, trial
+            assert other[0].site.center_world == first[0].site.center_world, trial
             assert other[1].spread_m == pytest.approx(first[1].spread_m)
 
 
@@ -66,7 +68,7 @@ def test_the_middle_of_the_equally_good_sites_is_committed_and_their_spread_repo
     found = commit(sites, 1.3, BAND)
     assert found is not None
     best, ranked = found
-    assert best["site"].center_world[0] == 0.3 and ranked.support == 4
+    assert best.site.center_world[0] == 0.3 and ranked.support == 4
     assert len(ranked.equals) == len(ranked.pool) == 4 and ranked.spread_m == pytest.approx(0.9)
     record = spread_record(ranked, FOOTPRINT)
     assert record["site_spread_m"] == pytest.approx(0.9) and record["site_spread"]["stable"] is False
@@ -80,11 +82,11 @@ def test_the_middle_of_the_equally_good_sites_is_committed_and_their_spread_repo
 
 def test_a_lone_detection_does_not_outvote_confirmed_sites_nor_does_a_rejected_one() -> None:
     sites = entries([(0, 0.0, 0.0, 0.70), (1, 0.2, 0.0, 0.70), (2, 5.0, 5.0, 0.99)])   # the lone one scores best
-    assert commit(sites, 1.3, BAND)[0]["site"].center_world[:2] == (0.0, 0.0)  # type: ignore[index]
+    assert commit(sites, 1.3, BAND)[0].site.center_world[:2] == (0.0, 0.0)  # type: ignore[index]
     rejected = entries([(3, 9.0, 9.0, 0.99), (4, 9.1, 9.0, 0.99)], accepted=False)
-    assert commit(sites + rejected, 1.3, BAND)[0]["site"].accepted  # type: ignore[index]
+    assert commit(sites + rejected, 1.3, BAND)[0].site.accepted  # type: ignore[index]
     only_rejected = commit(rejected, 1.3, BAND)   # none accepted: the best of those, still named
-    assert only_rejected is not None and not only_rejected[0]["site"].accepted
+    assert only_rejected is not None and not only_rejected[0].site.accepted
 
 
 def test_too_few_equal_sites_say_the_spread_is_unknown() -> None:
@@ -101,10 +103,10 @@ def test_too_few_equal_sites_say_the_spread_is_unknown() -> None:
 def test_commit_site_keeps_its_fields_and_latest_takes_the_last_frame() -> None:
     sites = entries([(3, 0.0, 0.0, 0.8), (1, 0.1, 0.0, 0.8), (2, 0.2, 0.0, 0.8), (0, 4.0, 0.0, 0.6)])
     best = commit_site(sites, 1.3, "agree", BAND)
-    assert best is not None and best["support"] == 3 and best["detections"] == 4 and best["segment_detections"] == 4
-    assert best["site"].center_world[0] == 0.1
+    assert best is not None and best.support == 3 and best.detections == 4 and best.segment_detections == 4
+    assert best.site.center_world[0] == 0.1
     latest = commit_site(sites, 1.3, "latest", BAND)
-    assert latest is not None and latest["frame"].index == 3 and latest["support"] == 3
+    assert latest is not None and latest.frame.index == 3 and latest.support == 3
 
 
 @pytest.fixture(scope="module")

@@ -259,3 +259,20 @@ def test_resolve_methods() -> None:
         resolve_methods(["fuzzy", "baes"])
     with pytest.raises(ConfigError, match="at least two"):
         resolve_methods(["bayes"])
+
+
+def test_without_ground_truth_no_empty_truth_columns(runner, clear_field, tmp_path) -> None:
+    """The same recording with its ground truth sidecar taken away: the table has no column of n/a."""
+    import shutil
+
+    bare = tmp_path / "bare.mcap"
+    shutil.copy(clear_field, bare)  # the sidecar (.gt.npz) stays behind: no ground truth
+    res = runner.invoke(main, ["compare", str(bare), "-o", str(tmp_path / "c"), *SMALL])
+    assert res.exit_code == 0, res.output
+    head = res.stdout.splitlines()[0].split()
+    assert "precision" not in head and "recall" not in head and "IoU" in head  # mask IoU between the methods
+    assert "no ground truth" in res.stdout
+    rows = res.stdout.splitlines()[1:3]
+    assert all("n/a n/a" not in " ".join(r.split()) for r in rows), res.stdout
+    page = (tmp_path / "c" / "report.html").read_text()
+    assert "<th>precision</th>" not in page

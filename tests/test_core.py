@@ -77,8 +77,8 @@ def test_the_core_gives_what_slz_detect_writes(runner, recording, tmp_path) -> N
     committed = commit(state.sites.sites, config)
     assert (committed is None) == (landing["status"] != "site")
     if committed is not None:
-        assert landing["frame"]["index"] == committed["frame"].index
-        assert np.allclose(landing["site"]["center_world"], committed["site"].center_world, atol=1e-6)
+        assert landing["frame"]["index"] == committed.frame.index
+        assert np.allclose(landing["site"]["center_world"], committed.site.center_world, atol=1e-6)
 
 
 @pytest.mark.parametrize("method", ["fuzzy", "bayes"])

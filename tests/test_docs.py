@@ -1,10 +1,14 @@
 """The repo's docs stand on their own: cited METHOD sections exist, the landing.json contract
-covers what a real run writes, and the README's links to docs/ resolve."""
+covers what a real run writes, every link resolves, every `slz` command shown parses (the cheap
+ones run), and the site builds without a warning."""
 
 from __future__ import annotations
 
 import json
 import re
+import shlex
+import shutil
+import subprocess
 from typing import Any
 
 import pytest
@@ -164,3 +168,111 @@ def test_links_between_docs_resolve() -> None:
             if "://" not in target and not (doc.parent / target).exists():
                 broken.append(f"{doc.name}: {target}")
     assert broken == []
+
+
+def test_readme_links_resolve_and_it_stays_a_start_page() -> None:
+    text = README.read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 250
+    targets = [t for t in re.findall(r"\]\(([^)#\s]+)", text) if "://" not in t]
+    assert "docs/img/overlay.jpg" in targets and "docs/USAGE.md" in targets
+    assert [t for t in targets if not (REPO / t).exists()] == []
+    assert not re.search(r"\bissue \d+", text, re.I)  # internal history belongs to git, not the start page
+
+
+# ----------------------------------------------------------------------------- commands shown
+SHOWN = re.compile(r"^\s*(?:\$\s*)?(slz\s[^#\n]*)", re.MULTILINE)
+TABLE_EXAMPLE = re.compile(r"^\|.*\|\s*`(slz\s[^`]+)`\s*\|\s*$", re.MULTILINE)  # a table's example column
+
+
+def shown_commands() -> list[tuple[str, str]]:
+    """(file, command line) of every ``slz ...`` line in a code block of README and docs/, and of every
+    example in a table's last column (README's command table). Mentions in prose are not commands."""
+    out = []
+    for path in [README, *sorted(DOCS.glob("*.md"))]:
+        text = path.read_text(encoding="utf-8")
+        blocks = re.findall(r"```[a-z]*\n(.*?)```", text, re.S)
+        lines = [m.group(1) for b in blocks for m in SHOWN.finditer(b)]
+        lines += TABLE_EXAMPLE.findall(re.sub(r"```.*?```", "", text, flags=re.S))
+        out += [(path.name, ln.strip()) for ln in lines]
+    return out
+
+
+def parse_only(line: str) -> None:
+    """Parse ``line`` as the CLI would (options, choices, callbacks), without running the command."""
+    import click
+
+    args = shlex.split(line)[1:]
+    cmd: click.Command = main
+    # The chain of contexts the CLI builds: a sub-command's settings (help option names, ...) come from its
+    # parents, and click caches a command's help option on first use, so a context without them would
+    # change --help for every later test.
+    ctx = main.context_class(main, info_name="slz", **main.context_settings)
+    while isinstance(cmd, click.Group) and args and not args[0].startswith("-"):
+        sub = cmd.get_command(ctx, args[0])
+        assert sub is not None, f"no command {args[0]!r} in: {line}"
+        ctx = click.Context(sub, info_name=args[0], parent=ctx)
+        cmd, args = sub, args[1:]
+    cmd.make_context(ctx.info_name, list(args), parent=ctx.parent, resilient_parsing=False).close()
+
+
+# The shapes docs write that are not runnable lines (placeholders, usage summaries, pieces of a sentence).
+PLACEHOLDER = re.compile(r"\b[A-Z]+\b|\.\.\.|\[|\||<|[A-Z]+=")
+
+
+def test_every_slz_command_shown_in_readme_and_docs_parses() -> None:
+    """Each concrete command line (no placeholder like BAG or RUN) goes through the CLI's own parser:
+    an option renamed or removed, a bad choice or value fails here. Running all of them would render
+    and detect for minutes; the cheap ones run in the next test."""
+    import click
+    from click.exceptions import Exit
+
+    shown = shown_commands()
+    concrete = [(f, c) for f, c in shown if not PLACEHOLDER.search(c)]
+    assert len(concrete) >= 15, concrete  # the README alone shows more: a pattern that finds nothing fails
+    failed = []
+    for f, c in shown:  # usage summaries (`slz detect BAG... [-o RUN]`): at least the command exists
+        cmd: click.Command | None = main
+        for word in shlex.split(c)[1:]:
+            if not isinstance(cmd, click.Group) or not word.islower() or word.startswith("-"):
+                break
+            cmd = cmd.get_command(main.context_class(cmd, **main.context_settings), word)
+            if cmd is None:
+                failed.append(f"{f}: {c}: no command {word!r}")
+                break
+    for f, c in concrete:
+        try:
+            parse_only(c)
+        except Exit:
+            pass  # --help, --version
+        except Exception as err:  # every kind of parse failure is reported together
+            failed.append(f"{f}: {c}: {type(err).__name__}: {err}")
+    assert failed == []
+
+
+CHEAP = ("slz synth --list", "slz config dump --profile paper", "slz --help")
+
+
+@pytest.mark.parametrize("line", CHEAP)
+def test_cheap_commands_shown_run(line: str) -> None:
+    assert any(c.startswith(line) for _, c in shown_commands()), f"{line} is no longer shown"
+    res = CliRunner().invoke(main, shlex.split(line)[1:])
+    assert res.exit_code == 0, res.output
+
+
+def test_the_docs_site_builds_without_warnings(tmp_path) -> None:
+    """`make docs`' build (mkdocs --strict: a broken link, an anchor or a page left out of nav fails)."""
+    mkdocs = shutil.which("mkdocs") or shutil.which("mkdocs", path=str(REPO / ".venv" / "bin"))
+    if mkdocs is None:
+        import sys
+        from pathlib import Path
+
+        candidate = Path(sys.executable).parent / "mkdocs"
+        mkdocs = str(candidate) if candidate.is_file() else None
+    if mkdocs is None:
+        pytest.skip("mkdocs not installed (pip install -e '.[docs]')")
+    res = subprocess.run([mkdocs, "build", "--strict", "-d", str(tmp_path / "site"), "-f", str(REPO / "mkdocs.yml")],
+                         capture_output=True, text=True, env={"NO_MKDOCS_2_WARNING": "1", "PATH": "/usr/bin:/bin"},
+                         timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "WARNING" not in res.stderr
+    assert (tmp_path / "site" / "index.html").is_file() and (tmp_path / "site" / "USAGE" / "index.html").is_file()

@@ -118,7 +118,7 @@ def test_usage_errors_exit_2_without_json_too(runner, flights: Path) -> None:
     for args in (["detect", rec, "--set", "foo"], ["info", rec, "--set", "=1"], ["detect", rec, "--max-frames", "-1"]):
         res = runner.invoke(main, args)
         assert res.exit_code == 2, (args, res.output)
-        assert "Error: Invalid value" in res.stderr and not res.stdout
+        assert "slz: error: Invalid value" in res.stderr and not res.stdout
 
 
 def test_json_usage_error_through_the_real_entry_point(flights: Path) -> None:

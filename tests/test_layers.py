@@ -21,7 +21,8 @@ The rules, one line each (``RULES``: importing package -> packages it must not i
 - summary (what a run sums up to) does not import the run machinery that calls it; pipeline
   (the run assembly) does not import the commands built on it (compare, batch, cli).
 - Only ``slzcli.cli`` may import ``slzcli.cli`` (``FORBIDDEN_FOR_ALL``).
-- No import cycle among slzcli modules counting module-level imports (``test_no_cycle``).
+- No import cycle among slzcli modules, counting every import (``test_no_cycle``); the ground floor
+  (``GROUND``: types, errors, version, pinhole, methods.registry) imports nothing of slzcli above it.
 """
 
 from __future__ import annotations
@@ -104,7 +105,7 @@ def test_the_parser_sees_every_kind_of_import() -> None:
     """The rules below mean something only if the parser finds imports of every form."""
     found = {(m, n) for m, rows in IMPORTS.items() for n, _, _ in rows}
     assert ("slzcli.cli", "slzcli.pipeline") in found  # function-level, in a command
-    assert ("slzcli.types", "slzcli.terrain.limits") in found  # under TYPE_CHECKING
+    assert ("slzcli.methods.base", "slzcli.types") in found  # under TYPE_CHECKING
     assert len(MODULES) > 80
 
 
@@ -145,8 +146,9 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 
 def test_no_cycle() -> None:
-    """No cycle among modules through module-level imports (a package's __init__ is its own module)."""
-    graph = {m: {n for n, _, top in rows if top and n in MODULES and n != m} for m, rows in IMPORTS.items()}
+    """No cycle among modules through any import: module level, inside a function or under ``TYPE_CHECKING``
+    (a package's __init__ is its own module)."""
+    graph = {m: {n for n, _, _ in rows if n in MODULES and n != m} for m, rows in IMPORTS.items()}
     assert _cycle(graph) is None, " -> ".join(_cycle(graph) or [])
 
 
@@ -192,4 +194,16 @@ def test_the_run_machinery_asks_no_method_its_name() -> None:
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "isinstance" \
                     and {n.id for n in ast.walk(node) if isinstance(n, ast.Name)} & method_classes:
                 bad.append(f"{m}:{node.lineno} isinstance on a method")
+    assert not bad, bad
+
+
+GROUND = {"slzcli.types": set(), "slzcli.errors": set(), "slzcli.version": set(), "slzcli.pinhole": {"slzcli.types"},
+          "slzcli.methods.registry": set()}
+
+
+def test_the_ground_floor_names_nothing_above_it() -> None:
+    """The modules every layer names (the frozen types, errors, the version, the pinhole check, the method
+    registry) import nothing of slzcli but each other, not even for a type."""
+    bad = [f"{m} imports {n}" for m, allowed in GROUND.items() for n, _, _ in IMPORTS[m]
+           if n not in allowed and n != "slzcli.methods"]
     assert not bad, bad

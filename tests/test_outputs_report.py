@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from conftest import GAUSSIAN, synth_recording
 
 from slzcli.cli import main
-from slzcli.outputs import images
+from slzcli.outputs import images, palette
 from slzcli.outputs.detect_report import SECTIONS
 from slzcli.outputs.points import NO_CLUSTER, ROLES, read_points_ply
 
@@ -75,13 +75,13 @@ def test_per_frame_heat_maps_have_a_colour_bar_and_the_mask_a_legend(run) -> Non
     top = images.BAR_MARGIN_PX + 8 + 2
     bottom = h - images.BAR_MARGIN_PX - 8 - 3
     column = w + images.BAR_MARGIN_PX + images.BAR_GRADIENT_PX // 2
-    jet = cv2.applyColorMap(np.array([[255], [0]], np.uint8), cv2.COLORMAP_JET)[:, 0]  # 1 then 0
+    cmap = cv2.applyColorMap(np.array([[255], [0]], np.uint8), palette.CV2_COLORMAP)[:, 0]  # 1 then 0
     for name in (*MAPS, "score"):
         img = cv2.imread(str(folder / f"{name}.png"), cv2.IMREAD_COLOR)
         assert img is not None and img.shape == (h, w + images.BAR_WIDTH_PX, 3), name
-        # the bar runs from JET(1) at the top to JET(0) at the bottom (default colour convention)
-        assert np.abs(img[top, column].astype(int) - jet[0]).max() <= 12, name
-        assert np.abs(img[bottom, column].astype(int) - jet[1]).max() <= 12, name
+        # the bar runs from viridis(1) at the top to viridis(0) at the bottom (default colour convention)
+        assert np.abs(img[top, column].astype(int) - cmap[0]).max() <= 12, name
+        assert np.abs(img[bottom, column].astype(int) - cmap[1]).max() <= 12, name
         assert img[:, w:].any(axis=2).sum() > 0.05 * h * images.BAR_WIDTH_PX  # not an empty strip
     m = cv2.imread(str(folder / "mask.png"), cv2.IMREAD_UNCHANGED)
     assert m is not None and m.shape == (h, w + images.LEGEND_WIDTH_PX)
@@ -112,7 +112,8 @@ def test_progress_lines_off_a_terminal(run, recording, tmp_path) -> None:
     res = CliRunner().invoke(main, ["detect", str(recording), "-o", str(tmp_path / "r"), "--outputs", "summary"])
     assert res.exit_code == 0, res.output
     lines = [ln for ln in res.stderr.splitlines() if ln.startswith("slz: detect: ")]
-    assert lines and lines[0].startswith("slz: detect: 1 frames")  # the first frame at once, then every 5 s
+    assert lines and lines[0].startswith(f"slz: detect: 1 of {FRAMES} frames")  # the first frame at once,
+    assert lines[-1].startswith(f"slz: detect: {FRAMES} of {FRAMES} frames (100 %)")  # then every 5 s and the last
 
 
 def test_report_at_summary_level_says_what_is_missing(recording, tmp_path) -> None:

@@ -67,7 +67,7 @@ def test_unknown_profile_is_refused_naming_the_known_ones(runner: Any) -> None:
 
 def test_a_profile_key_unknown_to_the_defaults_names_the_profile_file(tmp_path: Path, monkeypatch: Any) -> None:
     (tmp_path / "bad.yaml").write_text("mask:\n  treshold: 0.5\n")
-    monkeypatch.setattr("slzcli.config.PROFILE_DIR", tmp_path)
+    monkeypatch.setattr("slzcli.config.loader.PROFILE_DIR", tmp_path)
     with pytest.raises(ConfigError, match=r"bad\.yaml.*mask\.treshold.*did you mean 'threshold'"):
         load_config(profile="bad")
 
@@ -150,17 +150,18 @@ def test_commit_latest_takes_the_last_detection_not_the_best_supported() -> None
     from types import SimpleNamespace
 
     from slzcli.pipeline.commit import commit_site
+    from slzcli.types import FoundSite
 
-    def entry(i: int, x: float, accepted: bool) -> dict[str, Any]:
+    def entry(i: int, x: float, accepted: bool) -> FoundSite:
         site = SimpleNamespace(center_world=(x, 0.0, 0.0), accepted=accepted, normal_variance=0.01, score=0.8,
                                edge_clearance_m=1.0)
-        return {"site": site, "frame": SimpleNamespace(index=i), "segment": 0}
+        return FoundSite(SimpleNamespace(index=i), site, i, None, 0)  # type: ignore[arg-type]  # what commit reads
 
     sites = [entry(0, 0.0, True), entry(1, 0.1, True), entry(2, 5.0, False)]
     agreed = commit_site(sites, 1.0)
-    assert agreed is not None and agreed["frame"].index in (0, 1)      # two agree (and are accepted)
+    assert agreed is not None and agreed.frame.index in (0, 1)      # two agree (and are accepted)
     latest = commit_site(sites, 1.0, "latest")
-    assert latest is not None and latest["frame"].index == 2 and latest["support"] == 1
+    assert latest is not None and latest.frame.index == 2 and latest.support == 1
 
 
 # ----------------------------------------------------------------------------- end to end

@@ -182,9 +182,9 @@ def test_site_log_gives_back_the_points_of_any_site(tmp_path, on_disk) -> None:
     for i in range(4):
         kept, chosen = rng.normal(size=(5 + i, 3)), rng.normal(size=(2 + i, 3))
         log.add_rows([dict.fromkeys(SITE_COLUMNS, i), dict.fromkeys(SITE_COLUMNS, i)])
-        log.add_site(f"frame {i}", f"site {i}", kept, chosen)
+        log.add_site(f"frame {i}", f"site {i}", kept, chosen)  # type: ignore[arg-type]  # the log stores them
         stored.append((kept, chosen))
-    assert log.rows == 8 and [s["site"] for s in log.sites] == [f"site {i}" for i in range(4)]
+    assert log.rows == 8 and [s.site for s in log.sites] == [f"site {i}" for i in range(4)]
     for entry, (kept, chosen) in zip(log.sites, stored, strict=True):
         got_kept, got_chosen = log.points(entry)
         np.testing.assert_array_equal(got_kept, kept)
@@ -192,3 +192,42 @@ def test_site_log_gives_back_the_points_of_any_site(tmp_path, on_disk) -> None:
     log.write_csv(tmp_path / "sites.csv")
     rows = list(csv.DictReader((tmp_path / "sites.csv").open()))
     assert len(rows) == 8 and list(rows[0]) == list(SITE_COLUMNS) and rows[-1]["frame"] == "3"
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ate_and_rpe_match_evo(seed: int) -> None:
+    """evo, the ecosystem's trajectory evaluator, gives the same ATE (SE(3) and Sim(3) alignment) and RPE."""
+    evo_metrics = pytest.importorskip("evo.core.metrics")
+    from evo.core.trajectory import PoseTrajectory3D
+
+    rng = np.random.default_rng(seed)
+    n = 40
+    truth = np.tile(np.eye(4), (n, 1, 1))
+    truth[:, :3, :3] = Rotation.from_euler("xyz", rng.normal(0, 0.3, (n, 3))).as_matrix()
+    truth[:, :3, 3] = np.cumsum(rng.normal(0, 0.2, (n, 3)), axis=0)
+    off = np.eye(4)
+    off[:3, :3] = Rotation.from_euler("z", 40, degrees=True).as_matrix()
+    off[:3, 3] = [3.0, -1.0, 2.0]
+    est = off @ truth
+    est[:, :3, :3] = est[:, :3, :3] @ Rotation.from_euler("xyz", rng.normal(0, 0.02, (n, 3))).as_matrix()
+    est[:, :3, 3] += rng.normal(0, 0.05, (n, 3))
+    stamps = np.arange(n, dtype=float)
+
+    for with_scale in (False, True):
+        ref, mine = PoseTrajectory3D(poses_se3=list(truth), timestamps=stamps), \
+            PoseTrajectory3D(poses_se3=list(est), timestamps=stamps)
+        mine.align(ref, correct_scale=with_scale)
+        ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+        ape.process_data((ref, mine))
+        ours = ate(list(est), list(truth), with_scale=with_scale)
+        assert ours.rmse_m == pytest.approx(ape.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-9, abs=1e-12)
+
+    ref, mine = PoseTrajectory3D(poses_se3=list(truth), timestamps=stamps), \
+        PoseTrajectory3D(poses_se3=list(est), timestamps=stamps)
+    ours_rpe = rpe(list(est), list(truth), delta=1)
+    for relation, value in ((evo_metrics.PoseRelation.translation_part, ours_rpe.trans_rmse_m),
+                            (evo_metrics.PoseRelation.rotation_angle_deg, ours_rpe.rot_rmse_deg)):
+        metric = evo_metrics.RPE(relation, delta=1, delta_unit=evo_metrics.Unit.frames, all_pairs=False)
+        metric.process_data((ref, mine))
+        # arccos of the trace (ours) and evo's rotation log differ by ~1e-7 deg near 0: far below any figure shown
+        assert value == pytest.approx(metric.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-6, abs=1e-6)

@@ -31,7 +31,7 @@ from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
 from slzcli.slam.segments import Segment, primary_segment, segment_table
 from slzcli.synth.groundtruth import load_ground_truth
 from slzcli.terrain.maps import gravity_up_in_camera
-from slzcli.types import Frame
+from slzcli.types import FoundSite, Frame
 
 FRAMES = 14
 LOST = 3          # frame 3 is lost; frames 0-2 are map 0, frames 4-13 map 1
@@ -126,18 +126,17 @@ class _Frame:
 
 def test_commit_site_counts_support_only_within_a_segment() -> None:
     """Map 1's site at (0, 0.1) is not confirmed by map 0's two sites there: different frames."""
-    sites = [{"frame": _Frame(0), "site": _site(0.0, 0.0, 0.80), "segment": 0},
-             {"frame": _Frame(1), "site": _site(0.1, 0.0, 0.80), "segment": 0},
-             {"frame": _Frame(5), "site": _site(0.0, 0.1, 0.95), "segment": 1},
-             {"frame": _Frame(6), "site": _site(9.0, 9.0, 0.85), "segment": 1},
-             {"frame": _Frame(7), "site": _site(9.1, 9.0, 0.85), "segment": 1}]
+    sites = [FoundSite(_Frame(i), _site(x, y, score), n, None, seg)  # type: ignore[arg-type]  # what commit reads
+             for n, (i, x, y, score, seg) in enumerate(
+        [(0, 0.0, 0.0, 0.80, 0), (1, 0.1, 0.0, 0.80, 0), (5, 0.0, 0.1, 0.95, 1), (6, 9.0, 9.0, 0.85, 1),
+         (7, 9.1, 9.0, 0.85, 1)])]
     best = commit_site(sites, side_m=1.0)
     assert best is not None
     # Four sites confirmed by two detections each: the higher score (map 1's pair at (9, 9)) wins; of the pair,
     # equal in score and centrality, the lower x. Counting across maps, frame 5's site (the best score) would be
     # confirmed and win.
-    assert (best["frame"].index, best["segment"], best["support"]) == (6, 1, 2)
-    assert best["detections"] == 5 and best["segment_detections"] == 3
+    assert (best.frame.index, best.segment, best.support) == (6, 1, 2)
+    assert best.detections == 5 and best.segment_detections == 3
 
 
 def test_ate_is_aligned_per_segment_and_rpe_skips_the_reset() -> None:

@@ -25,7 +25,7 @@ from conftest import GAUSSIAN, synth_recording
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.errors import OutputError
-from slzcli.outputs import files, images, results_mcap, run_folder
+from slzcli.outputs import files, images, palette, results_mcap, run_folder
 from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.recording import RecordingWriter
 from slzcli.sources import open_recording
@@ -96,12 +96,12 @@ def test_heat_maps_have_the_colours_of_the_plain_numpy_drawing(reverse) -> None:
     with np.errstate(invalid="ignore", over="ignore"):
         v = np.nan_to_num(values, nan=0.0)
         byte = (np.clip(1.0 - v if reverse else v, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    want = cv2.applyColorMap(byte, cv2.COLORMAP_JET)
+    want = cv2.applyColorMap(byte, palette.CV2_COLORMAP)
     want[~np.isfinite(values)] = 0
     assert np.array_equal(images.heatmap_bgr(values, reverse=reverse), want)
     valid = np.random.default_rng(0).random(values.shape) > 0.1
     want[~valid] = 0
-    want[valid & ~np.isfinite(values)] = cv2.applyColorMap(byte, cv2.COLORMAP_JET)[valid & ~np.isfinite(values)]
+    want[valid & ~np.isfinite(values)] = cv2.applyColorMap(byte, palette.CV2_COLORMAP)[valid & ~np.isfinite(values)]
     assert np.array_equal(images.heatmap_bgr(values, reverse=reverse, valid=valid), want)
 
 
@@ -111,8 +111,8 @@ def reference_site_overlay(rgb: np.ndarray, mask: np.ndarray, projected: np.ndar
     bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
     img = cv2.addWeighted(bgr, 0.55, np.where(mask[..., None], images.SAFE_BGR, images.UNSAFE_BGR), 0.45, 0.0)
     h, w = mask.shape
-    for sel, colour, radius in ((np.ones(len(projected), bool), (255, 255, 255), 1), (kept, (255, 120, 30), 2),
-                                (chosen, (40, 220, 40), 3)):
+    for sel, colour, radius in ((np.ones(len(projected), bool), palette.bgr(palette.POINT), 1),
+                                (kept, palette.bgr(palette.KEPT), 2), (chosen, palette.bgr(palette.CHOSEN), 3)):
         dots = np.zeros((h, w), np.uint8)
         pts = np.round(projected[sel]).astype(np.int64)
         dots[pts[:, 1], pts[:, 0]] = 1

@@ -13,9 +13,11 @@ import cv2
 import numpy as np
 
 from slzcli.fusion.verdict import SAFE, UNDECIDED, UNSAFE, UNSEEN, VERDICT_NAMES, FusedMaps
-from slzcli.outputs import files
+from slzcli.outputs import files, palette
 
-COLOURS_BGR = {UNSEEN: (90, 90, 90), UNSAFE: (40, 40, 200), UNDECIDED: (40, 180, 230), SAFE: (60, 170, 60)}
+# The verdict colours of every slz picture (outputs/palette.py); unseen cells darker than undecided ones.
+COLOURS_BGR = {UNSEEN: (60, 60, 60), UNSAFE: palette.bgr(palette.UNSAFE), UNDECIDED: palette.bgr(palette.UNDECIDED),
+               SAFE: palette.bgr(palette.SAFE)}
 _PX_PER_CELL = 3           # PNG pixels per cell
 _SCALE_BAR_M = (1.0, 2.0, 5.0, 10.0, 20.0)
 

@@ -27,23 +27,13 @@ keyframe) commits the last detection's site, accepted or not.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from slzcli.types import FoundSite, Ranked
+
 MIN_SITES_FOR_SPREAD = 3  # equally good sites needed to estimate the spread (two give one distance, no spread)
-
-
-@dataclass(frozen=True)
-class Ranked:
-    """The committed site's index into the sites given, its support, its equals and the spread of its pool."""
-
-    index: int
-    support: int              # detections of its segment within radius_m of it, itself included
-    equals: tuple[int, ...]   # indices of the equally good sites (the committed one included)
-    pool: tuple[int, ...]     # indices of the sites another run may commit: the pool in the committed segment
-    spread_m: float           # largest plan distance between two of the pool (0 with one)
 
 
 def support_counts(xy: np.ndarray, segment: np.ndarray, radius_m: float) -> np.ndarray:
@@ -74,24 +64,24 @@ def rank(xy: np.ndarray, segment: np.ndarray, score: np.ndarray, clearance: np.n
     return Ranked(chosen, int(sup[chosen]), tuple(int(i) for i in equals), tuple(int(i) for i in alike), spread)
 
 
-def commit(sites: Sequence[dict[str, Any]], radius_m: float, score_band: float,
-           rule: str = "agree") -> tuple[dict[str, Any], Ranked] | None:
-    """The committed entry of ``sites`` (SiteLog entries: "site", "segment", "frame") and its ranking.
+def commit(sites: Sequence[FoundSite], radius_m: float, score_band: float,
+           rule: str = "agree") -> tuple[FoundSite, Ranked] | None:
+    """The committed one of a run's found sites and its ranking.
 
     ``rule`` ``latest``: the last detection's site (by frame index), its support still counted."""
     if not sites:
         return None
-    xy = np.array([s["site"].center_world[:2] for s in sites], dtype=np.float64)
-    segment = np.array([s["segment"] for s in sites])
-    score = np.array([s["site"].score for s in sites], dtype=np.float64)
-    clearance = np.array([np.nan if s["site"].edge_clearance_m is None else s["site"].edge_clearance_m
+    xy = np.array([s.site.center_world[:2] for s in sites], dtype=np.float64)
+    segment = np.array([s.segment for s in sites])
+    score = np.array([s.site.score for s in sites], dtype=np.float64)
+    clearance = np.array([np.nan if s.site.edge_clearance_m is None else s.site.edge_clearance_m
                           for s in sites], dtype=np.float64)
-    accepted = np.array([bool(s["site"].accepted) for s in sites])
+    accepted = np.array([bool(s.site.accepted) for s in sites])
     ranked = rank(xy, segment, np.nan_to_num(score, nan=-np.inf), clearance, accepted, radius_m, score_band)
     if rule == "latest":
-        last = max(range(len(sites)), key=lambda i: sites[i]["frame"].index)
+        last = max(range(len(sites)), key=lambda i: sites[i].frame.index)
         ranked = Ranked(last, int(support_counts(xy, segment, radius_m)[last]), (last,), (last,), 0.0)
-    return dict(sites[ranked.index]), ranked
+    return sites[ranked.index], ranked
 
 
 def spread_record(ranked: Ranked, footprint_side_m: float) -> dict[str, Any]:

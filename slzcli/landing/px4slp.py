@@ -18,7 +18,7 @@ import numpy as np
 
 from slzcli.geometry import project, transform_points
 from slzcli.landing.corners import square_corners
-from slzcli.landing.select import Candidate, Selection, Site
+from slzcli.types import Candidate, Selection, Site
 
 # waypoint_generator.hpp exploration_pattern, in its order
 EXPLORATION_PATTERN = np.array([(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1)])

@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 from slzcli.errors import ConfigError
 from slzcli.geometry import project, transform_points
 from slzcli.landing.corners import square_corners
+from slzcli.types import Candidate, Selection, Site
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])  # world up when the caller names none: +z
 
@@ -43,48 +44,6 @@ class SelectParams:
     edge_clearance_m: float  # acceptance test: clearance to the nearest depth edge must exceed this
     max_tilt_deg: float      # acceptance test: surface tilt at most this (uav.max_slope_deg)
     max_normal_pairs: int = 0  # neighbour pairs point_normals may build (0 = no bound; landing.max_normal_pairs)
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """One k-means cluster and why it did or did not qualify (a row of sites.csv)."""
-
-    cluster: int
-    points: int
-    centroid_world: tuple[float, float, float]
-    normal_variance: float
-    extent_m: tuple[float, float]
-    qualifies: bool
-    reason: str
-
-
-@dataclass(frozen=True)
-class Site:
-    pixel: tuple[float, float]
-    center_camera: tuple[float, float, float]
-    center_world: tuple[float, float, float]
-    corners_world: tuple[tuple[float, float, float], ...]
-    normal_world: tuple[float, float, float]
-    cluster_points: int
-    normal_variance: float
-    extent_m: tuple[float, float]
-    score: float
-    tilt_deg: float
-    edge_clearance_m: float | None
-    accepted: bool
-    acceptance_reason: str
-
-
-@dataclass(frozen=True)
-class Selection:
-    """The result for one keyframe: the site (or None), why not, and every candidate."""
-
-    site: Site | None
-    reason: str
-    candidates: tuple[Candidate, ...]
-    projected: np.ndarray  # (N, 2) pixels of all map points in the image
-    kept: np.ndarray       # (N,) bool: under the mask
-    labels: np.ndarray     # (N,) int: cluster of each kept point, -1 for the rest
 
 
 def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray, max_pairs: int = 0) -> np.ndarray:

@@ -20,11 +20,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from slzcli.outputs import images
+from slzcli.outputs import images, palette
 from slzcli.outputs.files import write_text
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
-from slzcli.types import RunResult
+from slzcli.render import height_text
+from slzcli.types import CommittedSite, RunResult
 
 # Display only (no result depends on these): the Figure 5 tiles' width and title band, tiles per row, the
 # trajectory drawing's size and margin (px). Drawn with OpenCV and SVG, not matplotlib: a matplotlib panel of
@@ -33,6 +34,8 @@ TILE_WIDTH_PX = 320
 TITLE_BAND_PX = 24
 TILES_PER_ROW = 4
 SVG_WIDTH_PX, SVG_HEIGHT_PX, SVG_MARGIN_PX = 640, 480, 34
+SAFE_HEX, UNSAFE_HEX = palette.hex_of(palette.SAFE), palette.hex_of(palette.UNSAFE)
+SITE_HEX = palette.hex_of(palette.SITE)
 # The panel is a picture (the values are in maps.npz): JPEG at this quality is ~1/4 of the PNG's bytes and encodes
 # faster; project decision.
 PANEL_JPEG_QUALITY = 85
@@ -56,22 +59,33 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
     run_dir = Path(run_dir)
     s, landing, committed = result.summary, result.landing, result.committed
     detection_frames = _detection_frames(run_dir)
-    panel_frame = committed["frame"].index if committed is not None else \
+    panel_frame = committed.frame.index if committed is not None else \
         (detection_frames[-1] if detection_frames else None)
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>slz detect: "
-             f"{html.escape(Path(s['source']).name)}</title><style>{CSS}</style></head><body>",
-             f"<h1>slz detect: {html.escape(Path(s['source']).name)}</h1>",
-             _result(s, landing),
-             _figure5(run_dir, panel_frame, committed is not None and committed["frame"].index == panel_frame, level,
-                      bool(result.run.get("config", {}).get("output", {}).get("reverse_colormap", False))),
-             _trajectory(trajectory, sites, committed, result.primary_segment),
-             _site_table(sites, committed),
-             _detections(run_dir, detection_frames, sites, committed, level),
-             _timings(s),
-             "</body></html>"]
+    from markupsafe import Markup
+
+    reverse = bool(result.run.get("config", {}).get("output", {}).get("reverse_colormap", False))
+    page = _template().render(
+        name=Path(s["source"]).name, css=Markup(CSS),
+        # the picture sections are drawn here (image panel, SVG); the rest is the template's
+        result=Markup(_result(s, landing)),
+        figure5=Markup(_figure5(run_dir, panel_frame, committed is not None and
+                                committed.frame.index == panel_frame, level, reverse)),
+        trajectory=Markup(_trajectory(trajectory, sites, committed, result.primary_segment)),
+        site_columns=SITE_COLUMNS, sites=_site_rows(sites, committed),
+        detections=_detection_figures(detection_frames, sites, committed), level=level,
+        timings=[(k, v) for k, v in (s.get("timings_ms") or {}).items() if isinstance(v, int | float)])
     path = run_dir / "report.html"
-    write_text(path, "\n".join(p for p in parts if p))
+    write_text(path, page)
     return path
+
+
+def _template() -> Any:
+    """templates/detect_report.html (jinja2, HTML-escaped by default; the package carries it)."""
+    import jinja2
+
+    env = jinja2.Environment(loader=jinja2.PackageLoader("slzcli.outputs", "templates"), autoescape=True,
+                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
+    return env.get_template("detect_report.html")
 
 
 # ----------------------------------------------------------------------------- sections
@@ -81,7 +95,9 @@ def _result(s: dict[str, Any], landing: dict[str, Any]) -> str:
         x, y, z = site["center_world"]
         sup = site["support"]
         acc = site["acceptance"]
-        what = (f"<b>Landing site</b> at ({x:.2f}, {y:.2f}, {z:.2f}) m, score {site['score']:.2f}, confirmed by "
+        height = f", {html.escape(height_text(site['height']))}" if site.get("height") else ""
+        what = (f"<b>Landing site</b> at ({x:.2f}, {y:.2f}, {z:.2f}) m{height}, score {site['score']:.2f}, "
+                f"confirmed by "
                 f"{sup['detections_agreeing']} of {sup['detections_with_site']} detections with a site; acceptance "
                 f"test {'passed' if acc['passed'] else 'NOT passed: ' + html.escape(str(acc['reason']))}, "
                 f"tilt {acc['tilt_deg']:.1f} deg.")
@@ -128,7 +144,7 @@ def _figure5(run_dir: Path, index: int | None, is_site: bool, level: str, revers
     tiles.append(("fused score", heat(arrays["score"])))
     mask = small(arrays["mask"]).astype(bool)
     tiles.append((f"landing mask ({100 * float(np.mean(arrays['mask'])):.0f} % safe)",
-                  cv2.cvtColor(images.with_mask_legend(images.mask_png(mask)), cv2.COLOR_GRAY2BGR)))
+                  images.verdict_bgr(mask, valid)))
     slope = small(arrays.get("slope_deg", np.full((h, w), np.nan)))
     finite = slope[np.isfinite(slope) & valid]
     top = max(float(np.percentile(finite, 99)), 1.0) if finite.size else 1.0
@@ -169,7 +185,7 @@ def _mosaic(tiles: list[tuple[str, np.ndarray]], per_row: int) -> np.ndarray:
     return np.vstack(rows)
 
 
-def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, segment: int | None) -> str:
+def _trajectory(log: PoseLog, sites: SiteLog, committed: CommittedSite | None, segment: int | None) -> str:
     """The camera path, every site and the committed square from above, as inline SVG (no rendering cost)."""
     head = "<h2 id=trajectory>Trajectory from above</h2>"
     poses = [p for p, k in zip(log.poses(), log.segments(), strict=True)
@@ -177,10 +193,10 @@ def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, 
     if not poses:
         return head + "<p class=note>No frame was tracked: no trajectory.</p>"
     path = np.array([p[:2, 3] for p in poses])
-    found = [e for e in sites.sites if segment is None or e["segment"] == segment]
-    centres = np.array([e["site"].center_world[:2] for e in found]).reshape(-1, 2)
-    accepted = np.array([e["site"].accepted for e in found], bool)
-    square = np.asarray(committed["site"].corners_world)[[0, 1, 3, 2], :2] if committed is not None else \
+    found = [e for e in sites.sites if segment is None or e.segment == segment]
+    centres = np.array([e.site.center_world[:2] for e in found]).reshape(-1, 2)
+    accepted = np.array([e.site.accepted for e in found], bool)
+    square = np.asarray(committed.site.corners_world)[[0, 1, 3, 2], :2] if committed is not None else \
         np.zeros((0, 2))
     everything = np.vstack([path, centres, square])
     lo, hi = everything.min(axis=0), everything.max(axis=0)
@@ -209,17 +225,18 @@ def _trajectory(log: PoseLog, sites: SiteLog, committed: dict[str, Any] | None, 
              f"<text x='{SVG_WIDTH_PX / 2:.0f}' y='{SVG_HEIGHT_PX - 4}' font-size='12'>x (m)</text>",
              "<text x='4' y='14' font-size='12'>y (m)</text>"]
     if len(square):
-        parts.append(f"<polygon points='{pts(square)}' fill='red' fill-opacity='0.35' stroke='red'/>")
+        parts.append(f"<polygon points='{pts(square)}' fill='none' stroke='#000' stroke-width='3'/>"
+                     f"<polygon points='{pts(square)}' fill='none' stroke='{SITE_HEX}' stroke-width='1.2'/>")
     parts.append(f"<polyline points='{pts(path)}' fill='none' stroke='#444' stroke-width='1.5'/>")
     (x0, y0), = px(path[:1])
-    parts.append(f"<circle cx='{x0:.1f}' cy='{y0:.1f}' r='5' fill='green'/>")
+    parts.append(f"<circle cx='{x0:.1f}' cy='{y0:.1f}' r='5' fill='none' stroke='#444' stroke-width='2'/>")
     for (x, y), ok in zip(px(centres), accepted, strict=True):
-        parts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='3.5' fill='{'#1f77b4' if ok else 'orange'}'/>")
+        parts.append(f"<circle cx='{x:.1f}' cy='{y:.1f}' r='3.5' fill='{SAFE_HEX if ok else UNSAFE_HEX}'/>")
     parts.append("</svg>")
     note = f" (SLAM map segment {segment})" if segment is not None else ""
-    return (head + f"<p class=note>Top view of the run's world frame{note}, metres: camera path (grey, green dot = "
-            "first frame), the site of each detection (blue: passed the acceptance test, orange: not), the "
-            "committed site's Eq. 10 square (red).</p>" + "".join(parts))
+    return (head + f"<p class=note>Top view of the run's world frame{note}, metres: camera path (grey, ring = "
+            "first frame), the site of each detection (green: passed the acceptance test, vermillion: not), the "
+            "committed site's Eq. 10 square (outline).</p>" + "".join(parts))
 
 
 def _nice_step(raw: float) -> float:
@@ -228,56 +245,35 @@ def _nice_step(raw: float) -> float:
     return float(next(k * p for k in (1, 2, 5, 10) if k * p >= raw))
 
 
-def _site_table(sites: SiteLog, committed: dict[str, Any] | None) -> str:
-    head = "<h2 id=sites>Sites found</h2>"
-    if not sites.sites:
-        return head + "<p class=note>No detection frame gave a site.</p>"
-    cols = ("frame", "map", "x m", "y m", "z m", "score", "accepted", "reason", "tilt deg", "edge m",
-            "normal var", "extent m", "points")
-    chosen = None if committed is None else committed["id"]
+SITE_COLUMNS = ("frame", "map", "x m", "y m", "z m", "score", "accepted", "reason", "tilt deg", "edge m",
+                "normal var", "extent m", "points")
+
+
+def _site_rows(sites: SiteLog, committed: CommittedSite | None) -> list[dict[str, Any]]:
+    """The site table's rows (``SITE_COLUMNS``), the committed site marked."""
+    chosen = None if committed is None else committed.found.id
     rows = []
     for e in sites.sites:
-        st = e["site"]
+        st = e.site
         x, y, z = st.center_world
-        cells = [str(e["frame"].index), str(e["segment"]), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}", f"{st.score:.2f}",
+        cells = [str(e.frame.index), str(e.segment), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}", f"{st.score:.2f}",
                  "yes" if st.accepted else "no", st.acceptance_reason or "", f"{st.tilt_deg:.1f}",
                  "n/a" if st.edge_clearance_m is None else f"{st.edge_clearance_m:.2f}",
                  f"{st.normal_variance:.2e}", f"{st.extent_m[0]:.2f} x {st.extent_m[1]:.2f}", str(st.cluster_points)]
-        tds = "".join(f"<td{' class=l' if i == 7 else ''}>{html.escape(c)}</td>" for i, c in enumerate(cells))
-        rows.append(f"<tr{' class=committed' if e['id'] == chosen else ''}>{tds}</tr>")
-    th = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
-    return (head + "<p class=note>One row per detection frame that gave a site; the committed site (landing.json) "
-            "is highlighted. Every candidate cluster is in sites.csv.</p>"
-            f"<table><tr>{th}</tr>{''.join(rows)}</table>")
+        rows.append({"cells": cells, "committed": e.id == chosen})
+    return rows
 
 
-def _detections(run_dir: Path, frames: list[int], sites: SiteLog, committed: dict[str, Any] | None,
-                level: str) -> str:
-    head = "<h2 id=detections>Detections</h2>"
-    if not frames:
-        return head + f"<p class=note>No frame folders at --outputs {html.escape(level)}.</p>"
-    by_frame = {e["frame"].index: e["site"] for e in sites.sites}
-    site_frame = None if committed is None else committed["frame"].index
-    figs = []
+def _detection_figures(frames: list[int], sites: SiteLog, committed: CommittedSite | None) -> list[dict[str, Any]]:
+    """One figure per detection frame folder: its overlay, whether it gave a site, whether that was committed."""
+    by_frame = {e.frame.index: e.site for e in sites.sites}
+    site_frame = None if committed is None else committed.frame.index
+    out = []
     for i in frames:
-        link = f"frames/{i:06d}/overlay.png"
         st = by_frame.get(i)
         what = "no site" if st is None else f"site {st.score:.2f}" + ("" if st.accepted else " (not accepted)")
-        mark = " <b>committed</b>" if i == site_frame else ""
-        figs.append(f"<figure><a href='{link}'><img loading=lazy src='{link}' alt='frame {i}'></a>"
-                    f"<figcaption>frame {i}: {html.escape(what)}{mark}</figcaption></figure>")
-    return (head + "<p class=note>Each detection frame's overlay (mask tint green/red, SLAM points white, under "
-            "the mask blue, chosen cluster green, Eq. 10 square red); click for full size.</p>"
-            f"<div class=grid>{''.join(figs)}</div>")
-
-
-def _timings(s: dict[str, Any]) -> str:
-    t = s.get("timings_ms") or {}
-    rows = [(k, v) for k, v in t.items() if isinstance(v, int | float)]
-    if not rows:
-        return ""
-    body = "".join(f"<tr><td class=l>{html.escape(k)}</td><td>{v:.1f}</td></tr>" for k, v in rows)
-    return f"<h2 id=timings>Time per stage</h2><table><tr><th>stage</th><th>ms</th></tr>{body}</table>"
+        out.append({"index": i, "link": f"frames/{i:06d}/overlay.png", "what": what, "committed": i == site_frame})
+    return out
 
 
 # ----------------------------------------------------------------------------- helpers

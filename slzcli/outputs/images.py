@@ -1,8 +1,9 @@
 """Maps as pictures: heat-map PNGs and overlays on the colour image.
 
-Convention: maps are in [0, 1] with 1 = good for landing; the heat map shows good as
-warm (red/yellow) by default. ``reverse=True`` gives the paper's figures' convention,
-where the colour scale runs the other way. NaN / invalid pixels are drawn black.
+Convention: maps are in [0, 1] with 1 = good for landing; the heat map (viridis, ``palette``) shows
+good as light yellow and bad as dark blue by default. ``reverse=True`` runs the scale the other way
+(the paper's figures' convention). NaN / invalid pixels are drawn black. Verdict colours (safe,
+unsafe, no depth) are ``palette``'s, the same in every picture.
 """
 
 from __future__ import annotations
@@ -13,14 +14,16 @@ import cv2
 import numpy as np
 
 from slzcli.errors import OutputError
+from slzcli.outputs import palette
 from slzcli.outputs.files import atomic_path
 
-SAFE_BGR = np.array([60, 200, 60], np.uint8)
-UNSAFE_BGR = np.array([40, 40, 220], np.uint8)
+SAFE_BGR = np.array(palette.bgr(palette.SAFE), np.uint8)
+UNSAFE_BGR = np.array(palette.bgr(palette.UNSAFE), np.uint8)
+UNDECIDED_BGR = np.array(palette.bgr(palette.UNDECIDED), np.uint8)
 
 
 def heatmap_bgr(values: np.ndarray, *, reverse: bool = False, valid: np.ndarray | None = None) -> np.ndarray:
-    """A float map in [0, 1] -> BGR uint8 through the JET colour map (NaN as 0 before ``reverse``).
+    """A float map in [0, 1] -> BGR uint8 through the viridis colour map (NaN as 0 before ``reverse``).
 
     In place on one float32 buffer: fmax/fmin clip and turn NaN into 0 in two passes (with nan_to_num, then
     clip, and a boolean index for the black pixels a heat map took ~2x as long, the same bytes)."""
@@ -31,7 +34,7 @@ def heatmap_bgr(values: np.ndarray, *, reverse: bool = False, valid: np.ndarray 
             np.subtract(np.float32(1.0), v, out=v)
         v *= np.float32(255.0)
         v += np.float32(0.5)
-    img = cv2.applyColorMap(v.astype(np.uint8), cv2.COLORMAP_JET)
+    img = cv2.applyColorMap(v.astype(np.uint8), palette.CV2_COLORMAP)
     bad = ~np.isfinite(values) if valid is None else ~valid
     img.reshape(-1, 3)[np.flatnonzero(bad)] = 0  # ~3x faster than img[bad] = 0 (a (h, w) boolean index)
     return img
@@ -51,7 +54,7 @@ def _label(img: np.ndarray, text: str, x: int, y: int) -> None:
 
 
 def with_colour_bar(img: np.ndarray, *, reverse: bool = False, low: str = "0 bad", high: str = "1 good") -> np.ndarray:
-    """A heat map (``heatmap_bgr``) with its colour bar to the right: the JET scale from 0 (bottom) to 1 (top),
+    """A heat map (``heatmap_bgr``) with its colour bar to the right: the viridis scale from 0 (bottom) to 1 (top),
     labelled; ``reverse`` as in ``heatmap_bgr`` (the bar shows the colours the map was drawn with)."""
     h = img.shape[0]
     strip = np.zeros((h, BAR_WIDTH_PX, 3), np.uint8)
@@ -80,13 +83,33 @@ def with_mask_legend(mask_img: np.ndarray) -> np.ndarray:
     return np.hstack([mask_img, strip])
 
 
-def overlay_bgr(rgb: np.ndarray, mask: np.ndarray, alpha: float = 0.45) -> np.ndarray:
-    """The colour image with safe pixels tinted green and the rest red (blended in uint8, rounded)."""
+def verdict_bgr(mask: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The mask in the verdict colours (safe, unsafe, no depth) with their legend to the right."""
+    img = np.empty((*mask.shape, 3), np.uint8)
+    img[...] = UNSAFE_BGR
+    img[mask] = SAFE_BGR
+    img[~valid] = UNDECIDED_BGR
+    h = img.shape[0]
+    strip = np.full((h, LEGEND_WIDTH_PX, 3), 64, np.uint8)
+    for row, (text, rgb) in enumerate(palette.VERDICTS):
+        y = BAR_MARGIN_PX + 20 * row
+        cv2.rectangle(strip, (BAR_MARGIN_PX, y), (BAR_MARGIN_PX + 11, y + 11), palette.bgr(rgb), -1)
+        _label(strip, text, BAR_MARGIN_PX + 18, y + 10)
+    return np.hstack([img, strip])
+
+
+def overlay_bgr(rgb: np.ndarray, mask: np.ndarray, alpha: float = 0.45,
+                undecided: np.ndarray | None = None) -> np.ndarray:
+    """The colour image tinted by verdict: safe, unsafe, and undecided (``undecided``: pixels without
+    depth or beyond the depth the frame's noise lets it vouch for), in ``palette``'s colours (blended in
+    uint8, rounded). Undecided wins: a mask value there is not a verdict slz stands by."""
     bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
     # One plane per channel then merged: the same uint8 tint as np.where(mask[..., None], SAFE, UNSAFE) in
     # ~1 ms instead of ~10 (a (h, w, 3) where broadcasts to int64 first).
-    tint = cv2.merge([np.where(mask, safe, unsafe) for safe, unsafe in zip(SAFE_BGR, UNSAFE_BGR, strict=True)])
-    return cv2.addWeighted(bgr, 1.0 - alpha, tint, alpha, 0.0)
+    planes = [np.where(mask, safe, unsafe) for safe, unsafe in zip(SAFE_BGR, UNSAFE_BGR, strict=True)]
+    if undecided is not None:
+        planes = [np.where(undecided, grey, p) for grey, p in zip(UNDECIDED_BGR, planes, strict=True)]
+    return cv2.addWeighted(bgr, 1.0 - alpha, cv2.merge(planes), alpha, 0.0)
 
 
 def mask_png(mask: np.ndarray) -> np.ndarray:
@@ -122,19 +145,22 @@ def write_png(path: Path, image: np.ndarray, params: tuple[int, ...] | None = No
 
 def site_overlay_bgr(rgb: np.ndarray, mask: np.ndarray, projected: np.ndarray | None = None,
                      kept: np.ndarray | None = None, chosen: np.ndarray | None = None,
-                     corners_px: np.ndarray | None = None) -> np.ndarray:
-    """The paper's Figure 6 in one picture: mask tint, every SLAM point (white), the ones under
-    the mask (blue), the chosen cluster (green) and the Eq. 10 square (red)."""
-    img = overlay_bgr(rgb, mask)
+                     corners_px: np.ndarray | None = None, undecided: np.ndarray | None = None,
+                     label: str | None = None, px_per_m: float | None = None) -> np.ndarray:
+    """The paper's Figure 6 in one picture: verdict tint, every SLAM point (white), the ones under
+    the mask (sky blue), the chosen cluster (yellow) and the Eq. 10 square (an outline: the verdict
+    under it stays visible). With ``label``: the frame label, the legend and (``px_per_m``, pixels
+    per metre on the ground) a scale bar, drawn in the corners."""
+    img = overlay_bgr(rgb, mask, undecided=undecided)
     h, w = mask.shape
     if projected is not None and len(projected):
         ok = np.all(np.isfinite(projected), axis=1) & (projected[:, 0] >= 0) & (projected[:, 0] < w) \
             & (projected[:, 1] >= 0) & (projected[:, 1] < h)
-        layers = [(ok, (255, 255, 255), 1)]
+        layers = [(ok, palette.bgr(palette.POINT), 1)]
         if kept is not None:
-            layers.append((ok & kept, (255, 120, 30), 2))
+            layers.append((ok & kept, palette.bgr(palette.KEPT), 2))
         if chosen is not None:
-            layers.append((ok & chosen, (40, 220, 40), 3))
+            layers.append((ok & chosen, palette.bgr(palette.CHOSEN), 3))
         for sel, colour, radius in layers:
             dots = np.zeros((h, w), np.uint8)
             pts = np.round(projected[sel]).astype(np.int64)
@@ -143,5 +169,64 @@ def site_overlay_bgr(rgb: np.ndarray, mask: np.ndarray, projected: np.ndarray | 
             img.reshape(-1, 3)[np.flatnonzero(cv2.dilate(dots, disc))] = colour  # ~2x a boolean (h, w) index
     if corners_px is not None and np.all(np.isfinite(corners_px)):
         quad = np.round(corners_px[[0, 1, 3, 2]]).astype(np.int32)  # ++, +-, --, -+ around the square
-        cv2.polylines(img, [quad], True, (0, 0, 255), 2, lineType=cv2.LINE_AA)
+        cv2.polylines(img, [quad], True, palette.bgr(palette.HALO), 3, lineType=cv2.LINE_AA)
+        cv2.polylines(img, [quad], True, palette.bgr(palette.SITE), 1, lineType=cv2.LINE_AA)
+    if label is not None:
+        annotate(img, label, px_per_m)
     return img
+
+
+# The overlay's annotations (display only): text scale and line, box padding, the scale bar's share of the width.
+NOTE_SCALE = 0.42
+NOTE_LINE_PX = 15
+NOTE_PAD_PX = 5
+SCALE_BAR_FRACTION = 0.2
+
+
+def _box(img: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> None:
+    """A dark backing box for text (half-transparent: what is under it still shows)."""
+    h, w = img.shape[:2]
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    if x1 > x0 and y1 > y0:
+        img[y0:y1, x0:x1] = img[y0:y1, x0:x1] // 2
+
+
+def _text(img: np.ndarray, text: str, x: int, y: int) -> None:
+    cv2.putText(img, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, NOTE_SCALE, (255, 255, 255), 1, cv2.LINE_AA)
+
+
+def nice_length_m(raw: float) -> float:
+    """1, 2 or 5 times a power of ten, at most ``raw`` (a scale bar's length)."""
+    p = 10.0 ** np.floor(np.log10(max(raw, 1e-9)))
+    return float(max(k * p for k in (1, 2, 5) if k * p <= raw))
+
+
+def annotate(img: np.ndarray, label: str, px_per_m: float | None) -> None:
+    """Frame label (top left), legend of the verdict colours and marks (bottom left), scale bar (bottom right)."""
+    h, w = img.shape[:2]
+    (tw, _), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, NOTE_SCALE, 1)
+    _box(img, 0, 0, tw + 2 * NOTE_PAD_PX, NOTE_LINE_PX + NOTE_PAD_PX)
+    _text(img, label, NOTE_PAD_PX, NOTE_LINE_PX)
+    entries = [*palette.VERDICTS, ("SLAM point", palette.POINT), ("under mask", palette.KEPT),
+               ("chosen cluster", palette.CHOSEN), ("site square", palette.SITE)]
+    top = h - NOTE_LINE_PX * len(entries) - NOTE_PAD_PX
+    _box(img, 0, top - NOTE_PAD_PX, 118, h)
+    for i, (name, rgb) in enumerate(entries):
+        y = top + i * NOTE_LINE_PX
+        if name == "site square":
+            cv2.rectangle(img, (NOTE_PAD_PX, y + 1), (NOTE_PAD_PX + 10, y + 11), palette.bgr(palette.SITE), 1)
+        else:
+            cv2.rectangle(img, (NOTE_PAD_PX, y + 1), (NOTE_PAD_PX + 10, y + 11), palette.bgr(rgb), -1)
+        _text(img, name, NOTE_PAD_PX + 16, y + 11)
+    if px_per_m is None or not np.isfinite(px_per_m) or px_per_m <= 0:
+        return
+    metres = nice_length_m(SCALE_BAR_FRACTION * w / px_per_m)
+    length = round(metres * px_per_m)
+    x1, y = w - NOTE_PAD_PX - 4, h - NOTE_PAD_PX - 6
+    text = f"{metres:g} m at the median depth"
+    (tw, _), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, NOTE_SCALE, 1)
+    _box(img, min(x1 - length, x1 - tw) - 2 * NOTE_PAD_PX, y - NOTE_LINE_PX - 2 * NOTE_PAD_PX, w, h)
+    cv2.line(img, (x1 - length, y), (x1, y), (255, 255, 255), 2)
+    for x in (x1 - length, x1):
+        cv2.line(img, (x, y - 3), (x, y + 3), (255, 255, 255), 2)
+    _text(img, text, x1 - tw, y - 10)

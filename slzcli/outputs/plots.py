@@ -1,9 +1,9 @@
 """Figures of ``slz compare`` (matplotlib, Agg): the paper's Figure 6 layout, PR curves, timing, variants.
 
-Colours: scores use the same JET convention as ``images.heatmap_bgr`` (1 = good = red);
-SLAM map points are grey when the mask rejects them, magenta when kept; the Eq. 10 square
-of the site is white outlined in black; masks are light green (safe) on dark grey. Every
-function writes one PNG atomically and returns its path.
+Colours (``palette``): scores in viridis as ``images.heatmap_bgr`` (1 = good = light yellow);
+SLAM map points white when the mask rejects them, sky blue when kept; the Eq. 10 square of the
+site is white outlined in black; masks in the verdict colours (bluish green safe, vermillion
+unsafe). Every function writes one PNG atomically and returns its path.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from slzcli.outputs import palette
 from slzcli.outputs.files import atomic_path
 from slzcli.types import FigureFrame
 
@@ -26,9 +27,9 @@ MAP_COLOURS = {"depth_variance": "tab:olive", "flatness": "tab:green", "inclinat
 STAGE_COLOURS = {"slam": "tab:gray", "maps": "tab:green", "score": "tab:orange", "mask": "tab:purple",
                  "select": "tab:cyan", "frame": "black"}
 DPI = 90
-MASK_SAFE_RGB = np.array([0.72, 0.88, 0.72])
-MASK_UNSAFE_RGB = np.array([0.25, 0.25, 0.25])
-KEPT_COLOUR = "#ff00ff"
+MASK_SAFE_RGB = np.array(palette.rgba01(palette.SAFE)[:3])
+MASK_UNSAFE_RGB = np.array(palette.rgba01(palette.UNSAFE)[:3])
+KEPT_COLOUR = palette.hex_of(palette.KEPT)
 
 
 def _colour(method: str) -> str:
@@ -49,10 +50,10 @@ def figure6(path: Path, frame: FigureFrame, title: str) -> Path:
     for row, m in zip(axes, methods, strict=True):
         v = frame.per_method[m]
         mask = v["mask"]
-        tint = np.where(mask[..., None], np.array([60, 200, 60]), np.array([220, 40, 40]))
+        tint = np.where(mask[..., None], np.array(palette.SAFE), np.array(palette.UNSAFE))
         row[0].imshow((0.55 * frame.rgb + 0.45 * tint).astype(np.uint8))
         row[0].set_title(f"{m}: mask over the image ({100 * mask.mean():.0f} % safe)", fontsize=9)
-        im = row[1].imshow(v["score"].astype(np.float32), cmap="jet", vmin=0.0, vmax=1.0)
+        im = row[1].imshow(v["score"].astype(np.float32), cmap=palette.COLORMAP, vmin=0.0, vmax=1.0)
         row[1].set_title(f"{m}: score map", fontsize=9)
         fig.colorbar(im, ax=row[1], fraction=0.035, pad=0.02)
         row[2].imshow(np.where(mask[..., None], MASK_SAFE_RGB, MASK_UNSAFE_RGB))
@@ -73,7 +74,8 @@ def _points(ax: Any, v: dict[str, Any], shape: tuple[int, int]) -> None:
         h, w = shape
         inside = np.isfinite(px).all(axis=1) & (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
         kept = v["kept"] & inside
-        ax.scatter(px[inside & ~kept, 0], px[inside & ~kept, 1], s=3, c="0.6", linewidths=0)
+        ax.scatter(px[inside & ~kept, 0], px[inside & ~kept, 1], s=3, c=palette.hex_of(palette.POINT),
+                   edgecolors="0.3", linewidths=0.2)
         ax.scatter(px[kept, 0], px[kept, 1], s=5, c=KEPT_COLOUR, linewidths=0)
     corners = v.get("corners_px")
     if corners is not None:

@@ -14,18 +14,20 @@ from pathlib import Path
 
 import numpy as np
 
+from slzcli.outputs import palette
 from slzcli.outputs.files import atomic_path
 
 # role byte = position in ROLES (the PLY header comment says the same); a later role outranks an earlier one.
 ROLES = ("map", "kept", "chosen", "corner")
-# RGB: every map point grey, under the mask blue, the chosen cluster green, Eq. 10 corners red.
-ROLE_COLOURS = {"map": (153, 153, 153), "kept": (38, 89, 242), "chosen": (26, 204, 51), "corner": (242, 26, 26)}
+# RGB, the overlay's colours (outputs/palette.py): every map point grey, under the mask sky blue, the chosen
+# cluster yellow, the Eq. 10 corners white.
+ROLE_COLOURS = {"map": palette.UNDECIDED, "kept": palette.KEPT, "chosen": palette.CHOSEN, "corner": palette.SITE}
 NO_CLUSTER = -1
 VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
                    ("role", "u1"), ("cluster", "<i4")])
 HEADER = ("ply\nformat binary_little_endian 1.0\n"
-          "comment slz map points, each once: role 0 map point (grey), 1 under the landing mask (blue), "
-          "2 chosen cluster (green), 3 corner of the landing square (red)\n"
+          "comment slz map points, each once: role 0 map point (grey), 1 under the landing mask (sky blue), "
+          "2 chosen cluster (yellow), 3 corner of the landing square (white)\n"
           "comment cluster: k-means cluster of a point under the mask in the committed detection, -1 none\n"
           "element vertex {n}\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\n"
           "property uchar green\nproperty uchar blue\nproperty uchar role\nproperty int cluster\nend_header\n")
@@ -62,17 +64,21 @@ def write_points_ply(path: Path, xyz_by_role: dict[str, np.ndarray],
                      cluster_by_role: dict[str, np.ndarray] | None = None) -> None:
     """One binary little-endian PLY (see the module docstring); roles may be empty.
 
-    Written with numpy rather than Open3D, whose writer refuses an empty cloud (a run with no
-    map points still gets a valid, empty points.ply) and writes no extra properties.
+    Written with plyfile (the same bytes as ``HEADER`` + the vertex records) rather than Open3D, whose
+    writer refuses an empty cloud (a run with no map points still gets a valid, empty points.ply) and
+    writes no extra properties.
     """
+    from plyfile import PlyData, PlyElement
+
     vertices = point_vertices(xyz_by_role, cluster_by_role)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(HEADER.format(n=len(vertices)).encode() + vertices.tobytes())
+    comments = [ln[len("comment "):] for ln in HEADER.splitlines() if ln.startswith("comment ")]
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        PlyData([PlyElement.describe(vertices, "vertex")], text=False, byte_order="<", comments=comments).write(fh)
 
 
 def read_points_ply(path: Path) -> np.ndarray:
-    """The vertices of a points.ply slz wrote (``VERTEX`` fields), for tests and scripts without a PLY library."""
-    data = Path(path).read_bytes()
-    head, body = data.split(b"end_header\n", 1)
-    n = int(next(ln for ln in head.decode().splitlines() if ln.startswith("element vertex")).split()[-1])
-    return np.frombuffer(body, VERTEX, count=n)
+    """The vertices of a points.ply (``VERTEX`` fields; plyfile reads any PLY with those properties)."""
+    from plyfile import PlyData
+
+    data = PlyData.read(str(path))["vertex"].data
+    return np.asarray(data).astype(VERTEX)

@@ -94,6 +94,7 @@ def method_rows(r: dict[str, Any]) -> list[dict[str, Any]]:
             "precision": mask.get("precision"), "recall": mask.get("recall"), "iou": mask.get("iou"),
             "pr_auc": gt.get("pr_auc"), "mask_iou_vs_other": pair and pair["mask_iou"],
             "site_distance_m": pair and pair["site_distance_m"],
+            "masks_empty": bool(pair and pair.get("masks_empty")),
             "frame_median_ms": t["frame"]["median_ms"], "frame_p90_ms": t["frame"]["p90_ms"],
             "score_median_ms": t["score"]["median_ms"], "mask_median_ms": t["mask"]["median_ms"],
             "select_median_ms": t["select"]["median_ms"], "maps_median_ms": t["maps"]["median_ms"],
@@ -103,7 +104,7 @@ def method_rows(r: dict[str, Any]) -> list[dict[str, Any]]:
 
 def csv_text(results: list[dict[str, Any]]) -> str:
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    writer = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n", extrasaction="ignore")
     writer.writeheader()
     for r in results:
         writer.writerows(method_rows(r))
@@ -173,17 +174,34 @@ def table_rows(results: list[dict[str, Any]]) -> list[list[str]]:
             out.append([label, row["method"], row["status"], _f(row["precision"]), _f(row["recall"]), _f(row["iou"]),
                         _f(row["pr_auc"]), _f(row["site_safe"]), _f(row["clearance_m"], 2),
                         f"{_f(row['frame_median_ms'], 1)} / {_f(row['frame_p90_ms'], 1)}",
-                        _f(row["site_distance_m"], 2), _f(row["mask_iou_vs_other"])])
+                        _f(row["site_distance_m"], 2),
+                        EMPTY if row["masks_empty"] else _f(row["mask_iou_vs_other"])])
     return out
+
+
+EMPTY = "both empty"  # the pair's masks were empty in every frame: IoU and agreement say nothing
+GROUND_TRUTH_HEAD = ("precision", "recall", "IoU", "PR AUC", "site safe", "clearance m")
+
+
+def without_empty_truth(head: tuple[str, ...], rows: list[list[str]]) -> tuple[tuple[str, ...], list[list[str]], bool]:
+    """The ground-truth columns dropped when none has a value in any row (recordings without ground truth)."""
+    drop = {i for i, h in enumerate(head) if h in GROUND_TRUTH_HEAD}
+    if not rows or any(r[i] != "n/a" for r in rows for i in drop):
+        return head, rows, False
+    keep = [i for i in range(len(head)) if i not in drop]
+    return tuple(head[i] for i in keep), [[r[i] for i in keep] for r in rows], True
 
 
 def text_table(summary: dict[str, Any], output: str) -> str:
     """The stdout table: recording x method, then the pairs (site distance, mask IoU)."""
-    rows = table_rows(summary["recordings"] + summary["variants"])
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(TABLE_HEAD)] if rows else \
-        [len(h) for h in TABLE_HEAD]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(TABLE_HEAD, widths, strict=True))]
+    head, rows, dropped = without_empty_truth(TABLE_HEAD, table_rows(summary["recordings"] + summary["variants"]))
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)] if rows else \
+        [len(h) for h in head]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True))]
     lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    if dropped:
+        lines.append("no ground truth (a slz synth recording has one): precision, recall, IoU, PR AUC and site "
+                     "safety are not shown")
     for r in summary["recordings"]:
         same = "identical" if r["inputs_identical"] else "DIFFERENT"
         lines.append(f"{r['name']}: {r['frames']} frames, {r['detections']} detection frames, SLAM "
@@ -287,13 +305,14 @@ def report_html(summary: dict[str, Any], figures: dict[str, dict[str, Path]], va
                 "maps; its mask is its land-able cells, its score the waypoint generator's per-cell hysteresis, "
                 "its site the first all-land-able disk on its search rays.</p>"] if "px4slp" in summary["methods"]
                else []),
-             "<h2>Summary</h2>", _table(TABLE_HEAD, table_rows(recs))]
+             "<h2>Summary</h2>", _table(*without_empty_truth(TABLE_HEAD, table_rows(recs))[:2])]
     for r in recs + summary["variants"]:
         key = _key(r)
         fig = figures.get(key, {})
         pair_rows = [[" vs ".join(p["methods"]), _f(p["site_distance_m"], 3),
                       _f(p["per_frame_site_distance_m"]["mean"], 3), str(p["per_frame_site_distance_m"]["frames"]),
-                      _f(p["mask_iou"]), _f(p["mask_agreement"])] for p in r["pairs"]]
+                      *([EMPTY, EMPTY] if p.get("masks_empty") else [_f(p["mask_iou"]), _f(p["mask_agreement"])])]
+                     for p in r["pairs"]]
         title = r["name"] if "variant_of" not in r else f"{r['variant_of']} variant: {r['name']}"
         parts += [f"<h2>{html.escape(title)}</h2>",
                   f"<p class=note>{html.escape(r['source'])}: {r['frames']} frames, {r['detections']} detection "

@@ -61,9 +61,10 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.errors import ConfigError, OutputError
 from slzcli.geometry import Pose, back_project_every, invert_pose
+from slzcli.outputs import palette
 from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.recording import CAMERA_INFO, COMPRESSED, IMAGE, POSE_TYPES, RecordingWriter, TopicLayout
-from slzcli.types import RecordedFrames
+from slzcli.types import CommittedSite, RecordedFrames
 
 log = logging.getLogger(__name__)
 MAP_FRAME = "map"  # REP 105; output.map_frame
@@ -83,9 +84,9 @@ SQUARE_LINE_M = 0.05       # line width of the Eq. 10 square
 CENTRE_DIAMETER_M = 0.25   # sphere at the site centre
 TEXT_HEIGHT_M = 0.4        # label height
 TEXT_LIFT_M = 0.5          # label above the centre
-ACCEPTED_RGBA = (0.15, 0.85, 0.2, 1.0)
-REJECTED_RGBA = (1.0, 0.6, 0.1, 1.0)
-COMMITTED_RGBA = (0.1, 0.5, 1.0, 1.0)
+ACCEPTED_RGBA = palette.rgba01(palette.SAFE)      # a site that passed the acceptance test: the verdict colours
+REJECTED_RGBA = palette.rgba01(palette.UNSAFE)    # of every picture (outputs/palette.py)
+COMMITTED_RGBA = palette.rgba01(palette.SITE)     # the committed site: the overlay's square
 MARKER = {"SPHERE": 2, "LINE_STRIP": 4, "TEXT_VIEW_FACING": 9}  # visualization_msgs/Marker types
 MARKER_ADD = 0
 
@@ -218,14 +219,14 @@ class ResultsMcap:
                                                   transform=tr))
         self.writer.write_raw(topic, POSE_TYPES["tf"], t[POSE_TYPES["tf"]](transforms=out), stamp)
 
-    def write_run(self, committed: dict[str, Any] | None) -> None:
+    def write_run(self, committed: CommittedSite | None) -> None:
         """The committed site (known at the end of the run)."""
         if committed is not None:
-            site = committed["site"]
-            label = (f"landing site: score {site.score:.2f}, seen in {committed['support']} of "
-                     f"{committed['detections']} detections")
-            self._markers("landing_site", site, COMMITTED_RGBA, label, committed["frame"].stamp_ns,
-                          self.frame_ids(committed["segment"])[0])
+            site = committed.site
+            label = (f"landing site: score {site.score:.2f}, seen in {committed.support} of "
+                     f"{committed.detections} detections")
+            self._markers("landing_site", site, COMMITTED_RGBA, label, committed.frame.stamp_ns,
+                          self.frame_ids(committed.segment)[0])
 
     # ------------------------------------------------------------------ messages
     def _raw(self, name: str, msgtype: str, msg: Any, stamp: int) -> None:
@@ -279,7 +280,7 @@ class NoResults:
                    recorded: np.ndarray | None = None) -> None:
         return None
 
-    def write_run(self, committed: dict[str, Any] | None) -> None:
+    def write_run(self, committed: CommittedSite | None) -> None:
         return None
 
 

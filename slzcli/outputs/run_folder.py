@@ -33,7 +33,7 @@ from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.points import write_points_ply
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog, write_trajectories
-from slzcli.types import RunResult
+from slzcli.types import CommittedSite, RunResult
 
 # maps.npz: members stored, not deflated (deflating ~5.9 MB of float32 took ~0.35-0.46 s a frame against ~6 ms
 # stored: benchmarks/writes.py). The maps are float16 (relative error <= 2**-11: +-0.00025 on the [0, 1] maps,
@@ -91,7 +91,7 @@ def write_detection(run_dir: Path, det: Any, config: Config, overlay: np.ndarray
     images.write_png(folder / "mask.png", images.with_mask_legend(images.mask_png(det.score.mask)))
 
 
-def landing_record(source: Path, method: str, committed: dict[str, Any] | None, world_frame: str,
+def landing_record(source: Path, method: str, committed: CommittedSite | None, world_frame: str,
                    timings: dict[str, float], reason: str, site_truth: dict[str, Any] | None,
                    map_segment: int | None = None, spread: dict[str, Any] | None = None) -> dict[str, Any]:
     """landing.json: the contract in DESIGN.md, plus the acceptance test, ground-truth check and map segment.
@@ -104,7 +104,7 @@ def landing_record(source: Path, method: str, committed: dict[str, Any] | None, 
     if committed is None:
         rec["reason"] = reason
     else:
-        s, frame = committed["site"], committed["frame"]
+        s, frame = committed.site, committed.frame
         rec["frame"] = {"index": frame.index, "stamp_ns": frame.stamp_ns}
         rec["site"] = {
             "pixel": list(s.pixel), "center_camera": list(s.center_camera), "center_world": list(s.center_world),
@@ -114,9 +114,9 @@ def landing_record(source: Path, method: str, committed: dict[str, Any] | None, 
             "score": s.score,
             "acceptance": {"passed": s.accepted, "reason": s.acceptance_reason, "tilt_deg": s.tilt_deg,
                            "edge_clearance_m": s.edge_clearance_m},
-            "support": {"detections_agreeing": committed["support"], "detections_with_site": committed["detections"],
-                        "detections_with_site_in_map_segment": committed["segment_detections"]},
-            "depth_limits": committed.get("limits"),
+            "support": {"detections_agreeing": committed.support, "detections_with_site": committed.detections,
+                        "detections_with_site_in_map_segment": committed.segment_detections},
+            "depth_limits": committed.found.limits,
         }
         if site_truth is not None:
             rec["site"]["ground_truth"] = site_truth
@@ -140,18 +140,18 @@ def write_run(run_dir: Path, result: RunResult, sites: SiteLog, trajectory: Pose
     files.write_json(run_dir / "run.json", result.run)
 
 
-def points_by_role(sites: SiteLog, keyframes: KeyframeLog, committed: dict[str, Any] | None,
+def points_by_role(sites: SiteLog, keyframes: KeyframeLog, committed: CommittedSite | None,
                    segment: int | None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """points.ply roles and the clusters of the kept points (the committed detection's k-means labels);
     ``segment``: only that map segment's map points (None: all, a run of one segment)."""
     roles: dict[str, np.ndarray] = {"map": keyframes.map_xyz(segment)}
     clusters: dict[str, np.ndarray] = {}
     if committed is not None:
-        roles["kept"], roles["chosen"] = sites.points(committed)
-        clusters["kept"] = sites.kept_clusters(committed)
+        roles["kept"], roles["chosen"] = sites.points(committed.found)
+        clusters["kept"] = sites.kept_clusters(committed.found)
         labels = clusters["kept"][_rows_in(roles["kept"], roles["chosen"])]
         clusters["chosen"] = np.full(len(roles["chosen"]), labels[0] if len(labels) else -1)
-        roles["corner"] = np.asarray(committed["site"].corners_world)
+        roles["corner"] = np.asarray(committed.site.corners_world)
     return roles, clusters
 
 

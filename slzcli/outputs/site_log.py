@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from slzcli.outputs.files import ArraySpool, atomic_path, naming_write_errors
+from slzcli.types import FoundSite, FrameRef, Site
 
 SITE_COLUMNS = ("frame", "stamp_ns", "cluster", "points", "x", "y", "z", "normal_variance", "extent_x_m",
                 "extent_y_m", "qualifies", "reason", "chosen", "segment")
@@ -24,7 +25,7 @@ POINT_SPEC = {"xyz": (np.float64, (3,)), "site": (np.int64, ()), "chosen": (np.b
 
 
 class SiteLog:
-    """Candidate rows and sites of one run; ``sites`` entries are dicts with "frame", "site", "id", "segment".
+    """Candidate rows and sites of one run; ``sites``: a ``types.FoundSite`` each.
 
     Positions (rows' x, y, z and sites) are in the world frame of their SLAM map segment.
     """
@@ -32,7 +33,7 @@ class SiteLog:
     def __init__(self, folder: Path | None = None) -> None:
         self.folder = Path(folder) if folder is not None else None
         self.rows = 0
-        self.sites: list[dict[str, Any]] = []
+        self.sites: list[FoundSite] = []
         self._rows: list[dict[str, Any]] = []
         self._points: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._clusters: dict[int, np.ndarray] = {}
@@ -50,14 +51,14 @@ class SiteLog:
         with naming_write_errors(self._csv), open(self._csv, "a", newline="") as fh:
             csv.DictWriter(fh, fieldnames=SITE_COLUMNS, lineterminator="\n").writerows(rows)
 
-    def add_site(self, frame: Any, site: Any, kept_xyz: np.ndarray, chosen_xyz: np.ndarray,
-                 limits: dict[str, Any] | None = None, segment: int = 0,
+    def add_site(self, frame: FrameRef, site: Site, kept_xyz: np.ndarray, chosen_xyz: np.ndarray,
+                 limits: dict[str, object] | None = None, segment: int = 0,
                  kept_cluster: np.ndarray | None = None) -> None:
         """``limits``: what the depth noise of the site's frame let the maps see (``Working.as_dict``);
         ``segment``: the SLAM map segment whose world frame the site is in; ``kept_cluster``: the k-means
         cluster of each kept point (None: -1 for all)."""
         i = len(self.sites)
-        self.sites.append({"frame": frame, "site": site, "id": i, "limits": limits, "segment": segment})
+        self.sites.append(FoundSite(frame, site, i, limits, segment))
         kept, chosen = np.asarray(kept_xyz).reshape(-1, 3), np.asarray(chosen_xyz).reshape(-1, 3)
         labels = np.full(len(kept), -1, np.int64) if kept_cluster is None else np.asarray(kept_cluster, np.int64)
         if self._spool is None:
@@ -68,20 +69,20 @@ class SiteLog:
                            chosen=np.r_[np.zeros(len(kept), bool), np.ones(len(chosen), bool)],
                            cluster=np.r_[labels, np.full(len(chosen), -1, np.int64)])
 
-    def points(self, entry: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, entry: FoundSite) -> tuple[np.ndarray, np.ndarray]:
         """(kept_xyz, chosen_xyz) of one site of ``sites``."""
         if self._spool is None:
-            return self._points[entry["id"]]
+            return self._points[entry.id]
         xyz = np.load(self._spool.npy("xyz"), mmap_mode="r")
-        mine = np.load(self._spool.npy("site"), mmap_mode="r") == entry["id"]
+        mine = np.load(self._spool.npy("site"), mmap_mode="r") == entry.id
         chosen = np.load(self._spool.npy("chosen"), mmap_mode="r")
         return np.array(xyz[mine & ~chosen]), np.array(xyz[mine & chosen])
 
-    def kept_clusters(self, entry: dict[str, Any]) -> np.ndarray:
+    def kept_clusters(self, entry: FoundSite) -> np.ndarray:
         """The k-means cluster of each kept point of one site of ``sites`` (in the order of ``points``)."""
         if self._spool is None:
-            return self._clusters[entry["id"]]
-        mine = np.load(self._spool.npy("site"), mmap_mode="r") == entry["id"]
+            return self._clusters[entry.id]
+        mine = np.load(self._spool.npy("site"), mmap_mode="r") == entry.id
         chosen = np.load(self._spool.npy("chosen"), mmap_mode="r")
         return np.array(np.load(self._spool.npy("cluster"), mmap_mode="r")[mine & ~chosen])
 

@@ -15,7 +15,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"
 DECIMALS = 6       # digits after the point for |x| >= 1; project decision (1 um, 1 us)
 SIGNIFICANT = 10   # significant digits for |x| < 1; project decision (keeps 1e-7 variances)
 

@@ -10,10 +10,9 @@ keyframe") takes the last detection's site instead.
 
 from __future__ import annotations
 
-from typing import Any
-
 from slzcli.config import Config
 from slzcli.landing.commit import commit as rank_sites
+from slzcli.types import CommittedSite, FoundSite
 
 
 def commit_radius_m(config: Config) -> float:
@@ -21,23 +20,17 @@ def commit_radius_m(config: Config) -> float:
     return config.landing.commit_radius_factor * config.uav.footprint_m[0]
 
 
-def commit(sites: list[dict[str, Any]], config: Config) -> dict[str, Any] | None:
+def commit(sites: list[FoundSite], config: Config) -> CommittedSite | None:
     """The committed site of a run's sites under the config's rule, radius and score band."""
     return commit_site(sites, commit_radius_m(config), config.landing.commit, config.landing.commit_score_band)
 
 
-def commit_site(sites: list[dict[str, Any]], side_m: float, rule: str = "agree",
-                score_band: float = 0.0) -> dict[str, Any] | None:
-    """The committed site (``slzcli.landing.commit``; ``score_band``: ``landing.commit_score_band``).
-
-    Adds ``support`` (agreeing detections, this one included), ``detections`` (sites of the run),
-    ``segment``, ``segment_detections`` (sites of that segment) and ``ranked`` (its equally good sites,
-    the sites another run may commit and their spread) to the chosen entry.
-    """
+def commit_site(sites: list[FoundSite], side_m: float, rule: str = "agree",
+                score_band: float = 0.0) -> CommittedSite | None:
+    """The committed site (``slzcli.landing.commit``; ``score_band``: ``landing.commit_score_band``), with its
+    support, the run's and its segment's site counts and the ranking (its equally good sites and their spread)."""
     found = rank_sites(sites, side_m, score_band, rule)
     if found is None:
         return None
     best, ranked = found
-    best.update(support=ranked.support, detections=len(sites), segment=int(best["segment"]), ranked=ranked,
-                segment_detections=sum(s["segment"] == best["segment"] for s in sites))
-    return best
+    return CommittedSite(best, ranked.support, len(sites), sum(s.segment == best.segment for s in sites), ranked)

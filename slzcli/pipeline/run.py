@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import shutil
+import tempfile
 import time
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import ExitStack
@@ -162,13 +163,16 @@ def detect_in_memory(source: Source, config: Config, method: str, limit: StageLi
                      truth: TruthEvaluator | None = None) -> RunResult:
     """A run with its accumulators in memory and nothing written: the API's result."""
     t_start = time.perf_counter()
-    with get_backend(config, source.has_poses, clouds=source.clouds) as slam:
-        tracker = Tracker(config, slam)
-        mr = method_run(config, method, tracker)
-        assert mr.state.noise is not None
-        run(source, tracker, [mr], mr.state.noise, limit, [] if truth is None else [TruthSink(truth)])
-    key: dict[str, Any] = {"sha256": None, "method": method, "inputs": {}}
-    return finish(source, config, mr, tracker, truth, time.perf_counter() - t_start, key)
+    # the keyframes' map points spool to a temporary folder, as slz detect's do to its run folder: the summary
+    # reads them (the site's height above the ground) and memory does not grow with the recording
+    with tempfile.TemporaryDirectory(prefix="slz-spool-") as spool:
+        with get_backend(config, source.has_poses, clouds=source.clouds) as slam:
+            tracker = Tracker(config, slam, KeyframeLog(Path(spool)))
+            mr = method_run(config, method, tracker)
+            assert mr.state.noise is not None
+            run(source, tracker, [mr], mr.state.noise, limit, [] if truth is None else [TruthSink(truth)])
+        key: dict[str, Any] = {"sha256": None, "method": method, "inputs": {}}
+        return finish(source, config, mr, tracker, truth, time.perf_counter() - t_start, key)
 
 
 def detect_recording_in_memory(path: Path, config: Config, method: str, limit: StageLimit) -> RunResult:

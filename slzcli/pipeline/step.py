@@ -14,14 +14,13 @@ from dataclasses import replace
 import numpy as np
 
 from slzcli.config import Config
-from slzcli.landing.select import Candidate, Site
 from slzcli.methods.base import Method
 from slzcli.outputs.site_log import SiteLog
 from slzcli.summary import RunState
 from slzcli.terrain.limits import limit_reason
 from slzcli.terrain.maps import frame_maps
-from slzcli.terrain.noise import DepthNoise, NoiseTracker
-from slzcli.types import Detection, Frame, TerrainMaps, TrackedFrame
+from slzcli.terrain.noise import NoiseTracker
+from slzcli.types import Candidate, DepthNoise, Detection, Frame, Site, TerrainMaps, TrackedFrame
 
 
 def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,

@@ -20,8 +20,7 @@ from slzcli.scoring import bayes, closed_form, fuzzy, lut
 from slzcli.scoring.mask import camera_points, column_in_view, landing_mask
 from slzcli.scoring.rules import RuleBase, did_you_mean, load_rules
 from slzcli.terrain.geometry import block_depth, fit_intrinsics, median_depth_m
-from slzcli.terrain.limits import Working
-from slzcli.types import Intrinsics, ScoreMap, TerrainMaps
+from slzcli.types import Intrinsics, ScoreMap, TerrainMaps, Working
 
 
 def _zero_invalid(score: np.ndarray, valid: np.ndarray | None) -> np.ndarray:

@@ -36,13 +36,12 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from slzcli.config import TerrainCfg, UavCfg
-from slzcli.terrain.noise import SCALES_PX, DepthNoise
+from slzcli.types import SCALES_PX, DepthNoise, Working
 
 _PLANE_DOF_3X3 = 6.0      # 9 samples less the 3 parameters of a plane
 # A coarser scale still counts while it puts this many samples across the window: correlated
@@ -50,47 +49,6 @@ _PLANE_DOF_3X3 = 6.0      # 9 samples less the 3 parameters of a plane
 # noise: stopping at 3 samples missed half the slope noise); for white noise n = 2 overstates
 # the slope noise by 15 % at most.
 _MIN_SAMPLES_ACROSS = 2.0
-
-
-@dataclass(frozen=True)
-class Working:
-    """How one frame's maps are computed, and what they can and cannot see (see the module doc)."""
-
-    altitude_m: float          # the frame's median depth: the windows are sized there
-    sigma_m: float             # depth noise there, in the noisiest band of the pyramid (pixel scale for white noise)
-    block_px: int              # the maps run on block_px x block_px block means
-    block_m: float             # a block's side on the ground at altitude_m
-    slope_window_blocks: int   # odd; the steepness plane fit's window, in blocks
-    metres_per_level: float    # flatness: Canny's depth scaling (``edge_scaling_m``)
-    step_min_m: float          # smallest step distinguishable from the noise
-    slope_min_deg: float       # smallest slope distinguishable from the noise
-    vouch_depth_m: float       # the limits hold up to this depth (inf: everywhere)
-    vouched: bool              # both limits within the UAV's tolerance at altitude_m
-    max_step_m: float
-    max_slope_deg: float
-    focal_px: float            # the camera's, for the altitude at which the limits would hold
-    noise: DepthNoise          # what the windows were derived from
-
-    @property
-    def slope_window_m(self) -> float:
-        return self.slope_window_blocks * self.block_m
-
-    def as_dict(self) -> dict[str, object]:
-        return {"altitude_m": round(self.altitude_m, 3), "sigma_m": round(self.sigma_m, 4),
-                "block_px": self.block_px, "block_m": round(self.block_m, 4),
-                "slope_window_m": round(self.slope_window_m, 3), "metres_per_level": round(self.metres_per_level, 5),
-                "step_min_m": round(self.step_min_m, 4), "slope_min_deg": round(self.slope_min_deg, 2),
-                "vouch_depth_m": None if math.isinf(self.vouch_depth_m) else round(self.vouch_depth_m, 2),
-                "vouched": self.vouched}
-
-    def hidden(self) -> str:
-        """What the noise hides, in words ("" when nothing the UAV cares about)."""
-        parts = []
-        if self.step_min_m > self.max_step_m:
-            parts.append(f"steps below {self.step_min_m:.2f} m (the UAV tolerates {self.max_step_m:.2f} m)")
-        if self.slope_min_deg > self.max_slope_deg:
-            parts.append(f"slopes below {self.slope_min_deg:.0f} deg (limit {self.max_slope_deg:.0f} deg)")
-        return " and ".join(parts)
 
 
 @functools.lru_cache(maxsize=16)

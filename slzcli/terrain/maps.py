@@ -41,9 +41,9 @@ from slzcli.terrain.geometry import (
     valid_depth,
     window_px,
 )
-from slzcli.terrain.limits import Working, working_scale
-from slzcli.terrain.noise import MAD_TO_SIGMA, DepthNoise, NoiseTracker
-from slzcli.types import BlockGrid, Frame, Intrinsics, TerrainMaps
+from slzcli.terrain.limits import working_scale
+from slzcli.terrain.noise import MAD_TO_SIGMA, NoiseTracker
+from slzcli.types import BlockGrid, DepthNoise, Frame, Intrinsics, TerrainMaps, Working
 
 # The flanks of a step's derivative (blur + Sobel spread it over ~2 px each side) are left out of
 # the local trend with the step itself.

@@ -22,66 +22,17 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from slzcli.config import NoiseEstimateCfg
+from slzcli.types import SCALES_PX, DepthNoise
 
 MAD_TO_SIGMA = 1.482602218505602       # sigma of a normal distribution / its median absolute deviation
 _RESIDUAL_SCALE = math.sqrt(8.0 / 9.0)  # std of (x - mean of its 3 x 3 window) / std of x, white noise
-SCALES_PX = (1, 2, 4, 8, 16)            # block sides of the pyramid, px (each level halves the last)
 _WINDOW = np.ones((3, 3), np.uint8)     # the residual's window
 MEDIAN_SAMPLES = 65536                  # residuals a level's median needs at least (above 4x: a sub-lattice)
-
-
-@dataclass(frozen=True)
-class DepthNoise:
-    """``sigma_z(z, b) = a_b z^2``: the depth noise of b x b block means at range z.
-
-    ``a_per_m[i]`` belongs to ``SCALES_PX[i]`` (1/m). ``source``: "estimated" (from this frame or
-    the smoothed recent ones), "config" (``terrain.noise`` set to a number: white noise assumed,
-    a_b = a / b) or "prior" (no estimate possible: ``terrain.noise_estimate.prior_a_per_m`` at
-    every scale, i.e. no credit for averaging). ``residuals``: pixels the pixel-scale estimate used.
-    """
-
-    a_per_m: tuple[float, ...]
-    source: str
-    residuals: int = 0
-    quantum_m: float = 0.0   # the depth's smallest step (16UC1 millimetres: 0.001); 0 for continuous depth
-
-    @property
-    def a1_per_m(self) -> float:
-        """The pixel-scale coefficient, the one a sensor datasheet quotes."""
-        return self.a_per_m[0]
-
-    def a_at(self, block_px: float) -> float:
-        """a at any block side: log-log interpolation; beyond the pyramid, no further reduction."""
-        b = max(1.0, float(block_px))
-        logs = np.log(SCALES_PX[: len(self.a_per_m)])
-        vals = np.asarray(self.a_per_m, dtype=np.float64)
-        if np.any(vals <= 0):   # exact depth (or a level of it): interpolate linearly, zero stays zero
-            return float(np.interp(math.log(b), logs, vals))
-        return float(np.exp(np.interp(math.log(b), logs, np.log(vals))))
-
-    def sigma_m(self, depth_m: float, block_px: float = 1.0) -> float:
-        return self.a_at(block_px) * depth_m * depth_m
-
-    @classmethod
-    def white(cls, a_per_m: float, source: str) -> DepthNoise:
-        """Uncorrelated noise of pixel-scale coefficient a: a_b = a / b."""
-        return cls(tuple(a_per_m / b for b in SCALES_PX), source)
-
-    @classmethod
-    def flat(cls, a_per_m: float, source: str) -> DepthNoise:
-        """Noise that averaging does not reduce (a_b = a): the cautious assumption without data."""
-        return cls(tuple(a_per_m for _ in SCALES_PX), source)
-
-    def as_dict(self) -> dict[str, object]:
-        return {"model": "sigma_z = a_b z^2 (b x b pixel blocks)", "source": self.source,
-                "a_per_m": {str(b): round(a, 7) for b, a in zip(SCALES_PX, self.a_per_m, strict=False)},
-                "residuals": self.residuals, "quantum_m": self.quantum_m}
 
 
 def _residual_mad(w: np.ndarray, ok: np.ndarray, min_count: int) -> tuple[float, int]:

@@ -2,7 +2,7 @@
 
 Not part of the pytest suite (CI has no Chromium). Usage:
 
-    .venv/bin/python benchmarks/report_screenshot.py [REPORT.html] [--png /tmp/report.png]
+    .venv/bin/python scripts/report_screenshot.py [REPORT.html] [--png /tmp/report.png]
 
 Without REPORT, renders a small parking_lot recording (12 frames), runs `slz compare` on it in
 a temporary folder and screenshots that report. Prints a table and writes
@@ -88,7 +88,7 @@ def main() -> int:
     rows = [(k, str(v)) for k, v in result.items()]
     width = max(len(k) for k, _ in rows)
     print("\n".join(f"{k:<{width}}  {v}" for k, v in rows))
-    out = HERE / "results" / "report_screenshot.json"
+    out = REPO / "benchmarks" / "results" / "report_screenshot.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
     return 0 if ok else 1

@@ -3,7 +3,7 @@
 Training data: 30 frames of two analytic rendered flights (tests/slam_flight.py, seeds 11
 and 12, not the seed the tests fly over) and the 10 real RealSense frames in
 ../shared/data/realsense_floor. k, L, iterations and seed from configs/default.yaml (slam.vocab).
-Usage: .venv/bin/python benchmarks/build_default_vocabulary.py
+Usage: .venv/bin/python scripts/build_default_vocabulary.py
 """
 
 from __future__ import annotations

@@ -1,0 +1,68 @@
+"""What commands print: whole sentences, rounded figures, the site's height said so it cannot read as underground."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from click.testing import CliRunner
+
+from slzcli.cli import main
+from slzcli.landing.height import site_height
+from slzcli.outputs.report import TABLE_HEAD, without_empty_truth
+from slzcli.render import height_text, simulate_text
+
+
+def test_site_height_above_ground_and_start_with_frames() -> None:
+    map_z = np.array([-8.1, -8.0, -8.0, -7.9, -6.5])  # ground at -8 m, a car roof
+    h = site_height([1.0, 2.0, -7.98], map_z, "map", 0)
+    assert h["above_start_m"] == -7.98 and h["above_ground_m"] == 0.02 and h["ground_z_m"] == -8.0
+    assert h["frame_id"] == "map" and h["start_frame"] == 0 and "5 SLAM map points" in h["ground"]
+    assert height_text(h) == "0.02 m above the ground, 7.98 m below the start (frame 0's camera, map frame map)"
+    recorded = site_height([0.0, 0.0, 1.5], map_z, "map_2", 7, start_z=10.0)  # recorded poses: own origin
+    assert recorded["above_start_m"] == -8.5 and recorded["start_frame"] == 7
+    assert site_height([0.0, 0.0, -3.0], np.zeros(0), "map", 0)["above_ground_m"] is None
+
+
+def test_simulate_text_is_sentences_with_rounded_figures(tmp_path: Path) -> None:
+    m = {"success": True, "reason": "landed", "landing_time_s": 12.294117, "phases_s": {"approach": 0.0,
+         "ibvs": 8.37, "descent": 3.924}, "recoveries": 1, "touchdown_error_m": 0.034567, "touchdown_speed_m_s": 0.2,
+         "final_feature_error_px": 1.23456, "final_yaw_error_deg": None, "stabilisation_time_s": 6.2,
+         "max_tilt_deg": 15.994127}
+    text = simulate_text(m, tmp_path)
+    assert text.startswith("Landed (landed) after 12.3 s.")
+    assert "phases: approach 0.0 s, ibvs 8.4 s, descent 3.9 s; 1 recovery" in text
+    assert "max tilt 16.0 deg" in text and "touch-down error 0.03 m" in text and "yaw error n/a" in text
+    assert "{" not in text and "15.99" not in text
+
+
+def test_truth_columns_leave_when_no_row_has_truth() -> None:
+    row = ["rec", "fuzzy", "site", *["n/a"] * 6, "1.0 / 2.0", "0.10", "both empty"]
+    head, rows, dropped = without_empty_truth(TABLE_HEAD, [row])
+    assert dropped and head == ("recording", "method", "status", "frame ms (med/p90)", "site dist m", "mask IoU")
+    assert rows == [["rec", "fuzzy", "site", "1.0 / 2.0", "0.10", "both empty"]]
+    with_truth = ["rec", "fuzzy", "site", "0.900", *["n/a"] * 5, "1.0 / 2.0", "0.10", "0.5"]
+    assert without_empty_truth(TABLE_HEAD, [row, with_truth])[2] is False  # one row with truth keeps them
+
+
+def test_usage_errors_use_slz_error_style() -> None:
+    res = CliRunner().invoke(main, ["detect", "x", "--bogus"])
+    assert res.exit_code == 2
+    assert res.stderr.splitlines()[-1].startswith("slz: error: No such option '--bogus'")
+    assert "Error:" not in res.stderr.replace("slz: error:", "")
+    res = CliRunner().invoke(main, ["detect", "x", "--timeout", "0"])
+    assert res.exit_code == 2 and "not in the range x>0" in res.stderr
+
+
+def test_every_command_help_has_an_example_and_whole_short_sentences() -> None:
+    top = CliRunner().invoke(main, ["-h"]).output
+    commands = [ln.split()[0] for ln in top.split("Commands:")[1].splitlines() if ln.strip()]
+    assert all(ln.rstrip().endswith(".") and not ln.rstrip().endswith("...")
+               for ln in top.split("Commands:")[1].splitlines() if ln.strip())
+    leaves = {"config": ["dump"], "land": ["simulate"], "vocab": ["build"]}
+    for c in commands:
+        for sub in leaves.get(c, [None]):
+            args = [c, sub] if sub else [c]
+            text = CliRunner().invoke(main, [*args, "-h"]).output
+            assert "Example" in text and f"slz {' '.join(args)} " in text, args
+    assert "[0<x<=" not in CliRunner().invoke(main, ["detect", "-h"]).output
