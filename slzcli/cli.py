@@ -521,8 +521,8 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
             metrics = result.metrics(0)
             ibvs_out.write_single(tmp, result, metrics, target, config.camera)
         else:
-            with ibvs_out.montecarlo_rows(tmp) as add_rows, _RunsProgress(runs, config.control.montecarlo.chunk_runs) \
-                    as tick:
+            with ibvs_out.montecarlo_rows(tmp) as add_rows, \
+                    RunsDisplay(runs, config.control.montecarlo.chunk_runs, config.output.progress_every_s) as tick:
                 mc = montecarlo.run_chunked(target, start_world, runs, mc_seed, config, on_chunk=add_rows,
                                             progress=tick)
             mc_summary = {**montecarlo.summarise(mc), "seed": mc_seed, "start_world": start_world.tolist()}
@@ -530,23 +530,8 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
             ibvs_plots.montecarlo_histograms(tmp / "montecarlo_hist.png", mc)
         names = sorted(p.name for p in tmp.iterdir() if not p.name.startswith("."))
     if runs == 1:
-        result = simulate(target, start_world[None], config, log=True, seed=seed)
-        metrics = result.metrics(0)
-        files = ibvs_out.write_run(out, result, metrics, cam.cx, cam.cy)
-        files += [ibvs_plots.image_plane(out / "image_plane.png", result, cam.width, cam.height, cam.cx, cam.cy),
-                  ibvs_plots.feature_error(out / "feature_error.png", result),
-                  ibvs_plots.trajectory_3d(out / "trajectory_3d.png", result, target)]
-        summary = {**metrics, "output": str(out), "files": [p.name for p in files]}
-        text = render.simulate_text(metrics, out)
-        return summary, text
-    mc_seed = config.control.noise.seed if seed is None else seed
-    with _remove_if_left_empty(out), ibvs_out.montecarlo_rows(out) as add_rows, \
-            RunsDisplay(runs, config.control.montecarlo.chunk_runs, config.output.progress_every_s) as tick:
-        result = montecarlo.run_chunked(target, start_world, runs, mc_seed, config, on_chunk=add_rows, progress=tick)
-    summary = {**montecarlo.summarise(result), "seed": mc_seed, "start_world": start_world.tolist()}
-    files = ibvs_out.write_montecarlo(out, result, summary, rows_written=True)
-    files.append(ibvs_plots.montecarlo_histograms(out / "montecarlo_hist.png", result))
-    return {**summary, "output": str(out), "files": [p.name for p in files]}, f"{montecarlo.table(summary)}\n-> {out}"
+        return {**metrics, "output": str(out), "files": names}, render.simulate_text(metrics, out)
+    return {**mc_summary, "output": str(out), "files": names}, f"{montecarlo.table(mc_summary)}\n-> {out}"
 
 
 @main.command("synth", short_help="Render a ground-truthed synthetic flight.")
@@ -614,19 +599,6 @@ def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scene
         summary = record.synthesize(output, options, config, preview=sheet, progress=bar.tick, force=force)
     text = render.synth_text(summary, fmt, color_encoding, depth_encoding)
     return summary, text
-
-
-@contextlib.contextmanager
-def _remove_if_left_empty(folder: Path) -> Iterator[None]:
-    """A folder this command creates is removed again when the command stops before writing into it."""
-    existed = folder.exists()
-    try:
-        yield
-    except BaseException:
-        if not existed:
-            with contextlib.suppress(OSError):
-                folder.rmdir()   # only if empty: nothing of the user's, nothing written
-        raise
 
 
 def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
