@@ -12,7 +12,6 @@ summary), on a recording or on frames already in memory:
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -56,10 +55,11 @@ def detect(source: str | Path | Iterable[Frame], config: Config | None = None, o
 
 def _read_run(out: Path) -> RunResult:
     """The RunResult of a run folder ``slz detect`` wrote (``committed``: None, it is not stored)."""
+    from slzcli.bounds import load_json
     from slzcli.types import RunResult
 
-    run = json.loads((out / "run.json").read_text())
-    landing = json.loads((out / "landing.json").read_text())
+    run = load_json(out / "run.json", "run.json")
+    landing = load_json(out / "landing.json", "landing.json")
     slam = run["summary"].get("slam") or {}
     primary = slam.get("segment")
     return RunResult(landing, run, None, primary, primary if slam.get("maps", 1) > 1 else None)

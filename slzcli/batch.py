@@ -81,7 +81,7 @@ def expand(args: Sequence[str | Path]) -> list[Path]:
     found: list[Path] = []
     for arg in args:
         if is_pattern(arg):
-            matches = sorted(glob.glob(os.path.expanduser(str(arg)), recursive=True))
+            matches = _glob(os.path.expanduser(str(arg)))
             if not matches:
                 raise DatasetError(arg, "no recording matches this pattern")
             found.extend(Path(m) for m in matches)
@@ -95,6 +95,24 @@ def expand(args: Sequence[str | Path]) -> list[Path]:
             seen.add(key)
             unique.append(p)
     return unique
+
+
+def _glob(pattern: str) -> list[str]:
+    """``glob.glob(pattern, recursive=True)``, sorted, except that ``**`` does not descend through links to
+    folders: a link loop (``a/up -> ..``) made ``glob`` recurse until the path was too long, and several
+    such links multiplied it past any wait. A link named by a non-``**`` part is still followed."""
+    if "**" not in pattern:
+        return sorted(glob.glob(pattern))
+    parts = Path(pattern).parts
+    fixed = next(i for i, part in enumerate(parts) if any(c in GLOB_CHARS for c in part))
+    root = Path(*parts[:fixed]) if fixed else Path(".")
+    rest = parts[fixed:]
+    hidden_ok = any(part.startswith(".") for part in rest)
+    found = []
+    for p in root.glob(str(Path(*rest))):  # pathlib's ** does not follow links to folders
+        if hidden_ok or not any(q.startswith(".") for q in p.relative_to(root).parts):
+            found.append(str(p) if fixed else os.path.normpath(str(p)))
+    return sorted(found)
 
 
 def run_name(recording: Path) -> str:

@@ -6,7 +6,6 @@ config or a failure with a one-line reason naming the file or key, 2 usage.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import logging
@@ -14,7 +13,7 @@ import math
 import sys
 import threading
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,7 +21,7 @@ import click
 
 from slzcli import render
 from slzcli.api import load_config  # the Python API's: one way to a Config for both entry points
-from slzcli.config import Config, OutputLevel, dump, layer_sources
+from slzcli.config import MAX_FLOAT_MAGNITUDE, Config, OutputLevel, dump, layer_sources
 from slzcli.errors import SlzError
 from slzcli.interrupt import sigterm_interrupts
 from slzcli.methods import registry as method_registry
@@ -265,8 +264,8 @@ def _time_bound(ctx: click.Context, param: click.Parameter, value: str | None) -
     except ValueError:
         raise click.BadParameter(f"expected seconds (e.g. 12.5) or @STAMP (e.g. @1712345678.25), got {value!r}") \
             from None
-    if not math.isfinite(seconds) or seconds < 0:
-        raise click.BadParameter(f"must be a finite number of seconds >= 0, got {value!r}")
+    if not math.isfinite(seconds) or not 0 <= seconds <= MAX_FLOAT_MAGNITUDE:
+        raise click.BadParameter(f"must be a number of seconds from 0 to {MAX_FLOAT_MAGNITUDE:g}, got {value!r}")
     return kind, seconds
 
 
@@ -415,8 +414,9 @@ def vocab_group() -> None:
 @click.option("-o", "--output", "output", required=True,
               type=click.Path(dir_okay=False, path_type=Path, readable=False),
               help="Vocabulary file to write (DBoW2 text format).")
+@click.option("--force", is_flag=True, help="Replace an existing vocabulary file (never any other file).")
 @common_options
-def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path) -> tuple[dict[str, Any], str]:
+def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path, force: bool) -> tuple[dict[str, Any], str]:
     """Train a DBoW2 ORB vocabulary from RECORDINGS (slam.vocab.* sets k, levels, frames).
 
     \b
@@ -425,7 +425,7 @@ def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path) -> t
     """
     from slzcli.slam.vocabulary import build_from_recordings
 
-    r = build_from_recordings(list(recordings), output, config)
+    r = build_from_recordings(list(recordings), output, config, force=force)
     summary = {"path": r.path, "recordings": r.recordings, "frames": r.frames, "descriptors": r.descriptors,
                "nodes": r.nodes, "words": r.words, "size_bytes": r.size_bytes, "seconds": round(r.seconds, 3)}
     text = (f"{r.path}: {r.words} words ({r.nodes} nodes, k={config.slam.vocab.k}, L={config.slam.vocab.levels}) "
@@ -444,8 +444,8 @@ def _start_floats(ctx: click.Context, param: click.Parameter, value: str | None)
         values = tuple(float(v) for v in value.split(","))
     except ValueError:
         raise click.BadParameter(f"expected comma-separated numbers, got {value!r}") from None
-    if not all(math.isfinite(v) for v in values):
-        raise click.BadParameter(f"every value must be a finite number, got {value!r}")
+    if not all(math.isfinite(v) and abs(v) <= MAX_FLOAT_MAGNITUDE for v in values):
+        raise click.BadParameter(f"every value must be a finite number within +-{MAX_FLOAT_MAGNITUDE:g}, got {value!r}")
     if len(values) not in (3, 4):
         raise click.BadParameter(f"expected X,Y,Z or X,Y,Z,YAW, got {len(values)} value(s)")
     return values
@@ -515,25 +515,24 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
                           config.control.sim.target_tolerance)
     out = output or ibvs_out.landing_path(run).parent / "ibvs"
     start_world = resolve_start(target, config, scenario, start, offset)
-    cam = config.camera
-    if runs == 1:
-        result = simulate(target, start_world[None], config, log=True, seed=seed)
-        metrics = result.metrics(0)
-        files = ibvs_out.write_run(out, result, metrics, cam.cx, cam.cy)
-        files += [ibvs_plots.image_plane(out / "image_plane.png", result, cam.width, cam.height, cam.cx, cam.cy),
-                  ibvs_plots.feature_error(out / "feature_error.png", result),
-                  ibvs_plots.trajectory_3d(out / "trajectory_3d.png", result, target)]
-        summary = {**metrics, "output": str(out), "files": [p.name for p in files]}
-        text = render.simulate_text(metrics, out)
-        return summary, text
     mc_seed = config.control.noise.seed if seed is None else seed
-    with _remove_if_left_empty(out), ibvs_out.montecarlo_rows(out) as add_rows, \
-            RunsDisplay(runs, config.control.montecarlo.chunk_runs, config.output.progress_every_s) as tick:
-        result = montecarlo.run_chunked(target, start_world, runs, mc_seed, config, on_chunk=add_rows, progress=tick)
-    summary = {**montecarlo.summarise(result), "seed": mc_seed, "start_world": start_world.tolist()}
-    files = ibvs_out.write_montecarlo(out, result, summary, rows_written=True)
-    files.append(ibvs_plots.montecarlo_histograms(out / "montecarlo_hist.png", result))
-    return {**summary, "output": str(out), "files": [p.name for p in files]}, f"{montecarlo.table(summary)}\n-> {out}"
+    with ibvs_out.output_folder(out, ibvs_out.landing_path(run), runs) as tmp:
+        if runs == 1:
+            result = simulate(target, start_world[None], config, log=True, seed=seed)
+            metrics = result.metrics(0)
+            ibvs_out.write_single(tmp, result, metrics, target, config.camera)
+        else:
+            with ibvs_out.montecarlo_rows(tmp) as add_rows, \
+                    RunsDisplay(runs, config.control.montecarlo.chunk_runs, config.output.progress_every_s) as tick:
+                mc = montecarlo.run_chunked(target, start_world, runs, mc_seed, config, on_chunk=add_rows,
+                                            progress=tick)
+            mc_summary = {**montecarlo.summarise(mc), "seed": mc_seed, "start_world": start_world.tolist()}
+            ibvs_out.write_montecarlo(tmp, mc, mc_summary, rows_written=True)
+            ibvs_plots.montecarlo_histograms(tmp / "montecarlo_hist.png", mc)
+        names = sorted(p.name for p in tmp.iterdir() if not p.name.startswith("."))
+    if runs == 1:
+        return {**metrics, "output": str(out), "files": names}, render.simulate_text(metrics, out)
+    return {**mc_summary, "output": str(out), "files": names}, f"{montecarlo.table(mc_summary)}\n-> {out}"
 
 
 @main.command("synth", short_help="Render a ground-truthed synthetic flight.")
@@ -601,19 +600,6 @@ def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scene
         summary = record.synthesize(output, options, config, preview=sheet, progress=bar.tick, force=force)
     text = render.synth_text(summary, fmt, color_encoding, depth_encoding)
     return summary, text
-
-
-@contextlib.contextmanager
-def _remove_if_left_empty(folder: Path) -> Iterator[None]:
-    """A folder this command creates is removed again when the command stops before writing into it."""
-    existed = folder.exists()
-    try:
-        yield
-    except BaseException:
-        if not existed:
-            with contextlib.suppress(OSError):
-                folder.rmdir()   # only if empty: nothing of the user's, nothing written
-        raise
 
 
 def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:

@@ -438,7 +438,6 @@ def recording_name(path: Path) -> str:
 def render_variants(path: Path, config: Config, out_dir: Path, variants: tuple[str, ...],
                     progress: Progress | None = None) -> list[Path]:
     """Re-render a synth recording's scene once per variant (same flight, seed and frames) into ``out_dir``."""
-    import json
 
     from slzcli.synth import record
     from slzcli.synth.groundtruth import sidecar_paths
@@ -446,13 +445,15 @@ def render_variants(path: Path, config: Config, out_dir: Path, variants: tuple[s
     header_path = sidecar_paths(path)[1]
     if not header_path.is_file():
         raise DatasetError(path, f"--variants needs a `slz synth` recording ({header_path.name} not found)")
+    from slzcli.bounds import load_json
+
+    header = load_json(header_path, "ground-truth header (.gt.json)")
     try:
-        header = json.loads(header_path.read_text())
         base = tuple(header.get("variants", []))
         options = dict(scene=str(header["scene"]), frames=int(header["frames"]), rate_hz=float(header["rate_hz"]),
                        path=str(header["path"]), seed=int(header["seed"]),
                        start_m=tuple(float(v) for v in header["start_m"]))
-    except (OSError, ValueError, KeyError, TypeError) as err:
+    except (ValueError, KeyError, TypeError, AttributeError, OverflowError) as err:
         raise DatasetError(header_path, f"unreadable synth header ({err})") from err
     out = []
     for v in variants:

@@ -49,6 +49,11 @@ class DecodeError(SlzError):
     """One message could not be decoded (unsupported encoding, wrong size, ...)."""
 
 
+class FrameError(SlzError):
+    """One frame's content cannot be used (e.g. depth in another unit than its encoding says); the
+    detection loop names the recording and the frame."""
+
+
 class NoSiteFound(SlzError):
     """No landing site qualifies. A result, not a failure: the pipeline reports it as status."""
 

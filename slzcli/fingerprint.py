@@ -74,11 +74,15 @@ def recording_files(path: Path) -> list[Path]:
 def _rosbag2_files(folder: Path) -> list[Path]:
     import yaml
 
+    from slzcli.bounds import MAX_BAG_METADATA_BYTES, read_regular
+    from slzcli.errors import SlzError
+
     meta = folder / "metadata.yaml"
     try:
-        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        text = read_regular(meta, MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
+        info = yaml.safe_load(text)["rosbag2_bagfile_information"]
         listed = [folder / str(n) for n in info["relative_file_paths"]]
-    except (OSError, yaml.YAMLError, KeyError, TypeError):  # a broken bag: the reader reports it
+    except (SlzError, yaml.YAMLError, KeyError, TypeError):  # a broken bag: the reader reports it
         listed = sorted(q for q in folder.iterdir() if q.suffix in (".db3", ".mcap"))
     return [meta, *(q for q in listed if q.is_file())]
 

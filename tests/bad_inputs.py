@@ -664,3 +664,90 @@ def huge_raw_depth_frame(folder: Path) -> Path:
 
 RECORDINGS.update({f.__name__: f for f in (huge_png_frame, huge_jpeg_frames, over_opencv_limit_frame,
                                            huge_raw_depth_frame)})
+
+
+# ----------------------------------------------------------------------------- depth in another unit than it says
+def _depth_as(folder: Path, name: str, encoding: str, mutate: Callable[[object], None],
+              depth: np.ndarray | None = None) -> Path:
+    """Colour, CameraInfo and a depth Image written in ``encoding`` and then changed by ``mutate``."""
+    p = folder / name
+    with RecordingWriter(p, "mcap", depth_encoding=encoding) as w:
+        for i in range(3):
+            f = textured_frame(i, depth=depth)
+            w.write_raw(w.color_topic, *w.color_message(f.rgb, f.stamp_ns), f.stamp_ns)
+            kind, msg = w.depth_message(f.depth_m, f.stamp_ns)
+            mutate(msg)
+            w.write_raw(w.depth_topic, kind, msg, f.stamp_ns)
+            w.write_raw(w.layout.color_info, "sensor_msgs/msg/CameraInfo", w._camera_info(f.intrinsics, f.stamp_ns),
+                        f.stamp_ns)
+    return p
+
+
+def depth_metres_in_16uc1(folder: Path) -> Path:
+    """16UC1 depth holding metres (6), not millimetres (6000): read as 6 mm."""
+    def to_metres(msg) -> None:
+        msg.data = (np.frombuffer(msg.data, np.uint16) // 1000).astype(np.uint16).view(np.uint8)
+    return _depth_as(folder, "depth_metres_16uc1.mcap", "16UC1", to_metres)
+
+
+def depth_bigendian_flag(folder: Path) -> Path:
+    """32FC1 little-endian depth flagged is_bigendian: read byte-swapped (6.0 m -> ~7e-41 m)."""
+    def flag(msg) -> None:
+        msg.is_bigendian = 1
+    return _depth_as(folder, "depth_bigendian.mcap", "32FC1", flag)
+
+
+def depth_1e27(folder: Path) -> Path:
+    """32FC1 depth of 1e-27 m everywhere."""
+    return _depth_as(folder, "depth_1e27.mcap", "32FC1", lambda msg: None,
+                     depth=np.full((H, W), 1e-27, np.float32))
+
+
+# ----------------------------------------------------------------------------- sizes read from files
+def fifo_recording(folder: Path) -> Path:
+    """A FIFO named like a recording: opening it would wait for a writer for ever."""
+    import os
+
+    p = folder / "fifo.mcap"
+    os.mkfifo(p)
+    return p
+
+
+def tum_sparse_rgb_txt(folder: Path) -> Path:
+    """A TUM folder whose rgb.txt is a sparse 3 GB file (costs no disk; read whole it costs 3 GB)."""
+    root = _tum(folder, "tum_sparse")
+    with open(root / "rgb.txt", "r+b") as fh:
+        fh.truncate(3 << 30)
+    return root
+
+
+def ros2_sparse_metadata(folder: Path) -> Path:
+    """A rosbag2 folder whose metadata.yaml is a sparse 3 GB file."""
+    bag = _write(folder / "sparse_meta", [textured_frame(i) for i in range(3)], "ros2-sqlite")
+    with open(bag / "metadata.yaml", "r+b") as fh:
+        fh.truncate(3 << 30)
+    return bag
+
+
+def mcap_huge_chunk(folder: Path) -> Path:
+    """The first chunk of an MCAP declares 2^62 bytes uncompressed (zstd would allocate them)."""
+    import struct
+
+    data = bytearray(good(folder, 6).read_bytes())
+    pos = 8  # after the magic: opcode (1 B), length (8 B), body
+    while data[pos] != 0x06:  # the first Chunk record
+        pos += 9 + struct.unpack_from("<Q", data, pos + 1)[0]
+    struct.pack_into("<Q", data, pos + 9 + 16, 2**62)  # after message_start_time, message_end_time
+    p = folder / "huge_chunk.mcap"
+    p.write_bytes(bytes(data))
+    return p
+
+
+def depth_3e38(folder: Path) -> Path:
+    """32FC1 depth of 3e38 m (near float32's limit): the plan raster's indices overflowed."""
+    return _depth_as(folder, "depth_3e38.mcap", "32FC1", lambda msg: None, depth=np.full((H, W), 3e38, np.float32))
+
+
+RECORDINGS.update({f.__name__: f for f in (depth_3e38, depth_metres_in_16uc1, depth_bigendian_flag, depth_1e27,
+                                           fifo_recording,
+                                           tum_sparse_rgb_txt, ros2_sparse_metadata, mcap_huge_chunk)})

@@ -259,15 +259,19 @@ def test_failed_recordings_are_rows_and_exit_1_naming_the_summary(runner, tmp_pa
 
 
 def test_run_lock_refuses_a_second_writer_and_removes_stale_partials(tmp_path) -> None:
+    from slzcli.outputs.safe_output import make_temp_dir
+
     run = tmp_path / "flight"
-    stale = tmp_path / ".flight.abc123.partial"
+    stale = make_temp_dir(run, ".partial")  # marked as slz's the moment it was made
     (stale / "frames").mkdir(parents=True)
-    other = tmp_path / ".flight2.xyz.partial"
-    other.mkdir()
+    other = make_temp_dir(tmp_path / "flight2", ".partial")
+    users = tmp_path / ".flight.mine.partial"  # a user's folder with such a name: no marker
+    users.mkdir()
     with run_lock.claim(run) as removed:
-        assert removed == [stale] and not stale.exists() and other.exists()
+        assert removed == [stale] and not stale.exists() and other.exists() and users.exists()
         with pytest.raises(OutputError, match="another slz process"), run_lock.claim(run):
             pass
-    assert leftovers(tmp_path) == [".flight2.xyz.partial"]  # the lock file is gone, the other run untouched
+    # the lock file is gone, the other run and the user's folder untouched
+    assert leftovers(tmp_path) == sorted([other.name, users.name])
     with run_lock.claim(run) as removed:  # free again
         assert removed == []

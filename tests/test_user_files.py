@@ -404,15 +404,26 @@ def test_synth_force_never_pairs_a_recording_with_the_old_truth(runner, tmp_path
 
 
 def test_synth_removes_what_a_killed_synth_left_and_nothing_else(runner, tmp_path) -> None:
+    """Only marked temporaries go: a user's folders and files that merely have such names stay."""
+    from slzcli.outputs.safe_output import make_temp_dir
+
     out = tmp_path / "f.mcap"
-    (tmp_path / ".f.mcap.x1y2.tmp").mkdir()  # a killed synth's staging folder
-    (tmp_path / ".f.mcap.x1y2.tmp" / "f.mcap").write_bytes(b"half")
-    (tmp_path / ".f.mcap.preview.png.tmp-ab12.png").write_bytes(b"half")
-    (tmp_path / ".f.mcap.notes").write_text("a user's hidden file\n")
-    (tmp_path / ".f.mcap.mine.tmp").write_text("a user's file with a .tmp name\n")
+    stage = make_temp_dir(out, ".tmp")  # a killed synth's staging folder
+    (stage / "f.mcap").write_bytes(b"half")
+    old = make_temp_dir(out, ".old")  # a killed synth's swapped-out rosbag2 folder
+    users = [".f.mcap.notes", ".f.mcap.mine.tmp", ".f.mcap.preview.png.tmp-ab12.png"]
+    for name in users:
+        (tmp_path / name).write_text("a user's file\n")
+    for name in (".f.mcap.x1y2.tmp", ".f.mcap.1234.old"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "thesis.tex").write_text("a user's folder\n")
     assert invoke(runner, "synth", "clear_field", "-o", str(out), *SYNTH).exit_code == 0
-    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == [".f.mcap.mine.tmp",
-                                                                                   ".f.mcap.notes"]
+    assert not stage.exists() and not old.exists()
+    left = sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("."))
+    assert left == sorted([*users, ".f.mcap.x1y2.tmp", ".f.mcap.1234.old"])
+    assert (tmp_path / ".f.mcap.x1y2.tmp" / "thesis.tex").is_file()
+
+
 # ----------------------------------------------------------------------------- reproducibility
 @pytest.mark.parametrize("backend", ["odometry", "recorded"])
 def test_odometry_and_recorded_runs_are_bit_reproducible_alone_and_in_a_batch(runner, tmp_path, backend) -> None:

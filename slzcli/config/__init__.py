@@ -86,6 +86,7 @@ from slzcli.config.schema import one_of as one_of
 from slzcli.config.schema import package_dir as package_dir
 from slzcli.config.schema import rng as rng
 from slzcli.config.schema import schema as schema
+from slzcli.config.yaml_safe import MAX_FLOAT_MAGNITUDE as MAX_FLOAT_MAGNITUDE
 from slzcli.config.yaml_safe import MAX_YAML_ALIASES as MAX_YAML_ALIASES
 from slzcli.config.yaml_safe import MAX_YAML_BYTES as MAX_YAML_BYTES
 from slzcli.config.yaml_safe import MAX_YAML_DEPTH as MAX_YAML_DEPTH

@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 from slzcli.config.schema import _D, CONFIG_DIR, Config
+from slzcli.config.yaml_safe import MAX_FLOAT_MAGNITUDE, MAX_INT_MAGNITUDE
 from slzcli.errors import ConfigError, short_repr
 from slzcli.pinhole import intrinsics_problem
 
@@ -64,6 +65,9 @@ def _check(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str 
                 errors.append(err)
         if len(args) == 1:
             raise errors[0]
+        for arg, refusal in zip(args, errors, strict=True):  # a number out of range: say so, not "expected a number"
+            if arg in (int, float) and isinstance(value, (int, float)) and not isinstance(value, bool):
+                raise refusal
         raise ConfigError(path, f"expected {_alternatives(args)}, got {_kind(value)} {value!r}", source)
     return _scalar(tp, value, path, meta, source)
 
@@ -76,6 +80,8 @@ def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(path, f"expected an integer, got {_kind(value)} {short_repr(value)}", source)
+        if abs(value) > MAX_INT_MAGNITUDE:
+            raise ConfigError(path, f"{short_repr(value)} does not fit a 64-bit integer", source)
     elif tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(path, f"expected a number, got {_kind(value)} {short_repr(value)}", source)
@@ -84,6 +90,9 @@ def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str
             raise ConfigError(path, "NaN is not allowed", source)
         if value in (float("inf"), float("-inf")):  # no parameter means "unbounded"; 0 disables where allowed
             raise ConfigError(path, f"must be finite, got {value}", source)
+        if abs(value) > MAX_FLOAT_MAGNITUDE:
+            raise ConfigError(path, f"{short_repr(value)} is beyond +-{MAX_FLOAT_MAGNITUDE:g}, which no slz parameter "
+                                    "means in its unit (a unit mistake?)", source)
     elif tp is str:
         if not isinstance(value, str):
             raise ConfigError(path, f"expected a string, got {_kind(value)} {short_repr(value)}", source)

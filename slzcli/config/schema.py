@@ -575,6 +575,7 @@ class GroundTruthCfg:
 @schema
 class SynthCfg:
     frames: int = rng(1)
+    max_frames: int = rng(1)
     rate_hz: float = rng(1, 200)
     path: Literal["hover", "descent", "transect"]
     seed: int = rng(0)

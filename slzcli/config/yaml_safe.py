@@ -15,6 +15,11 @@ from slzcli.errors import ConfigError, short_repr
 # Limits of the reader itself (a config cannot set them: they guard reading the config). Configs
 # are small: default.yaml is ~21 KB, ~330 values, 4 levels deep, no aliases; a scene file ~6 KB.
 MAX_YAML_BYTES = 1 << 20     # 1 MiB
+# Magnitudes no parameter means: past them a value is a unit mistake, and arithmetic on it overflows
+# (a 1e300 ms tolerance in ns, a noise coefficient squared). The largest float a default holds is
+# sources' stamp window in Unix seconds (~1.7e9); the largest int a stamp in ns (1.7e18).
+MAX_FLOAT_MAGNITUDE = 1e10
+MAX_INT_MAGNITUDE = 2**63 - 1
 MAX_YAML_ALIASES = 100       # anchors may be reused, but not a billion times
 MAX_YAML_VALUES = 100_000    # values once every alias is expanded (what a loop over the data visits)
 MAX_YAML_DEPTH = 32          # nesting of mappings and lists
@@ -113,7 +118,8 @@ def read_yaml_text(path: Path) -> str:
 
 def read_yaml_mapping(path: Path) -> dict[str, Any]:
     if not path.is_file():
-        raise ConfigError("", "config file not found", source=str(path))
+        what = "not a regular file (a FIFO, device or folder)" if path.exists() else "config file not found"
+        raise ConfigError("", what, source=str(path))
     data = _load_yaml_file(path)
     if data is None:
         return {}

@@ -587,12 +587,28 @@ def resolve_start(target: Target, config: Config, scenario: int | None = None,
     if scenario is not None:
         if scenario not in SCENARIOS:
             raise ConfigError("--scenario", f"must be one of {sorted(SCENARIOS)}, got {scenario}")
-        return np.array([*SCENARIOS[scenario], 0.0])
+        return _above_site(np.array([*SCENARIOS[scenario], 0.0]), target, config, "--scenario")
     if start is not None:
         if len(start) not in (3, 4):
             raise ConfigError("--start", f"expected x,y,z[,yaw], got {len(start)} values")
-        return np.array([*start[:3], start[3] if len(start) > 3 else 0.0], float)
+        return _above_site(np.array([*start[:3], start[3] if len(start) > 3 else 0.0], float), target, config,
+                           "--start")
     off = offset if offset is not None else config.control.sim.start_offset_m
     if len(off) not in (3, 4):
         raise ConfigError("--offset", f"expected x,y,z[,yaw], got {len(off)} values")
-    return start_from_offsets(target, np.array(off, float))[0]
+    key = "--offset" if offset is not None else "control.sim.start_offset_m"
+    return _above_site(start_from_offsets(target, np.array(off, float))[0], target, config, key)
+
+
+def _above_site(start: np.ndarray, target: Target, config: Config, key: str) -> np.ndarray:
+    """``start`` when the UAV's body is clear of the site there; else a ConfigError naming ``key``.
+
+    At or below ``site z + uav.size_m[2] / 2`` the simulation would stop at its first step on ground
+    contact: nothing to simulate, and no landing to report.
+    """
+    clear = config.uav.size_m[2] / 2
+    height = float(start[2] - target.center_world[2])
+    if not height > clear:
+        raise ConfigError(key, f"the start is {height:.3g} m above the site (z {target.center_world[2]:.3g} m); the "
+                               f"UAV's body touches the ground below {clear:.3g} m (uav.size_m[2] / 2): start higher")
+    return start

@@ -2,6 +2,8 @@
 
 One row per recording (status, site, timings, where it ran); ``summary.json`` adds the batch
 totals. Both written atomically, so an interrupted batch leaves the previous pair or the new one.
+A later batch into the same folder keeps the earlier batch's rows of the run folders it did not
+write (``earlier_rows``): the summary lists every run folder there, the totals this batch's.
 The batch folder also holds the run folders (each its own, ``output_dir``) and anything else the
 user keeps there; slz writes only these two files in it, and only over a pair it wrote before
 (``summary.json`` marked ``slz_output: batch``).
@@ -11,13 +13,12 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from slzcli.errors import OutputError
+from slzcli.errors import OutputError, SlzError
 from slzcli.outputs import files
 from slzcli.outputs.output_dir import MARKER_KEY
 
@@ -52,10 +53,7 @@ def check_folder(out_dir: Path) -> None:
             raise OutputError(csv_path, "exists and was not written by slz (no summary.json beside it); move it "
                                         "away or choose another -o")
         return
-    try:
-        doc = json.loads(json_path.read_text())
-    except (OSError, ValueError):
-        doc = None
+    doc = _read(json_path)
     mark = doc.get(MARKER_KEY) if isinstance(doc, dict) else None
     if isinstance(mark, dict):
         ours = mark.get("kind") == KIND
@@ -65,17 +63,45 @@ def check_folder(out_dir: Path) -> None:
         raise OutputError(json_path, "exists and is not a batch summary of slz; move it away or choose another -o")
 
 
+def _read(json_path: Path) -> Any:
+    """The summary.json document, or None when it cannot be read within the bounds (then it is not slz's)."""
+    from slzcli.bounds import load_json
+
+    try:
+        return load_json(json_path, "batch summary.json")
+    except SlzError:
+        return None
+
+
+def earlier_rows(json_path: Path, new: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows of an earlier batch into this folder whose run folders this batch did not write: kept, first.
+
+    A second batch into one folder adds to its summary instead of dropping the first batch's rows;
+    a recording run again gets this batch's row only. ``batch`` totals are this batch's alone.
+    """
+    doc = _read(json_path)
+    rows = doc.get("recordings") if isinstance(doc, dict) else None
+    if not isinstance(rows, list):
+        return []
+    now = {r.get("run") for r in new}
+    return [r for r in rows if isinstance(r, dict) and r.get("run") not in now]
+
+
 def write_summary(out_dir: Path, batch: dict[str, Any], rows: Sequence[dict[str, Any]]) -> tuple[Path, Path]:
     """Write ``summary.json`` (batch totals + rows) and ``summary.csv`` (rows) into ``out_dir``."""
     out_dir = Path(out_dir)
     json_path, csv_path = out_dir / "summary.json", out_dir / "summary.csv"
     plain = [{k: v for k, v in r.items() if k != "summary"} for r in rows]
-    check_folder(out_dir)  # again: the batch ran for a while
-    files.write_json(json_path, {MARKER_KEY: {"kind": KIND, "files": ["summary.json", "summary.csv"]},
-                                 "batch": batch, "recordings": plain})
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(csv_rows(rows))
-    files.write_text(csv_path, buf.getvalue())
+    from slzcli.outputs import run_lock
+
+    with run_lock.claim(json_path, wait=True, leftovers=()):  # two batches ending at once: one merge each
+        check_folder(out_dir)  # again: the batch ran for a while
+        earlier = earlier_rows(json_path, plain)
+        files.write_json(json_path, {MARKER_KEY: {"kind": KIND, "files": ["summary.json", "summary.csv"]},
+                                     "batch": {**batch, "earlier_rows": len(earlier)}, "recordings": earlier + plain})
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(csv_rows([*earlier, *plain]))
+        files.write_text(csv_path, buf.getvalue())
     return json_path, csv_path

@@ -4,12 +4,14 @@ Reading: a run folder holding ``landing.json`` (DESIGN.md contract) or that file
 recording is not accepted here: the site comes from ``slz detect``.
 Writing: ``trajectory.csv``, ``features.csv``, ``metrics.json`` for one run;
 ``montecarlo.json`` (+ ``montecarlo_runs.csv``) for a batch. Figures are in ``ibvs_plots.py``.
+The folder is an ``output_dir`` kind (``simulate``, ``montecarlo``; one folder may hold one of
+each): written whole under a temporary name and put in place at the end, never into a folder
+slz did not write, never over a file it did not write.
 """
 
 from __future__ import annotations
 
 import io
-import json
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -45,12 +47,9 @@ def read_target(path: Path, footprint_m: tuple[float, ...]) -> tuple[Target, dic
     Parsed only: whether the corners are this UAV's Eq. 10 square is ``control.simulate.check_target``.
     """
     file = landing_path(path)
-    try:
-        doc = json.loads(file.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise DatasetError(file, f"not readable JSON ({err})") from err
-    except RecursionError as err:
-        raise DatasetError(file, "not a landing.json: nested too deeply to read") from err
+    from slzcli.bounds import load_json
+
+    doc = load_json(file, "landing.json")
     if not isinstance(doc, dict) or "status" not in doc:
         raise DatasetError(file, "missing key 'status' (expected the landing.json of `slz detect`)")
     if doc["status"] == "no_safe_site":
@@ -78,6 +77,31 @@ def read_target(path: Path, footprint_m: tuple[float, ...]) -> tuple[Target, dic
     if not (np.isfinite(center).all() and np.isfinite(corners_arr).all()):
         raise DatasetError(file, "site: centre or corners are not finite numbers")
     return Target(center, corners_arr), doc
+
+
+@contextmanager
+def output_folder(out: Path, landing: Path, runs: int) -> Iterator[Path]:
+    """A temporary folder to write the simulation's files into; put in place at ``out`` when the block ends.
+
+    ``out`` may not be or hold the landing.json read; slz replaces only its own earlier results there.
+    """
+    from slzcli.outputs import output_dir, run_lock
+
+    output_dir.refuse_inputs(out, [landing])
+    kind = output_dir.SIMULATE if runs == 1 else output_dir.MONTECARLO
+    output_dir.check_names(output_dir.inspect(out, kind), kind.names)  # before the simulation runs
+    with run_lock.claim(out), output_dir.build(out, kind, replace=True) as tmp:
+        yield tmp
+
+
+def write_single(out_dir: Path, result: SimResult, metrics: dict[str, Any], target: Target, cam: Any) -> None:
+    """The files of one logged landing: the tables, metrics.json and the three figures."""
+    from slzcli.outputs import ibvs_plots
+
+    write_run(out_dir, result, metrics, cam.cx, cam.cy)
+    ibvs_plots.image_plane(out_dir / "image_plane.png", result, cam.width, cam.height, cam.cx, cam.cy)
+    ibvs_plots.feature_error(out_dir / "feature_error.png", result)
+    ibvs_plots.trajectory_3d(out_dir / "trajectory_3d.png", result, target)
 
 
 def _csv(header: list[str], columns: list[np.ndarray]) -> str:

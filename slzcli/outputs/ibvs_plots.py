@@ -29,7 +29,9 @@ def image_plane(path: Path, result: SimResult, width: int, height: int, cx: floa
     ibvs = log["phase"][:, i] == 0
     uv = log["virtual_uv"][ibvs, i] + np.array([cx, cy])
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
-    for k in range(uv.shape[1]):
+    if not len(uv):  # the landing ended before its IBVS phase (e.g. a timeout in the approach)
+        ax.text(width / 2, height / 2, "no IBVS phase in this landing", ha="center", va="center")
+    for k in range(uv.shape[1] if len(uv) else 0):
         ax.plot(uv[:, k, 0], uv[:, k, 1], color=COLOURS[k], lw=1.2, label=f"corner {k}")
         ax.plot(uv[0, k, 0], uv[0, k, 1], "o", mfc="none", color=COLOURS[k], ms=9)
         ax.plot(uv[-1, k, 0], uv[-1, k, 1], "*", color=COLOURS[k], ms=12)
@@ -39,7 +41,8 @@ def image_plane(path: Path, result: SimResult, width: int, height: int, cx: floa
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
     ax.set_title("Virtual image: corners (o start, * end of IBVS)")
-    ax.legend(loc="lower right", fontsize=8)
+    if len(uv):
+        ax.legend(loc="lower right", fontsize=8)
     return _save(fig, path)
 
 

@@ -7,11 +7,12 @@ and the manifest: the names slz wrote at the folder's top level. Anything else i
 removed. Folders written before the manifest existed are recognised by their marker's keys and
 their kind's fixed list of names.
 
-``build`` makes a folder under a temporary name beside it (``.NAME.<random>.partial``) and puts
+``build`` makes a folder under a temporary name beside it (``.NAME.<random>.partial``, marked as
+slz's temporary: ``safe_output``) and puts
 it in place at the end: renamed whole when ``NAME`` does not exist (or is an empty folder), else
 swapped name by name: the marker first becomes ``replacing`` (listing the old and the new names,
 so a run killed half-way leaves a folder the next run recognises and redoes), the old names move
-to ``.NAME.old``, the new ones move in, the finished marker last. An existing path that is not
+to a marked ``.NAME.<random>.old``, the new ones move in, the finished marker last. An existing path that is not
 a folder of the same kind is refused with a one-line reason; it is never emptied. The
 temporary folders are removed by ``run_lock.claim`` when a writer was killed.
 """
@@ -21,15 +22,14 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from slzcli.errors import OutputError
-from slzcli.outputs import files
+from slzcli.errors import OutputError, SlzError
+from slzcli.outputs import files, safe_output
 
 MARKER_KEY = "slz_output"
 FINISHED, REPLACING = "finished", "replacing"
@@ -45,6 +45,7 @@ class Kind:
     names: tuple[str, ...]                   # top-level names a run of this kind always may write
     legacy_keys: tuple[str, ...]             # a marker without slz_output but with these keys: an older slz's
     legacy_names: Callable[[dict[str, Any]], tuple[str, ...]]  # what that older slz wrote, from its marker
+    cohabits: tuple[str, ...] = ()           # kinds whose folder this kind may share (disjoint names)
 
 
 @dataclass(frozen=True)
@@ -63,9 +64,11 @@ class Existing:
 
 def read_marker(path: Path, kind: Kind) -> dict[str, Any] | None:
     """The marker document of ``path`` when it is a folder of ``kind`` (any state), else None."""
+    from slzcli.bounds import load_json
+
     try:
-        doc = json.loads((Path(path) / kind.marker).read_text())
-    except (OSError, ValueError):
+        doc = load_json(Path(path) / kind.marker, kind.marker)
+    except SlzError:  # missing, not JSON, not a file, too large or deep: not slz's
         return None
     if not isinstance(doc, dict):
         return None
@@ -87,6 +90,8 @@ def inspect(path: Path, kind: Kind) -> Existing:
     if doc is None:
         if not any(path.iterdir()):
             return Existing(path)
+        if any(read_marker(path, KINDS[k]) is not None for k in kind.cohabits):
+            return Existing(path)  # the other kind's files stay; check_names keeps the new names off them
         other = next((k for k in KINDS.values() if k is not kind and read_marker(path, k) is not None), None)
         what = f"an {other.label}, not an {kind.label}" if other else f"not an {kind.label} (no {kind.marker} of slz)"
         raise OutputError(path, f"exists and is {what}; slz does not write into it: choose another -o")
@@ -99,20 +104,7 @@ def inspect(path: Path, kind: Kind) -> Existing:
 
 def refuse_inputs(out: Path, inputs: Sequence[Path]) -> None:
     """OutputError when ``out`` is one of the inputs or holds one (writing there could remove it)."""
-    target = _resolved(Path(out))
-    for inp in inputs:
-        p = _resolved(Path(inp))
-        if p == target or target in p.parents:
-            what = "is the input recording" if p == target else f"holds the input {inp}"
-            raise OutputError(out, f"{what}; write the results elsewhere (another -o)")
-
-
-def _resolved(path: Path) -> Path:
-    """``path`` with links resolved; a link loop stays as given (the reader names it, not this check)."""
-    try:
-        return path.resolve()
-    except (OSError, RuntimeError):
-        return path.absolute()
+    safe_output.refuse_inputs(out, inputs)
 
 
 def check_names(existing: Existing, new: Sequence[str]) -> None:
@@ -138,7 +130,7 @@ def build(path: Path, kind: Kind, *, replace: bool) -> Iterator[Path]:
     check_names(existing, kind.names)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
+        tmp = safe_output.make_temp_dir(path, ".partial")
     except OSError as err:
         raise OutputError(path, f"cannot create output folder ({err.strerror})") from err
     try:
@@ -153,7 +145,7 @@ def build(path: Path, kind: Kind, *, replace: bool) -> Iterator[Path]:
             raise OutputError(where, f"cannot write ({err.strerror or err})") from err
         with files.naming_write_errors(path):
             os.chmod(tmp, 0o777 & ~files.UMASK)  # mkdtemp makes 0700; a finished folder gets the user's usual mode
-            new = sorted(os.listdir(tmp))
+            new = safe_output.entries(tmp)
             _mark(tmp / kind.marker, kind, FINISHED, new)
         _commit(tmp, path, kind, new)
     except BaseException:
@@ -173,12 +165,11 @@ def _commit(tmp: Path, path: Path, kind: Kind, new: list[str]) -> None:
     existing = inspect(path, kind)  # again: the user may have put something there while the run worked
     check_names(existing, new)
     try:
-        if existing.empty and not path.is_symlink():
+        if existing.empty and not path.is_symlink() and not (path.is_dir() and any(path.iterdir())):
+            safe_output.unmark(tmp)
             os.replace(tmp, path)  # a missing path, or an empty folder (rename replaces an empty directory)
             return
-        trash = path.parent / f".{path.name}.old"
-        shutil.rmtree(trash, ignore_errors=True)
-        trash.mkdir()
+        trash = safe_output.make_temp_dir(path, ".old")
         _mark(path / kind.marker, kind, REPLACING, sorted(set(existing.names) | set(new)), doc={})
         for name in existing.names:
             if name != kind.marker and os.path.lexists(path / name):
@@ -188,6 +179,7 @@ def _commit(tmp: Path, path: Path, kind: Kind, new: list[str]) -> None:
                 os.replace(tmp / name, path / name)
         os.replace(tmp / kind.marker, path / kind.marker)  # the switch: from here it is the new finished folder
         shutil.rmtree(trash, ignore_errors=True)
+        safe_output.unmark(tmp)
         tmp.rmdir()
     except OSError as err:
         raise OutputError(path, f"cannot put the results in place ({err.strerror or err})") from err
@@ -210,4 +202,11 @@ DETECT = Kind("detect", "slz detect run folder", "run.json", DETECT_NAMES, ("con
               lambda doc: DETECT_NAMES)
 COMPARE = Kind("compare", "slz compare folder", "compare.json", COMPARE_NAMES, ("methods", "recordings", "config_hash"),
                _compare_legacy)
-KINDS = {k.name: k for k in (DETECT, COMPARE)}
+SIMULATE_NAMES = ("metrics.json", "trajectory.csv", "features.csv", "image_plane.png", "feature_error.png",
+                  "trajectory_3d.png")
+MONTECARLO_NAMES = ("montecarlo.json", "montecarlo_runs.csv", "montecarlo_hist.png")
+SIMULATE = Kind("simulate", "slz land simulate folder", "metrics.json", SIMULATE_NAMES,
+                ("success", "reason", "landing_time_s"), lambda doc: SIMULATE_NAMES, cohabits=("montecarlo",))
+MONTECARLO = Kind("montecarlo", "slz land simulate --runs folder", "montecarlo.json", MONTECARLO_NAMES,
+                  ("runs", "success_rate", "reasons"), lambda doc: MONTECARLO_NAMES, cohabits=("simulate",))
+KINDS = {k.name: k for k in (DETECT, COMPARE, SIMULATE, MONTECARLO)}

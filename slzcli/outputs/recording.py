@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -29,6 +30,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from slzcli.errors import OutputError
 from slzcli.geometry import Pose
+from slzcli.outputs import safe_output
 from slzcli.sources.decode import COMPRESSED_DEPTH_HEADER
 from slzcli.types import Frame, Intrinsics
 
@@ -96,7 +98,7 @@ class RecordingWriter:
         if POSE_TYPES["tf"] not in self.typestore.fielddefs:  # the Noetic store lacks tf2_msgs
             self.typestore.register(get_types_from_msg(TF_MESSAGE_DEF, POSE_TYPES["tf"]))
         # Staging: the file itself (mcap, ros1) or a parent holding the bag folder (rosbag2).
-        self._staging = self.path.parent / f".{self.path.name}.{os.getpid()}.tmp"
+        self._staging = self.path.parent / f".{self.path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
         self._tmp = self._staging / self.path.name if fmt.startswith("ros2") else self._staging
         self._backend: _Backend | None = None
         self.frames_written = 0
@@ -124,7 +126,8 @@ class RecordingWriter:
     def open(self) -> None:
         if not self.path.parent.is_dir():
             raise OutputError(self.path, "parent folder does not exist")
-        _remove(self._staging)
+        if os.path.lexists(self._staging):  # not ours: never removed
+            raise OutputError(self._staging, "exists; slz does not replace it: move it away")
         try:
             if self._tmp != self._staging:
                 self._staging.mkdir()
@@ -143,8 +146,8 @@ class RecordingWriter:
         try:
             backend.close()
             if self.path.is_dir() and self._tmp.is_dir():
-                old = self.path.parent / f".{self.path.name}.{os.getpid()}.old"
-                os.replace(self.path, old)
+                old = safe_output.make_temp_dir(self.path, ".old")
+                os.replace(self.path, old / self.path.name)
                 os.replace(self._tmp, self.path)
                 shutil.rmtree(old, ignore_errors=True)
             else:

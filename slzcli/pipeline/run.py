@@ -28,7 +28,7 @@ from typing import Any
 
 from slzcli import fingerprint
 from slzcli.config import Config
-from slzcli.errors import DatasetError, OutputError
+from slzcli.errors import DatasetError, FrameError, OutputError
 from slzcli.evaluate.truth import TruthEvaluator, ground_truth_of
 from slzcli.interrupt import call_interruptibly
 from slzcli.methods.base import Method, build
@@ -109,7 +109,10 @@ def run(source: Source, tracker: Tracker, runs: Sequence[MethodRun], noise: Nois
                 m.observe(t)
             if t.due:
                 with limit.stage(f"detection on frame {t.frame.index}"):
-                    maps, dets = call_interruptibly(step, t, methods, config, noise)  # seconds of native work
+                    try:
+                        maps, dets = call_interruptibly(step, t, methods, config, noise)  # seconds of native work
+                    except FrameError as err:  # the frame's content: name the recording and the frame
+                        raise DatasetError(source.path, f"frame {t.frame.index}: {err}") from err
                 for r, d in zip(runs, dets, strict=True):
                     tally(r.state, d, r.method, config)
                 for s in sinks:

@@ -220,8 +220,12 @@ def _along(p: CameraPoints, axis: np.ndarray) -> np.ndarray:
 
 
 def _cell_index(coord: np.ndarray, origin: float, cell: float, ok: np.ndarray) -> np.ndarray:
-    """int32 cell of each coordinate from ``origin`` (0 where not ``ok``); overwrites ``coord``."""
+    """int32 cell of each coordinate from ``origin`` (0 where not ``ok``); overwrites ``coord``.
+
+    Clipped to the raster's side: depths near float32's limit (3e38 m) overflow the difference to
+    inf, which would cast to a negative index."""
     coord -= np.float32(origin)
     coord *= np.float32(1.0 / cell)
+    np.clip(coord, 0.0, math.ceil(math.sqrt(MAX_PLAN_CELLS)), out=coord)
     np.copyto(coord, 0.0, where=~ok)
     return coord.astype(np.int32)

@@ -266,12 +266,14 @@ def _numeric_table(body: str, n_lines: int, source: str) -> np.ndarray:
 
 def read_vocabulary(path: str | Path) -> Vocabulary:
     """Read and validate a vocabulary file (plain text; the native loader reads no gzip)."""
+    from slzcli.bounds import MAX_VOCABULARY_BYTES, read_regular
+
     p = Path(path)
     if not p.is_file():
         raise DatasetError(p, "vocabulary file not found")
     try:
-        text = p.read_text(encoding="ascii")
-    except (OSError, UnicodeDecodeError) as err:
+        text = read_regular(p, MAX_VOCABULARY_BYTES, "vocabulary").decode("ascii")
+    except UnicodeDecodeError as err:
         raise DatasetError(p, f"vocabulary is not a readable text file ({err})") from err
     return parse_vocabulary(text, str(p))
 
@@ -298,12 +300,25 @@ class BuildReport:
     seconds: float
 
 
-def build_from_recordings(paths: Sequence[str | Path], out: str | Path, config: Any) -> BuildReport:
-    """Train a vocabulary from evenly spaced frames of the recordings, write it, and check it loads back."""
+def build_from_recordings(paths: Sequence[str | Path], out: str | Path, config: Any,
+                          force: bool = False) -> BuildReport:
+    """Train a vocabulary from evenly spaced frames of the recordings, write it, and check it loads back.
+
+    ``out`` may not be an input nor hold one, and an existing file there is replaced only with
+    ``force`` and only when it is a vocabulary (``safe_output``); checked before the training and
+    again before the write.
+    """
     import time
 
+    from slzcli.outputs import safe_output
     from slzcli.outputs.files import write_text
     from slzcli.sources import open_recording
+
+    def check() -> None:
+        safe_output.refuse_inputs(Path(out), [Path(p) for p in paths])
+        safe_output.check_file(Path(out), force=force, ours=safe_output.is_vocabulary, label="a vocabulary")
+
+    check()
 
     t0 = time.perf_counter()
     cfg = config.slam.vocab
@@ -325,7 +340,8 @@ def build_from_recordings(paths: Sequence[str | Path], out: str | Path, config: 
     vocab = train_vocabulary(docs, cfg.k, cfg.levels, cfg.iterations, cfg.seed)
     text = vocabulary_text(vocab)
     out = Path(out)
+    parse_vocabulary(text, str(out))  # checked before it replaces anything
+    check()
     write_text(out, text)
-    read_vocabulary(out)
     return BuildReport(str(out), len(paths), n_frames, n_desc, vocab.n_nodes, vocab.n_words, len(text),
                        time.perf_counter() - t0)

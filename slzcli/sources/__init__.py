@@ -35,6 +35,11 @@ def check_readable(path: Path) -> None:
         if err.errno in (errno.ENOENT, errno.ENOTDIR):
             raise DatasetError(path, "no such file or folder") from err
         raise DatasetError(path, f"cannot read ({err.strerror or err})") from err
+    if not (stat.S_ISDIR(st.st_mode) or stat.S_ISREG(st.st_mode)):  # opening a FIFO waits for a writer
+        from slzcli.bounds import file_kind
+
+        raise DatasetError(path, f"not a regular file or folder ({file_kind(st.st_mode)}); a recording is a file "
+                                 "(.bag, .mcap) or a folder (rosbag2, TUM)")
     try:
         if stat.S_ISDIR(st.st_mode):
             os.listdir(path)

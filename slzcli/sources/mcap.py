@@ -17,8 +17,8 @@ from typing import Any, BinaryIO
 
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -30,6 +30,10 @@ log = logging.getLogger(__name__)
 MAGIC = b"\x89MCAP0\r\n"
 ROS1_ENCODING = "ros1"
 CDR_ENCODING = "cdr"
+
+
+class _ChunkTooLarge(Exception):
+    """A chunk whose declared or real uncompressed size is beyond the bound: damage, read as a torn chunk."""
 
 
 class McapLog(MessageLog):
@@ -128,9 +132,9 @@ class McapLog(MessageLog):
         channels: dict[int, Channel] = {}
         n = 0
         with self.path.open("rb") as f:
-            reader = StreamReader(f, record_size_limit=_file_size(f))
+            reader = StreamReader(f, record_size_limit=_file_size(f), emit_chunks=True)
             try:
-                for rec in reader.records:
+                for rec in self._unchunked(reader.records, f):
                     if isinstance(rec, Schema):
                         self._schemas[rec.id] = rec
                     elif isinstance(rec, Channel):
@@ -146,15 +150,34 @@ class McapLog(MessageLog):
                             yield RawMessage(ch.topic, rec.log_time, rec.data)
             except InvalidMagic as err:
                 raise DatasetError(self.path, "not an MCAP file (bad magic bytes)") from err
-            except (EndOfFile, McapError, struct.error, ValueError, EOFError) as err:
+            except (EndOfFile, McapError, struct.error, ValueError, EOFError, _ChunkTooLarge) as err:
                 self._truncated(n, f.tell(), err)
             except Exception as err:  # decompression errors of a torn chunk (zstd/lz4 raise their own types)
                 if "compress" not in type(err).__module__ + type(err).__name__.lower() + str(err).lower():
                     raise
                 self._truncated(n, f.tell(), err)
 
+    def _unchunked(self, records: Iterator[Any], f: BinaryIO) -> Iterator[Any]:
+        """The records with each chunk broken up, after its declared size is checked against
+        ``bounds.MAX_MCAP_CHUNK_BYTES`` (zstd allocates what a chunk declares before it reads a byte)."""
+        from slzcli.bounds import MAX_MCAP_CHUNK_BYTES
+
+        for rec in records:
+            if not isinstance(rec, Chunk):
+                yield rec
+                continue
+            if rec.uncompressed_size > MAX_MCAP_CHUNK_BYTES:  # damaged: read as a torn chunk is (_truncated)
+                raise _ChunkTooLarge(f"a chunk declares {rec.uncompressed_size} bytes uncompressed, more than "
+                                     f"{MAX_MCAP_CHUNK_BYTES >> 20} MiB")
+            try:
+                inner = breakup_chunk(rec)
+            except MemoryError:  # e.g. an lz4 frame whose header declares more than memory holds
+                raise _ChunkTooLarge("a chunk does not decompress within memory") from None
+            yield from inner
+
     def _truncated(self, n: int, pos: int, err: Exception) -> None:
-        kind = f"{type(err).__module__.split('.')[0]}.{type(err).__name__}"
+        kind = str(err) if isinstance(err, _ChunkTooLarge) else \
+            f"{type(err).__module__.split('.')[0]}.{type(err).__name__}"
         text = (f"file ends early or is damaged near byte {pos} ({kind}); "
                 f"recovered {n} messages before it")
         if text not in self.warnings:

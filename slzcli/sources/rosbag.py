@@ -6,6 +6,8 @@ ROS 1 Noetic or ROS 2 Humble typestore.
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import Any
@@ -34,6 +36,8 @@ class RosbagLog(MessageLog):
             with self.path.open("rb") as f:
                 if f.read(len(ROS1_MAGIC)) != ROS1_MAGIC:
                     raise DatasetError(self.path, "not a ROS 1 bag (no '#ROSBAG V2.0' header)")
+        else:
+            _check_bag_folder(self.path)
         store = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
         try:
             reader = AnyReader([self.path], default_typestore=store)
@@ -84,13 +88,31 @@ def _reason(err: Exception) -> str:
     return text if len(text) < 200 else text[:197] + "..."
 
 
+def _check_bag_folder(path: Path) -> None:
+    """Before rosbags reads it: metadata.yaml a regular file within ``bounds.MAX_BAG_METADATA_BYTES`` and
+    the storage files regular files (rosbags reads the whole YAML, and a FIFO would block the read)."""
+    from slzcli.bounds import MAX_BAG_METADATA_BYTES, file_kind, read_regular
+
+    read_regular(path / "metadata.yaml", MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
+    for p in path.iterdir():
+        if p.suffix in (".db3", ".mcap"):
+            try:
+                mode = os.stat(p).st_mode
+            except OSError:
+                continue  # a broken link: the reader names it
+            if not stat.S_ISREG(mode):
+                raise DatasetError(p, f"not a regular file ({file_kind(mode)}); a rosbag2 storage file is a file")
+
+
 def _storage(path: Path) -> str:
     """The rosbag2 storage plugin named in metadata.yaml ('sqlite3' or 'mcap'), or ''."""
-    meta = path / "metadata.yaml"
+    from slzcli.bounds import MAX_BAG_METADATA_BYTES, read_regular
+
     try:
-        for line in meta.read_text().splitlines():
-            if "storage_identifier:" in line:
-                return line.split(":", 1)[1].strip()
-    except OSError:
+        text = read_regular(path / "metadata.yaml", MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
+    except DatasetError:
         return ""
+    for line in text.decode(errors="replace").splitlines():
+        if "storage_identifier:" in line:
+            return line.split(":", 1)[1].strip()
     return ""

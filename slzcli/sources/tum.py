@@ -81,10 +81,10 @@ def unique_stamps(rows: list[tuple[int, str]], name: str) -> tuple[list[tuple[in
 def read_list(path: Path, min_fields: int) -> list[list[str]]:
     """Non-comment lines of a TUM list, split on whitespace or commas; DatasetError on a short line."""
     rows = []
+    from slzcli.bounds import MAX_TEXT_LIST_BYTES, read_regular
+
     try:
-        text = path.read_text()
-    except OSError as err:
-        raise DatasetError(path, f"cannot read ({err.strerror or err})") from err
+        text = read_regular(path, MAX_TEXT_LIST_BYTES, "TUM list").decode()
     except UnicodeDecodeError as err:
         raise DatasetError(path, f"not a text list (byte {err.start} is not UTF-8)") from err
     for no, line in enumerate(text.splitlines(), 1):

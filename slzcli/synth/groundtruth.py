@@ -18,7 +18,6 @@ full-size frames then costs one frame of memory, not N.
 
 from __future__ import annotations
 
-import json
 import struct
 import zipfile
 from dataclasses import dataclass, field
@@ -288,10 +287,9 @@ def load_ground_truth(recording_path: str | Path) -> GroundTruth:
     if not npz_path.is_file() or not json_path.is_file():
         raise DatasetError(recording_path, f"no ground truth ({npz_path.name} and {json_path.name} expected "
                                            "next to it; only `slz synth` recordings have one)")
-    try:
-        header = json.loads(json_path.read_text())
-    except (OSError, ValueError) as err:
-        raise DatasetError(json_path, f"unreadable ground truth header ({err})") from err
+    from slzcli.bounds import load_json
+
+    header = load_json(json_path, "ground-truth header (.gt.json)")
     if not isinstance(header, dict) or header.get("format") != GT_FORMAT \
             or header.get("version") not in READABLE_VERSIONS:
         raise DatasetError(json_path, f"not a {GT_FORMAT} v{'/'.join(map(str, READABLE_VERSIONS))} header")

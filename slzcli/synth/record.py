@@ -27,7 +27,7 @@ import numpy as np
 from slzcli import bounds, fingerprint
 from slzcli.config import Config
 from slzcli.errors import ConfigError, OutputError
-from slzcli.outputs import files, run_lock
+from slzcli.outputs import files, run_lock, safe_output
 from slzcli.outputs.recording import FORMATS, RecordingWriter
 from slzcli.synth.flight import Flight, PathKind, make_flight
 from slzcli.synth.geometry import SceneMeshes, build_meshes
@@ -160,6 +160,7 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
                                f"{'a name ending in ' + want if want else 'a folder name without .mcap/.bag'} "
                                "(readers guess the format from the path)")
     check_replaceable(out, options.fmt, force)
+    bounds.check(bounds.synth_frames(config, options.frames))
     scene = load_scene(options.scene, options.variants)
     if options.start_m is None:
         options = dataclasses.replace(options, start_m=scenario_start(config, scene.scenario))
@@ -167,18 +168,19 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise OutputError(out.parent, f"cannot create folder ({err.strerror})") from err
+    preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
+    check_companions(out, preview_path, force)
     with run_lock.claim(out, leftovers=run_lock.SYNTH_LEFTOVERS):
         check_replaceable(out, options.fmt, force)  # again, now that no other synth writes it
-        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-        preview_path = preview if preview is not None else Path(str(out).rstrip("/\\") + ".preview.png")
+        check_companions(out, preview_path, force)
+        stage = safe_output.make_temp_dir(out, ".tmp")
         try:
             summary, sheet = _render_into(stage, out, options, scene, config, progress)
-            _write_png(preview_path, sheet)  # before the install: a failed preview leaves no new recording
-            try:
+            # the preview is made before the install (a failed preview leaves no new recording) and
+            # renamed into place after it (a failed install leaves the old preview)
+            with files.atomic_path(preview_path) as preview_tmp:
+                _write_png(preview_tmp, sheet)
                 _install(stage, out)
-            except BaseException:
-                preview_path.unlink(missing_ok=True)
-                raise
         finally:
             shutil.rmtree(stage, ignore_errors=True)
     log.info("synth: %s (%d frames of %s), ground truth %s, preview %s", out, options.frames, scene.name,
@@ -202,6 +204,23 @@ def check_replaceable(out: Path, fmt: str, force: bool) -> None:
                                    "move it away or choose another -o")
     elif out.is_dir():
         raise OutputError(out, f"is a folder; --format {fmt} writes a file: choose another -o")
+    else:
+        safe_output.check_file(out, force=True, ours=safe_output.is_recording_file, label="a recording (MCAP or "
+                               "ROS 1 bag)")
+
+
+def check_companions(out: Path, preview: Path, force: bool) -> None:
+    """The files written beside the recording (truth sidecar, preview) follow the same rule as it: none
+    of them is another output or an existing file slz cannot tell is its own of that kind."""
+    npz, header = sidecar_paths(out)
+    safe_output.distinct({"-o": out, "the ground truth": npz, "the ground-truth header": header,
+                          "--contact-sheet": preview})
+    safe_output.check_file(npz, force=force, ours=safe_output.is_ground_truth_arrays,
+                           label="a ground-truth sidecar (.gt.npz)")
+    safe_output.check_file(header, force=force, ours=safe_output.is_ground_truth_header,
+                           label="a ground-truth header (.gt.json)")
+    safe_output.check_file(preview, force=force, ours=safe_output.is_slz_png, label="a preview PNG",
+                           option="--contact-sheet")
 
 
 BAG_SUFFIXES = (".db3", ".db3-shm", ".db3-wal", ".mcap")  # what a rosbag2 folder holds besides metadata.yaml
@@ -273,8 +292,8 @@ def _install(stage: Path, out: Path) -> None:
     try:
         header.unlink(missing_ok=True)  # the old truth is no longer paired with anything
         if out.is_dir() and not out.is_symlink():  # a rosbag2 folder (check_replaceable let it through)
-            old = out.parent / f".{out.name}.{os.getpid()}.old"
-            os.replace(out, old)
+            old = safe_output.make_temp_dir(out, ".old")
+            os.replace(out, old / out.name)
             os.replace(stage / out.name, out)
             shutil.rmtree(old, ignore_errors=True)
         else:
@@ -385,4 +404,4 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
     ok, data = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise OutputError(path, "PNG encoding failed")
-    files.write_bytes(path, data.tobytes())
+    path.write_bytes(safe_output.tag_png(data.tobytes()))

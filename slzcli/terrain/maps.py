@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from slzcli.config import Config, DepthVarianceCfg, FlatnessCfg, InclinationCfg, Mount, SteepnessCfg, TerrainCfg, UavCfg
-from slzcli.errors import DatasetError
+from slzcli.errors import DatasetError, FrameError
 from slzcli.terrain.geometry import (
     NormalField,
     block_depth,
@@ -500,6 +500,11 @@ def compute_maps(frame_or_depth: Frame | np.ndarray, intrinsics: Intrinsics | No
     if work is None:  # no depth at all: every map is 0
         work = working_scale(DepthNoise.white(0.0, "none"), 1.0, 0.5 * (intr.fx + intr.fy), cfg, _default_uav())
     block, win, mpl = work.block_px, work.slope_window_blocks, work.metres_per_level
+    if block > min(d.depth.shape):
+        raise FrameError(f"median depth {work.altitude_m:.3g} m puts one working block ({float(block):.3g} px) "
+                         f"beyond the {d.depth.shape[1]}x{d.depth.shape[0]} px image: is the depth in the unit its "
+                         "encoding says (16UC1/mono16: sources.depth_unit_16u_m per count, 32FC1: metres, "
+                         "little-endian unless is_bigendian)?")
     db, intr_b = (d, intr) if block == 1 else _blocks(d, intr, block)
     noise_a = noise.a_at(block) if noise is not None else 0.0
 
