@@ -23,6 +23,7 @@ from conftest import GAUSSIAN
 
 from slzcli.cli import main
 from slzcli.config import load_config
+from slzcli.methods import registry
 from slzcli.sources import open_recording
 
 # case -> (cause in the `slz info` error or None when info succeeds, cause in the `slz detect` error)
@@ -258,7 +259,7 @@ def test_every_frame_over_the_bound_warns_once_and_counts(runner: CliRunner, tmp
     ("config_alias_small_bomb", "landing.kmeans_k", "expected an integer, got a list [[[[...]"),
     ("config_too_deep", "", "nested more than 32 levels deep"),
     ("config_too_large", "", "file is larger than 1024 KiB"),
-    ("config_long_value", "scoring.method", "must be one of fuzzy, bayes, px4slp; got 'xxxxx"),
+    ("config_long_value", "scoring.method", f"must be one of {', '.join(registry.names())}; got 'xxxxx"),
 ])
 def test_bad_config_file_is_one_line_naming_file_and_key(runner: CliRunner, tmp_path: Path, case: str, key: str,
                                                          cause: str) -> None:
