@@ -184,7 +184,7 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
             unavailable: dict[str, str]) -> tuple[list[tuple[int, np.ndarray]], float]:
     """The recorded poses' and the scene's estimates from the first frames; their (stamp, R_world_camera) and
     the median frame's share of points on a plane level under camera.mount (``terrain.gravity.level_share``)."""
-    from slzcli.slam import choose_backend
+    from slzcli.slam import uses_recorded_poses
     from slzcli.sources import open_recording
 
     cfg = config.camera.gravity.scene
@@ -195,7 +195,7 @@ def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
     planes: list[g.Plane] = []
     read = 0
     last = (cfg.frames - 1) * cfg.stride
-    use_poses = choose_backend(config, True) == "recorded"  # poses rejected or not chosen: no gravity source
+    use_poses = uses_recorded_poses(config)  # poses rejected or not chosen: no gravity source
     try:
         with _quiet_readers(), open_recording(path, config) as other:
             frames = other.frames()

@@ -91,7 +91,9 @@ def test_info_warns_of_millimetre_pngs_read_at_5000_per_metre_and_not_when_told(
     assert "5000 counts per metre (sources.tum_depth_scale)" in res.stdout
     right = realsense_tum(realsense_dir, tmp_path / "mm1000", "depth_scale: 1000\n")
     res = runner.invoke(main, ["info", "--json", str(right)])
-    assert res.exit_code == 0 and "WARNING" not in res.stderr, res.stderr
+    # no depth warning (the hand-held camera's tilt is warned of by the gravity resolver, which is not tested here)
+    depth_warnings = [w for w in res.stderr.splitlines() if "WARNING" in w and "gravity" not in w]
+    assert res.exit_code == 0 and not depth_warnings, res.stderr
     depth = json.loads(res.stdout)["depth"]
     # measured on the 10 frames (5 read): p5 0.37 m, p50 1.02 m, p95 2.82 m, 96 % valid, 1 % nearer than 0.28 m
     assert 0.8 < depth["percentiles_m"]["p50"] < 1.3 and depth["valid_share"] > 0.85

@@ -280,6 +280,8 @@ def _mcap_frames(path: Path) -> dict[str, list[tuple[str, str]]]:
                 ids = [(t.header.frame_id, t.child_frame_id) for t in msg.transforms]
             elif hasattr(msg, "markers"):
                 ids = [(msg.markers[0].header.frame_id, "")]
+            elif not hasattr(msg, "header"):  # a frame's funnel row (std_msgs/String): in no frame
+                continue
             else:
                 ids = [(msg.header.frame_id, "")]
             out.setdefault(channel.topic, []).extend(ids)

@@ -340,7 +340,7 @@ def test_cli_small_run(tmp_path):
     res = CliRunner().invoke(main, ["synth", "clear_field:sand", "-o", str(out), "--frames", "2", "--scenario", "3",
                                     "--json", *[a for s in TINY for a in ("--set", s)]])
     assert res.exit_code == 0, res.output
-    summary = json.loads(res.output)
+    summary = json.loads(res.stdout)  # the progress lines are on stderr
     assert summary["frames"] == 2 and summary["variants"] == ["sand"] and summary["start_m"] == [0.0, 0.0, 7.0]
     assert out.is_file() and Path(summary["preview"]).is_file() and Path(summary["ground_truth"]).is_file()
     again = CliRunner().invoke(main, ["synth", "clear_field", "-o", str(out), "--frames", "1"])

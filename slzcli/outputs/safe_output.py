@@ -124,16 +124,14 @@ def is_slz_png(path: Path) -> bool:
     return head.startswith(PNG_MAGIC) and PNG_SOFTWARE in head
 
 
-def is_ground_truth_header(path: Path) -> bool:
-    """A ``.gt.json`` of ``slz synth``: a JSON object whose ``format`` is slz's ground-truth format."""
-    from slzcli.synth.groundtruth import GT_FORMAT
-
+def is_json_of_format(path: Path, fmt: str) -> bool:
+    """A JSON object whose ``format`` is ``fmt`` (e.g. the ``.gt.json`` header of ``slz synth``)."""
     head = _head(path, 1 << 20)
     try:
         doc = json.loads(head)
     except (ValueError, RecursionError):
         return False
-    return isinstance(doc, dict) and doc.get("format") == GT_FORMAT
+    return isinstance(doc, dict) and doc.get("format") == fmt
 
 
 def is_ground_truth_arrays(path: Path) -> bool:

@@ -51,6 +51,12 @@ def choose_backend(config: Config, has_recorded_poses: bool) -> str:
     return "orbslam3" if available() else "odometry"
 
 
+def uses_recorded_poses(config: Config) -> bool:
+    """Whether a run of ``config`` on a recording with poses takes them as given (not rejected, not overridden
+    by another backend): only then are they a source of anything else, e.g. gravity."""
+    return choose_backend(config, True) == "recorded"
+
+
 def with_frame_period(config: Config, info: RecordingInfo) -> Config:
     """``config`` with ``slam.orbslam3.nominal_period_s: auto`` resolved to the recording's colour frame period
     (ORB-SLAM3 keeps at most Camera.fps frames between keyframes, so the cadence follows the camera's rate).
@@ -76,4 +82,4 @@ def get_backend(config: Config, has_recorded_poses: bool = False, **kw: Any) -> 
 
 
 __all__ = ["BACKENDS", "Keyframe", "MapPoints", "SlamBackend", "TrackResult", "TrackingState",
-           "choose_backend", "get_backend", "with_frame_period"]
+           "choose_backend", "get_backend", "uses_recorded_poses", "with_frame_period"]

@@ -217,7 +217,7 @@ def check_companions(out: Path, preview: Path, force: bool) -> None:
                           "--contact-sheet": preview})
     safe_output.check_file(npz, force=force, ours=safe_output.is_ground_truth_arrays,
                            label="a ground-truth sidecar (.gt.npz)")
-    safe_output.check_file(header, force=force, ours=safe_output.is_ground_truth_header,
+    safe_output.check_file(header, force=force, ours=lambda p: safe_output.is_json_of_format(p, GT_FORMAT),
                            label="a ground-truth header (.gt.json)")
     safe_output.check_file(preview, force=force, ours=safe_output.is_slz_png, label="a preview PNG",
                            option="--contact-sheet")
