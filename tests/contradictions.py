@@ -13,6 +13,7 @@ true poses of that motion in REP 103 (world z up, the camera's optical frame).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -231,3 +232,97 @@ CASES: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
     poses_right, poses_mm, poses_cm, pose_upside_down, poses_body_frame, poses_yawed, poses_1s_late,
     poses_start_late, pose_stamps_in_seconds, poses_static_frames_moving, tf_two_parents, tf_cycle, tf_right,
     aligned_depth_transposed, aligned_depth_half_width, aligned_depth_half_size, clouds_right, clouds_mm)}
+
+
+# ----------------------------------------------------------------------------- CameraInfo of another camera
+OTHER_CAMERA = 0.7  # the other camera's focal length relative to the colour one (same size: same aspect ratio)
+
+
+def camera_layout(path: Path, streams: dict[str, tuple[str, str]], other: str = "", n: int = 4) -> Path:
+    """Colour, depth and CameraInfo topics with the header frame_id each names: ``streams`` maps a role
+    (color, depth, camera_info, depth_info) to (topic, frame_id). ``other``: the role whose CameraInfo holds
+    another camera's intrinsics of the same size."""
+    with RecordingWriter(path, "mcap") as w:
+        for i in range(n):
+            f = textured_frame(i)
+            s = f.stamp_ns
+            for role, (topic, frame) in streams.items():
+                if role == "color":
+                    msgtype, msg = w.color_message(f.rgb, s)
+                elif role == "depth":
+                    msgtype, msg = w.depth_message(f.depth_m, s)
+                else:
+                    k = f.intrinsics
+                    if role == other:
+                        k = replace(k, fx=k.fx * OTHER_CAMERA, fy=k.fy * OTHER_CAMERA)
+                    msgtype, msg = "sensor_msgs/msg/CameraInfo", w._camera_info(k, s)
+                w.write_raw(topic, msgtype, replace(msg, header=replace(msg.header, frame_id=frame)), s)
+    return path
+
+
+RS_COLOR = ("/camera/color/image_raw", "camera_color_optical_frame")
+RS_ALIGNED = ("/camera/aligned_depth_to_color/image_raw", "camera_color_optical_frame")
+RS_DEPTH = ("/camera/depth/image_rect_raw", "camera_depth_optical_frame")
+
+# The camera layouts slz knows (topic and optical frame names as each driver publishes them).
+LAYOUTS: dict[str, dict[str, tuple[str, str]]] = {
+    # realsense-ros 4.x, align_depth.enable: the aligned depth and its CameraInfo carry the colour optical frame
+    "realsense_aligned": {"color": RS_COLOR, "depth": RS_ALIGNED,
+                          "camera_info": ("/camera/aligned_depth_to_color/camera_info", "camera_color_optical_frame")},
+    "realsense_aligned_and_color_info": {
+        "color": RS_COLOR, "depth": RS_ALIGNED, "camera_info": ("/camera/color/camera_info", RS_COLOR[1])},
+    # realsense-ros 4.x without alignment: each stream with its own CameraInfo in its own optical frame
+    "realsense_raw": {"color": RS_COLOR, "depth": RS_DEPTH,
+                      "camera_info": ("/camera/color/camera_info", "camera_color_optical_frame"),
+                      "depth_info": ("/camera/depth/camera_info", "camera_depth_optical_frame")},
+    # ZED wrapper: depth_registered is in the left camera's optical frame
+    "zed": {"color": ("/zed/zed_node/rgb/image_rect_color", "zed_left_camera_optical_frame"),
+            "depth": ("/zed/zed_node/depth/depth_registered", "zed_left_camera_optical_frame"),
+            "camera_info": ("/zed/zed_node/rgb/camera_info", "zed_left_camera_optical_frame")},
+    # depthai-ros: stereo aligned to the RGB socket carries the RGB optical frame
+    "oakd": {"color": ("/oak/rgb/image_raw", "oak_rgb_camera_optical_frame"),
+             "depth": ("/oak/stereo/image_raw", "oak_rgb_camera_optical_frame"),
+             "camera_info": ("/oak/rgb/camera_info", "oak_rgb_camera_optical_frame"),
+             "depth_info": ("/oak/stereo/camera_info", "oak_rgb_camera_optical_frame")},
+    # Azure Kinect ROS driver: depth_to_rgb is in rgb_camera_link
+    "azure_kinect": {"color": ("/rgb/image_raw", "rgb_camera_link"),
+                     "depth": ("/depth_to_rgb/image_raw", "rgb_camera_link"),
+                     "camera_info": ("/rgb/camera_info", "rgb_camera_link")},
+    # librealsense's recorder: images in frame "0", CameraInfo with no frame_id
+    "realsense_viewer": {"color": ("/device_0/sensor_1/Color_0/image/data", "0"),
+                         "depth": ("/device_0/sensor_0/Depth_0/image/data", "0"),
+                         "camera_info": ("/device_0/sensor_1/Color_0/info/camera_info", ""),
+                         "depth_info": ("/device_0/sensor_0/Depth_0/info/camera_info", "")},
+    # ROS 1 openni: a leading '/' on one side only
+    "openni_slash": {"color": ("/camera/rgb/image_color", "/camera_rgb_optical_frame"),
+                     "depth": ("/camera/depth_registered/image_raw", "/camera_rgb_optical_frame"),
+                     "camera_info": ("/camera/rgb/camera_info", "camera_rgb_optical_frame")},
+    # a recorder that leaves every frame_id empty
+    "no_frame_ids": {"color": (RS_COLOR[0], ""), "depth": (RS_ALIGNED[0], ""),
+                     "camera_info": ("/camera/color/camera_info", "")},
+}
+
+
+def info_of_depth_beside_color(folder: Path) -> Path:
+    """The depth imager's CameraInfo (its optical frame, its focal length, the colour's size) published as the
+    colour stream's, beside colour; no aligned CameraInfo."""
+    return camera_layout(folder / "info_of_depth_beside_color.mcap", {
+        "color": RS_COLOR, "depth": RS_ALIGNED,
+        "camera_info": ("/camera/color/camera_info", "camera_depth_optical_frame")}, other="camera_info")
+
+
+def depth_info_of_another_camera(folder: Path) -> Path:
+    """Unaligned depth whose CameraInfo is the infrared imager's (another frame, another focal length)."""
+    return camera_layout(folder / "depth_info_of_ir.mcap", {
+        "color": RS_COLOR, "depth": RS_DEPTH, "camera_info": ("/camera/color/camera_info", RS_COLOR[1]),
+        "depth_info": ("/camera/depth/camera_info", "camera_infra1_optical_frame")}, other="depth_info")
+
+
+def info_of_the_color_camera(folder: Path) -> Path:
+    """The control: the colour CameraInfo in the colour optical frame."""
+    return camera_layout(folder / "info_right.mcap", {
+        "color": RS_COLOR, "depth": RS_ALIGNED, "camera_info": ("/camera/color/camera_info", RS_COLOR[1])})
+
+
+CASES.update({f.__name__: f for f in (info_of_depth_beside_color, depth_info_of_another_camera,
+                                      info_of_the_color_camera)})

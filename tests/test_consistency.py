@@ -221,3 +221,41 @@ def test_an_unbound_sidecar_is_used_with_a_warning(two_scenes: tuple[Path, Path]
     header_path.write_text(json.dumps(header))
     run, stderr = detect(runner, rec, tmp_path / "run")
     assert "is not bound to its recording" in stderr and run["summary"]["ground_truth"]["mask"] is not None
+
+
+# ----------------------------------------------------------------------------- CameraInfo of another camera
+@pytest.mark.parametrize(("case", "info", "image", "frames"), [
+    ("info_of_depth_beside_color", "/camera/color/camera_info", "/camera/color/image_raw",
+     ("'camera_depth_optical_frame'", "'camera_color_optical_frame'")),
+    ("depth_info_of_another_camera", "/camera/depth/camera_info", "/camera/depth/image_rect_raw",
+     ("'camera_infra1_optical_frame'", "'camera_depth_optical_frame'"))])
+def test_a_camera_info_of_another_optical_frame_is_refused(runner: CliRunner, tmp_path: Path, case: str, info: str,
+                                                           image: str, frames: tuple[str, str]) -> None:
+    path = C.CASES[case](tmp_path)
+    before = set(tmp_path.iterdir())
+    res = invoke(runner, "detect", str(path), "-o", str(tmp_path / "run"))
+    error_line(res, path, f"CameraInfo on {info} is for frame {frames[0]} but {image} is in frame {frames[1]}")
+    assert "the calibration of another camera" in res.stderr
+    assert set(tmp_path.iterdir()) == before
+
+
+def test_the_colour_camera_info_in_the_colour_frame_is_used(runner: CliRunner, tmp_path: Path) -> None:
+    run, _ = detect(runner, C.info_of_the_color_camera(tmp_path), tmp_path / "run")
+    assert run["recording"]["intrinsics_source"] == "CameraInfo on /camera/color/camera_info"
+
+
+@pytest.mark.parametrize("layout", sorted(C.LAYOUTS))
+def test_every_known_camera_layout_passes_the_frame_check(tmp_path: Path, layout: str) -> None:
+    """Real drivers' frame ids (aligned depth and its CameraInfo in the colour frame, empty ids, a leading
+    '/') are no contradiction; the same layout with the CameraInfo in the depth frame is."""
+    from slzcli.sources import open_recording
+    streams = C.LAYOUTS[layout]
+    config = load_config()
+    with open_recording(C.camera_layout(tmp_path / f"{layout}.mcap", streams), config) as rec:
+        info = rec.info()
+    assert info.intrinsics_source.startswith("CameraInfo on " + streams["camera_info"][0])
+    if streams["camera_info"][1] and streams["color"][1]:
+        wrong = {**streams, "camera_info": (streams["camera_info"][0], "some_depth_optical_frame")}
+        with pytest.raises(DatasetError, match="is for frame 'some_depth_optical_frame'"), \
+                open_recording(C.camera_layout(tmp_path / f"{layout}_wrong.mcap", wrong), config) as rec:
+            rec.info()

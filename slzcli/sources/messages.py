@@ -47,6 +47,7 @@ from slzcli.sources.undistort import distortion_problem, has_distortion
 from slzcli.sources.validate import (
     StampCounts,
     depth_shape_problem,
+    info_frame_problem,
     intrinsics_problem,
     pixel_aspect_problem,
     size_problem,
@@ -165,8 +166,37 @@ class MessageRecording(Recording):
     def _depth_to_color(self) -> DepthToColor:
         """How depth reaches the colour grid, decided once from the first messages (warnings for fallbacks)."""
         if self._d2c is None:
+            self._check_info_frames(self._need_choices())
             self._d2c = self._find_depth_to_color(self._need_choices())
         return self._d2c
+
+    def _check_info_frames(self, ch: Choices) -> None:
+        """DatasetError when a chosen CameraInfo names another optical frame than its image stream: the colour
+        (or aligned) intrinsics against the colour image, the depth's own against the depth image. Read from
+        the first message of each (raw headers), within SETUP_SCAN_NS of log time after the first image."""
+        pairs = [(info, image) for info, image in ((ch.camera_info.topic, ch.color.topic),
+                                                   (ch.depth_info.topic, ch.depth.topic)) if info and image]
+        if not pairs:
+            return
+        wanted = {t for pair in pairs for t in pair}
+        frames: dict[str, str] = {}
+        first_image: int | None = None
+        with closing(self._wrap(self.log.messages(sorted(wanted)))) as messages:
+            for msg in messages:
+                if msg.topic not in frames:
+                    try:
+                        frames[msg.topic] = decode.header_stamp(msg.data, self.log.is_ros1(msg.topic))[1]
+                    except DecodeError:
+                        frames[msg.topic] = ""  # undecodable: reported where the message is used
+                if msg.topic in (ch.color.topic, ch.depth.topic) and first_image is None:
+                    first_image = msg.log_ns
+                if len(frames) == len(wanted) or (first_image is not None
+                                                  and msg.log_ns - first_image > SETUP_SCAN_NS):
+                    break
+        for info, image in pairs:
+            problem = info_frame_problem(info, frames.get(info, ""), image, frames.get(image, ""))
+            if problem is not None:
+                raise DatasetError(self.path, problem)
 
     def _find_depth_to_color(self, ch: Choices) -> DepthToColor:
         if ch.aligned:

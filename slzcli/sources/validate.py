@@ -29,6 +29,21 @@ def size_problem(k: Intrinsics, width: int, height: int, aspect_tolerance: float
             "apart): not the calibration of this stream")
 
 
+def info_frame_problem(info_topic: str, info_frame: str, image_topic: str, image_frame: str) -> str | None:
+    """Why a CameraInfo is not the calibration of the image stream it is paired with: both name an optical
+    frame, and not the same one (another camera of the same aspect ratio would otherwise be scaled and used).
+
+    An empty frame_id on either side is no evidence (many recorders leave it empty); a leading '/' is
+    ignored, as tf2 ignores it.
+    """
+    ours, theirs = info_frame.strip().lstrip("/"), image_frame.strip().lstrip("/")
+    if not ours or not theirs or ours == theirs:
+        return None
+    return (f"CameraInfo on {info_topic} is for frame '{ours}' but {image_topic} is in frame '{theirs}': the "
+            "calibration of another camera; record the CameraInfo published with this image stream, or name it "
+            "with sources.topics.camera_info (depth: sources.topics.depth_info)")
+
+
 def pixel_aspect_problem(k: Intrinsics, max_ratio: float) -> str | None:
     """Why ``k``'s focal lengths look wrong together: pixels far from square (fx, fy swapped or one mis-scaled).
 
