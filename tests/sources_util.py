@@ -45,3 +45,31 @@ def pose(i: int) -> np.ndarray:
         np.array([[1, 0, 0], [0, -1, 0], [0, 0, -1]])  # camera looking down
     T[:3, 3] = (0.5 * i, -0.25 * i, 10.0 - 0.1 * i)
     return T
+
+
+def realsense_intrinsics(root: Path) -> Intrinsics:
+    """The real RealSense frames' colour intrinsics (``cam_params_realsense.json``, K stored column-major)."""
+    import json
+
+    cam = json.loads((root / "cam_params_realsense.json").read_text())
+    k = np.array(cam["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T
+    return Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], int(cam["width"]), int(cam["height"]))
+
+
+def realsense_recording(root: Path, path: Path, fmt: str) -> Path:
+    """The 10 real RealSense frames as a recording a realsense-ros user would have (colour, aligned depth in
+    millimetres read as metres, camera_info) at 30 Hz: "their own bag" for the tests of real data."""
+    import cv2
+
+    from slzcli.config import load_config
+
+    intr = realsense_intrinsics(root)
+    unit_m = load_config().sources.depth_unit_16u_m
+    with RecordingWriter(path, fmt) as w:
+        for i, name in enumerate(sorted((root / "color").glob("*.png"))):
+            bgr = cv2.imread(str(name), cv2.IMREAD_COLOR)
+            raw = cv2.imread(str(root / "depth" / name.name), cv2.IMREAD_UNCHANGED)
+            assert bgr is not None and raw is not None
+            depth = np.where(raw > 0, raw * unit_m, np.nan).astype(np.float32)
+            w.write_frame(Frame(i, T0_NS + i * PERIOD_NS, bgr[:, :, ::-1].copy(), depth, intr))
+    return path

@@ -10,23 +10,18 @@ import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from sources_util import realsense_intrinsics
 from test_sources_tum import make_tum
 
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.outputs.recording import RecordingWriter
 from slzcli.sources.depth_check import depth_range, implausible
-from slzcli.types import Frame, Intrinsics
+from slzcli.types import Frame
 
 CFG = load_config().sources.depth_check
 T0_NS = 1_700_000_000_000_000_000
 PERIOD_NS = 33_333_333
-
-
-def realsense_intrinsics(root: Path) -> Intrinsics:
-    cam = json.loads((root / "cam_params_realsense.json").read_text())
-    k = np.array(cam["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T   # column-major
-    return Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], int(cam["width"]), int(cam["height"]))
 
 
 def realsense_tum(root: Path, out: Path, extra_yaml: str = "") -> Path:

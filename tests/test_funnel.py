@@ -16,10 +16,10 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from conftest import GAUSSIAN, HALF_SIZE
+from sources_util import realsense_recording
 
 from slzcli.cli import main
 from slzcli.config import PROFILE_DIR, Config, load_config, read_yaml_mapping
@@ -214,20 +214,7 @@ def test_the_bench_profile_is_what_the_envelope_message_names() -> None:
 @pytest.fixture
 def floor_bag(realsense_dir: Path, tmp_path: Path) -> Path:
     """The 10 real RealSense frames as a realsense-ros ROS 1 bag (colour, aligned 16UC1 depth, camera_info)."""
-    from slzcli.outputs.recording import RecordingWriter
-
-    cam = json.loads((realsense_dir / "cam_params_realsense.json").read_text())
-    k = np.array(cam["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T   # column-major
-    intr = Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], int(cam["width"]), int(cam["height"]))
-    path = tmp_path / "floor.bag"
-    with RecordingWriter(path, "ros1") as w:
-        for i, name in enumerate(sorted((realsense_dir / "color").glob("*.png"))):
-            bgr = cv2.imread(str(name), cv2.IMREAD_COLOR)
-            raw = cv2.imread(str(realsense_dir / "depth" / name.name), cv2.IMREAD_UNCHANGED)
-            assert bgr is not None and raw is not None
-            depth = np.where(raw > 0, raw * 0.001, np.nan).astype(np.float32)
-            w.write_frame(Frame(i, 1_700_000_000_000_000_000 + i * 33_333_333, bgr[:, :, ::-1].copy(), depth, intr))
-    return path
+    return realsense_recording(realsense_dir, tmp_path / "floor.bag", "ros1")
 
 
 def test_the_real_frames_reason_names_the_filter_that_emptied_the_mask(floor_bag: Path, tmp_path: Path,

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import GAUSSIAN, synth_recording
-from sources_util import T0_NS, known_frame
+from sources_util import T0_NS, known_frame, realsense_recording
 
 from slzcli import gravity as recording_gravity
 from slzcli.cli import main
@@ -342,21 +342,7 @@ FLOOR_FIT = (slice(400, 470), slice(220, 420))  # frame 0's floor (tests/test_te
 
 def test_real_frames_as_a_realsense_bag_give_a_level_floor(realsense_dir: Path, tmp_path: Path) -> None:
     """The hand-held RealSense frames in a realsense-ros ROS 1 bag: no IMU, no pose, no mount given."""
-    import cv2
-
-    from slzcli.types import Frame, Intrinsics
-
-    cam = json.loads((realsense_dir / "cam_params_realsense.json").read_text())
-    k = np.array(cam["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T   # column-major
-    intr = Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], int(cam["width"]), int(cam["height"]))
-    path = tmp_path / "floor.bag"
-    with RecordingWriter(path, "ros1") as w:
-        for i, name in enumerate(sorted((realsense_dir / "color").glob("*.png"))):
-            bgr = cv2.imread(str(name), cv2.IMREAD_COLOR)
-            raw = cv2.imread(str(realsense_dir / "depth" / name.name), cv2.IMREAD_UNCHANGED)
-            assert bgr is not None and raw is not None
-            depth = np.where(raw > 0, raw * 0.001, np.nan).astype(np.float32)
-            w.write_frame(Frame(i, T0_NS + i * 33_333_333, bgr[:, :, ::-1].copy(), depth, intr))
+    path = realsense_recording(realsense_dir, tmp_path / "floor.bag", "ros1")
     with open_recording(path, CONFIG) as rec:
         resolved = recording_gravity.resolve_recording(path, rec, CONFIG)
         frame = next(iter(resolved.frames(rec.frames())))

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from conftest import GAUSSIAN, synth_recording
 from scipy.spatial.transform import Rotation
+from sources_util import realsense_recording
 
 from slzcli.cli import main
 from slzcli.config import load_config
@@ -292,24 +293,7 @@ def _mcap_frames(path: Path) -> dict[str, list[tuple[str, str]]]:
 @pytest.fixture
 def floor_recording(realsense_dir: Path, tmp_path: Path) -> Path:
     """The 10 real RealSense frames in a ROS 2 MCAP (30 Hz stamps), written with the rosbags writer."""
-    import cv2
-
-    from slzcli.outputs.recording import RecordingWriter
-    from slzcli.types import Intrinsics
-
-    cam = json.loads((realsense_dir / "cam_params_realsense.json").read_text())
-    k = np.array(cam["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T   # column-major
-    intr = Intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], int(cam["width"]), int(cam["height"]))
-    unit_m = load_config().sources.depth_unit_16u_m
-    path = tmp_path / "floor.mcap"
-    with RecordingWriter(path, "mcap") as w:
-        for i, name in enumerate(sorted((realsense_dir / "color").glob("*.png"))):
-            bgr = cv2.imread(str(name), cv2.IMREAD_COLOR)
-            raw = cv2.imread(str(realsense_dir / "depth" / name.name), cv2.IMREAD_UNCHANGED)
-            assert bgr is not None and raw is not None
-            depth = np.where(raw > 0, raw * unit_m, np.nan).astype(np.float32)
-            w.write_frame(Frame(i, 1_700_000_000_000_000_000 + i * 33_333_333, bgr[:, :, ::-1].copy(), depth, intr))
-    return path
+    return realsense_recording(realsense_dir, tmp_path / "floor.mcap", "mcap")
 
 
 @pytest.mark.parametrize("backend, overrides", [
