@@ -21,6 +21,7 @@ import glob
 import itertools
 import json
 import math
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -89,7 +90,8 @@ def pair_stats(frames: list, max_pairs: int = 400) -> tuple[np.ndarray, np.ndarr
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--cache", type=Path, default=Path("/tmp/fusion/cache"))
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slz-fusion-cache",
+                    help="rendered flights (benchmarks/fusion_render.py --out)")
     ap.add_argument("--flights", default="*d435*")
     ap.add_argument("--name", default="d435")
     a = ap.parse_args()

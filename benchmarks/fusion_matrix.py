@@ -25,6 +25,7 @@ import argparse
 import glob
 import json
 import math
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -159,7 +160,8 @@ def _render_code(fm: Any, depth: np.ndarray, intr: Any, T: np.ndarray, code: int
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--cache", type=Path, default=Path("/tmp/fusion/cache"))
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slz-fusion-cache",
+                    help="rendered flights (benchmarks/fusion_render.py --out)")
     ap.add_argument("--flights", default="*")
     ap.add_argument("--every", type=int, default=3)
     ap.add_argument("--out", default="")
