@@ -29,8 +29,10 @@ def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
     """The four terrain maps of a frame (with its SLAM pose, when there is one) and their time in ms.
 
     ``noise``: the run's depth noise (``NoiseTracker.update``); None measures it on this frame alone.
+    Only the tracked pose counts: a frame the tracker gave none keeps no pose of its own (recorded poses that
+    were rejected still ride on the frames), so its gravity is its own or the mount's.
     """
-    posed = frame if T_world_camera is None else replace(frame, T_world_camera=T_world_camera)
+    posed = replace(frame, T_world_camera=T_world_camera)
     t0 = time.perf_counter()
     maps = frame_maps(posed, config, noise)
     return maps, (time.perf_counter() - t0) * 1e3
