@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 from bad_inputs import ALTITUDE_M, T0_NS, W, textured_frame
+from sources_util import write_cloud
 
 from slzcli.outputs.recording import RecordingWriter
 
@@ -164,14 +165,6 @@ def tf_right(folder: Path) -> Path:
 POINTS_TOPIC = "/orb_slam3/map_points"
 
 
-def _write_cloud(w: RecordingWriter, stamp: int, xyz: np.ndarray) -> None:
-    data = np.concatenate([xyz.astype("<f4"), np.arange(len(xyz), dtype="<i4")[:, None].view("<f4")], 1)
-    fields = [w.message("sensor_msgs/msg/PointField", name=n, offset=4 * i, datatype=7 if n != "id" else 5,
-                        count=1) for i, n in enumerate(("x", "y", "z", "id"))]
-    msg = w.message("sensor_msgs/msg/PointCloud2", header=w.header(stamp, "world"), height=1, width=len(xyz),
-                    fields=fields, is_bigendian=False, point_step=16, row_step=16 * len(xyz),
-                    data=np.frombuffer(data.tobytes(), np.uint8).copy(), is_dense=True)
-    w.write_raw(POINTS_TOPIC, "sensor_msgs/msg/PointCloud2", msg, stamp)
 
 
 def _clouded(path: Path, scale: float) -> Path:
@@ -188,7 +181,7 @@ def _clouded(path: Path, scale: float) -> Path:
             T[:3, 3] *= scale
             w.write_pose("/camera/pose", f.stamp_ns, T)
             if i % 3 == 0:
-                _write_cloud(w, f.stamp_ns, ground * scale)
+                write_cloud(w, POINTS_TOPIC, f.stamp_ns, ground * scale)
     return path
 
 

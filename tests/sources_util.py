@@ -73,3 +73,15 @@ def realsense_recording(root: Path, path: Path, fmt: str) -> Path:
             depth = np.where(raw > 0, raw * unit_m, np.nan).astype(np.float32)
             w.write_frame(Frame(i, T0_NS + i * PERIOD_NS, bgr[:, :, ::-1].copy(), depth, intr))
     return path
+
+
+def write_cloud(w: RecordingWriter, topic: str, stamp: int, xyz: np.ndarray) -> None:
+    """A recorded SLAM map (sensor_msgs/PointCloud2 of x, y, z float32 and a point id) as ORB-SLAM3 ROS wrappers
+    publish it, in the world frame."""
+    data = np.concatenate([xyz.astype("<f4"), np.arange(len(xyz), dtype="<i4")[:, None].view("<f4")], 1)
+    fields = [w.message("sensor_msgs/msg/PointField", name=n, offset=4 * i, datatype=7 if n != "id" else 5,
+                        count=1) for i, n in enumerate(("x", "y", "z", "id"))]
+    msg = w.message("sensor_msgs/msg/PointCloud2", header=w.header(stamp, "world"), height=1, width=len(xyz),
+                    fields=fields, is_bigendian=False, point_step=16, row_step=16 * len(xyz),
+                    data=np.frombuffer(data.tobytes(), np.uint8).copy(), is_dense=True)
+    w.write_raw(topic, "sensor_msgs/msg/PointCloud2", msg, stamp)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from conftest import synth_recording
 from slam_flight import render_flight
+from sources_util import write_cloud
 
 from slzcli.cli import main
 from slzcli.config import load_config
@@ -213,21 +214,13 @@ def _write_recording(path, frames, truth, points_topic=None, clouds=(), clouds_a
         todo = sorted(clouds, key=lambda c: c[0])
         for f, T in zip(frames, truth, strict=True):
             while todo and not clouds_at_end and todo[0][0] <= f.stamp_ns:
-                _write_cloud(w, points_topic, *todo.pop(0))
+                write_cloud(w, points_topic, *todo.pop(0))
             w.write_frame(f)
             w.write_pose("/orb_slam3/camera_pose", f.stamp_ns, T)
         for stamp, xyz in todo:
-            _write_cloud(w, points_topic, stamp, xyz)
+            write_cloud(w, points_topic, stamp, xyz)
 
 
-def _write_cloud(w, points_topic, stamp, xyz):
-    data = np.concatenate([xyz.astype("<f4"), np.arange(len(xyz), dtype="<i4")[:, None].view("<f4")], 1)
-    fields = [w.message("sensor_msgs/msg/PointField", name=n, offset=4 * i, datatype=7 if n != "id" else 5,
-                        count=1) for i, n in enumerate(("x", "y", "z", "id"))]
-    msg = w.message("sensor_msgs/msg/PointCloud2", header=w.header(stamp, "world"), height=1, width=len(xyz),
-                    fields=fields, is_bigendian=False, point_step=16, row_step=16 * len(xyz),
-                    data=np.frombuffer(data.tobytes(), np.uint8).copy(), is_dense=True)
-    w.write_raw(points_topic, "sensor_msgs/msg/PointCloud2", msg, stamp)
 
 
 def _open_with_clouds(path, config):
