@@ -72,18 +72,16 @@ def _box(a: np.ndarray, n: int) -> np.ndarray:
     return cv2.boxFilter(a, cv2.CV_64F, (n, n), normalize=False, borderType=cv2.BORDER_CONSTANT)
 
 
-def _plane_fit(h: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                                          np.ndarray]:
-    """Least-squares plane over every n x n window of cells: (slope gradient gx, gy (m/m), residual variance,
-    valid). A window needs 3/4 of its cells seen."""
+def _window_moments(hz: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tuple[np.ndarray, ...]:
+    """Over every n x n window of the seen cells (``hz`` 0 where not seen): the count s1 and the second moments
+    sxx, syy, sxy, sxh, syh, shh of (x, y, h) about the window's own centroid (which keeps the sums well
+    conditioned), what a plane fit and the surface variation both need."""
     w = ok.astype(np.float64)
-    ny, nx = h.shape
-    x = np.broadcast_to(np.arange(nx, dtype=np.float64)[None, :] * cell, h.shape)
-    y = np.broadcast_to(np.arange(ny, dtype=np.float64)[:, None] * cell, h.shape)
-    hz = np.where(ok, h, 0.0)
+    ny, nx = hz.shape
+    x = np.broadcast_to(np.arange(nx, dtype=np.float64)[None, :] * cell, hz.shape)
+    y = np.broadcast_to(np.arange(ny, dtype=np.float64)[:, None] * cell, hz.shape)
     s1 = _box(w, n)
     with np.errstate(invalid="ignore", divide="ignore"):
-        # local coordinates about each window's own centroid keep the sums well conditioned
         mx, my, mh = _box(w * x, n) / s1, _box(w * y, n) / s1, _box(w * hz, n) / s1
         sxx = _box(w * x * x, n) / s1 - mx * mx
         syy = _box(w * y * y, n) / s1 - my * my
@@ -91,6 +89,15 @@ def _plane_fit(h: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tuple[np.n
         sxh = _box(w * x * hz, n) / s1 - mx * mh
         syh = _box(w * y * hz, n) / s1 - my * mh
         shh = _box(w * hz * hz, n) / s1 - mh * mh
+    return s1, sxx, syy, sxy, sxh, syh, shh
+
+
+def _plane_fit(h: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                          np.ndarray]:
+    """Least-squares plane over every n x n window of cells: (slope gradient gx, gy (m/m), residual variance,
+    valid). A window needs 3/4 of its cells seen."""
+    s1, sxx, syy, sxy, sxh, syh, shh = _window_moments(np.where(ok, h, 0.0), ok, n, cell)
+    with np.errstate(invalid="ignore", divide="ignore"):
         det = sxx * syy - sxy * sxy
         gx = (syy * sxh - sxy * syh) / det
         gy = (sxx * syh - sxy * sxh) / det
@@ -177,20 +184,9 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # inclination: surface variation of the cells within radius_m (an equal-area square)
     inc = terrain.inclination
     n_r = max(3, _odd(2.0 * _EQUAL_AREA_HALF_SIDE * inc.radius_m / cell))
-    w = ok.astype(np.float64)
-    ny, nx = hc.shape
-    x = np.broadcast_to(np.arange(nx, dtype=np.float64)[None, :] * cell, hc.shape)
-    y = np.broadcast_to(np.arange(ny, dtype=np.float64)[:, None] * cell, hc.shape)
-    s1 = _box(w, n_r)
+    s1, cxx, cyy, cxy, cxh, cyh, chh = _window_moments(hc, ok, n_r, cell)   # hc is 0 on unseen cells
     with np.errstate(invalid="ignore", divide="ignore"):
-        mx, my, mh = _box(w * x, n_r) / s1, _box(w * y, n_r) / s1, _box(w * hc, n_r) / s1
-        cxx = _box(w * x * x, n_r) / s1 - mx * mx
-        cyy = _box(w * y * y, n_r) / s1 - my * my
-        cxy = _box(w * x * y, n_r) / s1 - mx * my
-        cxh = _box(w * x * hc, n_r) / s1 - mx * mh
-        cyh = _box(w * y * hc, n_r) / s1 - my * mh
-        chh = _box(w * hc * hc, n_r) / s1 - mh * mh - _box(var_mean, n_r) / s1
-        chh = np.maximum(chh, 0.0)
+        chh = np.maximum(chh - _box(var_mean, n_r) / s1, 0.0)
         lam = eigvalsh3(cxx, cxy, cxh, cyy, cyh, chh)
         lam = np.maximum(lam, 0.0)
         curv = lam[..., 0] / np.sum(lam, axis=-1)
@@ -198,6 +194,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     inclination = np.where(okr & np.isfinite(curv), np.exp(-np.nan_to_num(curv) / inc.curvature_ref), 0.0)
 
     # flatness: distance to the nearest significant step, refused or unseen cell
+    ny, nx = hc.shape
     step_edge = np.zeros(hc.shape, bool)
     for dy, dx in ((0, 1), (1, 0)):
         a, b = hc[: ny - dy, : nx - dx], hc[dy:, dx:]
