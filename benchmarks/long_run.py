@@ -1,7 +1,11 @@
-"""Long recordings: peak memory of `slz detect` over 1,000 vs 10,000 frames (issue 10, "limits").
+"""Long recordings: peak memory of `slz detect` over 1,000 vs 10,000 frames.
 
-Run: .venv/bin/python benchmarks/long_run.py [--lengths 1000,10000] [--size 640x480] [--keep DIR]
+Run: .venv/bin/python benchmarks/long_run.py [--lengths 1000,10000] [--method fused] [--modes keyframes,every]
+                                             [--size 640x480] [--keep DIR]
 Prints a table and writes benchmarks/results/long_run.json.
+
+``--method`` (default ``fused``: the stateful method that fuses every tracked frame into a grid that
+follows the UAV, the one whose state could grow with the flight) is the detect method of every run.
 
 Rendering 10,000 frames would take the renderer ~45 min, so a short hover (`--seed-frames`,
 rendered by `slz synth`) is played forwards and backwards (tests/long_recording.py: the camera
@@ -90,9 +94,10 @@ def _children(pid: int) -> list[int]:
     return kids
 
 
-def detect(recording: Path, out: Path, *sets: str) -> dict:
-    """One `slz detect` run with memory sampled while it runs."""
-    cmd = [sys.executable, "-m", "slzcli.cli", "detect", str(recording), "-o", str(out), "--json", "--force"]
+def detect(recording: Path, out: Path, method: str, *sets: str) -> dict:
+    """One `slz detect --method METHOD` run with memory sampled while it runs."""
+    cmd = [sys.executable, "-m", "slzcli.cli", "detect", str(recording), "-o", str(out), "--json", "--force",
+           "--method", method]
     for s in sets:
         cmd += ["--set", s]
     t0 = time.perf_counter()
@@ -113,12 +118,16 @@ def detect(recording: Path, out: Path, *sets: str) -> dict:
         pick = [s[1] for s in samples if s[0] >= frac * wall and s[1] > 0]
         return round(pick[0] / 1024, 1) if pick else float("nan")
 
-    return {"frames": summary["frames"], "detections": summary["detections"], "keyframes": summary["keyframes"],
+    timings = json.loads((out / "run.json").read_text())["timings"]
+    fuse = timings.get("fuse")
+    return {"method": method, "frames": summary["frames"], "detections": summary["detections"],
+            "keyframes": summary["keyframes"],
             "status": summary["status"], "wall_s": round(wall, 1),
             "ms_per_frame": round(1e3 * wall / max(summary["frames"], 1), 2),
             "peak_rss_mb": round(max(main) / 1024, 1),
             "peak_orbslam3_rss_mb": round(max(s[2] for s in samples) / 1024, 1),
             "rss_mb_at_10_50_90_pct": [at(0.1), at(0.5), at(0.9)],
+            "fuse_cpu_ms": None if fuse is None else {k: round(fuse[k], 2) for k in ("median_ms", "mean_ms", "count")},
             "run_folder_mb": round(sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 1e6, 1)}
 
 
@@ -128,6 +137,9 @@ def main() -> None:
     ap.add_argument("--size", default="640x480", help="WxH of the rendered frames")
     ap.add_argument("--seed-frames", type=int, default=100)
     ap.add_argument("--every", type=int, default=25, help="detection period of the every_nth runs (frames)")
+    ap.add_argument("--method", default="fused", help="slz detect --method of every run")
+    ap.add_argument("--modes", default="keyframes,every", help="keyframes (the default detections), every "
+                    "(a detection every --every frames)")
     ap.add_argument("--keep", type=Path, help="work folder to keep (default: a temporary one)")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
@@ -136,8 +148,8 @@ def main() -> None:
     work = args.keep or Path(tempfile.mkdtemp(prefix="slz_long_"))
     work.mkdir(parents=True, exist_ok=True)
     seed = render_seed(work, args.seed_frames, width, height)
-    modes = {"keyframes": [], f"every_{args.every}": ["landing.detect_on=every_nth",
-                                                       f"landing.every_nth_frame={args.every}"]}
+    all_modes = {"keyframes": [], "every": ["landing.detect_on=every_nth", f"landing.every_nth_frame={args.every}"]}
+    modes = {m if m != "every" else f"every_{args.every}": all_modes[m] for m in args.modes.split(",")}
     rows = []
     for n in lengths:
         rec = work / f"long_{n}.mcap"
@@ -146,7 +158,7 @@ def main() -> None:
         write_s = time.perf_counter() - t0
         for mode, sets in modes.items():
             row = {"length": n, "mode": mode, "recording_mb": round(mb, 1), "write_s": round(write_s, 1),
-                   **detect(rec, work / f"run_{n}_{mode}", *sets)}
+                   **detect(rec, work / f"run_{n}_{mode}", args.method, *sets)}
             rows.append(row)
             print(json.dumps(row), flush=True)
         if args.keep is None:
@@ -171,7 +183,7 @@ def main() -> None:
                   f"ORB-SLAM3 worker x{ratios[mode]['orbslam3_rss_ratio']}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({
-        "size": [width, height], "seed_frames": args.seed_frames, "rows": rows, "ratios": ratios,
+        "method": args.method, "size": [width, height], "seed_frames": args.seed_frames, "rows": rows, "ratios": ratios,
         "largest_process_peak_mb": round(largest, 1), "cpus": os.cpu_count(), "python": platform.python_version(),
         "load_avg": [round(v, 2) for v in os.getloadavg()], "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }, indent=1) + "\n")

@@ -8,7 +8,6 @@ another frame, so its cells start empty (``slam/segments.py``), and the memory s
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -37,7 +36,6 @@ class FusedTerrain:
     segment: int | None = None
     grid: FusedGrid | None = None
     frames: int = 0
-    fuse_ms: list[float] = field(default_factory=list)
     last: FuseStats | None = None
     shifts: list[float] = field(default_factory=list)     # recent median image shifts per frame
     depth_m: float = math.nan
@@ -54,7 +52,6 @@ class FusedTerrain:
         """Fuse one tracked frame (no pose: nothing to fuse)."""
         if T_world_camera is None:
             return None
-        t0 = time.perf_counter()
         if segment != self.segment or self.grid is None:
             self.segment, self.grid = segment, FusedGrid.empty(self.params)
             self.shifts.clear()
@@ -76,7 +73,6 @@ class FusedTerrain:
             self.noise = noise
             self.camera_m = cells.camera_m
         self.frames += 1
-        self.fuse_ms.append((time.perf_counter() - t0) * 1e3)
         return stats
 
     def noise_scale(self) -> float:
