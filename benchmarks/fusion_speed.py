@@ -5,8 +5,8 @@
 
 Each cached flight (benchmarks/fusion_render.py: depth, true poses) is replayed through ``FusedTerrain`` as
 ``slz detect`` feeds it: every frame fused (``add``), and on every ``--every``-th frame the verdict of the
-cells in view (``maps_in_view``) rendered into the frame (``verdict_in_frame``), as the ``fused`` method
-does on a detection frame. Timed with ``time.process_time`` (the CPU the process spent, one core's worth:
+cells in view (``maps_in_view``) with its score and mask rendered into the frame's pixels, as the ``fused``
+method does on a detection frame. Timed with ``time.process_time`` (the CPU the process spent, one core's worth:
 the replay is single-threaded; the wall clock of a loaded machine is not a cost), per frame, repeated
 ``--repeats`` times; the medians and means over all frames and repeats are reported.
 
@@ -57,8 +57,9 @@ def _load(path: Path, resize: str | None) -> tuple[Any, np.ndarray, np.ndarray]:
 def replay(path: Path, every: int, repeats: int, resize: str | None, dump: Path | None) -> dict[str, Any]:
     """One flight through the fusion: CPU ms per frame of ``add`` and of a detection frame's verdict."""
     from slzcli.config import load_config
+    from slzcli.fusion import session
     from slzcli.fusion.grid import region, seen_bounds
-    from slzcli.fusion.session import FusedTerrain, verdict_in_frame
+    from slzcli.fusion.session import FusedTerrain
     from slzcli.scoring import get_scorer
     from slzcli.terrain.noise import NoiseTracker
 
@@ -81,12 +82,13 @@ def replay(path: Path, every: int, repeats: int, resize: str | None, dump: Path 
             t0 = time.process_time()
             fm = ft.maps_in_view()
             assert fm is not None
-            mask = verdict_in_frame(fm, depth[i], intr, T[i])
+            score_px, mask = _in_frame(session, fm, depth[i], intr, T[i])
             view_ms.append((time.process_time() - t0) * 1e3)
             if rep == 0:
                 out[f"verdict_{i}"] = fm.verdict
                 out[f"score_{i}"] = fm.score
                 out[f"mask_{i}"] = mask
+                out[f"score_px_{i}"] = score_px
         if rep == 0 and ft.grid is not None:
             bounds = seen_bounds(ft.grid)
             assert bounds is not None
@@ -100,6 +102,18 @@ def replay(path: Path, every: int, repeats: int, resize: str | None, dump: Path 
             "add_cpu_ms_median": float(np.median(add_ms)), "add_cpu_ms_mean": float(np.mean(add_ms)),
             "add_cpu_ms_best_median": float(np.median(best)), "add_cpu_ms_best_mean": float(np.mean(best)),
             "verdict_cpu_ms_median": float(np.median(view_ms)), "verdict_cpu_ms_mean": float(np.mean(view_ms))}
+
+
+def _in_frame(session: Any, fm: Any, depth: np.ndarray, intr: Any, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The score and the mask at the frame's pixels as the ``fused`` method renders them (by the code of
+    either commit: the pixels' cells found once, or by each of the older functions)."""
+    from slzcli.fusion.verdict import SAFE
+
+    if hasattr(session, "pixel_cells"):
+        index = session.pixel_cells(fm, depth, intr, T)
+        return (session.cells_in_frame(fm.score.astype(np.float32), index),
+                session.cells_in_frame(fm.verdict == SAFE, index))
+    return (session.render_in_frame(fm.score, fm, depth, intr, T), session.verdict_in_frame(fm, depth, intr, T))
 
 
 def compare(new: Path, old: Path) -> dict[str, Any]:

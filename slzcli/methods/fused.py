@@ -22,8 +22,8 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.fusion.grid import region, seen_bounds
 from slzcli.fusion.output import write_landing_map
-from slzcli.fusion.session import FusedTerrain, render_in_frame, verdict_in_frame
-from slzcli.fusion.verdict import fused_maps
+from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
+from slzcli.fusion.verdict import SAFE, fused_maps
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
 from slzcli.scoring import SCORERS
@@ -70,8 +70,9 @@ class FusedMethod:
         if fm is None or T is None:
             score = ScoreMap(self.name, np.zeros(shape, np.float32), np.zeros(shape, bool))
         else:
-            score = ScoreMap(self.name, render_in_frame(fm.score, fm, frame.depth_m, frame.intrinsics, T),
-                             verdict_in_frame(fm, frame.depth_m, frame.intrinsics, T))
+            index = pixel_cells(fm, frame.depth_m, frame.intrinsics, T)   # once for the score and the mask
+            score = ScoreMap(self.name, cells_in_frame(fm.score.astype(np.float32), index),
+                             cells_in_frame(fm.verdict == SAFE, index))
         t["mask"] = _lap(t0)
         t0 = time.perf_counter()
         selection: Selection | None = None
