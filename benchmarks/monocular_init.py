@@ -44,7 +44,7 @@ def run(scene: str, altitude: float, seed: int, path: str, rate: float, frames: 
     flight_seed, sensor_rng = seeds(seed)
     flight = make_flight((x, y, altitude), frames, rate, path, cfg.synth.flight, flight_seed,  # type: ignore[arg-type]
                          cfg.synth.start_stamp_ns)
-    backend = get_backend(cfg)
+    backend = get_backend(cfg.slam)
     est: list[np.ndarray | None] = []
     t0 = time.perf_counter()
     try:

@@ -186,7 +186,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
         with limit.stage("opening the recording"):
             truth = ground_truth_of(path, config)
             source, config = open_source(path, config, stack)
-        slam = stack.enter_context(get_backend(config, source.has_poses, clouds=source.clouds))
+        slam = stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds))
         tracker = Tracker(config, slam)
         noise = NoiseTracker(config.terrain.noise, config.terrain.noise_estimate)  # the maps', shared
         runs = {m: MethodRun(m, PipelineRun(build(m, config), RunState()),

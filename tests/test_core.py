@@ -57,7 +57,7 @@ def run_core(path: Path, config: Config,
     kept = Kept()
     with ExitStack() as stack:
         source, config = open_source(path, config, stack)
-        tracker = Tracker(config, stack.enter_context(get_backend(config, source.has_poses, clouds=source.clouds)))
+        tracker = Tracker(config, stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds)))
         mr = method_run(config, method, tracker)
         assert mr.state.noise is not None
         run(source, tracker, [mr], mr.state.noise, limit, [TruthSink(truth), kept])
@@ -138,7 +138,7 @@ def test_slam_is_handed_the_next_frame_before_this_frames_detection(recording, m
     limit = StageLimit(None, str(recording))
     with ExitStack() as stack:
         source, config = open_source(recording, config, stack)
-        slam = stack.enter_context(get_backend(config, False))
+        slam = stack.enter_context(get_backend(config.slam, False))
         real_submit, real_collect = slam.submit, slam.collect
         def submit(frame):
             events.append(f"submit {frame.index}")

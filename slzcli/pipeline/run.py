@@ -166,7 +166,7 @@ def detect_in_memory(source: Source, config: Config, method: str, limit: StageLi
     # the keyframes' map points spool to a temporary folder, as slz detect's do to its run folder: the summary
     # reads them (the site's height above the ground) and memory does not grow with the recording
     with tempfile.TemporaryDirectory(prefix="slz-spool-") as spool:
-        with get_backend(config, source.has_poses, clouds=source.clouds) as slam:
+        with get_backend(config.slam, source.has_poses, clouds=source.clouds) as slam:
             tracker = Tracker(config, slam, KeyframeLog(Path(spool)))
             mr = method_run(config, method, tracker)
             assert mr.state.noise is not None
@@ -238,7 +238,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             source, config = open_source(path, config, stack)
         results = results_mcap.open_results(tmp, config, source.recording.recorded_frames())
         stack.enter_context(results)   # __enter__ returns the writer itself
-        slam = stack.enter_context(get_backend(config, source.has_poses, clouds=source.clouds))
+        slam = stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds))
         tracker = Tracker(config, slam, KeyframeLog(tmp / SPOOL_DIR))
         mr = method_run(config, method, tracker, tmp / SPOOL_DIR)
         state = mr.state
