@@ -65,7 +65,7 @@ def run_cell(cores: list[stages.Core], path: Path, sensor: str) -> dict[str, Any
     with open_recording(path, config) as rec:
         frames = [dataclasses.replace(f, T_world_camera=poses[i]) for i, f in enumerate(rec.frames())]
     for core in cores:
-        scorer = core.scoring.get_scorer(config)
+        scorer = core.scorer(config)
         tracker = core.noise.NoiseTracker(config.terrain.noise, config.terrain.noise_estimate)
         for frame in frames:
             _cpu, _wall, (maps, sm) = stages.run_frame(core, frame, config, scorer, tracker)

@@ -50,7 +50,7 @@ def true_noise_and_slope(scene: str, start: tuple[float, float, float], sensor: 
     from slzcli.synth.flight import make_flight
     from slzcli.synth.record import build_world, render_frames, seeds
     from slzcli.synth.scenes import load_scene
-    from slzcli.terrain.maps import frame_maps
+    from slzcli.terrain.maps import MapParams, frame_maps
 
     cfg = load_config(None, sensor)
     world = build_world(load_scene(scene), cfg)
@@ -71,7 +71,7 @@ def true_noise_and_slope(scene: str, start: tuple[float, float, float], sensor: 
         # that is the map working, not an error of its slope estimate)
         import cv2
 
-        maps = frame_maps(sf.frame, cfg)
+        maps = frame_maps(sf.frame, MapParams.of(cfg))
         n = sf.normal_world.astype(np.float64)
         true_slope = np.degrees(np.arccos(np.clip(np.abs(n[..., 2]), 0.0, 1.0)))
         ids = sf.object_id.astype(np.int32)

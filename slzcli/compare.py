@@ -300,7 +300,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
     committed_of: dict[str, CommittedSite | None] = {}
     for m, run in runs.items():
         st = run.state
-        committed = commit(st.sites.sites, config)
+        committed = commit(st.sites.sites, config.landing, config.uav)
         committed_of[m] = committed
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)

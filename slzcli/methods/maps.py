@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from slzcli.config import Config
 from slzcli.landing.select import SelectParams, select_site
-from slzcli.scoring import SCORERS, Scorer, mask_score
+from slzcli.scoring import SCORERS, MaskParams, Scorer, mask_score
 from slzcli.types import Detection, TerrainMaps, TrackedFrame
 
 
@@ -30,7 +30,7 @@ class MapMethod:
     """Score the maps, mask, and (with a pose, map points and maps that vouch) select the site."""
 
     name: str
-    config: Config
+    mask: MaskParams
     scorer: Scorer
     params: SelectParams
     selects: str
@@ -46,7 +46,7 @@ class MapMethod:
         raw = self.scorer(maps)
         t["score"] = _lap(t0)
         t0 = time.perf_counter()
-        score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config, maps.work, maps.up_camera)
+        score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.mask, maps.work, maps.up_camera)
         t["mask"] = _lap(t0)
         edge = maps.edge_distance_m
         selection = None
@@ -61,13 +61,13 @@ class MapMethod:
 
 
 def fuzzy(config: Config) -> MapMethod:
-    return MapMethod("fuzzy", config, SCORERS["fuzzy"].from_config(config),
+    return MapMethod("fuzzy", MaskParams.of(config), SCORERS["fuzzy"].from_config(config.scoring, config.mask),
                      select_params(config, "min_normal_variance", config.landing.min_extent_factor),
                      "the cluster of the least normal variance among those that meet the footprint")
 
 
 def bayes(config: Config) -> MapMethod:
-    return MapMethod("bayes", config, SCORERS["bayes"].from_config(config),
+    return MapMethod("bayes", MaskParams.of(config), SCORERS["bayes"].from_config(config.scoring, config.mask),
                      select_params(config, "largest", config.landing.bayes_min_extent_factor),
                      "the largest cluster that meets the footprint (BASELINE.md)")
 

@@ -114,7 +114,7 @@ def run(source: Source, tracker: Tracker, runs: Sequence[MethodRun], noise: Nois
                     except FrameError as err:  # the frame's content: name the recording and the frame
                         raise DatasetError(source.path, f"frame {t.frame.index}: {err}") from err
                 for r, d in zip(runs, dets, strict=True):
-                    tally(r.state, d, r.method, config)
+                    tally(r.state, d, r.method, config.terrain, config.uav)
                 for s in sinks:
                     s.detected(t, maps, dets)
             for s in sinks:
@@ -139,7 +139,7 @@ def method_run(config: Config, method: str, tracker: Tracker, spool: Path | None
 def finish(source: Source, config: Config, mr: MethodRun, tracker: Tracker, truth: TruthEvaluator | None,
            wall_s: float, key: dict[str, Any]) -> RunResult:
     """The committed site (``landing.commit``) and landing.json / run.json of a finished run."""
-    committed = commit(mr.state.sites.sites, config)
+    committed = commit(mr.state.sites.sites, config.landing, config.uav)
     return summarise(source.path, config, mr.method.name, source.info(), source.report(), mr.state, tracker.slam_name,
                      tracker.poses_are_recorded, committed, truth, wall_s, key)
 
