@@ -47,7 +47,7 @@ def render(scene: str, altitude: float, sensor: str, seed: int, frames: int) -> 
     path = CACHE / f"{scene}_{altitude:g}_{sensor}_{seed}_{frames}.mcap"
     if not path.exists():
         cfg = load_config(None, SENSORS[sensor])
-        x, y, _ = scenario_start(cfg, load_scene(scene).scenario)
+        x, y, _ = scenario_start(cfg.synth.scenarios, load_scene(scene).scenario)
         sets = [a for s in SENSORS[sensor] for a in ("--set", s)]
         subprocess.run([sys.executable, "-m", "slzcli.cli", "synth", scene, "-o", str(path), "--frames", str(frames),
                         "--start", f"{x},{y},{altitude}", "--path", "hover", "--seed", str(seed), *sets],

@@ -56,7 +56,7 @@ def true_noise_and_slope(scene: str, start: tuple[float, float, float], sensor: 
     world = build_world(load_scene(scene), cfg)
     flight_seed, rng = seeds(seed)
     flight = make_flight(start, 1, cfg.synth.rate_hz, "hover", cfg.synth.flight, flight_seed, cfg.synth.start_stamp_ns)
-    sf = next(render_frames(world, flight, cfg, rng))
+    sf = next(render_frames(world, flight, cfg.synth.sensor, rng))
     d, t = sf.frame.depth_m.astype(np.float64), sf.depth_true_m.astype(np.float64)
     ok = np.isfinite(d) & np.isfinite(t) & (t > 0)
     err = (d[ok] - t[ok]) / (t[ok] ** 2)
@@ -95,7 +95,7 @@ def run_cell(scene: str, altitude: float, sensor: str, frames: int, seed: int, t
     t0 = time.perf_counter()
     overrides = SENSORS[sensor]
     cfg = load_config(None, overrides + DETECT)
-    x, y, _ = scenario_start(cfg, load_scene(scene).scenario)
+    x, y, _ = scenario_start(cfg.synth.scenarios, load_scene(scene).scenario)
     start = (x, y, altitude)
     path = Path(tmp) / f"{scene}_{altitude:g}_{sensor}_{seed}.mcap"
     synthesize(path, SynthOptions(scene, frames, cfg.synth.rate_hz, "hover", seed, start), cfg)

@@ -184,7 +184,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
     t_start = time.perf_counter()
     with ExitStack() as stack:
         with limit.stage("opening the recording"):
-            truth = ground_truth_of(path, config)
+            truth = ground_truth_of(path, config.synth.ground_truth)
             source, config = open_source(path, config, stack)
         slam = stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds))
         tracker = Tracker(config, slam)

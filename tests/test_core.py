@@ -50,7 +50,7 @@ class Kept(Sink):
 def run_core(path: Path, config: Config,
              method: str) -> tuple[list[Detection], RunState, TruthEvaluator, Method]:
     """open / track / the frame loop with the ground truth and a sink that keeps the detections."""
-    gt = ground_truth_of(path, config)
+    gt = ground_truth_of(path, config.synth.ground_truth)
     assert gt is not None
     truth = TruthEvaluator(gt)
     limit = StageLimit(None, str(path))

@@ -179,7 +179,7 @@ def detect_recording_in_memory(path: Path, config: Config, method: str, limit: S
     """A recording read once, nothing written (the API without ``out_dir``)."""
     with ExitStack() as stack:
         with limit.stage("opening the recording"):
-            gt = ground_truth_of(path, config)
+            gt = ground_truth_of(path, config.synth.ground_truth)
             source, config = open_source(path, config, stack)
         return detect_in_memory(source, config, method, limit, None if gt is None else TruthEvaluator(gt))
 
@@ -233,7 +233,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     t_start = time.perf_counter()
     with output_dir.build(out_dir, output_dir.DETECT, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
-            gt = ground_truth_of(path, config, fingerprint.cache_of({"key": key}))  # digests taken once
+            gt = ground_truth_of(path, config.synth.ground_truth, fingerprint.cache_of({"key": key}))  # digests once
             truth = None if gt is None else TruthEvaluator(gt)  # a sink: detection never reads the truth
             source, config = open_source(path, config, stack)
         results = results_mcap.open_results(tmp, config, source.recording.recorded_frames())
