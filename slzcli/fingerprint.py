@@ -20,10 +20,20 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Sequence
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+import yaml
+
+from slzcli.bounds import MAX_BAG_METADATA_BYTES, read_regular
 from slzcli.config import Config
+from slzcli.errors import DatasetError, SlzError
+from slzcli.scoring.rules import resolve_rules_path
+from slzcli.slam.vocabulary import DEFAULT_VOCABULARY
+from slzcli.sources import guess_format
+from slzcli.sources.tum import read_list
+from slzcli.synth.groundtruth import BINDING_KEY, sidecar_paths
 from slzcli.version import __version__
 
 HASH_BLOCK = 1 << 20  # bytes read per step while hashing; I/O housekeeping, not tuning
@@ -56,9 +66,6 @@ def digest(path: Path, cache: dict[str, Entry]) -> Entry:
 
 def recording_files(path: Path) -> list[Path]:
     """The files a recording's reader reads (see the module docstring); [] when there is nothing to read."""
-    from slzcli.errors import DatasetError
-    from slzcli.sources import guess_format
-
     p = Path(path)
     try:
         fmt = guess_format(p)
@@ -72,11 +79,6 @@ def recording_files(path: Path) -> list[Path]:
 
 
 def _rosbag2_files(folder: Path) -> list[Path]:
-    import yaml
-
-    from slzcli.bounds import MAX_BAG_METADATA_BYTES, read_regular
-    from slzcli.errors import SlzError
-
     meta = folder / "metadata.yaml"
     try:
         text = read_regular(meta, MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
@@ -88,9 +90,6 @@ def _rosbag2_files(folder: Path) -> list[Path]:
 
 
 def _tum_files(folder: Path) -> list[Path]:
-    from slzcli.errors import SlzError
-    from slzcli.sources.tum import read_list
-
     out = [folder / n for n in ("rgb.txt", "depth.txt", "groundtruth.txt", "camera.yaml") if (folder / n).is_file()]
     images: set[Path] = set()
     for name in ("rgb.txt", "depth.txt"):
@@ -103,9 +102,6 @@ def _tum_files(folder: Path) -> list[Path]:
 
 def run_inputs(recording: Path, config: Config, cache: dict[str, Entry]) -> dict[str, list[Entry]]:
     """Every file the run reads, by role, with its identity and sha256."""
-    from slzcli.scoring.rules import resolve_rules_path
-    from slzcli.synth.groundtruth import sidecar_paths
-
     sidecars = sidecar_paths(recording)
     roles: dict[str, list[Path]] = {
         "recording": recording_files(recording),
@@ -123,8 +119,6 @@ def _may_use_orbslam3(config: Config) -> bool:
 def _vocabulary(config: Config) -> Path | None:
     if not _may_use_orbslam3(config):
         return None
-    from slzcli.slam.vocabulary import DEFAULT_VOCABULARY
-
     return Path(config.slam.vocabulary or DEFAULT_VOCABULARY).expanduser()
 
 
@@ -132,8 +126,6 @@ def versions(config: Config) -> dict[str, str | None]:
     """The versions in the key: slz's, and pyorbslam3's when the backend may be ORB-SLAM3."""
     out: dict[str, str | None] = {"slz": __version__}
     if _may_use_orbslam3(config):
-        from importlib.metadata import PackageNotFoundError, version
-
         try:
             out["pyorbslam3"] = version("pyorbslam3")
         except PackageNotFoundError:
@@ -215,8 +207,6 @@ def binding_problem(header: dict[str, Any], recording: Path, cache: dict[str, En
 
     A sidecar without a binding (written before slz bound them) cannot be checked: None, and the
     caller warns (``UNBOUND``)."""
-    from slzcli.synth.groundtruth import BINDING_KEY
-
     bound = header.get(BINDING_KEY)
     if bound is None:
         return None

@@ -27,6 +27,7 @@ from typing import Any, BinaryIO, Protocol
 import cv2
 import numpy as np
 
+from slzcli.bounds import load_json
 from slzcli.config import GroundTruthCfg, UavCfg
 from slzcli.errors import DatasetError
 
@@ -287,8 +288,6 @@ def load_ground_truth(recording_path: str | Path) -> GroundTruth:
     if not npz_path.is_file() or not json_path.is_file():
         raise DatasetError(recording_path, f"no ground truth ({npz_path.name} and {json_path.name} expected "
                                            "next to it; only `slz synth` recordings have one)")
-    from slzcli.bounds import load_json
-
     header = load_json(json_path, "ground-truth header (.gt.json)")
     if not isinstance(header, dict) or header.get("format") != GT_FORMAT \
             or header.get("version") not in READABLE_VERSIONS:
