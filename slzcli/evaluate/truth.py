@@ -23,7 +23,7 @@ from slzcli.errors import DatasetError
 from slzcli.evaluate.safety import MaskCounts, SiteTruth, mask_counts, site_truth, total, visible_cells
 from slzcli.evaluate.slam import ate_by_segment, rpe
 from slzcli.synth.groundtruth import BINDING_KEY, UNBOUND, GroundTruth, load_ground_truth, sidecar_paths
-from slzcli.types import Frame, ScoreMap
+from slzcli.types import Frame, FrameRef, ScoreMap
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ def ground_truth_of(path: Path, cfg: GroundTruthCfg, cache: dict[str, Any] | Non
     return replace(gt, stamp_tolerance_ns=tolerance_ns)
 
 
-def site_truth_of(truth: Any, frame: Any, center_camera: tuple[float, float, float]) -> SiteTruth:
+def site_truth_of(truth: GroundTruth, frame: Frame | FrameRef, center_camera: tuple[float, float, float]) -> SiteTruth:
     """The site in the ground-truth world: through the TRUE pose of its frame (not SLAM's)."""
     T = truth.T_world_camera[truth.index_of(frame.stamp_ns)]
     p = T[:3, :3] @ np.asarray(center_camera) + T[:3, 3]

@@ -26,6 +26,7 @@ from typing import Any, BinaryIO, Protocol
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from slzcli.bounds import load_json
 from slzcli.config import GroundTruthCfg, UavCfg
@@ -154,7 +155,7 @@ class PackedMasks:
     def __getitem__(self, i: int) -> np.ndarray:
         return np.unpackbits(self.packed[int(i)], axis=-1, count=self.shape[2]).astype(bool)
 
-    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+    def __array__(self, dtype: npt.DTypeLike | None = None, copy: bool | None = None) -> np.ndarray:
         out = np.unpackbits(np.asarray(self.packed), axis=-1, count=self.shape[2]).astype(bool)
         return out if dtype is None else out.astype(dtype)
 
@@ -185,7 +186,7 @@ class ZipMemberFrames:
             raise DatasetError(self.path, f"{self.member} is cut short at frame {i}")
         return np.frombuffer(data, self.dtype).reshape(self.shape[1:])
 
-    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+    def __array__(self, dtype: npt.DTypeLike | None = None, copy: bool | None = None) -> np.ndarray:
         out = np.stack([self[i] for i in range(len(self))]) if len(self) else np.empty(self.shape, self.dtype)
         return out if dtype is None else out.astype(dtype)
 
