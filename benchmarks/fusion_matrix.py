@@ -62,8 +62,8 @@ def run_flight(path: Path, every: int, sets: list[str], fused_only: bool = False
     from slzcli.config import load_config
     from slzcli.fusion.session import FusedTerrain, verdict_in_frame
     from slzcli.fusion.verdict import SAFE, UNDECIDED, UNSAFE
-    from slzcli.scoring import get_scorer, mask_score
-    from slzcli.terrain.maps import frame_maps
+    from slzcli.scoring import MaskParams, get_scorer, mask_score
+    from slzcli.terrain.maps import MapParams, frame_maps
     from slzcli.terrain.noise import NoiseTracker
     from slzcli.types import Frame, Intrinsics
 
@@ -71,7 +71,7 @@ def run_flight(path: Path, every: int, sets: list[str], fused_only: bool = False
     d = np.load(path)
     k = d["K"]
     intr = Intrinsics(float(k[0]), float(k[1]), float(k[2]), float(k[3]), int(k[4]), int(k[5]))
-    scorer = get_scorer(cfg, "fuzzy")
+    scorer = get_scorer(cfg.scoring, cfg.mask, "fuzzy")
     ft = FusedTerrain(cfg, scorer)
     tracker = NoiseTracker(cfg.terrain.noise, cfg.terrain.noise_estimate)
     cnt = {p: {"tp": 0, "fp": 0, "fn": 0} for p in ("frame", "fused")}
@@ -94,8 +94,8 @@ def run_flight(path: Path, every: int, sets: list[str], fused_only: bool = False
         if fused_only:
             per = np.zeros_like(truth)
         else:
-            maps = frame_maps(frame, cfg, noise)
-            sm = mask_score(scorer, scorer(maps), depth, intr, cfg, maps.work, maps.up_camera)
+            maps = frame_maps(frame, MapParams.of(cfg), noise)
+            sm = mask_score(scorer, scorer(maps), depth, intr, MaskParams.of(cfg), maps.work, maps.up_camera)
             per = sm.mask
             vouched += bool(maps.work is None or maps.work.vouched)
         fm = ft.maps_in_view()

@@ -101,9 +101,10 @@ class FusedMethod:
 
 
 def fused(config: Config) -> FusedMethod:
-    scorer = SCORERS["fuzzy"].from_config(config)
+    scorer = SCORERS["fuzzy"].from_config(config.scoring, config.mask)
     return FusedMethod(config, FusedTerrain(config, scorer),
-                       select_params(config, "min_normal_variance", config.landing.min_extent_factor),
+                       select_params(config.landing, config.uav, "min_normal_variance",
+                                     config.landing.min_extent_factor),
                        NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
 
 

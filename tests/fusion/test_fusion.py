@@ -161,7 +161,7 @@ def test_two_heights_are_refused() -> None:
     assert np.all(reg.rejected[inner] > params.two_heights_fraction * reg.frames[inner])
     from slzcli.fusion.verdict import fused_maps
     from slzcli.scoring import get_scorer
-    fm = fused_maps(reg, cfg, params, get_scorer(cfg, "fuzzy"))
+    fm = fused_maps(reg, cfg, params, get_scorer(cfg.scoring, cfg.mask, "fuzzy"))
     assert np.all(fm.refused[inner]) and not np.any(fm.verdict[inner] == SAFE)
     assert np.all(fm.verdict[inner] == UNSAFE)
 
