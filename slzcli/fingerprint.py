@@ -55,50 +55,11 @@ def digest(path: Path, cache: dict[str, Entry]) -> Entry:
 
 
 def recording_files(path: Path) -> list[Path]:
-    """The files a recording's reader reads (see the module docstring); [] when there is nothing to read."""
-    from slzcli.errors import DatasetError
-    from slzcli.sources import guess_format
+    """The files a recording's reader reads (its format's ``files`` in ``sources/formats.py``); [] when there
+    is nothing to read."""
+    from slzcli.sources.formats import files_of
 
-    p = Path(path)
-    try:
-        fmt = guess_format(p)
-    except DatasetError:  # the reader says what is wrong; hash what is there
-        return [p] if p.is_file() else []
-    if fmt == "ros2":
-        return _rosbag2_files(p if p.is_dir() else p.parent)
-    if fmt == "tum":
-        return _tum_files(p)
-    return [p]
-
-
-def _rosbag2_files(folder: Path) -> list[Path]:
-    import yaml
-
-    from slzcli.bounds import MAX_BAG_METADATA_BYTES, read_regular
-    from slzcli.errors import SlzError
-
-    meta = folder / "metadata.yaml"
-    try:
-        text = read_regular(meta, MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
-        info = yaml.safe_load(text)["rosbag2_bagfile_information"]
-        listed = [folder / str(n) for n in info["relative_file_paths"]]
-    except (SlzError, yaml.YAMLError, KeyError, TypeError):  # a broken bag: the reader reports it
-        listed = sorted(q for q in folder.iterdir() if q.suffix in (".db3", ".mcap"))
-    return [meta, *(q for q in listed if q.is_file())]
-
-
-def _tum_files(folder: Path) -> list[Path]:
-    from slzcli.errors import SlzError
-    from slzcli.sources.tum import read_list
-
-    out = [folder / n for n in ("rgb.txt", "depth.txt", "groundtruth.txt", "camera.yaml") if (folder / n).is_file()]
-    images: set[Path] = set()
-    for name in ("rgb.txt", "depth.txt"):
-        try:
-            images.update(folder / row[1] for row in read_list(folder / name, 2))
-        except (OSError, SlzError):  # a missing or malformed list: the reader reports it
-            continue
-    return out + sorted(q for q in images if q.is_file())
+    return files_of(Path(path))
 
 
 def run_inputs(recording: Path, config: Config, cache: dict[str, Entry]) -> dict[str, list[Entry]]:

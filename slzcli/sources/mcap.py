@@ -22,18 +22,24 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError
-from slzcli.sources.messages import MessageLog, RawMessage
+from slzcli.sources.formats import MCAP_MAGIC as MAGIC
+from slzcli.sources.messages import MessageLog, MessageRecording, RawMessage
 from slzcli.sources.topics import normalise_msgtype
 
 log = logging.getLogger(__name__)
-MAGIC = b"\x89MCAP0\r\n"
 ROS1_ENCODING = "ros1"
 CDR_ENCODING = "cdr"
 
 
 class _ChunkTooLarge(Exception):
     """A chunk whose declared or real uncompressed size is beyond the bound: damage, read as a torn chunk."""
+
+
+def open_mcap(path: Path, config: Config) -> MessageRecording:
+    """``formats.FORMATS["mcap"]``: a bare MCAP file."""
+    return MessageRecording(McapLog(path), config)
 
 
 class McapLog(MessageLog):
