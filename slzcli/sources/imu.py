@@ -24,6 +24,7 @@ import numpy as np
 from slzcli.config import ImuGravityCfg
 from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources import decode, tf
+from slzcli.sources.messages import MessageRecording
 from slzcli.sources.topics import TRANSFORM, is_ground_truth, normalise_msgtype
 
 log = logging.getLogger(__name__)
@@ -68,14 +69,15 @@ def imu_topics(topics: dict[str, str], color_topic: str | None, wanted: str = ""
     return None  # a gyro alone says nothing of gravity
 
 
-def read_imu(rec: Any, cfg: ImuGravityCfg) -> ImuSamples | str:
+def read_imu(rec: MessageRecording, cfg: ImuGravityCfg) -> ImuSamples | str:
     """The recording's IMU in the colour optical frame, or why there is none (a sentence).
 
-    ``rec``: an open ``sources.messages.MessageRecording`` (its message log and chosen streams).
+    ``rec``: an open ``sources.messages.MessageRecording`` (its message log and its setup scan).
     """
     msglog = rec.log
     topics = msglog.topics()
-    color = rec.choices.color.topic if rec.choices is not None else None
+    setup = rec.camera_setup()
+    color = setup.choices.color.topic
     chosen = imu_topics(topics, color, cfg.topic)
     if chosen is None:
         if cfg.topic:
@@ -95,7 +97,7 @@ def read_imu(rec: Any, cfg: ImuGravityCfg) -> ImuSamples | str:
         g = _read(msglog, gyro_topic, cfg.max_messages, want_gyro=True)
         if not isinstance(g, str) and g[2] is not None:
             gyro_stamps, gyro, gyro_frame = g[0], g[2], g[3]
-    camera = rec._first_color_frame_id() or ""
+    camera = setup.first_color_frame_id() or ""
     static, stream_tf = _static_transforms(msglog, topics)
     R = _rotation(msglog, topics, static, stream_tf, accel_topic, color, frame, camera)
     if isinstance(R, str):
@@ -185,7 +187,7 @@ def _rotation(msglog: Any, topics: dict[str, str], static: dict[str, tuple[str, 
     prefix = {"imu": _stream_prefix(imu_topic, "/imu/data"), "color": _stream_prefix(color_topic, "/image/data")}
     ref = {role: T for role, p in prefix.items() if p
            for topic, T in sorted(stream_tf.items(), reverse=True) if topic.startswith(p + "/tf/")}
-    if "imu" in ref and "color" in ref:  # T_stream_ref of each (see messages.py _depth_extrinsics)
+    if "imu" in ref and "color" in ref:  # T_stream_ref of each (see camera_setup.py _depth_extrinsics)
         return (ref["color"] @ np.linalg.inv(ref["imu"]))[:3, :3]
     if not imu_frame or not camera:
         return (f"{imu_topic}: its frame id {imu_frame or '(empty)'} cannot be related to the colour frame "

@@ -25,7 +25,8 @@ from rosbags.typesys.store import Typestore
 from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError
 from slzcli.sources.formats import MCAP_MAGIC as MAGIC
-from slzcli.sources.messages import MessageLog, MessageRecording, RawMessage
+from slzcli.sources.message_log import MessageLog, RawMessage
+from slzcli.sources.messages import MessageRecording
 from slzcli.sources.topics import normalise_msgtype
 
 log = logging.getLogger(__name__)

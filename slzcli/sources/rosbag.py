@@ -20,7 +20,8 @@ from slzcli.bounds import MAX_BAG_METADATA_BYTES, file_kind, read_regular
 from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources.formats import ROS1_MAGIC
-from slzcli.sources.messages import MessageLog, MessageRecording, RawMessage
+from slzcli.sources.message_log import MessageLog, RawMessage
+from slzcli.sources.messages import MessageRecording
 
 
 def open_ros1(path: Path, config: Config) -> MessageRecording:
