@@ -15,7 +15,6 @@ import logging
 import re
 from collections.abc import Generator
 from contextlib import closing
-from typing import Any
 
 import numpy as np
 
@@ -25,6 +24,7 @@ from slzcli.sources import decode, tf, tf_tree
 from slzcli.sources.color_camera import ALIGNED, DepthToColor, extrinsics, same_camera
 from slzcli.sources.message_log import MessageLog
 from slzcli.sources.presets import PresetChoice
+from slzcli.sources.ros_types import Message
 from slzcli.sources.topics import COMPRESSED, IMAGE, TF, TRANSFORM, Choices, normalise_msgtype
 from slzcli.sources.undistort import distortion_problem
 from slzcli.sources.validate import info_frame_problem, intrinsics_problem, pixel_aspect_problem
@@ -277,7 +277,7 @@ class CameraSetup:
             messages.close()  # its recording pass ends here
         return out[:limit]
 
-    def decoded(self, topic: str) -> Generator[Any, None, None]:
+    def decoded(self, topic: str) -> Generator[Message, None, None]:
         """The deserialised messages of one topic (undecodable ones skipped), closed when left early."""
         with closing(self.log.read([topic])) as messages:
             for msg in messages:

@@ -13,11 +13,11 @@ import logging
 import struct
 from collections.abc import Collection, Iterator
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import BinaryIO
 
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Message, Schema
+from mcap.records import Channel, Chunk, McapRecord, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
@@ -27,6 +27,7 @@ from slzcli.errors import DatasetError, DecodeError
 from slzcli.sources.formats import MCAP_MAGIC as MAGIC
 from slzcli.sources.message_log import MessageLog, RawMessage
 from slzcli.sources.messages import MessageRecording
+from slzcli.sources.ros_types import Message as RosMessage
 from slzcli.sources.topics import normalise_msgtype
 
 log = logging.getLogger(__name__)
@@ -164,7 +165,7 @@ class McapLog(MessageLog):
                     raise
                 self._truncated(n, f.tell(), err)
 
-    def _unchunked(self, records: Iterator[Any], f: BinaryIO) -> Iterator[Any]:
+    def _unchunked(self, records: Iterator[McapRecord], f: BinaryIO) -> Iterator[McapRecord]:
         """The records with each chunk broken up, after its declared size is checked against
         ``bounds.MAX_MCAP_CHUNK_BYTES`` (zstd allocates what a chunk declares before it reads a byte)."""
         from slzcli.bounds import MAX_MCAP_CHUNK_BYTES
@@ -193,7 +194,7 @@ class McapLog(MessageLog):
             self._truncation_reported = True
             log.warning("%s: %s", self.path, text)
 
-    def deserialize(self, topic: str, data: Any) -> Any:
+    def deserialize(self, topic: str, data: bytes | memoryview) -> RosMessage:
         enc = self._encoding.get(topic, "")
         msgtype = self._topics.get(topic, "")
         store = self._stores.get(enc)

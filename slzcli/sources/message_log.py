@@ -8,9 +8,9 @@ import abc
 from collections.abc import Collection, Generator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from slzcli.errors import DatasetError, SlzError
+from slzcli.sources.ros_types import Message
 
 
 @dataclass(frozen=True)
@@ -19,7 +19,7 @@ class RawMessage:
 
     topic: str
     log_ns: int
-    data: Any
+    data: bytes | memoryview  # as stored: rosbags gives bytes, mcap bytes or a memoryview of its chunk
 
 
 class MessageLog(abc.ABC):
@@ -50,7 +50,8 @@ class MessageLog(abc.ABC):
         """Messages of ``topics`` (all when empty) in log-time order, streamed."""
 
     @abc.abstractmethod
-    def deserialize(self, topic: str, data: Any) -> Any: ...
+    def deserialize(self, topic: str, data: bytes | memoryview) -> Message:
+        """The message (of the topic's type: see ``ros_types``); DecodeError naming the topic when damaged."""
 
     def read(self, topics: Collection[str]) -> Generator[RawMessage, None, None]:
         """``messages(topics)`` with the third-party reader's own errors wrapped once, as DatasetError naming

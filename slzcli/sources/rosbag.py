@@ -10,7 +10,6 @@ import os
 import stat
 from collections.abc import Collection, Iterator
 from pathlib import Path
-from typing import Any
 
 import yaml
 from rosbags.highlevel import AnyReader
@@ -22,6 +21,7 @@ from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources.formats import ROS1_MAGIC
 from slzcli.sources.message_log import MessageLog, RawMessage
 from slzcli.sources.messages import MessageRecording
+from slzcli.sources.ros_types import Message
 
 
 def open_ros1(path: Path, config: Config) -> MessageRecording:
@@ -84,9 +84,9 @@ class RosbagLog(MessageLog):
         for conn, stamp, data in reader.messages(connections=conns):
             yield RawMessage(conn.topic, stamp, data)
 
-    def deserialize(self, topic: str, data: Any) -> Any:
+    def deserialize(self, topic: str, data: bytes | memoryview) -> Message:
         try:
-            return self._open_reader().deserialize(data, self._types[topic])
+            return self._open_reader().deserialize(data if isinstance(data, bytes) else bytes(data), self._types[topic])
         except Exception as err:  # AnyReaderError / SerdeError on a damaged message
             raise DecodeError(f"{topic}: cannot deserialise {self._types[topic]} ({_reason(err)})") from err
 
