@@ -153,3 +153,12 @@ def test_a_format_is_one_reader_and_one_registry_line(runner, tiny_dir: Path, tm
     batch = runner.invoke(main, ["detect", str(tiny_dir / "*.tiny"), "-o", str(runs), "--workers", "1", *ODOMETRY])
     assert batch.exit_code == 0, batch.output + batch.stderr
     assert sorted(p.name for p in runs.iterdir() if p.is_dir()) == ["a", "b"]  # .tiny dropped from the run names
+
+
+def test_a_bag_named_in_capitals_is_read_as_a_ros1_bag(tmp_path: Path) -> None:
+    """The suffix is recognised in any case and the reader is told the format (it once guessed again from the
+    suffix, in lower case only, and took ``X.BAG`` for a bag folder: "X.BAG/metadata.yaml: cannot read")."""
+    path = _touch(tmp_path / "flight.BAG", b"not a bag at all")
+    with pytest.raises(DatasetError, match=r"not a ROS 1 bag \(no '#ROSBAG V2.0' header\)"), \
+            open_recording(path, load_config(None, [])):
+        pass
