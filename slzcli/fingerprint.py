@@ -3,10 +3,10 @@
 The key is a sha256 over the resolved config's values, the fusion method, slz's version (and
 pyorbslam3's when ORB-SLAM3 may run: installing it changes what ``slam.backend: auto`` picks), and
 the bytes of every file the run reads: the recording (its format's ``files`` in ``sources/formats.py``:
-for a rosbag2 folder ``metadata.yaml`` and
-the storage files it lists, for a TUM folder its lists, ``camera.yaml`` and the images the lists
-name: not the run folders or notes a user keeps beside them), its ``slz synth`` ground-truth
-sidecars when both are there, the fuzzy rules file, and the ORB vocabulary when ORB-SLAM3 may run.
+for a rosbag2 folder ``metadata.yaml`` and the storage files it lists, for a TUM folder its lists,
+``camera.yaml`` and the images the lists name: not the run folders or notes a user keeps beside them),
+its ``slz synth`` ground-truth sidecars when both are there, the fuzzy rules file, and the ORB
+vocabulary when ORB-SLAM3 may run.
 
 Every file is hashed whole (sha256, streamed in ``HASH_BLOCK`` pieces: memory does not grow with
 the file). The digests are kept in run.json with each file's identity (resolved path, size,
