@@ -47,6 +47,7 @@ from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError, SlzError
 from slzcli.interrupt import sigterm_interrupts
 from slzcli.pipeline import RunOptions
+from slzcli.sources.formats import run_suffixes
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +56,6 @@ log = logging.getLogger(__name__)
 POLL_S = 0.25
 STOP_GRACE_S = 10.0
 CONNECT_TIMEOUT_S = 10.0
-RUN_SUFFIXES = (".mcap", ".bag", ".db3")
 GLOB_CHARS = frozenset("*?[")
 
 
@@ -117,7 +117,7 @@ def _glob(pattern: str) -> list[str]:
 
 def run_name(recording: Path) -> str:
     name = Path(recording).name or "run"
-    for suffix in RUN_SUFFIXES:
+    for suffix in run_suffixes():
         name = name.removesuffix(suffix)
     return name
 

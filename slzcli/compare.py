@@ -59,6 +59,7 @@ from slzcli.pipeline.source import open_source
 from slzcli.pipeline.tracking import Tracker
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
+from slzcli.sources.formats import run_suffixes
 from slzcli.summary import RunState, no_site_reason, site_truth, untracked_frames
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
@@ -429,7 +430,7 @@ def _arrays(runs: dict[str, MethodRun], committed: dict[str, CommittedSite | Non
 
 def recording_name(path: Path) -> str:
     name = Path(path).name.rstrip("/") or "recording"
-    for suffix in (".mcap", ".bag", ".db3"):
+    for suffix in run_suffixes():
         name = name.removesuffix(suffix)
     return name
 

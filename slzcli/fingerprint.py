@@ -2,10 +2,11 @@
 
 The key is a sha256 over the resolved config's values, the fusion method, slz's version (and
 pyorbslam3's when ORB-SLAM3 may run: installing it changes what ``slam.backend: auto`` picks), and
-the bytes of every file the run reads: the recording (for a rosbag2 folder ``metadata.yaml`` and
-the storage files it lists, for a TUM folder its lists, ``camera.yaml`` and the images the lists
-name: not the run folders or notes a user keeps beside them), its ``slz synth`` ground-truth
-sidecars when both are there, the fuzzy rules file, and the ORB vocabulary when ORB-SLAM3 may run.
+the bytes of every file the run reads: the recording (its format's ``files`` in ``sources/formats.py``:
+for a rosbag2 folder ``metadata.yaml`` and the storage files it lists, for a TUM folder its lists,
+``camera.yaml`` and the images the lists name: not the run folders or notes a user keeps beside them),
+its ``slz synth`` ground-truth sidecars when both are there, the fuzzy rules file, and the ORB
+vocabulary when ORB-SLAM3 may run.
 
 Every file is hashed whole (sha256, streamed in ``HASH_BLOCK`` pieces: memory does not grow with
 the file). The digests are kept in run.json with each file's identity (resolved path, size,
@@ -24,15 +25,10 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, TypedDict, cast
 
-import yaml
-
-from slzcli.bounds import MAX_BAG_METADATA_BYTES, read_regular
 from slzcli.config import Config
-from slzcli.errors import DatasetError, SlzError
 from slzcli.scoring.rules import resolve_rules_path
 from slzcli.slam.vocabulary import DEFAULT_VOCABULARY
-from slzcli.sources import guess_format
-from slzcli.sources.tum import read_list
+from slzcli.sources.formats import files_of
 from slzcli.synth.groundtruth import BINDING_KEY, sidecar_paths
 from slzcli.version import __version__
 
@@ -75,39 +71,9 @@ def digest(path: Path, cache: dict[str, Entry]) -> Entry:
 
 
 def recording_files(path: Path) -> list[Path]:
-    """The files a recording's reader reads (see the module docstring); [] when there is nothing to read."""
-    p = Path(path)
-    try:
-        fmt = guess_format(p)
-    except DatasetError:  # the reader says what is wrong; hash what is there
-        return [p] if p.is_file() else []
-    if fmt == "ros2":
-        return _rosbag2_files(p if p.is_dir() else p.parent)
-    if fmt == "tum":
-        return _tum_files(p)
-    return [p]
-
-
-def _rosbag2_files(folder: Path) -> list[Path]:
-    meta = folder / "metadata.yaml"
-    try:
-        text = read_regular(meta, MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
-        info = yaml.safe_load(text)["rosbag2_bagfile_information"]
-        listed = [folder / str(n) for n in info["relative_file_paths"]]
-    except (SlzError, yaml.YAMLError, KeyError, TypeError):  # a broken bag: the reader reports it
-        listed = sorted(q for q in folder.iterdir() if q.suffix in (".db3", ".mcap"))
-    return [meta, *(q for q in listed if q.is_file())]
-
-
-def _tum_files(folder: Path) -> list[Path]:
-    out = [folder / n for n in ("rgb.txt", "depth.txt", "groundtruth.txt", "camera.yaml") if (folder / n).is_file()]
-    images: set[Path] = set()
-    for name in ("rgb.txt", "depth.txt"):
-        try:
-            images.update(folder / row[1] for row in read_list(folder / name, 2))
-        except (OSError, SlzError):  # a missing or malformed list: the reader reports it
-            continue
-    return out + sorted(q for q in images if q.is_file())
+    """The files a recording's reader reads (its format's ``files`` in ``sources/formats.py``); [] when there
+    is nothing to read."""
+    return files_of(Path(path))
 
 
 def run_inputs(recording: Path, config: Config, cache: dict[str, Entry]) -> dict[str, list[Entry]]:

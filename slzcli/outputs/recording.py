@@ -32,6 +32,7 @@ from slzcli.errors import OutputError
 from slzcli.geometry import Pose
 from slzcli.outputs import safe_output
 from slzcli.sources.decode import COMPRESSED_DEPTH_HEADER
+from slzcli.sources.ros_types import Message
 from slzcli.types import Frame, Intrinsics
 
 FORMATS = ("mcap", "mcap-ros1", "ros1", "ros2-sqlite", "ros2-mcap")
@@ -222,31 +223,31 @@ class RecordingWriter:
                      linear_acceleration=vec(*map(float, accel)), linear_acceleration_covariance=np.zeros(9))
         self._write(topic, IMU, msg, stamp_ns)
 
-    def write_raw(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
+    def write_raw(self, topic: str, msgtype: str, msg: Message | bytes, stamp_ns: int) -> None:
         """Any message: an instance from ``self.typestore`` or already serialised bytes."""
         self._write(topic, msgtype, msg, stamp_ns)
 
-    def message(self, msgtype: str, **fields: Any) -> Any:
+    def message(self, msgtype: str, **fields: Message) -> Message:
         """A message object of this writer's typestore (for ``write_raw``)."""
         return self.typestore.types[msgtype](**fields)
 
-    def header(self, stamp_ns: int, frame_id: str = "") -> Any:
+    def header(self, stamp_ns: int, frame_id: str = "") -> Message:
         return self._header(stamp_ns, frame_id or self.layout.frame_id)
 
-    def color_message(self, rgb: np.ndarray, stamp_ns: int) -> tuple[str, Any]:
+    def color_message(self, rgb: np.ndarray, stamp_ns: int) -> tuple[str, Message]:
         """(msgtype, message) of a colour image in this writer's encoding (for ``write_raw``)."""
         if self.color_encoding in ("jpeg", "png"):
             return COMPRESSED, self._compressed_color(rgb, stamp_ns)
         return IMAGE, self._color_image(rgb, stamp_ns)
 
-    def depth_message(self, depth_m: np.ndarray, stamp_ns: int) -> tuple[str, Any]:
+    def depth_message(self, depth_m: np.ndarray, stamp_ns: int) -> tuple[str, Message]:
         """(msgtype, message) of a depth image in this writer's encoding (for ``write_raw``)."""
         if self.depth_encoding.startswith("compressedDepth"):
             return COMPRESSED, self._compressed_depth(depth_m, stamp_ns)
         return IMAGE, self._depth_image(depth_m, stamp_ns)
 
     # ------------------------------------------------------------------ messages
-    def _write(self, topic: str, msgtype: str, msg: Any, stamp_ns: int) -> None:
+    def _write(self, topic: str, msgtype: str, msg: Message | bytes, stamp_ns: int) -> None:
         if self._backend is None:
             raise OutputError(self.path, "writer is not open (use it as a context manager)")
         data: bytes | memoryview
@@ -261,7 +262,7 @@ class RecordingWriter:
         except OSError as err:  # disk full, quota, read-only: name the recording, not "internal error"
             raise OutputError(self.path, f"cannot write ({err.strerror or err})") from err
 
-    def _header(self, stamp_ns: int, frame_id: str) -> Any:
+    def _header(self, stamp_ns: int, frame_id: str) -> Message:
         t = self.typestore.types
         stamp = t["builtin_interfaces/msg/Time"](sec=int(stamp_ns // 1_000_000_000),
                                                  nanosec=int(stamp_ns % 1_000_000_000))
@@ -269,7 +270,7 @@ class RecordingWriter:
             return t["std_msgs/msg/Header"](seq=self.frames_written, stamp=stamp, frame_id=frame_id)
         return t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
 
-    def _image(self, stamp: int, arr: np.ndarray, encoding: str) -> Any:
+    def _image(self, stamp: int, arr: np.ndarray, encoding: str) -> Message:
         h, w = arr.shape[:2]
         data = np.ascontiguousarray(arr)
         if self.big_endian and data.dtype.itemsize > 1:
@@ -279,14 +280,14 @@ class RecordingWriter:
                                            encoding=encoding, is_bigendian=int(self.big_endian),
                                            step=raw.size // h, data=raw)
 
-    def _color_image(self, rgb: np.ndarray, stamp: int) -> Any:
+    def _color_image(self, rgb: np.ndarray, stamp: int) -> Message:
         enc = self.color_encoding
         conv = {"bgr8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGB2RGBA, "bgra8": cv2.COLOR_RGB2BGRA,
                 "mono8": cv2.COLOR_RGB2GRAY}.get(enc)
         arr = cv2.cvtColor(rgb, conv) if conv is not None else rgb
         return self._image(stamp, arr, enc)
 
-    def _compressed_color(self, rgb: np.ndarray, stamp: int) -> Any:
+    def _compressed_color(self, rgb: np.ndarray, stamp: int) -> Message:
         ok, buf = cv2.imencode("." + ("jpg" if self.color_encoding == "jpeg" else "png"),
                                cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         if not ok:
@@ -299,12 +300,12 @@ class RecordingWriter:
         counts = np.rint(np.nan_to_num(depth_m, nan=0.0, posinf=0.0, neginf=0.0) / self.depth_unit_m)
         return np.clip(counts, 0, np.iinfo(np.uint16).max).astype(np.uint16)
 
-    def _depth_image(self, depth_m: np.ndarray, stamp: int) -> Any:
+    def _depth_image(self, depth_m: np.ndarray, stamp: int) -> Message:
         if self.depth_encoding == "32FC1":
             return self._image(stamp, depth_m.astype(np.float32), "32FC1")
         return self._image(stamp, self._depth_counts(depth_m), self.depth_encoding)
 
-    def _compressed_depth(self, depth_m: np.ndarray, stamp: int) -> Any:
+    def _compressed_depth(self, depth_m: np.ndarray, stamp: int) -> Message:
         if self.depth_encoding == "compressedDepth-32FC1":
             z0, dmax = COMPRESSED_DEPTH_QUANTIZATION, COMPRESSED_DEPTH_MAX_M
             quant_a = np.float32(z0 * (z0 + 1.0))
@@ -327,7 +328,7 @@ class RecordingWriter:
         data = np.concatenate([np.frombuffer(header, dtype=np.uint8), buf.reshape(-1)])
         return self.typestore.types[COMPRESSED](header=self._header(stamp, self.layout.frame_id), format=fmt, data=data)
 
-    def _camera_info(self, k: Intrinsics, stamp: int) -> Any:
+    def _camera_info(self, k: Intrinsics, stamp: int) -> Message:
         t = self.typestore.types
         K = k.K.reshape(-1).astype(np.float64)
         P = np.array([k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0], dtype=np.float64)

@@ -24,6 +24,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from slzcli.errors import OutputError
+from slzcli.sources.formats import starts_with_magic
 
 TEMP_MARKER = ".slz-temporary"  # a file inside each temporary folder slz makes
 _TEMP_TEXT = b"written by slz; removed when the command ends or by the next one on this output\n"
@@ -87,8 +88,6 @@ def _resolved(path: Path) -> Path:
 
 
 # ----------------------------------------------------------------------------- what slz recognises as its own
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-ROS1_MAGIC = b"#ROSBAG V2.0\n"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 PNG_SOFTWARE = b"Software\x00slz"  # the tEXt chunk slz's PNG previews carry (see ``tag_png``)
 _HEAD_BYTES = 4096
@@ -107,7 +106,7 @@ def _head(path: Path, n: int = _HEAD_BYTES) -> bytes:
 
 def is_recording_file(path: Path) -> bool:
     head = _head(path, 16)
-    return head.startswith(MCAP_MAGIC) or head.startswith(ROS1_MAGIC)
+    return starts_with_magic(head)
 
 
 def is_vocabulary(path: Path) -> bool:

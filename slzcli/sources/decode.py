@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Mapping
-from typing import Any
+from typing import cast
 
 import cv2
 import numpy as np
 
 from slzcli.errors import DecodeError, short_repr
 from slzcli.geometry import Pose
+from slzcli.sources import ros_types as ros
 from slzcli.sources.image_limits import FrameTooLarge, check_compressed, check_pixels
 from slzcli.types import Intrinsics
 
@@ -34,18 +35,18 @@ DEPTH_ENCODINGS: dict[str, tuple[str, int]] = {"16UC1": ("u2", 1), "mono16": ("u
 COMPRESSED_DEPTH_HEADER = struct.Struct("<iff")
 
 
-def _f(msg: Any, ros2: str, ros1: str) -> Any:
+def _f(msg: object, ros2: str, ros1: str) -> object:
     """A field whose name differs between ROS 1 (upper case) and ROS 2 (lower case)."""
     value = getattr(msg, ros2, None)
     return getattr(msg, ros1) if value is None else value
 
 
-def _is(msg: Any, short_type: str) -> bool:
+def _is(msg: object, short_type: str) -> bool:
     """Whether a deserialised message is of type ``pkg/msg/short_type`` (rosbags sets __msgtype__)."""
     return str(getattr(msg, "__msgtype__", "")).rsplit("/", 1)[-1] == short_type
 
 
-def stamp_ns(header: Any) -> int:
+def stamp_ns(header: ros.Header) -> int:
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
@@ -71,7 +72,7 @@ def header_stamp(data: bytes | memoryview, ros1: bool) -> tuple[int, str]:
 
 
 # ----------------------------------------------------------------------------- images
-def _raw_array(msg: Any, dtype: str, channels: int, max_px: int = 0) -> np.ndarray:
+def _raw_array(msg: ros.Image, dtype: str, channels: int, max_px: int = 0) -> np.ndarray:
     """HxW[xC] view of an Image's data honouring ``step`` (row padding) and ``is_bigendian``.
 
     ``max_px`` > 0: a declared width x height over it is ``FrameTooLarge`` before any copy.
@@ -79,7 +80,7 @@ def _raw_array(msg: Any, dtype: str, channels: int, max_px: int = 0) -> np.ndarr
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     itemsize = np.dtype(dtype).itemsize
     row = w * channels * itemsize
-    data = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
+    data = np.frombuffer(msg.data, dtype=np.uint8)
     if h <= 0 or w <= 0:
         raise DecodeError(f"Image {msg.encoding} is empty ({w}x{h} px)")
     check_pixels(w, h, max_px, f"Image {msg.encoding}")
@@ -106,18 +107,20 @@ def imdecode_bounded(buf: np.ndarray, flags: int, max_px: int, what: str) -> np.
         return None
 
 
-def decode_color(msg: Any, max_px: int = 0) -> np.ndarray:
+def decode_color(msg: ros.Image | ros.CompressedImage, max_px: int = 0) -> np.ndarray:
     """``sensor_msgs/Image`` or ``CompressedImage`` (jpeg/png) -> uint8 HxWx3 RGB.
 
     ``max_px`` > 0 bounds the declared pixels (``sources.max_image_px``), checked before decoding.
     """
     if _is(msg, "CompressedImage"):
-        buf = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
+        msg = cast(ros.CompressedImage, msg)
+        buf = np.frombuffer(msg.data, dtype=np.uint8)
         what = f"CompressedImage format {short_repr(str(msg.format), 40)}"
         img = imdecode_bounded(buf, cv2.IMREAD_COLOR, max_px, what) if buf.size else None
         if img is None:
             raise DecodeError(f"{what}: not a decodable jpeg/png")
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    msg = cast(ros.Image, msg)
     enc = str(msg.encoding)
     if enc not in COLOR_ENCODINGS:
         raise DecodeError(f"unsupported colour encoding {short_repr(enc, 40)} "
@@ -142,10 +145,12 @@ def depth_to_metres(raw: np.ndarray, depth_unit_16u_m: float, max_depth_m: float
     return depth
 
 
-def decode_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: float = 0.0, max_px: int = 0) -> np.ndarray:
+def decode_depth(msg: ros.Image | ros.CompressedImage, depth_unit_16u_m: float, max_depth_m: float = 0.0,
+                 max_px: int = 0) -> np.ndarray:
     """Depth ``Image`` (16UC1, mono16, 32FC1) or ``compressedDepth`` -> float32 metres, NaN = no data."""
     if _is(msg, "CompressedImage"):
-        return decode_compressed_depth(msg, depth_unit_16u_m, max_depth_m, max_px)
+        return decode_compressed_depth(cast(ros.CompressedImage, msg), depth_unit_16u_m, max_depth_m, max_px)
+    msg = cast(ros.Image, msg)
     enc = str(msg.encoding)
     if enc not in DEPTH_ENCODINGS:
         raise DecodeError(f"unsupported depth encoding {short_repr(enc, 40)} "
@@ -153,7 +158,7 @@ def decode_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: float = 0.0, ma
     return depth_to_metres(_raw_array(msg, *DEPTH_ENCODINGS[enc], max_px=max_px), depth_unit_16u_m, max_depth_m)
 
 
-def decode_compressed_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: float = 0.0,
+def decode_compressed_depth(msg: ros.CompressedImage, depth_unit_16u_m: float, max_depth_m: float = 0.0,
                             max_px: int = 0) -> np.ndarray:
     """image_transport ``compressedDepth``: 12-byte ConfigHeader then a 16-bit PNG.
 
@@ -167,7 +172,7 @@ def decode_compressed_depth(msg: Any, depth_unit_16u_m: float, max_depth_m: floa
         raise DecodeError(f"CompressedImage format {shown} is not compressedDepth")
     if "rvl" in fmt.lower():
         raise DecodeError(f"unsupported compressedDepth codec in format {shown} (only png)")
-    data = np.frombuffer(memoryview(msg.data), dtype=np.uint8)
+    data = np.frombuffer(msg.data, dtype=np.uint8)
     if data.size <= COMPRESSED_DEPTH_HEADER.size:
         raise DecodeError(f"compressedDepth message of {data.size} bytes has no image after its header")
     _, quant_a, quant_b = COMPRESSED_DEPTH_HEADER.unpack(data[: COMPRESSED_DEPTH_HEADER.size].tobytes())
@@ -200,7 +205,7 @@ def match_depth_to_color(depth_m: np.ndarray, color_shape: tuple[int, int]) -> n
 
 
 # ----------------------------------------------------------------------------- camera info
-def decode_camera_info(msg: Any) -> Intrinsics:
+def decode_camera_info(msg: ros.CameraInfo) -> Intrinsics:
     """``CameraInfo`` -> Intrinsics (K row-major; distortion model and D recorded), not yet checked."""
     k = np.asarray(_f(msg, "k", "K"), dtype=np.float64).reshape(-1)
     if k.size != 9 or not np.all(np.isfinite(k)) or (k[0] == 0 and k[4] == 0):
@@ -221,7 +226,7 @@ def quat_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
         raise DecodeError(f"invalid quaternion {q.tolist()}") from None
 
 
-def transform_matrix(translation: Any, rotation: Any) -> np.ndarray:
+def transform_matrix(translation: ros.Vector3, rotation: ros.Quaternion) -> np.ndarray:
     """geometry_msgs Point/Vector3 + Quaternion -> 4x4."""
     T = np.eye(4)
     T[:3, :3] = quat_to_matrix(rotation.x, rotation.y, rotation.z, rotation.w)
@@ -231,16 +236,18 @@ def transform_matrix(translation: Any, rotation: Any) -> np.ndarray:
     return T
 
 
-def decode_pose(msg: Any) -> tuple[int, str, str, np.ndarray]:
+def decode_pose(msg: ros.PoseStamped | ros.Odometry) -> tuple[int, str, str, np.ndarray]:
     """PoseStamped or Odometry -> (stamp_ns, parent frame, child frame or '', T_parent_child)."""
-    odom = _is(msg, "Odometry")
-    pose = msg.pose.pose if odom else msg.pose
-    child = str(msg.child_frame_id).lstrip("/") if odom else ""
+    if _is(msg, "Odometry"):
+        odom = cast(ros.Odometry, msg)
+        pose, child = odom.pose.pose, str(odom.child_frame_id).lstrip("/")
+    else:
+        pose, child = cast(ros.PoseStamped, msg).pose, ""
     return (stamp_ns(msg.header), str(msg.header.frame_id).lstrip("/"), child,
             transform_matrix(pose.position, pose.orientation))
 
 
-def decode_tf(msg: Any) -> list[tuple[int, str, str, np.ndarray]]:
+def decode_tf(msg: ros.TFMessage) -> list[tuple[int, str, str, np.ndarray]]:
     """TFMessage -> [(stamp_ns, parent, child, T_parent_child)] with leading '/' stripped from names."""
     return [(stamp_ns(t.header), t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/"),
              transform_matrix(t.transform.translation, t.transform.rotation)) for t in msg.transforms]
@@ -272,7 +279,7 @@ def compose_chain(tree: Mapping[str, tuple[str, np.ndarray]], frame: str,
 POINTFIELD_KINDS = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 
 
-def decode_pointcloud2(msg: Any) -> tuple[np.ndarray, np.ndarray]:
+def decode_pointcloud2(msg: ros.PointCloud2) -> tuple[np.ndarray, np.ndarray]:
     """XYZ (N,3) float64 of the finite points of a PointCloud2 and their ids (int64, -1 without an id field).
 
     Works on rosbags ROS 1 and ROS 2 message objects (same field names). DecodeError when x/y/z are

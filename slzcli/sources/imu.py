@@ -17,13 +17,16 @@ import logging
 from collections.abc import Generator
 from contextlib import closing, suppress
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from slzcli.config import ImuGravityCfg
 from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources import decode, tf
+from slzcli.sources import ros_types as ros
+from slzcli.sources.message_log import MessageLog, RawMessage
+from slzcli.sources.messages import MessageRecording
+from slzcli.sources.ros_types import Message
 from slzcli.sources.topics import TRANSFORM, is_ground_truth, normalise_msgtype
 
 log = logging.getLogger(__name__)
@@ -68,14 +71,15 @@ def imu_topics(topics: dict[str, str], color_topic: str | None, wanted: str = ""
     return None  # a gyro alone says nothing of gravity
 
 
-def read_imu(rec: Any, cfg: ImuGravityCfg) -> ImuSamples | str:
+def read_imu(rec: MessageRecording, cfg: ImuGravityCfg) -> ImuSamples | str:
     """The recording's IMU in the colour optical frame, or why there is none (a sentence).
 
-    ``rec``: an open ``sources.messages.MessageRecording`` (its message log and chosen streams).
+    ``rec``: an open ``sources.messages.MessageRecording`` (its message log and its setup scan).
     """
     msglog = rec.log
     topics = msglog.topics()
-    color = rec.choices.color.topic if rec.choices is not None else None
+    setup = rec.camera_setup()
+    color = setup.choices.color.topic
     chosen = imu_topics(topics, color, cfg.topic)
     if chosen is None:
         if cfg.topic:
@@ -95,7 +99,7 @@ def read_imu(rec: Any, cfg: ImuGravityCfg) -> ImuSamples | str:
         g = _read(msglog, gyro_topic, cfg.max_messages, want_gyro=True)
         if not isinstance(g, str) and g[2] is not None:
             gyro_stamps, gyro, gyro_frame = g[0], g[2], g[3]
-    camera = rec._first_color_frame_id() or ""
+    camera = setup.first_color_frame_id() or ""
     static, stream_tf = _static_transforms(msglog, topics)
     R = _rotation(msglog, topics, static, stream_tf, accel_topic, color, frame, camera)
     if isinstance(R, str):
@@ -111,7 +115,7 @@ def read_imu(rec: Any, cfg: ImuGravityCfg) -> ImuSamples | str:
     return ImuSamples(stamps, accel, gyro_stamps, gyro, f"{where}, {len(stamps)} samples, {rotation}")
 
 
-def _read(msglog: Any, topic: str, limit: int, want_gyro: bool
+def _read(msglog: MessageLog, topic: str, limit: int, want_gyro: bool
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, str] | str:
     """(stamps, accel, gyro or None, frame id) of one Imu topic, the first ``limit`` messages."""
     stamps: list[int] = []
@@ -124,7 +128,7 @@ def _read(msglog: Any, topic: str, limit: int, want_gyro: bool
             if len(stamps) >= limit:
                 break
             try:
-                m = msglog.deserialize(raw.topic, raw.data)
+                m: ros.Imu = msglog.deserialize(raw.topic, raw.data)
                 stamp = decode.stamp_ns(m.header) or raw.log_ns
                 a, w = m.linear_acceleration, m.angular_velocity
                 acc.append((float(a.x), float(a.y), float(a.z)))
@@ -143,7 +147,7 @@ def _read(msglog: Any, topic: str, limit: int, want_gyro: bool
     return t, a_arr, g_arr if has_gyro else None, frame
 
 
-def _messages(msglog: Any, topic: str) -> Generator[Any, None, None]:
+def _messages(msglog: MessageLog, topic: str) -> Generator[RawMessage, None, None]:
     try:
         yield from msglog.messages([topic])
     except SlzError:
@@ -152,7 +156,7 @@ def _messages(msglog: Any, topic: str) -> Generator[Any, None, None]:
         raise DatasetError(msglog.path, f"cannot read {topic} ({type(err).__name__}: {err})") from err
 
 
-def _static_transforms(msglog: Any, topics: dict[str, str]
+def _static_transforms(msglog: MessageLog, topics: dict[str, str]
                        ) -> tuple[dict[str, tuple[str, np.ndarray]], dict[str, np.ndarray]]:
     """/tf_static's tree and a librealsense recorder's per-stream extrinsics (``.../tf/0``)."""
     static: dict[str, tuple[str, np.ndarray]] = {}
@@ -167,7 +171,7 @@ def _static_transforms(msglog: Any, topics: dict[str, str]
     return static, stream_tf
 
 
-def _decoded(msglog: Any, topic: str) -> Generator[Any, None, None]:
+def _decoded(msglog: MessageLog, topic: str) -> Generator[Message, None, None]:
     with closing(_messages(msglog, topic)) as messages:
         for raw in messages:
             try:
@@ -176,7 +180,7 @@ def _decoded(msglog: Any, topic: str) -> Generator[Any, None, None]:
                 continue
 
 
-def _rotation(msglog: Any, topics: dict[str, str], static: dict[str, tuple[str, np.ndarray]],
+def _rotation(msglog: MessageLog, topics: dict[str, str], static: dict[str, tuple[str, np.ndarray]],
               stream_tf: dict[str, np.ndarray], imu_topic: str, color_topic: str | None, imu_frame: str,
               camera: str) -> np.ndarray | str:
     """R_camera_imu, or why it is unknown."""
@@ -185,7 +189,7 @@ def _rotation(msglog: Any, topics: dict[str, str], static: dict[str, tuple[str, 
     prefix = {"imu": _stream_prefix(imu_topic, "/imu/data"), "color": _stream_prefix(color_topic, "/image/data")}
     ref = {role: T for role, p in prefix.items() if p
            for topic, T in sorted(stream_tf.items(), reverse=True) if topic.startswith(p + "/tf/")}
-    if "imu" in ref and "color" in ref:  # T_stream_ref of each (see messages.py _depth_extrinsics)
+    if "imu" in ref and "color" in ref:  # T_stream_ref of each (see camera_setup.py _depth_extrinsics)
         return (ref["color"] @ np.linalg.inv(ref["imu"]))[:3, :3]
     if not imu_frame or not camera:
         return (f"{imu_topic}: its frame id {imu_frame or '(empty)'} cannot be related to the colour frame "
@@ -206,7 +210,7 @@ def _rotation(msglog: Any, topics: dict[str, str], static: dict[str, tuple[str, 
     return R
 
 
-def _decoded_limited(msglog: Any, topic: str, limit: int) -> Generator[Any, None, None]:
+def _decoded_limited(msglog: MessageLog, topic: str, limit: int) -> Generator[Message, None, None]:
     for i, m in enumerate(_decoded(msglog, topic)):
         if i >= limit:
             return

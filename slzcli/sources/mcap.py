@@ -13,27 +13,35 @@ import logging
 import struct
 from collections.abc import Collection, Iterator
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import BinaryIO
 
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Message, Schema
+from mcap.records import Channel, Chunk, McapRecord, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError
-from slzcli.sources.messages import MessageLog, RawMessage
+from slzcli.sources.formats import MCAP_MAGIC as MAGIC
+from slzcli.sources.message_log import MessageLog, RawMessage
+from slzcli.sources.messages import MessageRecording
+from slzcli.sources.ros_types import Message as RosMessage
 from slzcli.sources.topics import normalise_msgtype
 
 log = logging.getLogger(__name__)
-MAGIC = b"\x89MCAP0\r\n"
 ROS1_ENCODING = "ros1"
 CDR_ENCODING = "cdr"
 
 
 class _ChunkTooLarge(Exception):
     """A chunk whose declared or real uncompressed size is beyond the bound: damage, read as a torn chunk."""
+
+
+def open_mcap(path: Path, config: Config) -> MessageRecording:
+    """``formats.FORMATS["mcap"]``: a bare MCAP file."""
+    return MessageRecording(McapLog(path), config)
 
 
 class McapLog(MessageLog):
@@ -157,7 +165,7 @@ class McapLog(MessageLog):
                     raise
                 self._truncated(n, f.tell(), err)
 
-    def _unchunked(self, records: Iterator[Any], f: BinaryIO) -> Iterator[Any]:
+    def _unchunked(self, records: Iterator[McapRecord], f: BinaryIO) -> Iterator[McapRecord]:
         """The records with each chunk broken up, after its declared size is checked against
         ``bounds.MAX_MCAP_CHUNK_BYTES`` (zstd allocates what a chunk declares before it reads a byte)."""
         from slzcli.bounds import MAX_MCAP_CHUNK_BYTES
@@ -186,7 +194,7 @@ class McapLog(MessageLog):
             self._truncation_reported = True
             log.warning("%s: %s", self.path, text)
 
-    def deserialize(self, topic: str, data: Any) -> Any:
+    def deserialize(self, topic: str, data: bytes | memoryview) -> RosMessage:
         enc = self._encoding.get(topic, "")
         msgtype = self._topics.get(topic, "")
         store = self._stores.get(enc)

@@ -10,23 +10,36 @@ import os
 import stat
 from collections.abc import Collection, Iterator
 from pathlib import Path
-from typing import Any
 
+import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from slzcli.errors import DatasetError, DecodeError
-from slzcli.sources.messages import MessageLog, RawMessage
+from slzcli.bounds import MAX_BAG_METADATA_BYTES, file_kind, read_regular
+from slzcli.config import Config
+from slzcli.errors import DatasetError, DecodeError, SlzError
+from slzcli.sources.formats import ROS1_MAGIC
+from slzcli.sources.message_log import MessageLog, RawMessage
+from slzcli.sources.messages import MessageRecording
+from slzcli.sources.ros_types import Message
 
-ROS1_MAGIC = b"#ROSBAG V2.0\n"
+
+def open_ros1(path: Path, config: Config) -> MessageRecording:
+    """``formats.FORMATS["ros1"]``: a ROS 1 ``.bag`` file."""
+    return MessageRecording(RosbagLog(path, ros1=True), config)
+
+
+def open_ros2(path: Path, config: Config) -> MessageRecording:
+    """``formats.FORMATS["ros2"]``: a rosbag2 folder."""
+    return MessageRecording(RosbagLog(path, ros1=False), config)
 
 
 class RosbagLog(MessageLog):
     """A MessageLog over a ROS 1 bag (``ros1``) or a rosbag2 folder (``ros2``)."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, ros1: bool) -> None:
         super().__init__(path)
-        self.ros1 = path.suffix == ".bag"
+        self.ros1 = ros1
         self.format = "ros1 bag" if self.ros1 else "ros2 bag"
         self._reader: AnyReader | None = None
         self._types: dict[str, str] = {}
@@ -71,9 +84,9 @@ class RosbagLog(MessageLog):
         for conn, stamp, data in reader.messages(connections=conns):
             yield RawMessage(conn.topic, stamp, data)
 
-    def deserialize(self, topic: str, data: Any) -> Any:
+    def deserialize(self, topic: str, data: bytes | memoryview) -> Message:
         try:
-            return self._open_reader().deserialize(data, self._types[topic])
+            return self._open_reader().deserialize(data if isinstance(data, bytes) else bytes(data), self._types[topic])
         except Exception as err:  # AnyReaderError / SerdeError on a damaged message
             raise DecodeError(f"{topic}: cannot deserialise {self._types[topic]} ({_reason(err)})") from err
 
@@ -91,8 +104,6 @@ def _reason(err: Exception) -> str:
 def _check_bag_folder(path: Path) -> None:
     """Before rosbags reads it: metadata.yaml a regular file within ``bounds.MAX_BAG_METADATA_BYTES`` and
     the storage files regular files (rosbags reads the whole YAML, and a FIFO would block the read)."""
-    from slzcli.bounds import MAX_BAG_METADATA_BYTES, file_kind, read_regular
-
     read_regular(path / "metadata.yaml", MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
     for p in path.iterdir():
         if p.suffix in (".db3", ".mcap"):
@@ -106,8 +117,6 @@ def _check_bag_folder(path: Path) -> None:
 
 def _storage(path: Path) -> str:
     """The rosbag2 storage plugin named in metadata.yaml ('sqlite3' or 'mcap'), or ''."""
-    from slzcli.bounds import MAX_BAG_METADATA_BYTES, read_regular
-
     try:
         text = read_regular(path / "metadata.yaml", MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
     except DatasetError:
@@ -116,3 +125,16 @@ def _storage(path: Path) -> str:
         if "storage_identifier:" in line:
             return line.split(":", 1)[1].strip()
     return ""
+
+
+def bag_folder_files(folder: Path) -> list[Path]:
+    """The files a rosbag2 folder's reader reads: ``metadata.yaml`` and the storage files it lists (every
+    ``.db3`` / ``.mcap`` in the folder when the metadata cannot be read: the reader reports that)."""
+    meta = folder / "metadata.yaml"
+    try:
+        text = read_regular(meta, MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
+        info = yaml.safe_load(text)["rosbag2_bagfile_information"]
+        listed = [folder / str(n) for n in info["relative_file_paths"]]
+    except (SlzError, yaml.YAMLError, KeyError, TypeError):  # a broken bag: the reader reports it
+        listed = sorted(q for q in folder.iterdir() if q.suffix in (".db3", ".mcap"))
+    return [meta, *(q for q in listed if q.is_file())]

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable
-from typing import Any
 
 import numpy as np
 
 from slzcli.errors import DecodeError
 from slzcli.sources import decode, tf_tree
+from slzcli.sources import ros_types as ros
 from slzcli.types import RecordedFrames
 
 log = logging.getLogger(__name__)
@@ -27,7 +27,7 @@ MAX_TF_MESSAGES = 2000
 Transforms = list[tuple[int, str, str, np.ndarray]]  # (stamp_ns, parent, child, T_parent_child), decode.decode_tf
 
 
-def transforms(msg: Any) -> Transforms:
+def transforms(msg: ros.TFMessage) -> Transforms:
     """The transforms of one TFMessage; none (logged) when one of them cannot be decoded."""
     try:
         return decode.decode_tf(msg)
@@ -36,7 +36,7 @@ def transforms(msg: Any) -> Transforms:
         return []
 
 
-def static_tree(messages: Iterable[Any]) -> dict[str, tuple[str, np.ndarray]]:
+def static_tree(messages: Iterable[ros.TFMessage]) -> dict[str, tuple[str, np.ndarray]]:
     """child -> (parent, T_parent_child) of every /tf_static message (a later one for a child wins).
 
     ``tf_tree.TfTreeError`` when they do not make a tree (a frame with two parents, a cycle)."""
@@ -46,7 +46,7 @@ def static_tree(messages: Iterable[Any]) -> dict[str, tuple[str, np.ndarray]]:
     return tree
 
 
-def tf_root(messages: Iterable[Any], static: dict[str, tuple[str, np.ndarray]], camera: str) -> str:
+def tf_root(messages: Iterable[ros.TFMessage], static: dict[str, tuple[str, np.ndarray]], camera: str) -> str:
     """The root of ``camera``'s chain once /tf links it beyond its static chain ("" when it never does)."""
     static_top = _top(static, camera)
     tree = dict(static)
@@ -87,7 +87,7 @@ def recorded_frames(camera: str, static: dict[str, tuple[str, np.ndarray]], pose
                           pose_frame=pose_frame, tf_places_camera=from_tf and bool(pose_frame))
 
 
-def first_pose_frame(messages: Iterable[Any]) -> str:
+def first_pose_frame(messages: Iterable[ros.PoseStamped | ros.Odometry]) -> str:
     """The parent frame of the first decodable PoseStamped or Odometry ("" when none is)."""
     for msg in messages:
         try:

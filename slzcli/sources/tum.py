@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from slzcli.config import Config, read_yaml_text, safe_yaml_load
-from slzcli.errors import DatasetError, DecodeError
+from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources import decode
 from slzcli.sources.color_camera import ALIGNED, to_color_camera
 from slzcli.sources.image_limits import FrameTooLarge, check_file
@@ -108,6 +108,19 @@ def _depth_scale(cam_file: Path, value: object) -> float:
     if not (np.isfinite(scale) and scale > 0):
         raise DatasetError(cam_file, f"depth_scale {value!r} must be a finite number of counts per metre above 0")
     return scale
+
+
+def tum_files(folder: Path) -> list[Path]:
+    """The files a TUM folder's reader reads: its lists, ``camera.yaml`` and the images the lists name (not
+    the run folders or notes a user keeps beside them); a missing or malformed list adds none."""
+    out = [folder / n for n in ("rgb.txt", "depth.txt", "groundtruth.txt", "camera.yaml") if (folder / n).is_file()]
+    images: set[Path] = set()
+    for name in ("rgb.txt", "depth.txt"):
+        try:
+            images.update(folder / row[1] for row in read_list(folder / name, 2))
+        except (OSError, SlzError):  # the reader reports it
+            continue
+    return out + sorted(q for q in images if q.is_file())
 
 
 class TumRecording(Recording):

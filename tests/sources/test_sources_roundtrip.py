@@ -15,7 +15,8 @@ from sources_util import PERIOD_NS, SUFFIX, T0_NS, known_frame, pose, write_fram
 from slzcli.config import load_config
 from slzcli.outputs.recording import COMPRESSED_DEPTH_MAX_M, COMPRESSED_DEPTH_QUANTIZATION, RecordingWriter, TopicLayout
 from slzcli.sources import open_recording
-from slzcli.sources.messages import MessageRecording, RawMessage
+from slzcli.sources.message_log import RawMessage
+from slzcli.sources.messages import MessageRecording
 from slzcli.types import Frame, Intrinsics
 
 FORMATS = list(SUFFIX)

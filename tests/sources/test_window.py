@@ -106,17 +106,17 @@ def test_the_reader_stops_once_no_later_pair_can_be_in_the_window(tmp_path: Path
     (sources.reorder_window_ms 500 ms = 15 periods here), not all 200."""
     path = tmp_path / "long.mcap"
     write_frames(path, "mcap", n=200)
-    from slzcli.sources.messages import MessageRecording
+    from slzcli.sources.message_log import MessageLog
 
     seen = {"n": 0}
-    wrap = MessageRecording._wrap
+    read = MessageLog.read
 
-    def counting(self, it):
-        for m in wrap(self, it):
+    def counting(self, topics):
+        for m in read(self, topics):
             seen["n"] += 1
             yield m
 
-    monkeypatch.setattr(MessageRecording, "_wrap", counting)
+    monkeypatch.setattr(MessageLog, "read", counting)
     config = load_config(None, [f"sources.window.end_s={4.5 * PERIOD_NS / 1e9}"])
     with open_recording(path, config) as rec:
         seen["n"] = 0

@@ -19,6 +19,7 @@ from slzcli.config import Mount, load_config
 from slzcli.outputs.recording import RecordingWriter
 from slzcli.sources import open_recording
 from slzcli.sources.imu import imu_topics, read_imu
+from slzcli.sources.messages import MessageRecording
 from slzcli.synth.imu import imu_track
 from slzcli.terrain import gravity as g
 from slzcli.terrain import maps as tm
@@ -195,6 +196,7 @@ def test_the_imu_is_read_in_every_format_and_turned_into_the_colour_frame(tmp_pa
     path = tmp_path / ("rec" + {"ros1": ".bag", "mcap": ".mcap", "mcap-ros1": ".mcap"}.get(fmt, ""))
     _write_imu_recording(path, fmt, layout, up)
     with open_recording(path, CONFIG) as rec:
+        assert isinstance(rec, MessageRecording)
         samples = read_imu(rec, GRAV.imu)
         assert not isinstance(samples, str), samples
         assert len(samples.stamps_ns) == 400
@@ -209,6 +211,7 @@ def test_an_imu_that_cannot_be_placed_is_not_used(tmp_path: Path) -> None:
     path = tmp_path / "rec.mcap"
     _write_imu_recording(path, "mcap", "separate", up_of(22, 9), tf_static=False)
     with open_recording(path, CONFIG) as rec:
+        assert isinstance(rec, MessageRecording)
         why = read_imu(rec, GRAV.imu)
         assert isinstance(why, str) and "no /tf_static (or /tf) link" in why and "camera_accel_optical_frame" in why
         resolved = recording_gravity.resolve_recording(path, rec, CONFIG)
