@@ -10,6 +10,7 @@ from click.testing import CliRunner
 from slzcli.cli import main
 from slzcli.landing.height import site_height
 from slzcli.outputs.report import TABLE_HEAD, without_empty_truth
+from slzcli.records import SiteHeight
 from slzcli.render import height_text, simulate_text
 
 
@@ -18,7 +19,8 @@ def test_site_height_above_ground_and_start_with_frames() -> None:
     h = site_height([1.0, 2.0, -7.98], map_z, "map", 0)
     assert h["above_start_m"] == -7.98 and h["above_ground_m"] == 0.02 and h["ground_z_m"] == -8.0
     assert h["frame_id"] == "map" and h["start_frame"] == 0 and "5 SLAM map points" in h["ground"]
-    assert height_text(h) == "0.02 m above the ground, 7.98 m below the start (frame 0's camera, map frame map)"
+    assert height_text(SiteHeight(**h)) == ("0.02 m above the ground, 7.98 m below the start (frame 0's camera, "
+                                            "map frame map)")
     recorded = site_height([0.0, 0.0, 1.5], map_z, "map_2", 7, start_z=10.0)  # recorded poses: own origin
     assert recorded["above_start_m"] == -8.5 and recorded["start_frame"] == 7
     assert site_height([0.0, 0.0, -3.0], np.zeros(0), "map", 0)["above_ground_m"] is None
