@@ -25,7 +25,6 @@ from slzcli.config import MAX_FLOAT_MAGNITUDE, Config, OutputLevel, dump, layer_
 from slzcli.errors import SlzError
 from slzcli.interrupt import sigterm_interrupts
 from slzcli.methods import registry as method_registry
-from slzcli.outputs.batch_summary import row_json
 from slzcli.outputs.summary_json import envelope, summary_json
 from slzcli.progress import DEFAULT_EVERY_S, Bar, BatchDisplay, RunsDisplay
 from slzcli.records import BatchRow, RunSummary
@@ -707,6 +706,8 @@ def _given_paths(err: SlzError, detail: Mapping[str, str] | None, given: dict[st
 def _batch_row(r: BatchRow, given: dict[str, str], given_run: dict[str, str]) -> dict[str, object]:
     """A batch row of ``--json``: the paths as given, ``source`` as in detect and compare, the run's
     no-site reason and ground-truth figures when it has them."""
+    from slzcli.outputs.batch_summary import row_json
+
     row = row_json(r)
     source = given.get(r.recording, r.recording)
     row.update(recording=source, source=source, run=given_run.get(r.run, r.run))
