@@ -25,6 +25,27 @@ FLATTEN = {"json": "flatten"}        # its fields written into the record holdin
 Status = Literal["site", "no_safe_site"]
 
 
+# ----------------------------------------------------------------------------- what would decide
+@dataclass(frozen=True)
+class DecideAdvice:
+    """What would decide the ground a run could not vouch for (landing.json and summary ``advice``).
+
+    ``source``: ``fused`` (the fused map's best undecided square, ``fusion/advice.py``: more frames at the
+    current motion, sideways flight or a lower altitude) or ``depth_limits`` (a per-frame method whose
+    frames' depth noise hid what the UAV cannot take: the altitude below which one frame could vouch,
+    ``terrain.limits.vouchable_altitude_m``). A None field: that way cannot decide it.
+    """
+
+    source: Literal["fused", "depth_limits"]
+    text: str
+    frames: int | None = None          # more frames at the current motion
+    sideways_m: float | None = None    # metres of sideways flight
+    descend_to_m: float | None = None  # altitude (m above the ground) from which one frame decides it
+    hover: bool = False                # the flight was (nearly) a hover: frames alone cannot decide
+    x_m: float | None = None           # where: the undecided square's centre in the map frame (fused)
+    y_m: float | None = None
+
+
 # ----------------------------------------------------------------------------- landing.json
 @dataclass(frozen=True)
 class FrameStamp:
@@ -120,6 +141,7 @@ class LandingRecord:
     frame: FrameStamp | None = field(default=None, metadata=OMIT_NONE)
     site: SiteRecord | None = field(default=None, metadata=OMIT_NONE)
     spread: SpreadRecord | None = field(default=None, metadata=FLATTEN)
+    advice: DecideAdvice | None = None  # without a site: what would decide the ground (null: nothing to say)
     world_frame: str = ""
     map_segment: int | None = None
     timings_ms: Mapping[str, float] = field(default_factory=dict)  # per stage; the method's under its name
@@ -184,6 +206,7 @@ class RunSummary:
     site_height: SiteHeight | None
     reason: str | None
     site_spread_m: float | None
+    advice: DecideAdvice | None
     slam_backend: str
     tracking: Mapping[str, int]
     slam: SlamRecord | None

@@ -57,6 +57,8 @@ def detect_text(out: Path, s: RunSummary) -> str:
     else:
         result = f"no safe site: {s.reason}"
     lines = [head, "  " + result]
+    if s.advice is not None:
+        lines.append(f"  what would decide it: {s.advice.text}")
     gv = s.gravity
     if gv:
         disagreements = _get(gv, "disagreements")

@@ -28,6 +28,7 @@ from slzcli.outputs.trajectory import KeyframeLog, PoseLog, trajectory_files
 from slzcli.records import (
     AcceptanceRecord,
     ClusterRecord,
+    DecideAdvice,
     FrameStamp,
     JsonObject,
     LandingRecord,
@@ -46,6 +47,7 @@ from slzcli.records import (
 from slzcli.slam.segments import Segment, primary_segment, segment_table
 from slzcli.sources.recording import RecordingInfo
 from slzcli.synth.groundtruth import GroundTruth
+from slzcli.terrain.limits import vouchable_altitude_m
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.types import CommittedSite, PairingReport, RunResult, Working
 from slzcli.version import __version__
@@ -72,6 +74,7 @@ class RunState:
     unvouched_reason: str = ""         # limits.limit_reason of that frame
     highest: Working | None = None     # the highest detection frame's working scale (depth_limits without a site)
     column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
+    advice: DecideAdvice | None = None  # the method's own advice of the latest detection frame (fused)
     method_reason: str = ""            # a method the maps do not gate (px4slp): why its latest frame gave no site
     funnel: FunnelLog = field(default_factory=FunnelLog)  # what each filter left in each detection frame
 
@@ -168,6 +171,22 @@ def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
     return reason
 
 
+def decide_advice(st: RunState, config: Config) -> DecideAdvice | None:
+    """What would decide the ground of a run without a site: the method's own advice of its latest detection
+    frame (fused), else, when depth noise kept detection frames from vouching, the altitude below which the
+    highest of them would have vouched (the per-frame limits, ``limits.limit_reason``); else None."""
+    if st.advice is not None:
+        return st.advice
+    work = st.worst_unvouched
+    if work is None:
+        return None
+    below = vouchable_altitude_m(work.noise, work.focal_px, config.terrain, config.uav, work.altitude_m)
+    hides = f"at {work.altitude_m:.1f} m the depth noise hides {work.hidden()}"
+    if below is None:
+        return DecideAdvice("depth_limits", f"{hides}, and at no altitude would it not with this sensor")
+    return DecideAdvice("depth_limits", f"descend below {below:.1f} m ({hides})", descend_to_m=round(below, 2))
+
+
 def noise_summary(st: RunState) -> dict[str, object]:
     """The depth noise the maps were made with, and how many detection frames it kept from vouching."""
     out: dict[str, object] = dict(st.noise.summary()) if st.noise is not None else {}
@@ -219,12 +238,13 @@ def site_record(committed: CommittedSite, site_truth: JsonObject | None = None,
 
 def landing_record(source: Path, method: str, committed: CommittedSite | None, world_frame: str,
                    timings: Mapping[str, float], reason: str, site: SiteRecord | None = None,
-                   map_segment: int | None = None, spread: SpreadRecord | None = None) -> LandingRecord:
+                   map_segment: int | None = None, spread: SpreadRecord | None = None,
+                   advice: DecideAdvice | None = None) -> LandingRecord:
     """landing.json (the contract in DESIGN.md): the committed site (``site``: its record, built from
     ``committed`` when None) or why there is none, the world frame, the map segment, the timings."""
     if committed is None:
-        return LandingRecord("no_safe_site", method, str(source), reason=reason, world_frame=world_frame,
-                             map_segment=map_segment, timings_ms=timings)
+        return LandingRecord("no_safe_site", method, str(source), reason=reason, advice=advice,
+                             world_frame=world_frame, map_segment=map_segment, timings_ms=timings)
     return LandingRecord("site", method, str(source), frame=FrameStamp(committed.frame.index, committed.frame.stamp_ns),
                          site=site or site_record(committed), spread=spread, world_frame=world_frame,
                          map_segment=map_segment, timings_ms=timings)
@@ -260,11 +280,13 @@ def summarise(facts: RunFacts, config: Config, st: RunState, committed: Committe
     reason = no_site_reason(st, facts.slam_name, len(st.keyframes))
     site: SiteRecord | None = None
     spread: SpreadRecord | None = None
+    advice = decide_advice(st, config) if committed is None else None
     if committed is not None:
         site = site_record(committed, site_truth(None if truth is None else truth.truth, committed),
                            _height(committed.site.center_world, st, table, primary, config))
         spread = spread_of(committed, config.uav.footprint_m[0])
-    landing = landing_record(facts.source, facts.method, committed, world, timings, reason, site, primary, spread)
+    landing = landing_record(facts.source, facts.method, committed, world, timings, reason, site, primary, spread,
+                             advice)
     noise = noise_summary(st)
     not_vouched = noise.get("not_vouched")
     depth_limits = (None if site is None else site.depth_limits) or (
@@ -277,7 +299,7 @@ def summarise(facts: RunFacts, config: Config, st: RunState, committed: Committe
         source=str(facts.source), method=facts.method, frames=st.frames, detections=st.detections,
         status=landing.status, site_world=None if site is None else site.center_world,
         site_height=None if site is None else site.height, reason=landing.reason,
-        site_spread_m=None if spread is None else spread.site_spread_m,
+        site_spread_m=None if spread is None else spread.site_spread_m, advice=advice,
         slam_backend=facts.slam_name, tracking=st.tracking,
         slam=slam_summary(facts.slam_name, table, primary, trajectory_files(st.trajectory),
                           untracked_frames(st.trajectory.has_pose(), st.tracking, facts.slam_name,

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from slzcli.records import LandingRecord, RunRecord, RunSummary
+from slzcli.records import DecideAdvice, LandingRecord, RunRecord, RunSummary
 
 
 @dataclass(frozen=True)
@@ -475,6 +475,7 @@ class Detection:
     edge_m: np.ndarray | None  # TerrainMaps.edge_distance_m
     timings_ms: dict[str, float]
     segment: int = 0  # SLAM map segment of the pose and points
+    advice: DecideAdvice | None = None  # a method that can tell: what would decide the ground it could not
 
 
 @dataclass(frozen=True, eq=False)

@@ -68,3 +68,20 @@ def test_every_command_help_has_an_example_and_whole_short_sentences() -> None:
             text = CliRunner().invoke(main, [*args, "-h"]).output
             assert "Example" in text and f"slz {' '.join(args)} " in text, args
     assert "[0<x<=" not in CliRunner().invoke(main, ["detect", "-h"]).output
+
+
+def test_the_fused_advice_is_its_own_record_rounded_as_it_says() -> None:
+    """The fused map's advice becomes landing.json's and the summary's ``advice`` (records.DecideAdvice), with the
+    figures rounded as its text gives them, and reads back from the JSON unchanged."""
+    from slzcli.fusion.advice import Advice
+    from slzcli.methods.fused import advice_record
+    from slzcli.outputs.records_json import from_json, to_json_object
+    from slzcli.records import DecideAdvice
+
+    a = Advice(x_m=1.23456, y_m=-2.0, factor=3.0, frames=12, sideways_m=1.2345, descend_to_m=None, hover=False)
+    rec = advice_record(a)
+    assert rec == DecideAdvice("fused", a.text(), 12, 1.23, None, False, 1.235, -2.0)
+    assert "12 more frames or 1.2 m of sideways flight" in rec.text
+    assert from_json(DecideAdvice, to_json_object(rec)) == rec
+    hover = advice_record(Advice(0.0, 0.0, 5.0, None, 2.0, 4.5, True))
+    assert hover.hover and hover.frames is None and hover.descend_to_m == 4.5 and "move" in hover.text

@@ -20,12 +20,14 @@ from pathlib import Path
 import numpy as np
 
 from slzcli.config import Config
+from slzcli.fusion.advice import Advice
 from slzcli.fusion.grid import region, seen_bounds
 from slzcli.fusion.output import write_landing_map
 from slzcli.fusion.session import FusedTerrain, render_in_frame, verdict_in_frame
 from slzcli.fusion.verdict import fused_maps
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
+from slzcli.records import DecideAdvice
 from slzcli.scoring import SCORERS
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.types import Detection, ScoreMap, TerrainMaps, TrackedFrame
@@ -74,6 +76,7 @@ class FusedMethod:
         t["mask"] = _lap(t0)
         t0 = time.perf_counter()
         selection: Selection | None = None
+        advice: Advice | None = None
         if T is not None and points is not None:
             selection = select_site(points.xyz_world, T, frame.K, score.mask, score.score, self.params,
                                     edge_distance_m=maps.edge_distance_m)
@@ -83,7 +86,8 @@ class FusedMethod:
                 selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)
-        return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment)
+        return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment,
+                         None if advice is None else advice_record(advice))
 
 
     def write_outputs(self, folder: Path) -> None:
@@ -103,6 +107,14 @@ def fused(config: Config) -> FusedMethod:
     return FusedMethod(config, FusedTerrain(config, scorer),
                        select_params(config, "min_normal_variance", config.landing.min_extent_factor),
                        NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
+
+
+def advice_record(a: Advice) -> DecideAdvice:
+    """The fused map's advice as landing.json and the summary carry it (``records.DecideAdvice``)."""
+    d = a.as_dict()  # rounded as the advice itself says it
+    return DecideAdvice("fused", a.text(), a.frames, a.sideways_m if a.sideways_m is None else float(d["sideways_m"]),
+                        a.descend_to_m if a.descend_to_m is None else float(d["descend_to_m"]), a.hover,
+                        float(d["x_m"]), float(d["y_m"]))
 
 
 def _lap(t0: float) -> float:

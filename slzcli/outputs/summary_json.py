@@ -19,7 +19,7 @@ from typing import Any
 from slzcli.outputs.records_json import from_json, to_json_object
 from slzcli.records import RunSummary
 
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"
 DECIMALS = 6       # digits after the point for |x| >= 1; project decision (1 um, 1 us)
 SIGNIFICANT = 10   # significant digits for |x| < 1; project decision (keeps 1e-7 variances)
 
