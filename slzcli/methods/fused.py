@@ -110,11 +110,11 @@ def fused(config: Config) -> FusedMethod:
 
 
 def advice_record(a: Advice) -> DecideAdvice:
-    """The fused map's advice as landing.json and the summary carry it (``records.DecideAdvice``)."""
-    d = a.as_dict()  # rounded as the advice itself says it
-    return DecideAdvice("fused", a.text(), a.frames, a.sideways_m if a.sideways_m is None else float(d["sideways_m"]),
-                        a.descend_to_m if a.descend_to_m is None else float(d["descend_to_m"]), a.hover,
-                        float(d["x_m"]), float(d["y_m"]))
+    """The fused map's advice as landing.json and the summary carry it (``records.DecideAdvice``), rounded as
+    ``Advice.as_dict`` rounds it."""
+    return DecideAdvice("fused", a.text(), a.frames, None if a.sideways_m is None else round(a.sideways_m, 2),
+                        None if a.descend_to_m is None else round(a.descend_to_m, 2), a.hover, round(a.x_m, 3),
+                        round(a.y_m, 3))
 
 
 def _lap(t0: float) -> float:
