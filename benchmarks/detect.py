@@ -15,10 +15,12 @@ import argparse
 import json
 import tempfile
 from pathlib import Path
+from typing import Any
 
 from flights import render  # benchmarks/flights.py (the script's folder is on sys.path)
 
 from slzcli.config import load_config
+from slzcli.outputs.summary_json import summary_json
 from slzcli.pipeline import RunOptions, detect_recording
 
 HERE = Path(__file__).resolve().parent
@@ -42,7 +44,8 @@ def main() -> None:
         print(head)
         for path in recordings:
             run = Path(tmp) / f"run_{path.stem}"
-            s = detect_recording(path, config, run, RunOptions(force=True, method=args.method))
+            result = detect_recording(path, config, run, RunOptions(force=True, method=args.method))
+            s: dict[str, Any] = summary_json(result)
             timing = json.loads((run / "run.json").read_text())["timings"]
             gt = s.get("ground_truth") or {}
             mask, site = gt.get("mask") or {}, gt.get("site") or {}

@@ -51,7 +51,7 @@ def run_level(rec: Path, out: Path, level: str, repeats: int, overrides: list[st
     finally:
         run_folder.write_detect_report = original
     med = statistics.median(samples)
-    return {"level": level, "detections": s["detections"], "report_median_ms": round(med, 1),
+    return {"level": level, "detections": s.detections, "report_median_ms": round(med, 1),
             "report_max_ms": round(max(samples), 1), "run_wall_s": round(wall, 2),
             "report_share_pct": round(100 * med * 1e-3 / wall, 2),
             "report_bytes": (out / "report.html").stat().st_size, "samples_ms": [round(v, 1) for v in samples]}

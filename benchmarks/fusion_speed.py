@@ -65,7 +65,7 @@ def replay(path: Path, every: int, repeats: int, resize: str | None, dump: Path 
 
     intr, depth, T = _load(path, resize)
     cfg = load_config(None, [])
-    scorer = get_scorer(cfg, "fuzzy")
+    scorer = get_scorer(cfg.scoring, cfg.mask, "fuzzy")
     tracker = NoiseTracker(cfg.terrain.noise, cfg.terrain.noise_estimate)
     noises = [tracker.update(x) for x in depth]
     add_ms: list[float] = []

@@ -149,7 +149,7 @@ def fusion_only(frames: int) -> dict:
 
     cfg = load_config()
     intr = Intrinsics(231.0, 231.0, 159.5, 119.5, 320, 240)
-    terrain = FusedTerrain(cfg, get_scorer(cfg, "fuzzy"))
+    terrain = FusedTerrain(cfg, get_scorer(cfg.scoring, cfg.mask, "fuzzy"))
     noise = DepthNoise.white(0.002, "known")
     rng = np.random.default_rng(0)
     rss: list[tuple[int, float]] = []

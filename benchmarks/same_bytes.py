@@ -15,7 +15,8 @@ pixels that differ are counted); every other member byte for byte. A file that d
 against a second run of the reference code: when that differs too, the file is reported as unstable in
 the reference, not as a change (seen once: parking_lot, odometry, fuzzy, one frame's maps.npz; the
 same case was identical on the next run). Nothing else is left out: the
-recording path is the same for both, maps.npz members carry a fixed zip date. ``--ref`` defaults to
+recording path is the same for both, maps.npz members carry a fixed zip date. New landing.json keys a
+change adds on purpose (``DECLARED``) are left out too and printed as the declared differences. ``--ref`` defaults to
 the merge base with main.
 """
 
@@ -38,6 +39,9 @@ HALF_SIZE = ("--set", "camera.width=320", "--set", "camera.height=240", "--set",
              "--set", "camera.fy=231.0685", "--set", "camera.cx=160", "--set", "camera.cy=120")
 RUN_SPECIFIC = {"landing.json": ("timings_ms",),  # top-level keys that differ between two runs of the same code
                 "maps.npz": ("slope_deg: within one float16 step",)}
+# New landing.json keys a change adds on purpose (declared, documented): removed from both runs' landing.json
+# before comparing, and reported beside the result. advice: what would decide the ground (records.DecideAdvice).
+DECLARED = {"landing.json": ("advice",)}
 LAST_BIT = ("slope_deg",)  # maps.npz members compared to within one float16 step (see the docstring)
 
 
@@ -66,7 +70,7 @@ def comparable(run: Path) -> dict[str, bytes]:
     """The files compared, by name, with their run-specific fields removed."""
     out: dict[str, bytes] = {}
     landing = json.loads((run / "landing.json").read_text())
-    for key in RUN_SPECIFIC["landing.json"]:
+    for key in (*RUN_SPECIFIC["landing.json"], *DECLARED["landing.json"]):
         landing.pop(key, None)
     out["landing.json"] = json.dumps(landing, sort_keys=True).encode()
     out["sites.csv"] = (run / "sites.csv").read_bytes()
@@ -121,7 +125,9 @@ def main() -> None:
                           f"{'same' if not differ else 'DIFFER: ' + ', '.join(differ)}", flush=True)
     same = all(d.endswith("differs from itself") for r in rows for d in r["differ"])
     write_results(args.out, {"reference": ref, "head": git("rev-parse", "HEAD"), "frames": args.frames,
-                             "left_out": RUN_SPECIFIC, "rows": rows, "all_same": same})
+                             "left_out": RUN_SPECIFIC, "declared": DECLARED, "rows": rows, "all_same": same})
+    print("declared differences (new keys, left out of the comparison): "
+          + "; ".join(f"{name}: {', '.join(keys)}" for name, keys in DECLARED.items()))
     sys.exit(0 if same else 1)
 
 

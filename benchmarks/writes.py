@@ -175,14 +175,14 @@ def run_variant(rec: Path, out: Path, overrides: list[str], before: bool,
         s = detect_recording(rec, config, out, RunOptions(force=True))
     wall = time.perf_counter() - t0
     timing = json.loads((out / "run.json").read_text())["timings"]
-    n = s["detections"]
+    n = s.detections
     per_frame = [sum(p[i] for p in parts.values() if len(p) == n) for i in range(n)]
     mcap = out / "results.mcap"
     return {"detections": n, "write_cpu_median_ms": round(statistics.median(per_frame), 2),
             **{f"{k}_cpu_median_ms": round(statistics.median(v), 2) if v else 0.0 for k, v in parts.items()},
             "write_stage_median_ms": round(timing["write"]["median_ms"], 2),
             "write_wait_median_ms": round(timing.get("write_wait", {}).get("median_ms", float("nan")), 2),
-            "compute_median_ms": s["timings_ms"]["total"],
+            "compute_median_ms": s.timings_ms["total"],
             "bytes_per_frame_folder": int(statistics.median(folder_bytes(out))),
             "results_mcap_bytes_per_detection": int(mcap.stat().st_size / max(n, 1)) if mcap.is_file() else 0,
             "wall_s": round(wall, 3)}

@@ -56,10 +56,6 @@ def detect(source: str | Path | Iterable[Frame], config: Config | None = None, o
 def _read_run(out: Path) -> RunResult:
     """The RunResult of a run folder ``slz detect`` wrote (``committed``: None, it is not stored)."""
     from slzcli.bounds import load_json
-    from slzcli.types import RunResult
+    from slzcli.outputs.run_folder import read_run
 
-    run = load_json(out / "run.json", "run.json")
-    landing = load_json(out / "landing.json", "landing.json")
-    slam = run["summary"].get("slam") or {}
-    primary = slam.get("segment")
-    return RunResult(landing, run, None, primary, primary if slam.get("maps", 1) > 1 else None)
+    return read_run(load_json(out / "landing.json", "landing.json"), load_json(out / "run.json", "run.json"))

@@ -41,12 +41,13 @@ import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError, SlzError
 from slzcli.interrupt import sigterm_interrupts
 from slzcli.pipeline import RunOptions
+from slzcli.records import BatchRow
 from slzcli.sources.formats import run_suffixes
 
 log = logging.getLogger(__name__)
@@ -191,33 +192,28 @@ def error_detail(err: SlzError) -> dict[str, str]:
 
 
 def run_task(task: Task, config: Config, options: RunOptions,
-             progress: Callable[[int, int | None], None] | None = None) -> dict[str, Any]:
+             progress: Callable[[int, int | None], None] | None = None) -> BatchRow:
     """One recording -> its row: ``detect_recording`` under the run folder's lock; errors become rows."""
     from slzcli.outputs import run_lock
     from slzcli.pipeline import detect_recording
 
     t0 = time.perf_counter()
-    row: dict[str, Any] = {"recording": str(task.recording), "run": str(task.run_dir), "worker": _worker_id()}
+    row = BatchRow(str(task.recording), str(task.run_dir), "failed", worker=_worker_id())
     try:
         with run_lock.claim(task.run_dir, wait=True):  # another batch on this run: wait, then find it done
             summary = detect_recording(task.recording, config, task.run_dir, options, progress)
     except SlzError as err:
-        return {**row, "status": "failed", "skipped": False, "error": " ".join(str(err).split()),
-                "error_detail": error_detail(err),
-                "wall_s": round(time.perf_counter() - t0, 3), "peak_rss_mb": _peak_rss_mb()}
+        return replace(row, error=" ".join(str(err).split()), error_detail=error_detail(err),
+                       wall_s=round(time.perf_counter() - t0, 3), peak_rss_mb=_peak_rss_mb())
     except Exception as err:  # a bug: reported in the row, the batch goes on
         log.debug("internal error on %s", task.recording, exc_info=True)
-        return {**row, "status": "failed", "skipped": False, "wall_s": round(time.perf_counter() - t0, 3),
-                "error": f"internal error ({type(err).__name__}: {err})", "peak_rss_mb": _peak_rss_mb()}
+        return replace(row, error=f"internal error ({type(err).__name__}: {err})",
+                       wall_s=round(time.perf_counter() - t0, 3), peak_rss_mb=_peak_rss_mb())
     wall = time.perf_counter() - t0
-    skipped = bool(summary.get("skipped"))
-    frames = int(summary.get("frames", 0))
-    return {**row, "status": summary["status"], "skipped": skipped, "frames": frames,
-            "detections": summary.get("detections"), "site_world": summary.get("site_world"),
-            "wall_s": round(wall, 3), "frames_per_s": None if skipped or wall <= 0 else round(frames / wall, 3),
-            "run_wall_s": summary.get("wall_s"), "per_frame_ms": summary.get("timings_ms", {}).get("total"),
-            "peak_rss_mb": _peak_rss_mb(), "peak_child_rss_mb": _peak_rss_mb("children"), "error": None,
-            "summary": summary}
+    skipped = summary.skipped
+    return replace(row, status=summary.status, skipped=skipped, wall_s=round(wall, 3),
+                   frames_per_s=None if skipped or wall <= 0 else round(summary.frames / wall, 3),
+                   peak_rss_mb=_peak_rss_mb(), peak_child_rss_mb=_peak_rss_mb("children"), summary=summary)
 
 
 def _worker_id() -> str:
@@ -244,7 +240,7 @@ class BatchProgress:
     total: int
     frames: int
     elapsed_s: float
-    row: dict[str, Any] | None = None
+    row: BatchRow | None = None
     frames_expected: int = 0  # the frame totals of the recordings started so far
 
     @property
@@ -254,21 +250,21 @@ class BatchProgress:
 
 @dataclass(frozen=True)
 class BatchResult:
-    rows: list[dict[str, Any]]
+    rows: list[BatchRow]
     engine: str
     workers: int
     wall_s: float
     interrupted: bool = False
     summary_files: tuple[Path, ...] = field(default_factory=tuple)
 
-    def totals(self) -> dict[str, Any]:
+    def totals(self) -> dict[str, object]:
         """Batch-level numbers for summary.json and the CLI."""
-        ran = [r for r in self.rows if r["status"] in ("site", "no_safe_site") and not r.get("skipped")]
-        frames = sum(int(r.get("frames") or 0) for r in ran)
-        count = {s: sum(r["status"] == s for r in self.rows)
+        ran = [r for r in self.rows if r.finished and not r.skipped]
+        frames = sum(r.frames or 0 for r in ran)
+        count = {s: sum(r.status == s for r in self.rows)
                  for s in ("site", "no_safe_site", "failed", "interrupted")}
         return {"engine": self.engine, "workers": self.workers, "recordings": len(self.rows), **count,
-                "skipped": sum(bool(r.get("skipped")) for r in self.rows), "processed": len(ran),
+                "skipped": sum(r.skipped for r in self.rows), "processed": len(ran),
                 "frames": frames, "wall_s": round(self.wall_s, 3),
                 "frames_per_s": round(frames / self.wall_s, 3) if self.wall_s > 0 else None,
                 "recordings_per_min": round(60.0 * len(ran) / self.wall_s, 3) if self.wall_s > 0 else None,
@@ -292,7 +288,7 @@ def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, schedu
     else:
         engine = _LocalEngine(min(workers, len(tasks)))
     t0 = time.perf_counter()
-    rows: list[dict[str, Any] | None] = [None] * len(tasks)
+    rows: list[BatchRow | None] = [None] * len(tasks)
     emit = on_progress or (lambda p: None)
     interrupted = False
     with sigterm_interrupts():
@@ -306,8 +302,8 @@ def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, schedu
             engine.stop()  # again, harmless: the interrupt may have come before _collect's own stop
         finally:
             engine.close()
-    filled = [r if r is not None else {"recording": str(t.recording), "run": str(t.run_dir),
-                                       "status": "interrupted", "skipped": False, "error": "the batch was stopped"}
+    filled = [r if r is not None else BatchRow(str(t.recording), str(t.run_dir), "interrupted",
+                                               error="the batch was stopped")
               for r, t in zip(rows, tasks, strict=True)]
     result = BatchResult(filled, engine.name, engine.workers, time.perf_counter() - t0, interrupted)
     if summary_dir is not None:
@@ -323,17 +319,17 @@ def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, schedu
 
 
 def _collect(engine: _Engine, tasks: Sequence[Task], config: Config, options: RunOptions,
-             rows: list[dict[str, Any] | None], t0: float, emit: Callable[[BatchProgress], None]) -> None:
+             rows: list[BatchRow | None], t0: float, emit: Callable[[BatchProgress], None]) -> None:
     """Submit everything, then record rows as tasks finish (in this thread) and refresh the frame count."""
-    def progress(row: dict[str, Any] | None = None) -> BatchProgress:
+    def progress(row: BatchRow | None = None) -> BatchProgress:
         return BatchProgress(sum(r is not None for r in rows), len(tasks), engine.frames(),
                              time.perf_counter() - t0, row, engine.expected())
 
-    def finish(i: int, outcome: Any) -> None:
+    def finish(i: int, outcome: Outcome) -> None:
         rows[i] = _row_of(tasks[i], outcome)
         emit(progress(rows[i]))
 
-    done_q: queue.Queue[tuple[int, Any]] = queue.Queue()
+    done_q: queue.Queue[tuple[int, Outcome]] = queue.Queue()
     if engine.threaded:  # done callbacks run in the engine's threads: hand them over to this one
         engine.submit_all(tasks, config, options, lambda i, outcome: done_q.put((i, outcome)), lambda: None)
     else:
@@ -352,28 +348,38 @@ def _collect(engine: _Engine, tasks: Sequence[Task], config: Config, options: Ru
         while not done_q.empty():  # recordings that finished meanwhile are done: keep their rows
             i, outcome = done_q.get_nowait()
             row = _row_of(tasks[i], outcome)
-            if row["status"] in ("site", "no_safe_site"):
+            if row.finished:
                 rows[i] = row
         raise
 
 
-def _row_of(task: Task, outcome: Any) -> dict[str, Any]:
+def _row_of(task: Task, outcome: Outcome) -> BatchRow:
     """A finished future (or an inline row) -> the row; a failure of the engine itself becomes a failed row."""
-    if isinstance(outcome, dict):
+    if isinstance(outcome, BatchRow):
         return outcome
-    base = {"recording": str(task.recording), "run": str(task.run_dir), "skipped": False}
+    recording, run = str(task.recording), str(task.run_dir)
     try:
-        return outcome.result()
+        row = outcome.result()
     except KeyboardInterrupt:
-        return {**base, "status": "interrupted", "error": "the worker was interrupted"}
+        return BatchRow(recording, run, "interrupted", error="the worker was interrupted")
     except cf.CancelledError:
-        return {**base, "status": "interrupted", "error": "cancelled"}
+        return BatchRow(recording, run, "interrupted", error="cancelled")
     except Exception as err:  # e.g. a worker process died (BrokenProcessPool), a lost Dask worker
-        return {**base, "status": "failed", "error": f"{type(err).__name__}: {err}"}
+        return BatchRow(recording, run, "failed", error=f"{type(err).__name__}: {err}")
+    if not isinstance(row, BatchRow):
+        raise TypeError(f"a batch worker returned {type(row).__name__}, not a BatchRow")
+    return row
 
 
 # ----------------------------------------------------------------------------- engines
-Done = Callable[[int, Any], None]
+class Pending(Protocol):
+    """A task's future (concurrent.futures or Dask): its row, or the error that ended it."""
+
+    def result(self) -> object: ...
+
+
+Outcome = BatchRow | Pending  # an inline engine hands the row itself
+Done = Callable[[int, Outcome], None]
 
 
 class _Engine:
@@ -443,7 +449,7 @@ def _init_worker(counter: Any, parent_pid: int) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid,), name="slz-parent-watch", daemon=True).start()
 
 
-def _on_stop_signal(signum: int, frame: Any) -> None:
+def _on_stop_signal(signum: int, frame: object) -> None:
     """Stop: a running task is interrupted (it removes its temporary folder, then the worker
     leaves); an idle worker leaves at once, so that it takes no further task. Once only."""
     global _STOPPING
@@ -470,7 +476,7 @@ def _count_frames(n: int, more: int) -> None:
         _FRAMES[1] += more
 
 
-def _pool_task(task: Task, config: Config, options: RunOptions) -> dict[str, Any]:
+def _pool_task(task: Task, config: Config, options: RunOptions) -> BatchRow:
     global _RUNNING
     _RUNNING = True
     try:
@@ -525,7 +531,7 @@ class _LocalEngine(_Engine):
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _dask_task(task: Task, config: Config, options: RunOptions, topic: str) -> dict[str, Any]:
+def _dask_task(task: Task, config: Config, options: RunOptions, topic: str) -> BatchRow:
     from distributed import get_worker
 
     worker = get_worker()
@@ -559,7 +565,7 @@ class _DaskEngine(_Engine):
         self.workers = sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values())
         self.client.subscribe_topic(self.topic, self._on_frames)
 
-    def _on_frames(self, event: Any) -> None:
+    def _on_frames(self, event: tuple[object, tuple[int, int]]) -> None:
         _, (n, more) = event
         with self._lock:
             self._frames += int(n)

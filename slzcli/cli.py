@@ -13,7 +13,7 @@ import math
 import sys
 import threading
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,8 +25,9 @@ from slzcli.config import MAX_FLOAT_MAGNITUDE, Config, OutputLevel, dump, layer_
 from slzcli.errors import SlzError
 from slzcli.interrupt import sigterm_interrupts
 from slzcli.methods import registry as method_registry
-from slzcli.outputs.summary_json import envelope
+from slzcli.outputs.summary_json import envelope, summary_json
 from slzcli.progress import DEFAULT_EVERY_S, Bar, BatchDisplay, RunsDisplay
+from slzcli.records import BatchRow, RunSummary
 from slzcli.version import __version__
 
 if TYPE_CHECKING:
@@ -664,32 +665,33 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
                                  on_progress=show)
     rows = result.rows
     for r in rows:
-        _warn_slam_maps(r.get("summary"))
-        _warn_untracked(r.get("summary"))
+        _warn_slam_maps(r.summary)
+        _warn_untracked(r.summary)
     # --json names paths as the user gave them (the run folders and summary files keep absolute ones)
     given = {str(p.absolute()): str(p) for p in paths}
     given_run = {str(t.run_dir): str(output) if output is not None and not is_batch else str(batch_dir / t.run_dir.name)
                  for t in tasks}
     if not is_batch:
         row = rows[0]
-        if row["status"] == "failed":
-            raise _given_paths(SlzError(row["error"]), row.get("error_detail"), {**given, **given_run})
-        s = row["summary"]
-        out = {"run": given_run.get(row["run"], row["run"]), **s, "source": given.get(s["source"], s["source"])}
-        t = s.get("timings_ms") or {}
-        if s.get("method") in t:  # "score" as in slz compare; the method's own key stays for older scripts
-            out["timings_ms"] = {**t, "score": t[s["method"]]}
-        return envelope("detect", out), render.detect_text(Path(row["run"]), s)
-    failed = [r for r in rows if r["status"] == "failed"]
+        summary = row.summary
+        if summary is None:
+            raise _given_paths(SlzError(row.error or row.status), row.error_detail, {**given, **given_run})
+        out = {"run": given_run.get(row.run, row.run), **summary_json(summary),
+               "source": given.get(summary.source, summary.source)}
+        t = summary.timings_ms
+        if summary.method in t:  # "score" as in slz compare; the method's own key stays for older scripts
+            out["timings_ms"] = {**t, "score": t[summary.method]}
+        return envelope("detect", out), render.detect_text(Path(row.run), summary)
+    failed = [r for r in rows if r.status == "failed"]
     if failed:
-        raise SlzError(f"{len(failed)} of {len(rows)} recordings failed (first: {failed[0]['error']}); "
+        raise SlzError(f"{len(failed)} of {len(rows)} recordings failed (first: {failed[0].error}); "
                        f"status of each in {batch_dir / 'summary.csv'}")
     totals = {**result.totals(), "summary_files": [str(p) for p in result.summary_files]}
     runs = [_batch_row(r, given, given_run) for r in rows]
     return envelope("batch", {"batch": totals, "runs": runs}), render.batch_text(totals, rows)
 
 
-def _given_paths(err: SlzError, detail: dict[str, str] | None, given: dict[str, str]) -> SlzError:
+def _given_paths(err: SlzError, detail: Mapping[str, str] | None, given: dict[str, str]) -> SlzError:
     """A run's error with the absolute paths the workers used named as the user gave them."""
     text, detail = str(err), dict(detail or {})
     for absolute, as_given in sorted(given.items(), key=lambda kv: -len(kv[0])):
@@ -701,36 +703,36 @@ def _given_paths(err: SlzError, detail: dict[str, str] | None, given: dict[str, 
     return out
 
 
-def _batch_row(r: dict[str, Any], given: dict[str, str], given_run: dict[str, str]) -> dict[str, Any]:
+def _batch_row(r: BatchRow, given: dict[str, str], given_run: dict[str, str]) -> dict[str, object]:
     """A batch row of ``--json``: the paths as given, ``source`` as in detect and compare, the run's
     no-site reason and ground-truth figures when it has them."""
-    row = {k: v for k, v in r.items() if k != "summary"}
-    source = given.get(str(r["recording"]), str(r["recording"]))
-    row.update(recording=source, source=source, run=given_run.get(str(r["run"]), r["run"]))
-    s = r.get("summary") or {}
-    row["reason"] = s.get("reason")
-    if s.get("ground_truth") is not None:
-        row["ground_truth"] = s["ground_truth"]
+    from slzcli.outputs.batch_summary import row_json
+
+    row = row_json(r)
+    source = given.get(r.recording, r.recording)
+    row.update(recording=source, source=source, run=given_run.get(r.run, r.run))
+    row["reason"] = None if r.summary is None else r.summary.reason
+    if r.summary is not None and r.summary.ground_truth is not None:
+        row["ground_truth"] = r.summary.ground_truth
     return row
 
 
-def _warn_slam_maps(s: dict[str, Any] | None) -> None:
+def _warn_slam_maps(s: RunSummary | None) -> None:
     """One warning line when SLAM started several maps: a run's results are in one map's frame."""
-    if render.slam_maps(s) <= 1:
+    if s is None or s.slam is None or s.slam.maps <= 1:
         return
-    slam = s["slam"]  # type: ignore[index]
-    seg = next(g for g in slam["segments"] if g["segment"] == slam["segment"])
-    what = "the site, trajectory.tum and points.ply are" if s["status"] == "site" else "trajectory.tum is"  # type: ignore[index]
+    slam = s.slam
+    seg = next(g for g in slam.segments if g.segment == slam.segment)
+    what = "the site, trajectory.tum and points.ply are" if s.status == "site" else "trajectory.tum is"
     log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; %s in map %d (frames %d-%d, "
-                "%d tracked); run.json summary.slam lists them all", s["source"], slam["maps"], what,  # type: ignore[index]
-                slam["segment"], seg["first_frame"], seg["last_frame"], seg["frames_tracked"])
+                "%d tracked); run.json summary.slam lists them all", s.source, slam.maps, what,
+                slam.segment, seg.first_frame, seg.last_frame, seg.frames_tracked)
 
 
-def _warn_untracked(s: dict[str, Any] | None) -> None:
+def _warn_untracked(s: RunSummary | None) -> None:
     """One warning line when SLAM left more than slam.max_untracked_share of the frames without a pose."""
-    warning = ((s or {}).get("slam") or {}).get("warning")
-    if warning:
-        log.warning("%s: %s", s["source"], warning)  # type: ignore[index]
+    if s is not None and s.slam is not None and s.slam.untracked.warning:
+        log.warning("%s: %s", s.source, s.slam.untracked.warning)
 
 
 @main.command("compare", short_help="Compare fusion methods or profiles on the same frames.")
@@ -779,10 +781,12 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
         summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=bar.tick,
                           timeout_s=timeout_s)
     for r in summary.get("recordings", []):
-        if render.slam_maps(r) > 1:
+        slam = r.get("slam") or {}
+        if slam.get("maps", 1) > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
-                        "committed within one map", r["source"], r["slam"]["maps"])
-        _warn_untracked(r)
+                        "committed within one map", r["source"], slam["maps"])
+        if slam.get("warning"):  # more than slam.max_untracked_share of the frames without a pose
+            log.warning("%s: %s", r["source"], slam["warning"])
     return envelope("compare", summary), text_table(summary, str(out))
 
 

@@ -50,7 +50,7 @@ from slzcli.evaluate.truth import ground_truth_of
 from slzcli.methods.base import build
 from slzcli.methods.registry import names as method_names
 from slzcli.outputs import output_dir, run_lock
-from slzcli.outputs.run_folder import landing_record
+from slzcli.outputs.records_json import to_json_object
 from slzcli.pipeline.commit import commit
 from slzcli.pipeline.run import MethodRun as PipelineRun
 from slzcli.pipeline.run import Sink
@@ -60,7 +60,7 @@ from slzcli.pipeline.tracking import Tracker
 from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
 from slzcli.sources.formats import run_suffixes
-from slzcli.summary import RunState, no_site_reason, site_truth, untracked_frames
+from slzcli.summary import RunState, no_site_reason, site_record, site_truth, untracked_frames
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
 from slzcli.types import CommittedSite, Detection, FigureFrame, TerrainMaps, TrackedFrame
@@ -306,16 +306,17 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)
         reason = no_site_reason(st, tracker.slam_name, len(tracker.keyframes))
-        rec = landing_record(path, m, committed, "", {}, reason, site_truth(truth, committed))
+        site = None if committed is None else site_record(committed, site_truth(truth, committed))
         entry: dict[str, Any] = {
-            "method": m, "detections": st.detections, "sites_found": len(st.sites.sites), "status": rec["status"],
-            "reason": rec.get("reason"), "timings_ms": timing,
-            "site_world": None if committed is None else rec["site"]["center_world"],  # as slz detect names it
-            "site": None if committed is None else {
-                "frame": rec["frame"]["index"], "stamp_ns": rec["frame"]["stamp_ns"],
-                "center_world": rec["site"]["center_world"], "center_camera": rec["site"]["center_camera"],
-                "score": rec["site"]["score"], "cluster_points": rec["site"]["cluster"]["points"],
-                "acceptance": rec["site"]["acceptance"], "support": rec["site"]["support"],
+            "method": m, "detections": st.detections, "sites_found": len(st.sites.sites),
+            "status": "no_safe_site" if committed is None else "site",
+            "reason": reason if committed is None else None, "timings_ms": timing,
+            "site_world": None if site is None else list(site.center_world),  # as slz detect names it
+            "site": None if committed is None or site is None else {
+                "frame": committed.frame.index, "stamp_ns": committed.frame.stamp_ns,
+                "center_world": list(site.center_world), "center_camera": list(site.center_camera),
+                "score": site.score, "cluster_points": site.cluster.points,
+                "acceptance": to_json_object(site.acceptance), "support": to_json_object(site.support),
                 "map_segment": committed.segment},
             "mask_fraction": _mask_fraction(run),
             "detections_not_vouched": st.unvouched,
@@ -325,7 +326,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
             counts = total(run.truth)
             entry["ground_truth"] = {
                 "mask": counts.as_dict(),
-                "site": None if committed is None else rec["site"].get("ground_truth"),
+                "site": None if site is None else site.ground_truth,
                 "pr_auc": run.pr.auc() if run.pr is not None else None,
                 "false_safe_rate": counts.fp / (counts.fp + counts.tn) if counts.fp + counts.tn else None,
             }
@@ -343,8 +344,8 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                                            tracker.keyframes.per_segment)),
                  "ate_rmse_m": _ate_rmse(tracker, truth),
                  "frames_digest": digest(np.asarray(tracker.trajectory.stamps)),
-                 **untracked_frames(tracker.trajectory.has_pose(), tracker.tracking, tracker.slam_name,
-                                    config.slam.max_untracked_share)},
+                 **to_json_object(untracked_frames(tracker.trajectory.has_pose(), tracker.tracking,
+                                                   tracker.slam_name, config.slam.max_untracked_share))},
         "inputs_identical": True,
         "methods": per, "pairs": pairs, "wall_s": round(wall_s, 3), "ground_truth": truth is not None,
         "depth_noise": noise.summary(),

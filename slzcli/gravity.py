@@ -26,6 +26,7 @@ from slzcli.errors import DatasetError, SlzError
 from slzcli.slam import uses_recorded_poses
 from slzcli.sources import Recording, RecordingInfo, open_recording
 from slzcli.sources.imu import NO_IMU, read_imu
+from slzcli.sources.messages import MessageRecording
 from slzcli.terrain import gravity as g
 from slzcli.terrain.maps import gravity_up_in_camera
 from slzcli.types import Frame
@@ -158,7 +159,7 @@ def _scene_up_of(recording_up: np.ndarray, camera: CameraCfg) -> UpOf:
 def _imu(rec: Recording, camera: CameraCfg, found: dict[str, g.Estimate],
          unavailable: dict[str, str]) -> g.QuietBlocks | None:
     cfg = camera.gravity.imu
-    if not hasattr(rec, "log"):  # a TUM folder: no IMU slz reads
+    if not isinstance(rec, MessageRecording):  # a TUM folder: no IMU slz reads
         unavailable["imu"] = "this format carries no sensor_msgs/Imu"
         return None
     try:

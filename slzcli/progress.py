@@ -15,7 +15,10 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
+
+if TYPE_CHECKING:
+    from slzcli.batch import BatchProgress
 
 DEFAULT_EVERY_S = 5.0  # output.progress_every_s's default, for callers without a config
 
@@ -147,13 +150,13 @@ class BatchDisplay:
         self.lines = lines
         self.bar = Bar("detect", "frames", every_s)
 
-    def __enter__(self) -> Callable[[Any], None]:
+    def __enter__(self) -> Callable[[BatchProgress], None]:
         self.bar.__enter__()
         return self.show
 
-    def show(self, p: Any) -> None:
-        """``p``: a batch.BatchProgress."""
-        expected = getattr(p, "frames_expected", 0) or None
+    def show(self, p: BatchProgress) -> None:
+        """One batch progress report: the bar, and a line per finished recording."""
+        expected = p.frames_expected or None
         if p.total <= 1:
             if p.row is None and p.frames:
                 self.bar.update(p.frames, expected)
@@ -162,15 +165,15 @@ class BatchDisplay:
                             note=f"{p.done} of {p.total} recordings done")
         if self.lines and p.row is not None:
             r = p.row
-            what = r["status"] + (" (skipped: done before)" if r.get("skipped") else "")
-            if r["status"] == "failed":
-                what += f": {r['error']}"
-            elif not r.get("skipped") and r.get("frames") is not None:
-                what += f", {r['frames']} frames in {r['wall_s']:.1f} s"
-            self.bar.say(f"slz: [{p.done}/{p.total}] {Path(r['run']).name}: {what}; "
+            what = r.status + (" (skipped: done before)" if r.skipped else "")
+            if r.status == "failed":
+                what += f": {r.error}"
+            elif not r.skipped and r.frames is not None:
+                what += f", {r.frames} frames in {r.wall_s or 0.0:.1f} s"
+            self.bar.say(f"slz: [{p.done}/{p.total}] {Path(r.run).name}: {what}; "
                          f"{p.frames_per_s:.1f} frames/s overall")
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.bar.__exit__(*exc)
 
 
@@ -190,6 +193,6 @@ class RunsDisplay:
         if not self.quiet:
             self.bar.update(done, total, note=f"{successes} landed")
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         if not self.quiet:
             self.bar.__exit__(*exc)

@@ -1,98 +1,111 @@
 """The text a command prints when it is done: whole sentences, figures rounded as a person reads them.
 
-Pure functions of the summaries (the same dicts ``--json`` prints); the CLI only echoes them.
+Pure functions of the summaries (``records.RunSummary``, the dicts of the other commands' ``--json``);
+the CLI only echoes them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from slzcli.records import BatchRow, JsonObject, RunSummary, SiteHeight
 
-def height_text(h: dict[str, Any]) -> str:
+
+def height_text(h: SiteHeight) -> str:
     """``0.02 m above the ground, 8.02 m below the start (frame 0's camera, map frame map)``."""
     def updown(v: float, what: str) -> str:
         return f"{abs(v):.2f} m {'above' if v >= 0 else 'below'} {what}"
 
-    parts = [] if h.get("above_ground_m") is None else [updown(h["above_ground_m"], "the ground")]
-    parts.append(updown(h["above_start_m"], f"the start (frame {h['start_frame']}'s camera, map frame "
-                                             f"{h['frame_id']})"))
+    parts = [] if h.above_ground_m is None else [updown(h.above_ground_m, "the ground")]
+    parts.append(updown(h.above_start_m, f"the start (frame {h.start_frame}'s camera, map frame {h.frame_id})"))
     return ", ".join(parts)
 
 
-def slam_maps(s: dict[str, Any] | None) -> int:
+def slam_maps(s: RunSummary | None) -> int:
     """How many SLAM maps a run's summary reports (1 for a summary written before maps were counted)."""
-    return int(((s or {}).get("slam") or {}).get("maps", 1))
+    return 1 if s is None or s.slam is None else s.slam.maps
 
 
 def _num(v: float | None, fmt: str, unit: str = "") -> str:
     return "n/a" if v is None else f"{format(v, fmt)}{unit}"
 
 
-def detect_text(out: Path, s: dict[str, Any]) -> str:
+def _get(obj: JsonObject | None, key: str) -> Any:
+    """A value of a JSON object another module describes (None when the object or the key is missing)."""
+    return None if obj is None else obj.get(key)
+
+
+def detect_text(out: Path, s: RunSummary) -> str:
     """``slz detect`` on one recording: the verdict first, then how it was reached and where the files are."""
-    t = s["timings_ms"]
+    t = s.timings_ms
     maps = slam_maps(s)
-    lost = (s.get("slam") or {}).get("frames_untracked")
-    head = (f"{s['source']}: {s['frames']} frames" + (f" ({lost} not tracked)" if lost else "")
-            + f", {s['detections']} detections ({s['method']}, "
-            f"SLAM {s['slam_backend']}" + (f", {maps} maps)" if maps > 1 else ")"))
-    if s.get("skipped"):
+    lost = None if s.slam is None else s.slam.untracked.frames_untracked
+    head = (f"{s.source}: {s.frames} frames" + (f" ({lost} not tracked)" if lost else "")
+            + f", {s.detections} detections ({s.method}, "
+            f"SLAM {s.slam_backend}" + (f", {maps} maps)" if maps > 1 else ")"))
+    if s.skipped:
         head += " [skipped: done before with the same config and input bytes; --force redoes it]"
-    if s["status"] == "site":
-        x, y, z = s["site_world"]
-        where = f"SLAM map {s['slam']['segment']}'s world frame" if maps > 1 else "the run's world frame"
+    if s.status == "site" and s.site_world is not None:
+        x, y, z = s.site_world
+        segment = None if s.slam is None else s.slam.segment
+        where = f"SLAM map {segment}'s world frame" if maps > 1 else "the run's world frame"
         result = f"landing site at ({x:.2f}, {y:.2f}, {z:.2f}) m in {where}"
-        if s.get("site_height"):
-            result += f": {height_text(s['site_height'])}"
+        if s.site_height:
+            result += f": {height_text(s.site_height)}"
     else:
-        result = f"no safe site: {s['reason']}"
+        result = f"no safe site: {s.reason}"
     lines = [head, "  " + result]
-    gv = s.get("gravity")
+    if s.advice is not None:
+        lines.append(f"  what would decide it: {s.advice.text}")
+    gv = s.gravity
     if gv:
-        apart = f" ({len(gv['disagreements'])} disagreement(s): see the warnings)" if gv["disagreements"] else ""
-        lines.append(f"  gravity: {gv['source']}, camera tilted {gv['tilt_deg']:.1f} deg from straight down{apart}")
-    noise, lim = s.get("depth_noise") or {}, s.get("depth_limits")
+        disagreements = _get(gv, "disagreements")
+        apart = f" ({len(disagreements)} disagreement(s): see the warnings)" if disagreements else ""
+        lines.append(f"  gravity: {gv['source']}, camera tilted {_get(gv, 'tilt_deg'):.1f} deg from straight "
+                     f"down{apart}")
+    noise, lim = s.depth_noise, s.depth_limits
     if lim:
         a = noise.get("a_per_m_median", noise.get("a_per_m"))
-        where = f"a = {a:.4f} 1/m ({noise.get('source')}), " if a is not None else ""
-        lines.append(f"  depth noise: {where}sigma {lim['sigma_m']:.3f} m at {lim['altitude_m']:.1f} m; maps on "
-                     f"{lim['block_px']} px blocks; steps >= {lim['step_min_m']:.2f} m and slopes >= "
-                     f"{lim['slope_min_deg']:.1f} deg detectable"
-                     + ("" if noise.get("detections_not_vouched", 0) == 0 else
-                        f"; {noise['detections_not_vouched']} detection frame(s) could not vouch"))
+        where = f"a = {a:.4f} 1/m ({noise.get('source')}), " if isinstance(a, float | int) else ""
+        not_vouched = _get(noise, "detections_not_vouched") or 0
+        lines.append(f"  depth noise: {where}sigma {_get(lim, 'sigma_m'):.3f} m at {_get(lim, 'altitude_m'):.1f} m; "
+                     f"maps on {lim['block_px']} px blocks; steps >= {_get(lim, 'step_min_m'):.2f} m and slopes >= "
+                     f"{_get(lim, 'slope_min_deg'):.1f} deg detectable"
+                     + ("" if not_vouched == 0 else f"; {not_vouched} detection frame(s) could not vouch"))
     write = f", write {t['write']:.1f} ms" if "write" in t else ""  # a run.json from before write was summarised
     if "write_wait" in t:  # the writer runs beside the loop: what it cost the loop is the wait
         write += f" in the background (the loop waited {t['write_wait']:.1f} ms)"
-    lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s['method']} {t[s['method']]:.1f} ms, "
+    lines.append(f"  per frame: maps {t['maps']:.1f} ms, {s.method} {t[s.method]:.1f} ms, "
                  f"mask {t['mask']:.1f} ms, slam {t['slam']:.1f} ms, select {t['select']:.1f} ms{write} (medians)")
-    gt = s.get("ground_truth")
-    if gt and gt.get("mask"):
-        m = gt["mask"]
+    gt = s.ground_truth
+    m = _get(gt, "mask")
+    if m:
+        site = _get(gt, "site")
         lines.append(f"  vs ground truth: mask precision {_num(m['precision'], '.3f')}, recall "
                      f"{_num(m['recall'], '.3f')}, IoU {_num(m['iou'], '.3f')}"
-                     + (f"; site safe: {gt['site']['safe']}, clearance {gt['site']['clearance_m']:.2f} m"
-                        if gt.get("site") else ""))
+                     + (f"; site safe: {site['safe']}, clearance {site['clearance_m']:.2f} m" if site else ""))
     frames = {"summary": "", "maps": ", frames/ (maps.npz, overlay.png)", "all": ", frames/"}.get(
-        s.get("outputs", "all"), ", frames/")
+        s.outputs, ", frames/")
     mcap = ", results.mcap" if (out / "results.mcap").exists() else ""
     lines.append(f"  results: {out}/report.html (open it first); also landing.json, run.json, sites.csv, "
                  f"points.ply{mcap}{frames}")
     return "\n".join(lines)
 
 
-def batch_text(t: dict[str, Any], rows: list[dict[str, Any]]) -> str:
+def batch_text(t: Mapping[str, Any], rows: Sequence[BatchRow]) -> str:
     """A batch of ``slz detect``: one line per recording, then the totals and the summary files."""
     lines = []
     for r in rows:
-        name = Path(r["run"]).name
-        if r["status"] == "site":
-            x, y, z = r["site_world"]
+        name = Path(r.run).name
+        if r.status == "site" and r.site_world is not None:
+            x, y, z = r.site_world
             what = f"site at ({x:.2f}, {y:.2f}, {z:.2f}) m"
         else:
-            what = "no safe site" + (f": {r['summary']['reason']}" if r.get("summary") else "")
-        done = "skipped (done before)" if r.get("skipped") else f"{r['frames']} frames in {r['wall_s']:.1f} s"
-        maps = slam_maps(r.get("summary"))
+            what = "no safe site" + (f": {r.summary.reason}" if r.summary is not None else "")
+        done = "skipped (done before)" if r.skipped else f"{r.frames} frames in {r.wall_s or 0.0:.1f} s"
+        maps = slam_maps(r.summary)
         lines.append(f"  {name}: {what}; {done}" + (f"; {maps} SLAM maps" if maps > 1 else ""))
     return "\n".join([
         f"{t['recordings']} recordings ({t['engine']}, {t['workers']} worker(s)): {t['site']} with a site, "

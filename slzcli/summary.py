@@ -8,10 +8,10 @@ the run's world frame, the no-site reason, the depth-noise summary, the ground-t
 from __future__ import annotations
 
 import platform
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -21,13 +21,35 @@ from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
 from slzcli.funnel import FunnelLog
 from slzcli.landing.commit import spread_record
+from slzcli.outputs.records_json import to_json_object
 from slzcli.outputs.results_mcap import MAP_FRAME, map_frame_of
-from slzcli.outputs.run_folder import landing_record
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog, trajectory_files
+from slzcli.records import (
+    AcceptanceRecord,
+    ClusterRecord,
+    DecideAdvice,
+    FrameStamp,
+    JsonObject,
+    LandingRecord,
+    PairingRecord,
+    RunRecord,
+    RunSummary,
+    SegmentRecord,
+    SiteHeight,
+    SiteRecord,
+    SlamRecord,
+    SpreadNote,
+    SpreadRecord,
+    SupportRecord,
+    UntrackedRecord,
+)
 from slzcli.slam.segments import Segment, primary_segment, segment_table
+from slzcli.sources.recording import RecordingInfo
+from slzcli.synth.groundtruth import GroundTruth
+from slzcli.terrain.limits import vouchable_altitude_m
 from slzcli.terrain.noise import NoiseTracker
-from slzcli.types import CommittedSite, RunResult, Working
+from slzcli.types import CommittedSite, PairingReport, RunResult, Working
 from slzcli.version import __version__
 
 PER_FRAME_STAGES = ("maps", "score", "mask", "slam", "select")  # the per-frame total; "write" is apart
@@ -52,6 +74,7 @@ class RunState:
     unvouched_reason: str = ""         # limits.limit_reason of that frame
     highest: Working | None = None     # the highest detection frame's working scale (depth_limits without a site)
     column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
+    advice: DecideAdvice | None = None  # the method's own advice of the latest detection frame (fused)
     method_reason: str = ""            # a method the maps do not gate (px4slp): why its latest frame gave no site
     funnel: FunnelLog = field(default_factory=FunnelLog)  # what each filter left in each detection frame
 
@@ -90,17 +113,17 @@ def world_frame_text(slam_name: str, poses_are_recorded: bool, table: list[Segme
             f"first tracked frame (frame {first}), x along that camera's x, origin at that camera")
 
 
-def slam_summary(slam_name: str, table: list[Segment], primary: int | None,
-                 tum_files: dict[int, str], map_frame: str = MAP_FRAME) -> dict[str, Any]:
-    """run.json ``summary.slam``: how many maps the backend started and what each one holds."""
-    return {"backend": slam_name, "maps": len(table), "segment": primary, "segments": [
-        {"segment": s.segment, "frames_tracked": s.frames_tracked, "first_frame": s.first_frame,
-         "last_frame": s.last_frame, "keyframes": s.keyframes, "trajectory": tum_files.get(s.segment),
-         "mcap_frame": map_frame_of(s.segment, map_frame)} for s in table]}
+def slam_summary(slam_name: str, table: list[Segment], primary: int | None, tum_files: dict[int, str],
+                 untracked: UntrackedRecord, map_frame: str = MAP_FRAME) -> SlamRecord:
+    """run.json ``summary.slam``: how many maps the backend started, what each one holds, and ``untracked``
+    (``untracked_frames``)."""
+    return SlamRecord(slam_name, len(table), primary, tuple(
+        SegmentRecord(s.segment, s.frames_tracked, s.first_frame, s.last_frame, s.keyframes, tum_files.get(s.segment),
+                      map_frame_of(s.segment, map_frame)) for s in table), untracked)
 
 
-def untracked_frames(has_pose: np.ndarray, tracking: dict[str, int], slam_name: str,
-                     max_share: float) -> dict[str, Any]:
+def untracked_frames(has_pose: np.ndarray, tracking: Mapping[str, int], slam_name: str,
+                     max_share: float) -> UntrackedRecord:
     """run.json ``summary.slam``'s count of the frames the backend gave no pose (every backend alike: a frame
     the tracker logged without a pose), their share, and a warning above ``slam.max_untracked_share``."""
     n = len(has_pose)
@@ -112,7 +135,7 @@ def untracked_frames(has_pose: np.ndarray, tracking: dict[str, int], slam_name: 
         warning = (f"{slam_name} could not track {lost} of {n} frames ({share:.0%}: {states or 'no pose'}), more than "
                    f"slam.max_untracked_share {max_share:.0%}: those frames have no pose and no detection, the result "
                    f"rests on the {n - lost} tracked ones (slower motion, a higher frame rate or more texture helps)")
-    return {"frames_untracked": lost, "untracked_share": round(share, 4), "warning": warning}
+    return UntrackedRecord(lost, round(share, 4), warning)
 
 
 def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
@@ -148,17 +171,33 @@ def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
     return reason
 
 
-def noise_summary(st: RunState) -> dict[str, Any]:
+def decide_advice(st: RunState, config: Config) -> DecideAdvice | None:
+    """What would decide the ground of a run without a site: the method's own advice of its latest detection
+    frame (fused), else, when depth noise kept detection frames from vouching, the altitude below which the
+    highest of them would have vouched (the per-frame limits, ``limits.limit_reason``); else None."""
+    if st.advice is not None:
+        return st.advice
+    work = st.worst_unvouched
+    if work is None:
+        return None
+    below = vouchable_altitude_m(work.noise, work.focal_px, config.terrain, config.uav, work.altitude_m)
+    hides = f"at {work.altitude_m:.1f} m the depth noise hides {work.hidden()}"
+    if below is None:
+        return DecideAdvice("depth_limits", f"{hides}, and at no altitude would it not with this sensor")
+    return DecideAdvice("depth_limits", f"descend below {below:.1f} m ({hides})", descend_to_m=round(below, 2))
+
+
+def noise_summary(st: RunState) -> dict[str, object]:
     """The depth noise the maps were made with, and how many detection frames it kept from vouching."""
-    out: dict[str, Any] = dict(st.noise.summary()) if st.noise is not None else {}
+    out: dict[str, object] = dict(st.noise.summary()) if st.noise is not None else {}
     out["detections_not_vouched"] = st.unvouched
     if st.worst_unvouched is not None:
         out["not_vouched"] = {**st.worst_unvouched.as_dict(), "reason": st.unvouched_reason}
     return out
 
 
-def _height(center_world: list[float], st: RunState, table: list[Segment], primary: int | None,
-            config: Config) -> dict[str, Any]:
+def _height(center_world: tuple[float, float, float], st: RunState, table: list[Segment], primary: int | None,
+            config: Config) -> SiteHeight:
     """landing.json ``site.height``: above the ground and above the start, in the site's map frame."""
     from slzcli.landing.height import site_height
 
@@ -166,59 +205,111 @@ def _height(center_world: list[float], st: RunState, table: list[Segment], prima
     first = next((s.first_frame for s in table if s.segment == segment), 0)
     pose = st.trajectory.poses()[first] if len(st.trajectory) > first else None
     xyz = st.keyframes.map_xyz(primary if len(table) > 1 else None)
-    return site_height(center_world, np.asarray(xyz)[:, 2], map_frame_of(segment, config.output.map_frame), first,
-                       0.0 if pose is None else float(pose[2, 3]))
+    return SiteHeight(**site_height(list(center_world), np.asarray(xyz)[:, 2],
+                                    map_frame_of(segment, config.output.map_frame), first,
+                                    0.0 if pose is None else float(pose[2, 3])))
 
 
-def site_truth(truth: Any | None, committed: CommittedSite | None) -> dict[str, Any] | None:
+def site_truth(truth: GroundTruth | None, committed: CommittedSite | None) -> JsonObject | None:
     """landing.json ``site.ground_truth`` of the committed site (None without truth or site)."""
     if truth is None or committed is None:
         return None
     return site_truth_of(truth, committed.frame, committed.site.center_camera).as_dict()
 
 
-def summarise(source: Path, config: Config, method: str, info: Any, report: Any, st: RunState, slam_name: str,
-              poses_are_recorded: bool, committed: CommittedSite | None, truth: TruthEvaluator | None,
-              wall_s: float, key: dict[str, Any]) -> RunResult:
-    """landing.json and run.json of a finished run (nothing is written here).
+def spread_of(committed: CommittedSite, footprint_side_m: float) -> SpreadRecord:
+    """landing.json ``site_spread_m`` and ``site_spread`` (``landing.commit.spread_record``)."""
+    rec = spread_record(committed.ranked, footprint_side_m)
+    return SpreadRecord(rec["site_spread_m"], SpreadNote(**rec["site_spread"]))
 
-    ``poses_are_recorded``: the backend's capability (``slam.base.SlamBackend``), for the world frame's text.
-    ``truth``: the run's ground-truth evaluator (None: no ground truth).
+
+def site_record(committed: CommittedSite, site_truth: JsonObject | None = None,
+                height: SiteHeight | None = None) -> SiteRecord:
+    """landing.json ``site``: the committed site, its acceptance test, support, depth limits and truth."""
+    s = committed.site
+    return SiteRecord(
+        pixel=s.pixel, center_camera=s.center_camera, center_world=s.center_world, corners_world=s.corners_world,
+        normal_world=s.normal_world, cluster=ClusterRecord(s.cluster_points, s.normal_variance, s.extent_m),
+        score=s.score,
+        acceptance=AcceptanceRecord(s.accepted, s.acceptance_reason, s.tilt_deg, s.edge_clearance_m),
+        support=SupportRecord(committed.support, committed.detections, committed.segment_detections),
+        depth_limits=committed.found.limits, ground_truth=site_truth, height=height)
+
+
+def landing_record(source: Path, method: str, committed: CommittedSite | None, world_frame: str,
+                   timings: Mapping[str, float], reason: str, site: SiteRecord | None = None,
+                   map_segment: int | None = None, spread: SpreadRecord | None = None,
+                   advice: DecideAdvice | None = None) -> LandingRecord:
+    """landing.json (the contract in DESIGN.md): the committed site (``site``: its record, built from
+    ``committed`` when None) or why there is none, the world frame, the map segment, the timings."""
+    if committed is None:
+        return LandingRecord("no_safe_site", method, str(source), reason=reason, advice=advice,
+                             world_frame=world_frame, map_segment=map_segment, timings_ms=timings)
+    return LandingRecord("site", method, str(source), frame=FrameStamp(committed.frame.index, committed.frame.stamp_ns),
+                         site=site or site_record(committed), spread=spread, world_frame=world_frame,
+                         map_segment=map_segment, timings_ms=timings)
+
+
+@dataclass(frozen=True)
+class RunFacts:
+    """What a finished run knows beside its accumulators: where it read, what ran and how long.
+
+    ``poses_are_recorded``: the backend's capability (``slam.base.SlamBackend``), for the world frame's text;
     ``key``: the rerun key and the digests of the files it covers (``fingerprint``), kept in run.json.
     """
+
+    source: Path
+    method: str
+    slam_name: str
+    poses_are_recorded: bool
+    info: RecordingInfo
+    report: PairingReport
+    wall_s: float
+    key: JsonObject
+
+
+def summarise(facts: RunFacts, config: Config, st: RunState, committed: CommittedSite | None,
+              truth: TruthEvaluator | None) -> RunResult:
+    """landing.json and run.json of a finished run (nothing is written here); ``truth``: the run's
+    ground-truth evaluator (None: no ground truth)."""
     timing = st.timer.summary()
-    timings = stage_timings(timing, method)
+    timings = stage_timings(timing, facts.method)
     table = segment_table(st.trajectory.segments(), st.trajectory.has_pose(), st.keyframes.per_segment)
     primary = primary_segment(table, None if committed is None else committed.segment)
-    world = world_frame_text(slam_name, poses_are_recorded, table, primary)
-    reason = no_site_reason(st, slam_name, len(st.keyframes))
-    site_gt = site_truth(None if truth is None else truth.truth, committed)
-    spread = None if committed is None else spread_record(committed.ranked, config.uav.footprint_m[0])
-    landing = landing_record(source, method, committed, world, timings, reason, site_gt, primary, spread)
+    world = world_frame_text(facts.slam_name, facts.poses_are_recorded, table, primary)
+    reason = no_site_reason(st, facts.slam_name, len(st.keyframes))
+    site: SiteRecord | None = None
+    spread: SpreadRecord | None = None
+    advice = decide_advice(st, config) if committed is None else None
     if committed is not None:
-        landing["site"]["height"] = _height(landing["site"]["center_world"], st, table, primary, config)
+        site = site_record(committed, site_truth(None if truth is None else truth.truth, committed),
+                           _height(committed.site.center_world, st, table, primary, config))
+        spread = spread_of(committed, config.uav.footprint_m[0])
+    landing = landing_record(facts.source, facts.method, committed, world, timings, reason, site, primary, spread,
+                             advice)
     noise = noise_summary(st)
-    summary: dict[str, Any] = {
-        "source": str(source), "method": method, "frames": st.frames, "detections": st.detections,
-        "status": landing["status"], "site_world": landing.get("site", {}).get("center_world"),
-        "site_height": landing.get("site", {}).get("height"),
-        "reason": landing.get("reason"), "site_spread_m": landing.get("site_spread_m"),
-        "slam_backend": slam_name, "tracking": st.tracking,
-        "slam": {**slam_summary(slam_name, table, primary, trajectory_files(st.trajectory), config.output.map_frame),
-                 **untracked_frames(st.trajectory.has_pose(), st.tracking, slam_name, config.slam.max_untracked_share)},
-        "keyframes": len(st.keyframes), "timings_ms": timings, "wall_s": round(wall_s, 3),
-        "outputs": config.output.level,
-        "gravity": getattr(info, "gravity", None),  # source, camera tilt, disagreements (slzcli/gravity.py)
-        "depth_noise": noise,
-        "depth_limits": landing.get("site", {}).get("depth_limits") or noise.get("not_vouched")
-        or (None if st.highest is None else st.highest.as_dict()),
-        "pairing": {"paired": report.paired, "unpaired_color": report.unpaired_color,
-                    "unpaired_depth": report.unpaired_depth, "undecodable": report.undecodable,
-                    "outside_window": report.outside_window, "notes": list(report.notes)},
-    }
-    if truth is not None:
-        summary["ground_truth"] = truth.summary(st.trajectory.poses(), st.trajectory.segments().tolist(),
-                                                landing.get("site"))
-    run = {"summary": summary, "config_hash": config.hash(), "key": key, "versions": versions(),
-           "config": config.to_dict(), "recording": info.to_dict(), "timings": timing, "funnel": st.funnel.as_dict()}
+    not_vouched = noise.get("not_vouched")
+    depth_limits = (None if site is None else site.depth_limits) or (
+        not_vouched if isinstance(not_vouched, Mapping) and not_vouched else None) or (
+        None if st.highest is None else st.highest.as_dict())
+    r = facts.report
+    ground_truth = None if truth is None else truth.summary(
+        st.trajectory.poses(), st.trajectory.segments().tolist(), None if site is None else to_json_object(site))
+    summary = RunSummary(
+        source=str(facts.source), method=facts.method, frames=st.frames, detections=st.detections,
+        status=landing.status, site_world=None if site is None else site.center_world,
+        site_height=None if site is None else site.height, reason=landing.reason,
+        site_spread_m=None if spread is None else spread.site_spread_m, advice=advice,
+        slam_backend=facts.slam_name, tracking=st.tracking,
+        slam=slam_summary(facts.slam_name, table, primary, trajectory_files(st.trajectory),
+                          untracked_frames(st.trajectory.has_pose(), st.tracking, facts.slam_name,
+                                           config.slam.max_untracked_share), config.output.map_frame),
+        keyframes=len(st.keyframes), timings_ms=timings, wall_s=round(facts.wall_s, 3), outputs=config.output.level,
+        gravity=facts.info.gravity,  # source, camera tilt, disagreements (slzcli/gravity.py)
+        depth_noise=noise, depth_limits=depth_limits,
+        pairing=PairingRecord(r.paired, r.unpaired_color, r.unpaired_depth, r.undecodable, r.outside_window,
+                              tuple(r.notes)),
+        ground_truth=ground_truth)
+    run = RunRecord(summary, config.hash(), facts.key, versions(), config.to_dict(), facts.info.to_dict(), timing,
+                    st.funnel.as_dict())
     return RunResult(landing, run, committed, primary, primary if len(table) > 1 else None)

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from slzcli.records import DecideAdvice, LandingRecord, RunRecord, RunSummary
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -473,6 +475,7 @@ class Detection:
     edge_m: np.ndarray | None  # TerrainMaps.edge_distance_m
     timings_ms: dict[str, float]
     segment: int = 0  # SLAM map segment of the pose and points
+    advice: DecideAdvice | None = None  # a method that can tell: what would decide the ground it could not
 
 
 @dataclass(frozen=True, eq=False)
@@ -540,23 +543,24 @@ class SimResult:
 # ----------------------------------------------------------------------------- slz detect
 @dataclass(frozen=True, eq=False)
 class RunResult:
-    """What one detection run sums up to (``summary.summarise``), as the run folder writes it.
+    """What one detection run sums up to (``summary.summarise``), as the run folder writes it
+    (``outputs/run_folder.py``).
 
-    ``landing``: landing.json; ``run``: run.json (its ``summary`` is what ``slz detect`` returns);
+    ``landing``: landing.json's record; ``run``: run.json's (its ``summary`` is what ``slz detect`` returns);
     ``committed``: the committed site entry (``pipeline.commit.commit_site``) or None; ``primary_segment``:
     the run's map segment (trajectory.tum); ``points_segment``: the segment whose map points
     points.ply holds (None: all, a run of one segment).
     """
 
-    landing: dict[str, Any]
-    run: dict[str, Any]
+    landing: LandingRecord
+    run: RunRecord
     committed: CommittedSite | None
     primary_segment: int | None
     points_segment: int | None
 
     @property
-    def summary(self) -> dict[str, Any]:
-        return self.run["summary"]
+    def summary(self) -> RunSummary:
+        return self.run.summary
 
 
 # ----------------------------------------------------------------------------- frame ids of a recording

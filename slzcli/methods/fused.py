@@ -20,12 +20,14 @@ from pathlib import Path
 import numpy as np
 
 from slzcli.config import Config
+from slzcli.fusion.advice import Advice
 from slzcli.fusion.grid import region, seen_bounds
 from slzcli.fusion.output import write_landing_map
 from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
 from slzcli.fusion.verdict import SAFE, fused_maps
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
+from slzcli.records import DecideAdvice
 from slzcli.scoring import SCORERS
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.types import Detection, ScoreMap, TerrainMaps, TrackedFrame
@@ -76,6 +78,7 @@ class FusedMethod:
         t["mask"] = _lap(t0)
         t0 = time.perf_counter()
         selection: Selection | None = None
+        advice: Advice | None = None
         if T is not None and points is not None:
             selection = select_site(points.xyz_world, T, frame.K, score.mask, score.score, self.params,
                                     edge_distance_m=maps.edge_distance_m)
@@ -85,7 +88,8 @@ class FusedMethod:
                 selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)
-        return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment)
+        return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment,
+                         None if advice is None else advice_record(advice))
 
 
     def write_outputs(self, folder: Path) -> None:
@@ -106,6 +110,14 @@ def fused(config: Config) -> FusedMethod:
                        select_params(config.landing, config.uav, "min_normal_variance",
                                      config.landing.min_extent_factor),
                        NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
+
+
+def advice_record(a: Advice) -> DecideAdvice:
+    """The fused map's advice as landing.json and the summary carry it (``records.DecideAdvice``), rounded as
+    ``Advice.as_dict`` rounds it."""
+    return DecideAdvice("fused", a.text(), a.frames, None if a.sideways_m is None else round(a.sideways_m, 2),
+                        None if a.descend_to_m is None else round(a.descend_to_m, 2), a.hover, round(a.x_m, 3),
+                        round(a.y_m, 3))
 
 
 def _lap(t0: float) -> float:

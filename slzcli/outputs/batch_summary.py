@@ -14,13 +14,14 @@ from __future__ import annotations
 import csv
 import io
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 from slzcli.errors import OutputError, SlzError
 from slzcli.outputs import files
 from slzcli.outputs.output_dir import MARKER_KEY
+from slzcli.outputs.records_json import to_json
+from slzcli.records import BatchRow
 
 KIND = "batch"
 
@@ -29,11 +30,33 @@ COLUMNS = ("recording", "run", "status", "skipped", "frames", "detections", "sit
            "error")
 
 
-def csv_rows(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The CSV view of the batch rows: the site split into x, y, z; nested summaries left out."""
+def row_json(row: BatchRow) -> dict[str, object]:
+    """A row of ``summary.json`` ``recordings``: a finished run's figures, or the failure (error, detail) and
+    whatever of the worker's wall time and memory it measured."""
+    out: dict[str, object] = {"recording": row.recording, "run": row.run}
+    if row.worker is not None:
+        out["worker"] = row.worker
+    out.update(status=row.status, skipped=row.skipped)
+    s = row.summary
+    if s is not None:
+        out.update(frames=s.frames, detections=s.detections, site_world=to_json(s.site_world), wall_s=row.wall_s,
+                   frames_per_s=row.frames_per_s, run_wall_s=s.wall_s, per_frame_ms=s.timings_ms.get("total"),
+                   peak_rss_mb=row.peak_rss_mb, peak_child_rss_mb=row.peak_child_rss_mb, error=None)
+        return out
+    out["error"] = row.error
+    if row.error_detail is not None:
+        out["error_detail"] = dict(row.error_detail)
+    out.update({k: v for k, v in (("wall_s", row.wall_s), ("peak_rss_mb", row.peak_rss_mb)) if v is not None})
+    return out
+
+
+def csv_rows(rows: Sequence[Mapping[str, object]]) -> list[dict[str, object]]:
+    """The CSV view of the batch rows (``row_json``'s): the site split into x, y, z."""
     out = []
     for r in rows:
-        site = r.get("site_world") or (None, None, None)
+        site = r.get("site_world")
+        if not isinstance(site, list | tuple):
+            site = (None, None, None)
         flat = {k: r.get(k) for k in COLUMNS}
         flat.update(site_x=site[0], site_y=site[1], site_z=site[2])
         out.append({k: "" if v is None else v for k, v in flat.items()})
@@ -63,7 +86,7 @@ def check_folder(out_dir: Path) -> None:
         raise OutputError(json_path, "exists and is not a batch summary of slz; move it away or choose another -o")
 
 
-def _read(json_path: Path) -> Any:
+def _read(json_path: Path) -> object:
     """The summary.json document, or None when it cannot be read within the bounds (then it is not slz's)."""
     from slzcli.bounds import load_json
 
@@ -73,7 +96,7 @@ def _read(json_path: Path) -> Any:
         return None
 
 
-def earlier_rows(json_path: Path, new: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+def earlier_rows(json_path: Path, new: Sequence[Mapping[str, object]]) -> list[Mapping[str, object]]:
     """The rows of an earlier batch into this folder whose run folders this batch did not write: kept, first.
 
     A second batch into one folder adds to its summary instead of dropping the first batch's rows;
@@ -87,11 +110,11 @@ def earlier_rows(json_path: Path, new: Sequence[dict[str, Any]]) -> list[dict[st
     return [r for r in rows if isinstance(r, dict) and r.get("run") not in now]
 
 
-def write_summary(out_dir: Path, batch: dict[str, Any], rows: Sequence[dict[str, Any]]) -> tuple[Path, Path]:
+def write_summary(out_dir: Path, batch: Mapping[str, object], rows: Sequence[BatchRow]) -> tuple[Path, Path]:
     """Write ``summary.json`` (batch totals + rows) and ``summary.csv`` (rows) into ``out_dir``."""
     out_dir = Path(out_dir)
     json_path, csv_path = out_dir / "summary.json", out_dir / "summary.csv"
-    plain = [{k: v for k, v in r.items() if k != "summary"} for r in rows]
+    plain = [row_json(r) for r in rows]
     from slzcli.outputs import run_lock
 
     with run_lock.claim(json_path, wait=True, leftovers=()):  # two batches ending at once: one merge each

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import base64
 import html
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ from slzcli.outputs.files import write_text
 from slzcli.outputs.funnel_html import funnel_section
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
+from slzcli.records import LandingRecord, RunSummary
 from slzcli.render import height_text
 from slzcli.types import CommittedSite, RunResult
 
@@ -65,17 +67,18 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
         (detection_frames[-1] if detection_frames else None)
     from markupsafe import Markup
 
-    reverse = bool(result.run.get("config", {}).get("output", {}).get("reverse_colormap", False))
+    output = result.run.config.get("output")
+    reverse = bool(output.get("reverse_colormap", False)) if isinstance(output, Mapping) else False
     page = _template().render(
-        name=Path(s["source"]).name, css=Markup(CSS),
+        name=Path(s.source).name, css=Markup(CSS),
         # the picture sections are drawn here (image panel, SVG); the rest is the template's
-        result=Markup(_result(s, landing)), funnel=Markup(funnel_section(result.run.get("funnel"))),
+        result=Markup(_result(s, landing)), funnel=Markup(funnel_section(dict(result.run.funnel))),
         figure5=Markup(_figure5(run_dir, panel_frame, committed is not None and
                                 committed.frame.index == panel_frame, level, reverse)),
         trajectory=Markup(_trajectory(trajectory, sites, committed, result.primary_segment)),
         site_columns=SITE_COLUMNS, sites=_site_rows(sites, committed),
         detections=_detection_figures(detection_frames, sites, committed), level=level,
-        timings=[(k, v) for k, v in (s.get("timings_ms") or {}).items() if isinstance(v, int | float)])
+        timings=[(k, v) for k, v in s.timings_ms.items() if isinstance(v, int | float)])
     path = run_dir / "report.html"
     write_text(path, page)
     return path
@@ -91,30 +94,28 @@ def _template() -> Any:
 
 
 # ----------------------------------------------------------------------------- sections
-def _result(s: dict[str, Any], landing: dict[str, Any]) -> str:
-    if landing["status"] == "site":
-        site = landing["site"]
-        x, y, z = site["center_world"]
-        sup = site["support"]
-        acc = site["acceptance"]
-        height = f", {html.escape(height_text(site['height']))}" if site.get("height") else ""
-        what = (f"<b>Landing site</b> at ({x:.2f}, {y:.2f}, {z:.2f}) m{height}, score {site['score']:.2f}, "
+def _result(s: RunSummary, landing: LandingRecord) -> str:
+    site = landing.site
+    if landing.status == "site" and site is not None:
+        x, y, z = site.center_world
+        sup, acc = site.support, site.acceptance
+        height = f", {html.escape(height_text(site.height))}" if site.height else ""
+        what = (f"<b>Landing site</b> at ({x:.2f}, {y:.2f}, {z:.2f}) m{height}, score {site.score:.2f}, "
                 f"confirmed by "
-                f"{sup['detections_agreeing']} of {sup['detections_with_site']} detections with a site; acceptance "
-                f"test {'passed' if acc['passed'] else 'NOT passed: ' + html.escape(str(acc['reason']))}, "
-                f"tilt {acc['tilt_deg']:.1f} deg.")
-        gt = site.get("ground_truth")
+                f"{sup.detections_agreeing} of {sup.detections_with_site} detections with a site; acceptance "
+                f"test {'passed' if acc.passed else 'NOT passed: ' + html.escape(str(acc.reason))}, "
+                f"tilt {acc.tilt_deg:.1f} deg.")
+        gt = site.ground_truth
         if gt:
             what += f" Ground truth: {'safe' if gt.get('safe') else 'NOT safe'}."
-        spread = landing.get("site_spread")
-        if spread:   # how far another run (ORB-SLAM3's threads) may commit from this one
-            what += f" Stability: {html.escape(str(spread['note']))}."
+        if landing.spread is not None:   # how far another run (ORB-SLAM3's threads) may commit from this one
+            what += f" Stability: {html.escape(str(landing.spread.site_spread.note))}."
     else:
-        what = f"<b>No safe site</b>: {html.escape(str(landing.get('reason')))}"
-    return (f"<h2 id=result>Result</h2><p>{what}</p><p class=note>{html.escape(s['source'])}: {s['frames']} frames, "
-            f"{s['detections']} detection frames, method {html.escape(s['method'])}, SLAM "
-            f"{html.escape(s['slam_backend'])}, outputs {html.escape(str(s.get('outputs')))}. Positions are in "
-            f"{html.escape(landing['world_frame'])} (metres, z up). Files: <a href=landing.json>landing.json</a>, "
+        what = f"<b>No safe site</b>: {html.escape(str(landing.reason))}"
+    return (f"<h2 id=result>Result</h2><p>{what}</p><p class=note>{html.escape(s.source)}: {s.frames} frames, "
+            f"{s.detections} detection frames, method {html.escape(s.method)}, SLAM "
+            f"{html.escape(s.slam_backend)}, outputs {html.escape(str(s.outputs))}. Positions are in "
+            f"{html.escape(landing.world_frame)} (metres, z up). Files: <a href=landing.json>landing.json</a>, "
             "<a href=run.json>run.json</a>, <a href=sites.csv>sites.csv</a>, <a href=points.ply>points.ply</a>, "
             "<a href=trajectory.tum>trajectory.tum</a>.</p>")
 

@@ -14,14 +14,15 @@ of points.ply are in the world frame of one segment, the run's (``map_segment`` 
 landing.json, ``summary.slam.segment`` in run.json); run.json ``summary.slam`` lists every
 segment with its frames, keyframes, TUM file and results.mcap frame id.
 
-Only serialisation: the summary, the no-site reason and the ground-truth figures are computed
-by ``slzcli.summary`` and ``slzcli.evaluate.truth`` and handed in (``RunResult``).
+Only serialisation: the landing record, the summary, the no-site reason and the ground-truth figures are
+computed by ``slzcli.summary`` and ``slzcli.evaluate.truth`` and handed in (``RunResult``, whose records
+``outputs/records_json.py`` writes).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -31,9 +32,11 @@ from slzcli.outputs import files, images
 from slzcli.outputs.detect_report import write_detect_report
 from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.points import write_points_ply
+from slzcli.outputs.records_json import from_json, to_json_object
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog, write_trajectories
-from slzcli.types import CommittedSite, RunResult
+from slzcli.records import LandingRecord, RunRecord
+from slzcli.types import CommittedSite, Detection, RunResult
 
 # maps.npz: members stored, not deflated (deflating ~5.9 MB of float32 took ~0.35-0.46 s a frame against ~6 ms
 # stored: benchmarks/writes.py). The maps are float16 (relative error <= 2**-11: +-0.00025 on the [0, 1] maps,
@@ -56,7 +59,7 @@ def to_float16(values: np.ndarray) -> np.ndarray:
     return np.asarray(out).reshape(a.shape)
 
 
-def detection_arrays(det: Any) -> dict[str, np.ndarray]:
+def detection_arrays(det: Detection) -> dict[str, np.ndarray]:
     """The members of one detection's maps.npz (precision: ``MAPS_DTYPE`` above)."""
     maps = {k: to_float16(v) for k, v in det.maps.as_dict().items()}
     out = {"score": np.asarray(det.score.score, np.float32), "mask": det.score.mask, "valid": det.maps.valid,
@@ -66,7 +69,7 @@ def detection_arrays(det: Any) -> dict[str, np.ndarray]:
     return {**out, **maps}
 
 
-def write_detection(run_dir: Path, det: Any, config: Config, overlay: np.ndarray | None = None) -> None:
+def write_detection(run_dir: Path, det: Detection, config: Config, overlay: np.ndarray | None = None) -> None:
     """One detection frame's folder at ``output.level``: maps.npz and the overlay (Figure 6 style) at
     ``maps``, the maps, score and mask as heat maps too at ``all``, no folder at ``summary``.
 
@@ -91,53 +94,37 @@ def write_detection(run_dir: Path, det: Any, config: Config, overlay: np.ndarray
     images.write_png(folder / "mask.png", images.with_mask_legend(images.mask_png(det.score.mask)))
 
 
-def landing_record(source: Path, method: str, committed: CommittedSite | None, world_frame: str,
-                   timings: dict[str, float], reason: str, site_truth: dict[str, Any] | None,
-                   map_segment: int | None = None, spread: dict[str, Any] | None = None) -> dict[str, Any]:
-    """landing.json: the contract in DESIGN.md, plus the acceptance test, ground-truth check and map segment.
+def landing_json(landing: LandingRecord) -> dict[str, object]:
+    """landing.json: the contract in DESIGN.md (``records.LandingRecord``)."""
+    return to_json_object(landing)
 
-    ``site_truth``: the committed site against the ground truth (``evaluate.truth.site_truth_of``), or None.
-    ``spread``: ``site_spread_m`` and ``site_spread`` (``landing.commit.spread_record``), with a site.
-    """
-    rec: dict[str, Any] = {"status": "site" if committed else "no_safe_site", "method": method,
-                           "source": str(source)}
-    if committed is None:
-        rec["reason"] = reason
-    else:
-        s, frame = committed.site, committed.frame
-        rec["frame"] = {"index": frame.index, "stamp_ns": frame.stamp_ns}
-        rec["site"] = {
-            "pixel": list(s.pixel), "center_camera": list(s.center_camera), "center_world": list(s.center_world),
-            "corners_world": [list(c) for c in s.corners_world], "normal_world": list(s.normal_world),
-            "cluster": {"points": s.cluster_points, "normal_variance": s.normal_variance,
-                        "extent_m": list(s.extent_m)},
-            "score": s.score,
-            "acceptance": {"passed": s.accepted, "reason": s.acceptance_reason, "tilt_deg": s.tilt_deg,
-                           "edge_clearance_m": s.edge_clearance_m},
-            "support": {"detections_agreeing": committed.support, "detections_with_site": committed.detections,
-                        "detections_with_site_in_map_segment": committed.segment_detections},
-            "depth_limits": committed.found.limits,
-        }
-        if site_truth is not None:
-            rec["site"]["ground_truth"] = site_truth
-        rec.update(spread or {})
-    rec["world_frame"] = world_frame
-    rec["map_segment"] = map_segment
-    rec["timings_ms"] = timings
-    return rec
+
+def run_json(run: RunRecord) -> dict[str, object]:
+    """run.json: the run summary, config, rerun key, versions, recording, timings and funnel."""
+    return to_json_object(run)
+
+
+def read_run(landing: Mapping[str, object], run: Mapping[str, object],
+             committed: CommittedSite | None = None) -> RunResult:
+    """The RunResult of a run folder's landing.json and run.json (``committed``: not stored, None unless given)."""
+    record = from_json(RunRecord, run)
+    slam = record.summary.slam
+    primary = None if slam is None else slam.segment
+    return RunResult(from_json(LandingRecord, landing), record, committed, primary,
+                     primary if slam is not None and slam.maps > 1 else None)
 
 
 def write_run(run_dir: Path, result: RunResult, sites: SiteLog, trajectory: PoseLog, keyframes: KeyframeLog) -> None:
     """Everything but the per-frame folders: landing.json, sites.csv, trajectory*.tum, keyframes.npz, points.ply,
     report.html, run.json (in that order; the folder is put in place only after all of them). The report links
     and reads the frame folders: they must be written (not queued) by now."""
-    files.write_json(run_dir / "landing.json", result.landing)
+    files.write_json(run_dir / "landing.json", landing_json(result.landing))
     sites.write_csv(run_dir / "sites.csv")
     write_trajectories(run_dir, trajectory, result.primary_segment)
     keyframes.write_npz(run_dir / "keyframes.npz")
     write_points_ply(run_dir / "points.ply", *points_by_role(sites, keyframes, result.committed, result.points_segment))
-    write_detect_report(run_dir, result, sites, trajectory, str(result.summary.get("outputs")))
-    files.write_json(run_dir / "run.json", result.run)
+    write_detect_report(run_dir, result, sites, trajectory, result.summary.outputs)
+    files.write_json(run_dir / "run.json", run_json(result.run))
 
 
 def points_by_role(sites: SiteLog, keyframes: KeyframeLog, committed: CommittedSite | None,

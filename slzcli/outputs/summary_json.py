@@ -12,10 +12,14 @@ keep their precision.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-SCHEMA_VERSION = "1.1"
+from slzcli.outputs.records_json import from_json, to_json_object
+from slzcli.records import RunSummary
+
+SCHEMA_VERSION = "1.2"
 DECIMALS = 6       # digits after the point for |x| >= 1; project decision (1 um, 1 us)
 SIGNIFICANT = 10   # significant digits for |x| < 1; project decision (keeps 1e-7 variances)
 
@@ -51,6 +55,16 @@ def rounded(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [rounded(v) for v in obj]
     return obj
+
+
+def summary_json(summary: RunSummary) -> dict[str, object]:
+    """A run's summary as run.json's ``summary`` and ``slz detect --json`` (before ``envelope``) hold it."""
+    return to_json_object(summary)
+
+
+def read_summary(data: Mapping[str, object]) -> RunSummary:
+    """The summary of a finished run's run.json (a rerun with the same key gives it back, marked ``skipped``)."""
+    return from_json(RunSummary, data)
 
 
 def envelope(command: str, summary: dict[str, Any]) -> dict[str, Any]:

@@ -22,9 +22,8 @@ import tempfile
 import time
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 from slzcli import fingerprint
 from slzcli.config import Config
@@ -36,15 +35,17 @@ from slzcli.outputs import output_dir, results_mcap, run_folder
 from slzcli.outputs.background import BackgroundWriter
 from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.outputs.site_log import SiteLog
+from slzcli.outputs.summary_json import read_summary
 from slzcli.outputs.trajectory import KeyframeLog
 from slzcli.pipeline.commit import commit
 from slzcli.pipeline.source import FramesSource, Source, open_source
 from slzcli.pipeline.step import step, tally
 from slzcli.pipeline.tracking import Tracker, track
+from slzcli.records import JsonObject, RunSummary
 from slzcli.slam import get_backend
 from slzcli.sources import check_readable
 from slzcli.sources.window import no_frames_reason
-from slzcli.summary import RunState, summarise
+from slzcli.summary import RunFacts, RunState, summarise
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
 from slzcli.types import Detection, Frame, RunResult, TerrainMaps, TrackedFrame
@@ -138,11 +139,12 @@ def method_run(config: Config, method: str, tracker: Tracker, spool: Path | None
 
 
 def finish(source: Source, config: Config, mr: MethodRun, tracker: Tracker, truth: TruthEvaluator | None,
-           wall_s: float, key: dict[str, Any]) -> RunResult:
+           wall_s: float, key: JsonObject) -> RunResult:
     """The committed site (``landing.commit``) and landing.json / run.json of a finished run."""
     committed = commit(mr.state.sites.sites, config.landing, config.uav)
-    return summarise(source.path, config, mr.method.name, source.info(), source.report(), mr.state, tracker.slam_name,
-                     tracker.poses_are_recorded, committed, truth, wall_s, key)
+    facts = RunFacts(source.path, mr.method.name, tracker.slam_name, tracker.poses_are_recorded, source.info(),
+                     source.report(), wall_s, key)
+    return summarise(facts, config, mr.state, committed, truth)
 
 
 class TruthSink(Sink):
@@ -172,7 +174,7 @@ def detect_in_memory(source: Source, config: Config, method: str, limit: StageLi
             mr = method_run(config, method, tracker)
             assert mr.state.noise is not None
             run(source, tracker, [mr], mr.state.noise, limit, [] if truth is None else [TruthSink(truth)])
-        key: dict[str, Any] = {"sha256": None, "method": method, "inputs": {}}
+        key: JsonObject = {"sha256": None, "method": method, "inputs": {}}
         return finish(source, config, mr, tracker, truth, time.perf_counter() - t_start, key)
 
 
@@ -224,7 +226,7 @@ class RunFolderSink(Sink):
 
 
 def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOptions = RunOptions(),
-                     progress: Progress | None = None) -> dict[str, Any]:
+                     progress: Progress | None = None) -> RunSummary:
     """Run detection over one recording into ``out_dir``; returns the run summary (run.json's summary)."""
     method = options.method or config.scoring.method
     limit = StageLimit(options.timeout_s, str(path))
@@ -265,7 +267,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
 
 
 def rerun_key(path: Path, config: Config, method: str, out_dir: Path, force: bool,
-              limit: StageLimit) -> tuple[dict[str, Any], dict[str, Any] | None]:
+              limit: StageLimit) -> tuple[JsonObject, RunSummary | None]:
     """The run's key (``fingerprint``) and, when ``out_dir`` holds a finished run of that key and
     ``force`` is off, its summary marked ``skipped`` (else None). Refuses an unusable ``out_dir``
     (OutputError) and one holding a finished run of another key without ``force``."""
@@ -281,7 +283,7 @@ def rerun_key(path: Path, config: Config, method: str, out_dir: Path, force: boo
     if previous is not None and not force:
         if (previous.get("key") or {}).get("sha256") == key["sha256"] and "summary" in previous:
             log.info("%s: already done for these inputs and config (%s); use --force to redo", out_dir, config.hash())
-            return key, {**previous["summary"], "skipped": True}
+            return key, replace(read_summary(previous["summary"]), skipped=True)
         raise OutputError(out_dir, "holds a finished run of other inputs or config ("
                                    f"{fingerprint.what_changed(previous, config, method, inputs, vers)}); "
                                    "use --force to replace it (files slz did not write stay) or another -o")

@@ -68,6 +68,7 @@ def tally(state: RunState, det: Detection, method: Method, terrain: TerrainCfg, 
             state.unvouched_reason = limit_reason(work, terrain, uav)
     if method.reads_maps and work is not None and (state.highest is None or work.altitude_m > state.highest.altitude_m):
         state.highest = work
+    state.advice = det.advice  # the latest detection frame's (None: it had nothing to advise)
     for name, ms in det.timings_ms.items():
         state.timer.add(name, ms)
     state.funnel.add(frame_funnel(det))

@@ -67,8 +67,8 @@ def test_what_a_run_keeps_does_not_grow_with_frames(long_flight, tmp_path, backe
         summary = detect_recording(long_flight, config, tmp_path / "run", RunOptions(), progress)
     finally:
         tracemalloc.stop()
-    assert summary["frames"] == FRAMES and summary["detections"] == FRAMES // DETECT_EVERY
-    assert summary["status"] == "site"
+    assert summary.frames == FRAMES and summary.detections == FRAMES // DETECT_EVERY
+    assert summary.status == "site"
     frame_bytes = W * H * 3 + W * H * 4  # colour + float32 depth of one frame
     kept_per_frame = (traced[LATE] - traced[EARLY]) / (LATE - EARLY)
     # Measured: ~0.5 KB a frame with ORB-SLAM3 (stamp and pose 136 B, stage times, and with a

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import jsonschema  # type: ignore[import-untyped]  # no stubs in the lint extra (types-jsonschema)
 import pytest
@@ -18,6 +19,7 @@ from slzcli.landing.select import SelectParams, select_site
 from slzcli.methods import registry
 from slzcli.methods.maps import fuzzy
 from slzcli.methods.registry import names as method_names
+from slzcli.outputs.run_folder import landing_json
 from slzcli.outputs.summary_json import schema_path
 from slzcli.sources import open_recording
 from slzcli.types import Detection, ScoreMap, TerrainMaps, TrackedFrame
@@ -64,10 +66,10 @@ def test_the_api_and_slz_detect_write_the_same_landing_json(runner, recording, t
     name = None if profile == "default" else profile
     cli = _cli_landing(runner, recording, tmp_path / "run", EVERY_FRAME, name)
     config = load_config(None, EVERY_FRAME, profile=name)
-    assert _without_timings(slzcli.detect(recording, config, method="bayes").landing) == cli
+    assert _without_timings(landing_json(slzcli.detect(recording, config, method="bayes").landing)) == cli
     with open_recording(recording, config) as rec:
         frames = list(rec.frames())
-    in_memory = slzcli.detect(iter(frames), config, method="bayes").landing
+    in_memory: dict[str, Any] = landing_json(slzcli.detect(iter(frames), config, method="bayes").landing)
     if profile == "bench":  # a 0.2 m vehicle from 10 m: the depth noise hides its 0.027 m steps, and both say so
         assert in_memory["status"] == cli["status"] == "no_safe_site"
         assert in_memory["reason"] == cli["reason"] and "hides steps below" in cli["reason"]
@@ -128,7 +130,7 @@ def test_a_method_is_one_file_and_one_registry_line(runner, recording, tmp_path,
     assert out["method"] == "steepness" and out["detections"] > 0
     assert built[-1].seen == list(range(FRAMES))  # every tracked frame, due or not
     landing = json.loads((tmp_path / "run" / "landing.json").read_text())
-    api = slzcli.detect(recording, load_config(None, ODOMETRY), method="steepness").landing
+    api = landing_json(slzcli.detect(recording, load_config(None, ODOMETRY), method="steepness").landing)
     assert _without_timings(api) == _without_timings(landing) and landing["method"] == "steepness"
     res = runner.invoke(main, ["compare", str(recording), "-o", str(tmp_path / "cmp"), "--methods",
                                "fuzzy,steepness", "--set", *ODOMETRY])

@@ -24,6 +24,7 @@ from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.evaluate.slam import ate, ate_by_segment, rpe, umeyama
 from slzcli.geometry import invert_pose
+from slzcli.outputs.summary_json import summary_json
 from slzcli.pipeline import RunOptions, detect_recording
 from slzcli.pipeline import run as run_module
 from slzcli.pipeline.commit import commit_site
@@ -170,7 +171,7 @@ def test_segment_table_and_primary_segment() -> None:
 # ----------------------------------------------------------------------------- the pipeline
 def test_two_maps_stay_apart_in_every_output(two_maps, flight, tmp_path) -> None:
     out = tmp_path / "run"
-    summary = detect_recording(flight, load_config(), out, RunOptions())
+    summary: dict[str, Any] = summary_json(detect_recording(flight, load_config(), out, RunOptions()))
     slam = summary["slam"]
     assert slam["maps"] == 2 and slam["backend"] == "twomaps"
     assert [(s["segment"], s["first_frame"], s["last_frame"], s["frames_tracked"], s["keyframes"])
@@ -228,7 +229,7 @@ def test_a_new_map_never_uses_the_old_maps_points(monkeypatch, flight, tmp_path)
     monkeypatch.setattr(run_module, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth, (0,)))
     config = load_config(overrides=["landing.detect_on=every_nth", "landing.every_nth_frame=1"])
     summary = detect_recording(flight, config, tmp_path / "run", RunOptions())
-    assert summary["detections"] == FRAMES
+    assert summary.detections == FRAMES
     rows = (tmp_path / "run" / "sites.csv").read_text().splitlines()
     frames = {int(r.split(",")[0]) for r in rows[1:]}
     assert frames and max(frames) < LOST  # candidates only on map 0's frames, where its points are

@@ -17,6 +17,7 @@ from test_depth_units import realsense_bag
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.outputs.recording import RecordingWriter
+from slzcli.records import UntrackedRecord
 from slzcli.slam.orbslam3 import available as orbslam3_available
 from slzcli.summary import untracked_frames
 
@@ -35,15 +36,14 @@ def detect(runner: CliRunner, rec: Path, out: Path, *sets: str) -> tuple[Any, di
 
 
 def test_untracked_share_and_its_warning() -> None:
-    assert untracked_frames(np.ones(10, bool), {"ok": 10}, "odometry", 0.1) == \
-        {"frames_untracked": 0, "untracked_share": 0.0, "warning": ""}
+    assert untracked_frames(np.ones(10, bool), {"ok": 10}, "odometry", 0.1) == UntrackedRecord(0, 0.0, "")
     one = untracked_frames(np.r_[False, np.ones(9, bool)], {"ok": 9, "initialising": 1}, "odometry", 0.1)
-    assert one["frames_untracked"] == 1 and one["warning"] == ""          # 10 %: at the limit, not above
+    assert one.frames_untracked == 1 and one.warning == ""          # 10 %: at the limit, not above
     two = untracked_frames(np.r_[False, False, np.ones(8, bool)], {"ok": 8, "lost": 2}, "orbslam3", 0.1)
-    assert two["untracked_share"] == 0.2
-    assert "orbslam3 could not track 2 of 10 frames (20%: 2 lost)" in two["warning"]
-    assert "slam.max_untracked_share 10%" in two["warning"]
-    assert untracked_frames(np.zeros(0, bool), {}, "odometry", 0.1)["warning"] == ""
+    assert two.untracked_share == 0.2
+    assert "orbslam3 could not track 2 of 10 frames (20%: 2 lost)" in two.warning
+    assert "slam.max_untracked_share 10%" in two.warning
+    assert untracked_frames(np.zeros(0, bool), {}, "odometry", 0.1).warning == ""
 
 
 def test_odometry_on_the_real_hand_held_frames_says_it_lost_seven(realsense_dir: Path, tmp_path: Path,

@@ -42,7 +42,7 @@ def test_readme_example_runs_as_written(flight: Path, tmp_path: Path, monkeypatc
     assert printed[0].startswith("site [") and printed[1] == "site site", printed
     assert (tmp_path / "runs" / "flight" / "run.json").is_file()      # the out_dir call, as slz detect -o
     run = namespace["run"]
-    assert isinstance(run, slzcli.RunResult) and run.summary["frames"] == 6
+    assert isinstance(run, slzcli.RunResult) and run.summary.frames == 6
 
 
 def test_frames_in_memory_write_nothing(tmp_path: Path, monkeypatch) -> None:
@@ -61,9 +61,9 @@ def test_frames_in_memory_write_nothing(tmp_path: Path, monkeypatch) -> None:
     result = slzcli.detect(frames())
     assert list(tmp_path.iterdir()) == []
     s = result.summary
-    assert (s["source"], s["frames"], s["status"], s["slam_backend"]) == ("<frames>", 3, "site", "recorded")
-    assert abs(s["site_world"][2]) < 0.05            # on the flat ground at z = 0 (10 m below the camera)
-    assert result.landing["status"] == "site" and result.run["recording"]["format"] == "frames"
+    assert (s.source, s.frames, s.status, s.slam_backend) == ("<frames>", 3, "site", "recorded")
+    assert s.site_world is not None and abs(s.site_world[2]) < 0.05  # on the flat ground 10 m below the camera
+    assert result.landing.status == "site" and result.run.recording["format"] == "frames"
     with pytest.raises(DatasetError, match="no frame given"):
         slzcli.detect([])
     with pytest.raises(DatasetError, match="out_dir needs a recording path"):
@@ -80,11 +80,12 @@ def test_a_recording_in_memory_in_a_run_folder_and_through_the_cli_agree(flight:
                                "--set", "slam.backend=odometry"])
     assert res.exit_code == 0, res.output
     cli = json.loads(res.stdout)
-    assert memory.summary["site_world"] == folder.summary["site_world"]
-    assert cli["site_world"] == pytest.approx(memory.summary["site_world"], abs=1e-6)   # --json rounds to 1e-6
-    assert memory.summary["frames"] == folder.summary["frames"] == cli["frames"] == 4
-    assert memory.landing["site"]["corners_world"] == folder.landing["site"]["corners_world"]
-    assert "ground_truth" in memory.summary       # the synth sidecars are read in memory too
+    assert memory.summary.site_world == folder.summary.site_world
+    assert cli["site_world"] == pytest.approx(memory.summary.site_world, abs=1e-6)   # --json rounds to 1e-6
+    assert memory.summary.frames == folder.summary.frames == cli["frames"] == 4
+    assert memory.landing.site is not None and folder.landing.site is not None
+    assert memory.landing.site.corners_world == folder.landing.site.corners_world
+    assert memory.summary.ground_truth is not None      # the synth sidecars are read in memory too
     assert not list(flight.parent.glob("runs"))   # nothing written beside the recording
 
 

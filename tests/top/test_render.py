@@ -10,6 +10,7 @@ from click.testing import CliRunner
 from slzcli.cli import main
 from slzcli.landing.height import site_height
 from slzcli.outputs.report import TABLE_HEAD, without_empty_truth
+from slzcli.records import SiteHeight
 from slzcli.render import height_text, simulate_text
 
 
@@ -18,7 +19,8 @@ def test_site_height_above_ground_and_start_with_frames() -> None:
     h = site_height([1.0, 2.0, -7.98], map_z, "map", 0)
     assert h["above_start_m"] == -7.98 and h["above_ground_m"] == 0.02 and h["ground_z_m"] == -8.0
     assert h["frame_id"] == "map" and h["start_frame"] == 0 and "5 SLAM map points" in h["ground"]
-    assert height_text(h) == "0.02 m above the ground, 7.98 m below the start (frame 0's camera, map frame map)"
+    assert height_text(SiteHeight(**h)) == ("0.02 m above the ground, 7.98 m below the start (frame 0's camera, "
+                                            "map frame map)")
     recorded = site_height([0.0, 0.0, 1.5], map_z, "map_2", 7, start_z=10.0)  # recorded poses: own origin
     assert recorded["above_start_m"] == -8.5 and recorded["start_frame"] == 7
     assert site_height([0.0, 0.0, -3.0], np.zeros(0), "map", 0)["above_ground_m"] is None
@@ -66,3 +68,20 @@ def test_every_command_help_has_an_example_and_whole_short_sentences() -> None:
             text = CliRunner().invoke(main, [*args, "-h"]).output
             assert "Example" in text and f"slz {' '.join(args)} " in text, args
     assert "[0<x<=" not in CliRunner().invoke(main, ["detect", "-h"]).output
+
+
+def test_the_fused_advice_is_its_own_record_rounded_as_it_says() -> None:
+    """The fused map's advice becomes landing.json's and the summary's ``advice`` (records.DecideAdvice), with the
+    figures rounded as its text gives them, and reads back from the JSON unchanged."""
+    from slzcli.fusion.advice import Advice
+    from slzcli.methods.fused import advice_record
+    from slzcli.outputs.records_json import from_json, to_json_object
+    from slzcli.records import DecideAdvice
+
+    a = Advice(x_m=1.23456, y_m=-2.0, factor=3.0, frames=12, sideways_m=1.2345, descend_to_m=None, hover=False)
+    rec = advice_record(a)
+    assert rec == DecideAdvice("fused", a.text(), 12, 1.23, None, False, 1.235, -2.0)
+    assert "12 more frames or 1.2 m of sideways flight" in rec.text
+    assert from_json(DecideAdvice, to_json_object(rec)) == rec
+    hover = advice_record(Advice(0.0, 0.0, 5.0, None, 2.0, 4.5, True))
+    assert hover.hover and hover.frames is None and hover.descend_to_m == 4.5 and "move" in hover.text
