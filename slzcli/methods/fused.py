@@ -21,14 +21,14 @@ import numpy as np
 
 from slzcli.config import Config
 from slzcli.fusion.grid import region, seen_bounds
-from slzcli.fusion.output import write_landing_map
+from slzcli.fusion.output import landing_grid, write_landing_map
 from slzcli.fusion.session import FusedTerrain, render_in_frame, verdict_in_frame
 from slzcli.fusion.verdict import fused_maps
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
 from slzcli.scoring import SCORERS
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
-from slzcli.types import Detection, ScoreMap, TerrainMaps, TrackedFrame
+from slzcli.types import Detection, LandingGrid, ScoreMap, TerrainMaps, TrackedFrame
 
 NAME = "fused"
 
@@ -47,6 +47,7 @@ class FusedMethod:
     selects: str = ("the cluster of the least normal variance among the map points on cells the fused map calls "
                     "safe (METHOD 2.3.6)")
     fuse_ms: list[float] = field(default_factory=list)
+    last_fused: tuple[int, int] = (-1, 0)   # (index, stamp_ns) of the last frame fused: the landing map's time
 
     def observe(self, tracked: TrackedFrame) -> None:
         frame = tracked.frame
@@ -55,6 +56,8 @@ class FusedMethod:
         self.terrain.add(frame.depth_m, frame.intrinsics, tracked.T_world_camera, noise, tracked.segment,
                          frame.index)
         self.fuse_ms.append((time.perf_counter() - t0) * 1e3)
+        if tracked.T_world_camera is not None:
+            self.last_fused = (frame.index, frame.stamp_ns)
 
     def detect(self, tracked: TrackedFrame, maps: TerrainMaps, maps_ms: float) -> Detection:
         frame, T, points = tracked.frame, tracked.T_world_camera, tracked.points
@@ -83,19 +86,22 @@ class FusedMethod:
                 selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)
-        return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment)
+        grid = None if fm is None else landing_grid(fm, tracked.segment, *self.last_fused, crop=True)
+        return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment, grid)
 
 
-    def write_outputs(self, folder: Path) -> None:
-        """The flight-wide landing map of the run's last map segment (``fusion/output.py``), when it has one."""
+    def write_outputs(self, folder: Path) -> LandingGrid | None:
+        """The flight-wide landing map of the run's last map segment (``fusion/output.py``), when it has one;
+        returned for results.mcap."""
         grid = self.terrain.grid
         if grid is None:
-            return
+            return None
         bounds = seen_bounds(grid)
         if bounds is None:
-            return
+            return None
         fm = fused_maps(region(grid, *bounds), self.config, self.terrain.params, self.terrain.scorer)
-        write_landing_map(folder, fm, self.terrain.segment or 0, self.terrain.frames - 1)
+        return write_landing_map(folder, fm, self.terrain.segment or 0, *self.last_fused,
+                                 self.config.output.map_frame)
 
 
 def fused(config: Config) -> FusedMethod:
