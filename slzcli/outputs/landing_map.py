@@ -101,5 +101,5 @@ def _outline(canvas: np.ndarray, corners_px: np.ndarray) -> None:
     c = corners_px.mean(axis=0)
     order = np.argsort(np.arctan2(corners_px[:, 1] - c[1], corners_px[:, 0] - c[0]))
     pts = np.round(corners_px[order]).astype(np.int32).reshape(-1, 1, 2)
-    cv2.polylines(canvas, [pts], True, palette.bgr(palette.HALO), 4, cv2.LINE_AA)
-    cv2.polylines(canvas, [pts], True, palette.bgr(palette.SITE), 2, cv2.LINE_AA)
+    cv2.polylines(canvas, [pts], True, palette.bgr(palette.HALO), 4, cv2.LINE_8)
+    cv2.polylines(canvas, [pts], True, palette.bgr(palette.SITE), 2, cv2.LINE_8)
