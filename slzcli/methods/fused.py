@@ -86,7 +86,8 @@ class FusedMethod:
                 selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)
-        grid = None if fm is None else landing_grid(fm, tracked.segment, *self.last_fused, crop=True)
+        grid = None if fm is None or not fm.region.seen.any() else \
+            landing_grid(fm, tracked.segment, *self.last_fused, crop=True)   # the cells judged, for results.mcap
         return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment, grid)
 
 
