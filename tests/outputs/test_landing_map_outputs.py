@@ -206,6 +206,7 @@ def funnel_times(path: Path) -> list[int]:
         return [m.log_time for _s, _c, m in make_reader(fh).iter_messages(topics=["/slz/funnel"])]
 
 
+@pytest.mark.slow   # whole slz synth / detect runs (conftest.SLOW_FILES)
 def test_results_mcap_carries_the_landing_map_per_detection_and_the_flights_at_the_end(fused: Path) -> None:
     _schema, msgs = read_grids(fused / "results.mcap")
     run = json.loads((fused / "run.json").read_text())
@@ -237,6 +238,7 @@ def test_results_mcap_carries_the_landing_map_per_detection_and_the_flights_at_t
         assert np.allclose(offset, np.round(offset), atol=1e-6)
 
 
+@pytest.mark.slow   # whole slz synth / detect runs (conftest.SLOW_FILES)
 def test_the_report_shows_the_landing_map_with_the_site(fused: Path) -> None:
     page = (fused / "report.html").read_text()
     assert "id=landing_map>" in page and "/slz/landing_map" in page
@@ -264,6 +266,7 @@ def test_the_report_shows_the_landing_map_with_the_site(fused: Path) -> None:
     assert abs(rows.mean() - row) < 3 * k and abs(cols.mean() - col) < 3 * k   # the outline is around the site
 
 
+@pytest.mark.slow   # whole slz synth / detect runs (conftest.SLOW_FILES)
 def test_the_advice_is_shown_when_the_method_gives_one(fused: Path) -> None:
     text = "to decide the ground at (1.2, 3.4) m: 12 more frames or 2.1 m of sideways flight"
     assert detect_report._advice_text({"text": text}) == text == detect_report._advice_text(text)
@@ -274,6 +277,7 @@ def test_the_advice_is_shown_when_the_method_gives_one(fused: Path) -> None:
     assert "What would decide" not in detect_report._landing_map(fused, None, None)
 
 
+@pytest.mark.slow   # whole slz synth / detect runs (conftest.SLOW_FILES)
 def test_per_frame_methods_keep_their_report_and_results(recording: Path, tmp_path: Path) -> None:
     out = tmp_path / "fuzzy"
     detect(recording, out, "--method", "fuzzy")
