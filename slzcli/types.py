@@ -463,6 +463,31 @@ class CommittedSite:
 
 # ----------------------------------------------------------------------------- detection
 @dataclass(frozen=True, eq=False)
+class LandingGrid:
+    """A landing map of world-fixed cells in one map segment's frame, as of one frame (the fused method's).
+
+    Row j is world y, column i world x: cell (j, i) covers x in ``origin_xy[0] + [i, i + 1) resolution_m``
+    (``origin_xy``: the south-west corner of cell (0, 0), metres). Float arrays are NaN where unseen.
+    """
+
+    origin_xy: tuple[float, float]
+    resolution_m: float
+    segment: int                  # SLAM map segment (its frame: map, map_K)
+    frame_index: int              # the last frame fused into it
+    stamp_ns: int                 # that frame's stamp
+    verdict: np.ndarray           # uint8 codes; ``verdict_names[code]`` names them
+    verdict_names: tuple[str, ...]
+    score: np.ndarray             # float32 fused score in [0, 1]
+    height_m: np.ndarray          # float32 fused height (map frame z)
+    variance_m2: np.ndarray       # float32 its variance
+    looks: np.ndarray             # float32 independent looks
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.verdict.shape[0], self.verdict.shape[1]
+
+
+@dataclass(frozen=True, eq=False)
 class Detection:
     """Everything computed for one detection frame (nothing written yet): what the sinks consume."""
 
@@ -476,6 +501,7 @@ class Detection:
     timings_ms: dict[str, float]
     segment: int = 0  # SLAM map segment of the pose and points
     advice: DecideAdvice | None = None  # a method that can tell: what would decide the ground it could not
+    landing_grid: LandingGrid | None = None  # a method's landing map as of this frame (fused: the cells in view)
 
 
 @dataclass(frozen=True, eq=False)

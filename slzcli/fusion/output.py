@@ -1,8 +1,9 @@
 """The flight-wide landing map: ``landing_map.npz`` (the fused cells and their verdict) and a PNG of it.
 
 Arrays are row j = world y (row 0 the southern edge: ``origin_xy`` is the south-west corner of cell (0, 0)),
-column i = world x, in the map frame of the run's last map segment. The PNG shows north up, the verdict
-coloured, a legend and a scale bar.
+column i = world x, in the map frame of the run's last map segment (``frame_id``: ``map``, ``map_K``, as in
+results.mcap). The PNG (``outputs/landing_map.py``) shows +y up, the verdict coloured, a legend with each
+verdict's area and a scale bar. ``landing_grid`` is the same map as the typed record results.mcap encodes.
 """
 
 from __future__ import annotations
@@ -12,18 +13,38 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slzcli.fusion.verdict import SAFE, UNDECIDED, UNSAFE, UNSEEN, VERDICT_NAMES, FusedMaps
-from slzcli.outputs import files, palette
+from slzcli.fusion.verdict import VERDICT_NAMES, FusedMaps
+from slzcli.outputs import files
+from slzcli.outputs.landing_map import landing_map_bgr
+from slzcli.outputs.results_mcap import map_frame_of
+from slzcli.types import LandingGrid
 
-# The verdict colours of every slz picture (outputs/palette.py); unseen cells darker than undecided ones.
-COLOURS_BGR = {UNSEEN: (60, 60, 60), UNSAFE: palette.bgr(palette.UNSAFE), UNDECIDED: palette.bgr(palette.UNDECIDED),
-               SAFE: palette.bgr(palette.SAFE)}
-_PX_PER_CELL = 3           # PNG pixels per cell
-_SCALE_BAR_M = (1.0, 2.0, 5.0, 10.0, 20.0)
+NAMES = tuple(VERDICT_NAMES[k] for k in sorted(VERDICT_NAMES))   # name of each verdict code
 
 
-def landing_map_arrays(fm: FusedMaps, segment: int, frame_index: int) -> dict[str, np.ndarray]:
-    """What ``landing_map.npz`` holds (float32 maps, NaN where unseen)."""
+def landing_grid(fm: FusedMaps, segment: int, frame_index: int, stamp_ns: int, crop: bool = False) -> LandingGrid:
+    """The verdict, score, height, its variance and looks of a region (``crop``: only the bounding box of its
+    seen cells, what a detection's message carries)."""
+    reg = fm.region
+    seen = reg.seen
+    sl: tuple[slice, slice] = (slice(None), slice(None))
+    if crop and seen.any():
+        rows, cols = np.flatnonzero(seen.any(axis=1)), np.flatnonzero(seen.any(axis=0))
+        sl = (slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1))
+    s = seen[sl]
+
+    def f(a: np.ndarray) -> np.ndarray:
+        return np.where(s, a[sl], np.nan).astype(np.float32)
+
+    x0, y0 = reg.x0 + sl[1].indices(seen.shape[1])[0], reg.y0 + sl[0].indices(seen.shape[0])[0]
+    return LandingGrid(origin_xy=(x0 * reg.cell_m, y0 * reg.cell_m),     # as ``Region.origin_m``
+                       resolution_m=reg.cell_m, segment=segment, frame_index=frame_index, stamp_ns=stamp_ns,
+                       verdict=fm.verdict[sl].astype(np.uint8), verdict_names=NAMES, score=f(fm.score),
+                       height_m=f(reg.h), variance_m2=f(reg.var), looks=f(reg.looks))
+
+
+def landing_map_arrays(fm: FusedMaps, grid: LandingGrid, frame_id: str) -> dict[str, np.ndarray]:
+    """What ``landing_map.npz`` holds (float32 maps, NaN where unseen); ``grid``: ``landing_grid(fm, ...)``."""
     reg = fm.region
     seen = reg.seen
 
@@ -31,46 +52,26 @@ def landing_map_arrays(fm: FusedMaps, segment: int, frame_index: int) -> dict[st
         return np.where(seen, a, np.nan).astype(np.float32)
 
     return {
-        "height_m": f(reg.h), "variance_m2": f(reg.var), "looks": f(reg.looks), "frames": reg.frames.astype(np.int32),
+        "height_m": grid.height_m, "variance_m2": grid.variance_m2, "looks": grid.looks,
+        "frames": reg.frames.astype(np.int32),
         "depth_variance": f(fm.depth_variance), "flatness": f(fm.flatness), "inclination": f(fm.inclination),
-        "steepness": f(fm.steepness), "score": f(fm.score), "step_min_m": f(fm.step_min_m),
+        "steepness": f(fm.steepness), "score": grid.score, "step_min_m": f(fm.step_min_m),
         "slope_min_deg": f(fm.slope_min_deg), "column_seen": reg.column.astype(bool),
-        "verdict": fm.verdict.astype(np.uint8),
-        "verdict_names": np.array([VERDICT_NAMES[k] for k in sorted(VERDICT_NAMES)]),
-        "origin_xy": np.array(reg.origin_m, np.float64), "resolution_m": np.float64(reg.cell_m),
-        "segment": np.int64(segment), "frame_index": np.int64(frame_index),
+        "verdict": grid.verdict, "verdict_names": np.array(grid.verdict_names),
+        "origin_xy": np.array(grid.origin_xy, np.float64), "resolution_m": np.float64(grid.resolution_m),
+        "frame_id": np.array(frame_id), "segment": np.int64(grid.segment), "frame_index": np.int64(grid.frame_index),
+        "stamp_ns": np.int64(grid.stamp_ns),
     }
 
 
-def landing_map_png(fm: FusedMaps) -> np.ndarray:
-    """BGR image of the verdict, north up, with a legend and a scale bar."""
-    v = np.flipud(fm.verdict)
-    img = np.zeros((*v.shape, 3), np.uint8)
-    for code, bgr in COLOURS_BGR.items():
-        img[v == code] = bgr
-    img = cv2.resize(img, (v.shape[1] * _PX_PER_CELL, v.shape[0] * _PX_PER_CELL), interpolation=cv2.INTER_NEAREST)
-    legend_h = 60
-    canvas = np.full((img.shape[0] + legend_h, max(img.shape[1], 420), 3), 255, np.uint8)
-    canvas[: img.shape[0], : img.shape[1]] = img
-    y = img.shape[0] + 20
-    x = 8
-    for code in (SAFE, UNDECIDED, UNSAFE, UNSEEN):
-        cv2.rectangle(canvas, (x, y - 10), (x + 12, y + 2), COLOURS_BGR[code], -1)
-        cv2.putText(canvas, VERDICT_NAMES[code], (x + 16, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
-                    cv2.LINE_AA)
-        x += 100
-    px_per_m = _PX_PER_CELL / fm.region.cell_m
-    bar_m = max((m for m in _SCALE_BAR_M if m * px_per_m <= 0.4 * canvas.shape[1]), default=_SCALE_BAR_M[0])
-    y2 = y + 25
-    cv2.line(canvas, (8, y2), (8 + int(bar_m * px_per_m), y2), (0, 0, 0), 2)
-    cv2.putText(canvas, f"{bar_m:g} m   (north up; cell {fm.region.cell_m * 100:.1f} cm)",
-                (14 + int(bar_m * px_per_m), y2 + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    return canvas
-
-
-def write_landing_map(folder: Path, fm: FusedMaps, segment: int, frame_index: int) -> None:
-    """``landing_map.npz`` and ``landing_map.png`` in ``folder``."""
-    files.write_npz_streamed(folder / "landing_map.npz", dict(landing_map_arrays(fm, segment, frame_index)))
-    ok, data = cv2.imencode(".png", landing_map_png(fm))
+def write_landing_map(folder: Path, fm: FusedMaps, segment: int, frame_index: int, stamp_ns: int,
+                      map_frame: str) -> LandingGrid:
+    """``landing_map.npz`` and ``landing_map.png`` in ``folder``; the grid they hold (for results.mcap).
+    ``map_frame``: ``output.map_frame`` (the frame id is its segment's, as results.mcap names it)."""
+    grid = landing_grid(fm, segment, frame_index, stamp_ns)
+    files.write_npz_streamed(folder / "landing_map.npz",
+                             landing_map_arrays(fm, grid, map_frame_of(segment, map_frame)))
+    ok, data = cv2.imencode(".png", landing_map_bgr(grid))
     if ok:
         files.write_bytes(folder / "landing_map.png", data.tobytes())
+    return grid

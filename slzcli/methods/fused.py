@@ -22,7 +22,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.fusion.advice import Advice
 from slzcli.fusion.grid import region, seen_bounds
-from slzcli.fusion.output import write_landing_map
+from slzcli.fusion.output import landing_grid, write_landing_map
 from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
 from slzcli.fusion.verdict import SAFE, fused_maps
 from slzcli.landing.select import Selection, SelectParams, select_site
@@ -30,7 +30,7 @@ from slzcli.methods.maps import select_params
 from slzcli.records import DecideAdvice
 from slzcli.scoring import SCORERS
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
-from slzcli.types import Detection, ScoreMap, TerrainMaps, TrackedFrame
+from slzcli.types import Detection, LandingGrid, ScoreMap, TerrainMaps, TrackedFrame
 
 NAME = "fused"
 
@@ -48,6 +48,7 @@ class FusedMethod:
     reads_maps: bool = False
     selects: str = ("the cluster of the least normal variance among the map points on cells the fused map calls "
                     "safe (METHOD 2.3.6)")
+    last_fused: tuple[int, int] = (-1, 0)   # (index, stamp_ns) of the last frame fused: the landing map's time
 
     def observe(self, tracked: TrackedFrame) -> dict[str, float]:
         """Fuse the frame; its ``fuse`` stage is the CPU time of this thread (``time.thread_time``: one core's
@@ -57,6 +58,8 @@ class FusedMethod:
         noise = self.noise if self.noise is not None else self.tracker.update(frame.depth_m)
         self.terrain.add(frame.depth_m, frame.intrinsics, tracked.T_world_camera, noise, tracked.segment,
                          frame.index)
+        if tracked.T_world_camera is not None:
+            self.last_fused = (frame.index, frame.stamp_ns)
         return {"fuse": (time.thread_time() - t0) * 1e3}
 
     def detect(self, tracked: TrackedFrame, maps: TerrainMaps, maps_ms: float) -> Detection:
@@ -88,20 +91,24 @@ class FusedMethod:
                 selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)
+        grid = None if fm is None or not fm.region.seen.any() else \
+            landing_grid(fm, tracked.segment, *self.last_fused, crop=True)   # the cells judged, for results.mcap
         return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment,
-                         None if advice is None else advice_record(advice))
+                         None if advice is None else advice_record(advice), grid)
 
 
-    def write_outputs(self, folder: Path) -> None:
-        """The flight-wide landing map of the run's last map segment (``fusion/output.py``), when it has one."""
+    def write_outputs(self, folder: Path) -> LandingGrid | None:
+        """The flight-wide landing map of the run's last map segment (``fusion/output.py``), when it has one;
+        returned for results.mcap."""
         grid = self.terrain.grid
         if grid is None:
-            return
+            return None
         bounds = seen_bounds(grid)
         if bounds is None:
-            return
+            return None
         fm = fused_maps(region(grid, *bounds), self.config, self.terrain.params, self.terrain.scorer)
-        write_landing_map(folder, fm, self.terrain.segment or 0, self.terrain.frames - 1)
+        return write_landing_map(folder, fm, self.terrain.segment or 0, *self.last_fused,
+                                 self.config.output.map_frame)
 
 
 def fused(config: Config) -> FusedMethod:

@@ -1,6 +1,8 @@
 """report.html of a ``slz detect`` run folder: one static page to read a run without a viewer.
 
-Sections: the result (site or why not), the funnel (what each filter left: ``outputs/funnel_html.py``),
+Sections: the result (site or why not), the landing map (when the method wrote one: ``landing_map.npz``,
+drawn by ``outputs/landing_map.py`` with the committed site and what would decide the undecided ground),
+the funnel (what each filter left: ``outputs/funnel_html.py``),
 the paper's Figure 5 panel for one frame (the four terrain maps, the score and the mask, the slope and
 the overlay, with colour bars and units), the trajectory from above with the sites (SVG), the table of
 every site found, each detection's overlay, the stage times. Built at the end of the run from what the
@@ -25,9 +27,10 @@ import numpy as np
 from slzcli.outputs import images, palette
 from slzcli.outputs.files import write_text
 from slzcli.outputs.funnel_html import funnel_section
+from slzcli.outputs.landing_map import landing_map_bgr, read_landing_map
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
-from slzcli.records import LandingRecord, RunSummary
+from slzcli.records import DecideAdvice, LandingRecord, RunSummary
 from slzcli.render import height_text
 from slzcli.types import CommittedSite, RunResult
 
@@ -73,6 +76,7 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
         name=Path(s.source).name, css=Markup(CSS),
         # the picture sections are drawn here (image panel, SVG); the rest is the template's
         result=Markup(_result(s, landing)), funnel=Markup(funnel_section(dict(result.run.funnel))),
+        landing_map=Markup(_landing_map(run_dir, committed, _advice_text(landing.advice))),
         figure5=Markup(_figure5(run_dir, panel_frame, committed is not None and
                                 committed.frame.index == panel_frame, level, reverse)),
         trajectory=Markup(_trajectory(trajectory, sites, committed, result.primary_segment)),
@@ -118,6 +122,43 @@ def _result(s: RunSummary, landing: LandingRecord) -> str:
             f"{html.escape(landing.world_frame)} (metres, z up). Files: <a href=landing.json>landing.json</a>, "
             "<a href=run.json>run.json</a>, <a href=sites.csv>sites.csv</a>, <a href=points.ply>points.ply</a>, "
             "<a href=trajectory.tum>trajectory.tum</a>.</p>")
+
+
+def _landing_map(run_dir: Path, committed: CommittedSite | None, advice: str | None) -> str:
+    """The flight's landing map (``landing_map.npz``, written by a method that keeps one: fused), or nothing."""
+    path = run_dir / "landing_map.npz"
+    if not path.is_file():
+        return ""
+    grid = read_landing_map(path)
+    with np.load(path) as z:
+        frame_id = str(z["frame_id"]) if "frame_id" in z.files else "map"
+    site = None
+    where = "No site was committed."
+    if committed is not None and committed.segment == grid.segment:
+        site = np.asarray(committed.site.corners_world, np.float64)[:, :2]
+        where = "The committed site's square is outlined (white on black)."
+    elif committed is not None:
+        where = (f"The committed site is in map segment {committed.segment}, not in this map's ({grid.segment}): "
+                 "not drawn.")
+    ok, buf = cv2.imencode(".png", landing_map_bgr(grid, site))
+    if not ok:
+        return "<h2 id=landing_map>Landing map</h2><p class=note>Not drawn: PNG encoding failed.</p>"
+    decide = "" if not advice else f"<p><b>What would decide the undecided ground</b>: {html.escape(advice)}.</p>"
+    ox, oy = grid.origin_xy
+    return ("<h2 id=landing_map>Landing map (terrain fused over the flight)</h2>"
+            "<p class=note>Every cell of the ground the flight saw, fused over all its frames up to frame "
+            f"{grid.frame_index}, in frame {html.escape(frame_id)} (+x right, +y up; cells of "
+            f"{grid.resolution_m * 100:.1f} cm from ({ox:.2f}, {oy:.2f}) m): safe (bluish green) where the fused "
+            "terrain vouches for the whole landing square, unsafe (vermillion) where a defect is known, undecided "
+            "(grey) where the noise still hides what the UAV cannot take, unseen (dark grey) where no frame "
+            f"measured. {where} Values: <a href=landing_map.npz>landing_map.npz</a>, picture "
+            "<a href=landing_map.png>landing_map.png</a>; in results.mcap: /slz/landing_map.</p>" + decide +
+            f'<img alt="landing map" src="data:image/png;base64,{_b64(buf)}">')
+
+
+def _advice_text(advice: DecideAdvice | None) -> str | None:
+    """The landing record's advice text, if any."""
+    return advice.text if advice is not None and advice.text else None
 
 
 def _figure5(run_dir: Path, index: int | None, is_site: bool, level: str, reverse: bool) -> str:

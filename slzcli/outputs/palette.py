@@ -19,6 +19,7 @@ CV2_COLORMAP = cv2.COLORMAP_VIRIDIS  # the same map in OpenCV
 SAFE: RGB = (0, 158, 115)        # Okabe-Ito bluish green
 UNSAFE: RGB = (213, 94, 0)       # Okabe-Ito vermillion
 UNDECIDED: RGB = (153, 153, 153)  # grey: no depth, or beyond what the frame can vouch for
+UNSEEN: RGB = (60, 60, 60)       # dark grey: a cell of the landing map no frame measured
 SITE: RGB = (255, 255, 255)      # the Eq. 10 square's line (on a black halo)
 HALO: RGB = (0, 0, 0)
 POINT: RGB = (255, 255, 255)     # every SLAM map point in view

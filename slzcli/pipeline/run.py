@@ -256,10 +256,9 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
         with limit.stage("writing the run folder"):
             writer.close()  # every frame written before the run's own files and results.mcap's end
             outputs = getattr(mr.method, "write_outputs", None)  # a method's own run-wide files (fused: its map)
-            if outputs is not None:
-                outputs(tmp)
+            landing_grid = outputs(tmp) if outputs is not None else None   # and the landing map they hold
             result = finish(source, config, mr, tracker, truth, time.perf_counter() - t_start, key)
-            results.write_run(result.committed)
+            results.write_run(result.committed, landing_grid)
             run_folder.write_run(tmp, result, state.sites, state.trajectory, state.keyframes)
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
             shutil.rmtree(tmp / SPOOL_DIR)
