@@ -146,6 +146,22 @@ def _steps(hc: np.ndarray, ok: np.ndarray, rows: int, half: int) -> tuple[np.nda
     return out[0], out[1]
 
 
+_HALF_NORMAL_MEDIAN = 0.6745     # median of |z| for a standard normal z
+
+
+def step_noise_scale(s_abs: np.ndarray, step_min: np.ndarray, k: float) -> float:
+    """How much the fitted steps scatter beyond their stated noise (step_min / k) over a region (>= 1): the
+    median of |s| / (step_min / k) over its fitted cells, over the half-normal median. Mostly level ground,
+    so the median reads the noise; real steps can only raise it. The stated noise is the per-frame limit
+    scaled by the fused std, which knows each cell's variance but not how the errors of neighbouring cells
+    go together: flown over, a cell averages the pattern fixed to the image along the track, so its errors
+    form stripes along it that a step across the track reads."""
+    fin = np.isfinite(s_abs) & np.isfinite(step_min) & (step_min > 0)
+    if not fin.any():
+        return 1.0
+    return max(1.0, float(np.median(s_abs[fin] / (step_min[fin] / k))) / _HALF_NORMAL_MEDIAN)
+
+
 def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object) -> FusedMaps:
     """The maps, score, mask and verdict of a region of the fused grid."""
     cell = reg.cell_m
@@ -242,15 +258,17 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # in between the noise still hides what the UAV cannot take
     half = max(2, n_fp // 2)
     s_x, s_y = _steps(hc, ok, n_fp, half)
-    s_abs = np.fmax(s_x, s_y)
+    # each direction's limit as its fitted steps scatter on this map (the errors' stripes are directional)
+    lim_x = step_noise_scale(s_x, step_min, k) * step_min
+    lim_y = step_noise_scale(s_y, step_min, k) * step_min
     tan_lim = math.tan(math.radians(uav.max_slope_deg))
     # (a known defect at k + 1 sigma: a square holds ~240 step estimates, and at k alone noise would mark
     # some level squares unsafe)
     kb = (k + 1.0) / k
     with np.errstate(invalid="ignore"):
-        fine_x = s_x + step_min <= uav.max_step_m
-        fine_y = s_y + step_min <= uav.max_step_m
-        step_bad = s_abs - kb * step_min > uav.max_step_m
+        fine_x = s_x + lim_x <= uav.max_step_m
+        fine_y = s_y + lim_y <= uav.max_step_m
+        step_bad = (s_x - kb * lim_x > uav.max_step_m) | (s_y - kb * lim_y > uav.max_step_m)
         # the limits hold for a full window: a plane over a window cut by the edge of the seen ground is neither
         full = _box(ok.astype(np.float64), n_fp) >= n_fp * n_fp - 0.5
         slope_fine = okf & full & (tan_psi + tan_min <= tan_lim)
