@@ -130,7 +130,7 @@ def test_a_step_well_under_the_limit_becomes_safe(a_per_m: float, height_m: floa
     m at a = 0.0005, as the map's fitted steps scatter; at a = 0.001 nothing is safe in 30 frames). The share
     of the cells within the half square of the block's edge that are safe on the last frame, seeds 0-4,
     margin 1: 0.20-0.43 (0.06 m; 0.40-0.97 before the limit followed the scatter, 0.51-0.97 before SAFE read
-    the windows beyond the square), 0.58 and up (0.03 m; 0.97 before). Allowed: ``least``."""
+    the windows beyond the square), 0.58-0.97 (0.03 m; 0.97 before). Allowed: ``least``."""
     for seed in SEEDS:
         block = _block_at(0.0, height_m, 0.082)
         *_, (_, ft, fm) = fly(["terrain.fusion.decided_margin=1"], a_per_m=a_per_m, white=0.2, corr_px=2.0,
