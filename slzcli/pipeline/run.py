@@ -105,8 +105,9 @@ def run(source: Source, tracker: Tracker, runs: Sequence[MethodRun], noise: Nois
         for t in frames:
             for s in sinks:
                 s.tracked(t)
-            for m in methods:
-                m.observe(t)
+            for r in runs:
+                for name, ms in (r.method.observe(t) or {}).items():  # a stateful method's per-frame stages
+                    r.state.timer.add(name, ms)
             if t.due:
                 with limit.stage(f"detection on frame {t.frame.index}"):
                     try:
