@@ -40,14 +40,16 @@ def pose(x: float, y: float, z: float, yaw_deg: float = 0.0) -> np.ndarray:
     return T
 
 
-def exact_depth(T: np.ndarray, block: Block | None, intr: Intrinsics = INTR) -> np.ndarray:
-    """Depth of the plane z = 0 and the block's top; NaN where a ray meets the block's side."""
+def exact_depth(T: np.ndarray, block: Block | None, intr: Intrinsics = INTR, slope_deg: float = 0.0) -> np.ndarray:
+    """Depth of the ground z = x tan(slope_deg) (level by default) and the block's top; NaN where a ray meets
+    the block's side."""
     u = (np.arange(intr.width) - intr.cx) / intr.fx
     v = (np.arange(intr.height) - intr.cy) / intr.fy
     rx, ry = np.meshgrid(u, v)
     R, t = T[:3, :3], T[:3, 3]
     d = np.stack([rx, ry, np.ones_like(rx)], -1) @ R.T          # world direction per pixel (camera z = 1)
-    lam_ground = t[2] / -d[..., 2]
+    g = math.tan(math.radians(slope_deg))
+    lam_ground = (t[2] - g * t[0]) / (g * d[..., 0] - d[..., 2])
     depth = lam_ground.copy()
     if block is not None:
         lam_top = (t[2] - block.height_m) / -d[..., 2]
@@ -101,9 +103,10 @@ def cell_noise(stereo: Stereo, cell_px: float, trials: int = 4) -> float:
 
 def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float, seed: int, frames: int,
         step_m: float, altitude_m: float = 8.0, block: Block | None = None, start_x: float | None = None,
-        region_m: float = 8.0, noise_white: bool = False) -> Iterator[tuple[int, Any, Any]]:
+        region_m: float = 8.0, noise_white: bool = False, slope_deg: float = 0.0) -> Iterator[tuple[int, Any, Any]]:
     """Fly ``frames`` frames ``step_m`` apart along world x (centred on 0) over the scene; yield, per frame,
-    (index, FusedTerrain, FusedMaps of the ``region_m`` square around the origin)."""
+    (index, FusedTerrain, FusedMaps of the ``region_m`` square around the origin). ``slope_deg`` tilts the
+    ground about the y axis (its height x tan(slope_deg)); the block needs level ground."""
     from slzcli.config import load_config
     from slzcli.fusion.session import FusedTerrain
     from slzcli.scoring import get_scorer
@@ -119,7 +122,7 @@ def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float,
     x0 = -0.5 * step_m * (frames - 1) if start_x is None else start_x
     for i in range(frames):
         T = pose(x0 + step_m * i, 0.0, altitude_m)
-        ft.add(stereo.measure(exact_depth(T, block)), INTR, T, noise, 0, i)
+        ft.add(stereo.measure(exact_depth(T, block, slope_deg=slope_deg)), INTR, T, noise, 0, i)
         yield i, ft, ft.maps_around(0.0, 0.0, region_m)
 
 

@@ -16,8 +16,10 @@ Verdict per cell:
              hides a step of uav.max_step_m nor a slope of max_slope_deg: the per-frame limits of
              ``limits.working_scale`` scaled by the cell's fused std, ``terrain.fusion.decided_margin`` times within
              them),
-             the step fitted across every cell of the square and the slope of its plane stay within the
-             tolerances by those limits (estimate + limit <= tolerance) and its descent column was seen;
+             the step fitted across every cell of the square (and in the windows centred up to half a
+             window beyond it along the step, which read a step ending in the square whole) and the slope
+             of its plane stay within the tolerances by those limits (estimate + limit <= tolerance) and
+             its descent column was seen;
   UNSAFE     a defect is known in its square (a step or slope beyond the tolerance by more than (k + 1) / k
              times its limit, a refused cell), or the mask fails on a square whose limits are
              ``terrain.fusion.unsafe_margin`` times within the tolerances;
@@ -130,24 +132,34 @@ def step_kernel(rows: int, half: int) -> tuple[np.ndarray, float]:
     return w, float(np.sum(w * w))
 
 
-def _steps(hc: np.ndarray, ok: np.ndarray, var: np.ndarray, rows: int, half: int) -> tuple[np.ndarray, np.ndarray]:
-    """(|s|, std of s) of the step fitted across every cell along x and along y (the direction with the larger
-    |s|), NaN where the window is not fully seen."""
-    w, norm = step_kernel(rows, half)
-    out_s = np.full(hc.shape, np.nan)
-    out_sd = np.full(hc.shape, np.nan)
+def _steps(hc: np.ndarray, ok: np.ndarray, rows: int, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """|s| of the step fitted across every cell along x (a step between columns, the kernel's rows running
+    along y) and along y, each NaN where its window is not fully seen."""
+    w, _ = step_kernel(rows, half)
     okf = ok.astype(np.float64)
+    out = []
     for kern in (w, np.ascontiguousarray(w.T)):
         ones = (kern != 0).astype(np.float64)
         est = cv2.filter2D(hc, cv2.CV_64F, kern, borderType=cv2.BORDER_CONSTANT)
         full = cv2.filter2D(okf, cv2.CV_64F, ones, borderType=cv2.BORDER_CONSTANT) >= ones.sum() - 0.5
-        vm = cv2.filter2D(var, cv2.CV_64F, ones / ones.sum(), borderType=cv2.BORDER_CONSTANT)
-        a = np.where(full, np.abs(est), np.nan)
-        sd = np.where(full, np.sqrt(np.maximum(vm, 0.0) * norm), np.nan)
-        take = ~(np.nan_to_num(out_s, nan=-1.0) >= np.nan_to_num(a, nan=-1.0))
-        out_s = np.where(take, a, out_s)
-        out_sd = np.where(take, sd, out_sd)
-    return out_s, out_sd
+        out.append(np.where(full, np.abs(est), np.nan))
+    return out[0], out[1]
+
+
+_HALF_NORMAL_MEDIAN = 0.6745     # median of |z| for a standard normal z
+
+
+def step_noise_scale(s_abs: np.ndarray, step_min: np.ndarray, k: float) -> float:
+    """How much the fitted steps scatter beyond their stated noise (step_min / k) over a region (>= 1): the
+    median of |s| / (step_min / k) over its fitted cells, over the half-normal median. Mostly level ground,
+    so the median reads the noise; real steps can only raise it. The stated noise is the per-frame limit
+    scaled by the fused std, which knows each cell's variance but not how the errors of neighbouring cells
+    go together: flown over, a cell averages the pattern fixed to the image along the track, so its errors
+    form stripes along it that a step across the track reads."""
+    fin = np.isfinite(s_abs) & np.isfinite(step_min) & (step_min > 0)
+    if not fin.any():
+        return 1.0
+    return max(1.0, float(np.median(s_abs[fin] / (step_min[fin] / k))) / _HALF_NORMAL_MEDIAN)
 
 
 def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object) -> FusedMaps:
@@ -245,14 +257,18 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # needs both upper bounds (estimate + limit) within the UAV's tolerance, UNSAFE a lower bound beyond it;
     # in between the noise still hides what the UAV cannot take
     half = max(2, n_fp // 2)
-    s_abs, _ = _steps(hc, ok, var, n_fp, half)
+    s_x, s_y = _steps(hc, ok, n_fp, half)
+    # each direction's limit as its fitted steps scatter on this map (the errors' stripes are directional)
+    lim_x = step_noise_scale(s_x, step_min, k) * step_min
+    lim_y = step_noise_scale(s_y, step_min, k) * step_min
     tan_lim = math.tan(math.radians(uav.max_slope_deg))
     # (a known defect at k + 1 sigma: a square holds ~240 step estimates, and at k alone noise would mark
     # some level squares unsafe)
     kb = (k + 1.0) / k
     with np.errstate(invalid="ignore"):
-        step_fine = s_abs + step_min <= uav.max_step_m
-        step_bad = s_abs - kb * step_min > uav.max_step_m
+        fine_x = s_x + lim_x <= uav.max_step_m
+        fine_y = s_y + lim_y <= uav.max_step_m
+        step_bad = (s_x - kb * lim_x > uav.max_step_m) | (s_y - kb * lim_y > uav.max_step_m)
         # the limits hold for a full window: a plane over a window cut by the edge of the seen ground is neither
         full = _box(ok.astype(np.float64), n_fp) >= n_fp * n_fp - 0.5
         slope_fine = okf & full & (tan_psi + tan_min <= tan_lim)
@@ -269,8 +285,19 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # a failing mask is a finding only where the noise is well within the tolerances: near them, noise alone
     # fails the mask of level ground (the maps read it as roughness)
     mask_conclusive = decided if params.unsafe_margin == params.decided_margin else square_within(params.unsafe_margin)
-    fine = cv2.erode((step_fine & slope_fine).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT,
-                     borderValue=0) > 0
+    # every estimate centred in the square, and every step estimate whose middle column crosses it: a step
+    # that ends in the square (the corner of a block) fills only part of the n_fp rows of a window centred
+    # there (the one centred on its end reads (reach + 1) / n_fp of it: 0.057 m of a 0.095 m block's
+    # corner, called safe); the windows centred up to ``reach`` rows beyond the square along the step read it
+    # whole wherever it runs on for a footprint
+    reach = n_fp // 2
+    def erode(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
+        return cv2.erode(a.astype(np.uint8), np.ones((rows, cols), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                         borderValue=0) > 0
+
+    fine = erode(fine_x & fine_y & slope_fine, n_sq, n_sq)
+    fine &= erode(fine_x | np.isnan(s_x), n_sq + 2 * reach, n_sq)    # steps between columns, rows along y
+    fine &= erode(fine_y | np.isnan(s_y), n_sq, n_sq + 2 * reach)
     bad = steep | refused | step_bad      # a step between two neighbours only lowers the flatness map
     defect = cv2.dilate(bad.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
 

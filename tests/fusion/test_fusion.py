@@ -78,25 +78,107 @@ def test_decided_after_the_predicted_number_of_frames(seed: int, margin: float, 
     assert predicted - 3 <= first <= predicted + 1
 
 
-@pytest.mark.parametrize("margin", [1.0, 2.0])
+# steps just over the UAV's 0.09 m and where their edges fall in a cell (a fraction of the 0.082 m cell): seed i
+# flies OVER_STEPS[i % 3] at GRID_OFFSETS[i % 4], so each height meets three offsets over seeds 0-9
+OVER_STEPS = (0.091, 0.095, 0.10)
+GRID_OFFSETS = (0.0, 0.25, 0.5, 0.75)
+
+
+def _block_at(offset: float, height_m: float, cell_m: float) -> Block:
+    x0, y0 = 0.5 + offset * cell_m, -1.0 + offset * cell_m
+    return Block(x0, x0 + 2.0, y0, y0 + 2.0, height_m)
+
+
 @pytest.mark.parametrize("a_per_m", [0.0005, 0.001])
-def test_a_step_just_over_the_limit_is_never_called_safe(a_per_m: float, margin: float) -> None:
-    """A 0.10 m step (the UAV takes 0.09 m): no frame of any seed calls a cell safe whose landing square holds
-    the step, whether a square is decided at 2 or at 1 times its noise limits (``decided_margin``: SAFE's own
-    upper bound, fitted step + limit, is what keeps it out). Measured, seeds 0-4: the closest safe cell was
-    0.46 m (a = 0.0005) and 0.49 m (a = 0.001) from the step at margin 2; 0.46-0.74 m over seeds 0-9 at
-    margin 1 (a = 0.0005); the half square being 0.428 m (an exact test: a cell is either inside or not)."""
-    block = Block(0.5, 2.5, -1.0, 1.0, 0.10)
+def test_a_step_just_over_the_limit_is_never_called_safe(a_per_m: float) -> None:
+    """A 2 m block 0.091-0.10 m high (the UAV takes 0.09 m), its edges and corners anywhere in a cell: no frame
+    of seeds 0-9 calls a cell safe whose landing square holds any of it, whether a square is decided at 1 or
+    2 times its noise limits (``decided_margin``: SAFE's own upper bound, fitted step + limit, keeps it out;
+    only *decided* depends on the margin and it is monotone in it, so SAFE at 2 is a subset of SAFE at 1 and
+    the test runs 1).
+    The square's corner is where a fitted step reads low: a window centred on the block's corner covers the
+    step over 4 of its 7 rows, so SAFE also reads the windows centred up to half a window beyond the square
+    along the step. Before that, a 0.095 m step had 2-8 cells called safe on 2 of 5 seeds (a = 0.0005).
+    Measured over every height x offset x seed 0-9 x a at margin 1 (215 flights, with 0.091 m at margin 2 as
+    well): none; the nearest safe cell 0.46-0.76 m from the block (Chebyshev) against the half square 0.428 m
+    (an exact test: a cell's square holds the block or not); each flight still called 69000-84000 (a = 0.0005)
+    and 7000-20000 (a = 0.001) cell-frames safe away from it, before the step limit followed the fitted steps'
+    scatter across the track (``step_noise_scale``); with it, a = 0.001 calls nothing safe in 30 frames."""
     safe_anywhere = 0
-    for seed in SEEDS:
-        for _, ft, fm in fly([f"terrain.fusion.decided_margin={margin}"], a_per_m=a_per_m, white=0.2, corr_px=2.0,
+    for seed in range(10):
+        h, off = OVER_STEPS[seed % len(OVER_STEPS)], GRID_OFFSETS[seed % len(GRID_OFFSETS)]
+        block = _block_at(off, h, 0.082)
+        for _, ft, fm in fly(["terrain.fusion.decided_margin=1"], a_per_m=a_per_m, white=0.2, corr_px=2.0,
                              seed=seed, frames=30, step_m=0.15, block=block):
             X, Y = cell_centres(fm.region)
             safe = fm.verdict == SAFE
             safe_anywhere += int(safe.sum())
             half = 0.5 * ft.params.square_m
-            assert not np.any(safe & (_chebyshev_to_edge(X, Y, block) < half))
-    assert safe_anywhere > 0          # not by calling nothing safe (the plane away from the step is safe)
+            assert not np.any(safe & (_chebyshev_to_edge(X, Y, block) < half)), (seed, h, off)
+    if a_per_m < 0.001:
+        assert safe_anywhere > 0      # not by calling nothing safe (the plane away from the step is safe)
+    # at a = 0.001 the step's limit across the track (1.6-2.0 x step_min, read from the map's own fitted steps)
+    # leaves little or nothing safe after 30 frames (seed 0: none); SAFE only shrank with it (the limit is
+    # never below step_min), and before it 7000-20000 cell-frames a flight were safe with none near the block
+
+
+@pytest.mark.parametrize(("a_per_m", "height_m", "least"), [(0.0005, 0.06, 0.1), (0.0005, 0.03, 0.3)])
+def test_a_step_well_under_the_limit_becomes_safe(a_per_m: float, height_m: float, least: float) -> None:
+    """Recall: beside a step the UAV takes, the squares holding it are called safe once the noise allows
+    (fitted step + its limit within 0.09 m; the limit across the track is 1.6-2.0 times ``step_min``, 0.020-0.031
+    m at a = 0.0005, as the map's fitted steps scatter; at a = 0.001 nothing is safe in 30 frames). The share
+    of the cells within the half square of the block's edge that are safe on the last frame, seeds 0-4,
+    margin 1: 0.20-0.43 (0.06 m; 0.40-0.97 before the limit followed the scatter, 0.51-0.97 before SAFE read
+    the windows beyond the square), 0.58-0.97 (0.03 m; 0.97 before). Allowed: ``least``."""
+    for seed in SEEDS:
+        block = _block_at(0.0, height_m, 0.082)
+        *_, (_, ft, fm) = fly(["terrain.fusion.decided_margin=1"], a_per_m=a_per_m, white=0.2, corr_px=2.0,
+                              seed=seed, frames=30, step_m=0.15, block=block)
+        X, Y = cell_centres(fm.region)
+        holds = (_chebyshev_to_edge(X, Y, block) < 0.5 * ft.params.square_m) & fm.region.seen
+        assert np.mean(fm.verdict[holds] == SAFE) >= least
+
+
+@pytest.mark.parametrize(("a_per_m", "slope_deg", "least"), [(0.0005, 16.0, None), (0.001, 16.0, None),
+                                                          (0.0005, 10.0, 0.04), (0.001, 5.0, 0.05)])
+def test_a_slope_just_over_the_limit_is_never_called_safe(a_per_m: float, slope_deg: float,
+                                                          least: float | None) -> None:
+    """Ground tilted 16 degrees (the UAV takes 15): no cell is ever called safe (seeds 0-4; SAFE at margin 2 is a
+    subset of SAFE at margin 1, which runs); ground the UAV takes is, where its slope plus the slope limit
+    (3.6-3.9 degrees at a = 0.0005, 7.1-7.8 at 0.001) is within 15 degrees: 10 and 5 degrees. Measured, share
+    of the seen cells safe on the last frame (the decided interior of the region is at most 0.51): 0.078-0.139
+    (10 degrees, a = 0.0005), 0.115-0.332 (5 degrees, a = 0.001); 17 degrees: never safe either. Allowed:
+    ``least``."""
+    for seed in SEEDS:
+        flight = list(fly(["terrain.fusion.decided_margin=1"], a_per_m=a_per_m, white=0.2, corr_px=2.0, seed=seed,
+                          frames=30, step_m=0.15, slope_deg=slope_deg))
+        if least is None:
+            assert not any(np.any(fm.verdict == SAFE) for _, _, fm in flight)
+        else:
+            fm = flight[-1][2]
+            assert np.mean(fm.verdict[fm.region.seen] == SAFE) >= least
+
+
+def test_the_steps_stated_noise_follows_their_scatter_across_the_track() -> None:
+    """Flown along x over level ground, a cell averages the image-fixed pattern along one image row: the fused
+    errors form stripes along the track, and a step fitted across it (between rows) scatters 2.0 times the
+    stated ``step_min / k`` while one across x scatters 0.47 times (seeds 0-4, a = 0.0005 and 0.001). The
+    scale the map estimates from its own fitted steps (1.64-2.00 per seed) brings the scatter across the
+    track into 0.8-1.25 (measured 0.92-1.04 robust, 0.93-1.03 rms, per seed) and never lowers the stated
+    noise along it (scale 1.0)."""
+    from slzcli.fusion.verdict import _steps, step_noise_scale
+    for seed in SEEDS:
+        *_, (_, ft, fm) = fly([], a_per_m=0.0005, white=0.2, corr_px=2.0, seed=seed, frames=30, step_m=0.15)
+        reg = fm.region
+        hc = np.where(reg.seen, reg.h, 0.0)          # the truth is 0: the fit is its error
+        s_x, s_y = _steps(hc, reg.seen, 7, 3)
+        sm = fm.step_min_m.astype(np.float64)
+        k = ft.params.confidence_sigma
+        assert step_noise_scale(s_x, sm, k) == 1.0
+        scale_y = step_noise_scale(s_y, sm, k)
+        ok = fm.decided & np.isfinite(s_y)
+        z = s_y[ok] / (scale_y * sm[ok] / k)
+        assert 0.8 <= float(np.median(z)) / 0.6745 <= 1.25
 
 
 @pytest.mark.parametrize("step_m", [0.0, 0.05, 0.3])
