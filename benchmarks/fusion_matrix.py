@@ -59,6 +59,8 @@ OPEN_CELLS = 6            # cells (0.49 m); open ground is this far from ground 
 PRECISION_TARGET = 0.98
 CALIBRATION = (0.8, 1.25)
 MIN_TARGET_MOTION_M = 3.0
+ALTITUDES = (5.0, 7.5, 10.0, 12.0)        # m; the issue's matrix
+MOTIONS: tuple[str | float, ...] = ("hover", 2.0, 4.0, 8.0)
 
 
 # ---------------------------------------------------------------- flights and the code they were measured with
@@ -116,7 +118,7 @@ def code_keys(every: int, sets: list[str]) -> dict[str, str]:
     return {"frame": _hash_files(_module_files("slzcli.fusion") + configs, args + _source(measure_frame_path)),
             "fused": _hash_files(_module_files(None) + configs,
                                  args + _source(measure_fused_path, _cells_truly_safe, cell_truth, calibration,
-                                                _render_code))}
+                                                _render_code, _step_stats, predicted_step_m, _predictions))}
 
 
 def _source(*fns: Callable[..., Any]) -> str:
@@ -259,8 +261,42 @@ def measure_fused_path(fl: Flight) -> dict[str, Any]:
         "verdict_cells": fm.counts(), "advice": None if adv is None else adv.as_dict(), "calibration": cal,
         "fuse_cpu_ms_median": float(np.median(cpu)), "fuse_cpu_ms_p90": float(np.percentile(cpu, 90)),
         "verdict_cpu_ms_median": float(np.median(cpu_verdict)), "noise_scale_last": ft.noise_scale(),
-        "grid_mb": round(ft.grid.nbytes() / 1e6, 1),
+        "grid_mb": round(ft.grid.nbytes() / 1e6, 1), "predicted_step_m": _predictions(fl, ft.params),
     }
+
+
+def predicted_step_m(noise: Any, z: float, focal_px: float, motion_m: float, frames: int, cfg: Any,
+                     params: Any) -> float:
+    """The smallest step the fusion's own model lets through on a cell straight below a level flight at ``z``
+    that every one of ``frames`` frames sees, flying ``motion_m`` in a line (0: a still hover; inf: the floor no
+    flight lowers, the error fixed to the ground): one frame's limit
+    (``frame_limit_ratios``, the per-frame path's) times the std the cell's filter reaches over its one-frame
+    std. No noise scale (>= 1 in a run): a lower bound of what a flight of that kind measures."""
+    from slzcli.fusion.measure import cell_sigma_m, frame_limit_ratios
+
+    step_ratio, _ = frame_limit_ratios(noise, z, focal_px, cfg, params)
+    s1 = float(cell_sigma_m(noise, z, focal_px, params.cell_m))
+    if math.isinf(motion_m):      # endless decorrelated looks: only the part fixed to the ground is left
+        return step_ratio * math.sqrt(params.fixed_fraction) * s1
+    sc2 = s1 * s1 * (1.0 - params.white_fraction - params.fixed_fraction)
+    sw2 = s1 * s1 * params.white_fraction
+    shift = motion_m / max(frames - 1, 1) * focal_px / z
+    rho = min(math.exp(-shift / params.decorrelation_px), 1.0 - 1e-9)
+    p_hh, p_hc, p_cc = sc2 + sw2, -sc2, sc2
+    for _ in range(frames - 1):
+        p_hc, p_cc = rho * p_hc, rho * rho * p_cc + (1 - rho * rho) * sc2
+        s_t = p_hh + 2 * p_hc + p_cc + sw2
+        kh, kc = (p_hh + p_hc) / s_t, (p_hc + p_cc) / s_t
+        p_hh, p_hc, p_cc = p_hh - kh * kh * s_t, p_hc - kh * kc * s_t, p_cc - kc * kc * s_t
+    return step_ratio * math.sqrt(p_hh + params.fixed_fraction * s1 * s1)
+
+
+def _predictions(fl: Flight, params: Any) -> dict[str, dict[str, float]]:
+    """``predicted_step_m`` with this flight's noise estimate, at every altitude and motion of the matrix."""
+    focal = 0.5 * (fl.intr.fx + fl.intr.fy)
+    return {f"{z:g}": {("floor" if m == math.inf else _motion(m)):
+                       round(predicted_step_m(fl.noise[-1], z, focal, _motion_m(m), fl.n, fl.cfg, params), 4)
+                       for m in (*MOTIONS, math.inf)} for z in ALTITUDES}
 
 
 def _step_stats(fm: Any, frames_so_far: int) -> dict[str, float | None]:
@@ -459,7 +495,7 @@ def targets(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                          for r in sorted(sel, key=lambda r: (r["seed"], _motion_m(r["motion"]))) if r["scene"] == s]
                      for s in OPEN_SCENES}
         missing = [s for s, v in per_scene.items() if not v]
-        ok = all(v and all(w == "yes" for w in v) for v in per_scene.values())
+        ok = all(all(w == "yes" for w in v) for v in per_scene.values())     # on the scenes rendered
         out.append({"target": f"{label} after >= {MIN_TARGET_MOTION_M:g} m of motion: a truly safe site on every "
                     "open scene",
                     "measured_on": f"{len(sel)} flights (motion 4 / 8 m, seeds as rendered)",
@@ -509,13 +545,34 @@ def targets(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def predictions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per sensor and scene: the model's smallest step at every altitude and motion (median over its flights'
+    noise estimates), and how the flights measured against it (measured core step / predicted at their own
+    altitude and motion)."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        if r.get("predicted_step_m"):
+            groups[(r["sensor"], r["scene"])].append(r)
+    out = []
+    for (sensor, scene), rs in sorted(groups.items()):
+        first = rs[0]["predicted_step_m"]
+        pred = {z: {m: float(np.median([r["predicted_step_m"][z][m] for r in rs])) for m in first[z]} for z in first}
+        ratios = [r["step_min_core_m"] / r["predicted_step_m"][f"{r['altitude_m']:g}"][_motion(r["motion"])]
+                  for r in rs if r.get("step_min_core_m") and f"{r['altitude_m']:g}" in r["predicted_step_m"]]
+        out.append({"sensor": sensor, "scene": scene, "flights": len(rs),
+                    "a_per_m": _median([(r.get("noise") or {}).get("a_per_m_median") for r in rs]),
+                    "predicted_step_m": pred, "measured_over_predicted": [round(x, 2) for x in sorted(ratios)]})
+    return out
+
+
 # ---------------------------------------------------------------- output
 
 def _f(x: float | None, nd: int = 3) -> str:
     return "-" if x is None else f"{x:.{nd}f}"
 
 
-def markdown(cells: list[dict[str, Any]], tg: list[dict[str, Any]], missing: list[str]) -> str:
+def markdown(cells: list[dict[str, Any]], tg: list[dict[str, Any]], pred: list[dict[str, Any]],
+             missing: list[str]) -> str:
     lines = ["| sensor | z m | scene | motion m | seeds | per frame P / R | fused P / R | site per frame (proxy) | "
              "fused site | undecided | step per frame / fused / decided (m) | calibration | CPU fuse / verdict ms |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -529,6 +586,15 @@ def markdown(cells: list[dict[str, Any]], tg: list[dict[str, Any]], missing: lis
             f"{_f(c['frame_step_limit_m'])} / {_f(c['step_min_core_m'])} / {_f(c['step_min_decided_min_m'])} | "
             f"{'-' if cal is None else f'{cal[0]:.2f}-{cal[1]:.2f}'} | "
             f"{_f(c['fuse_cpu_ms_median'], 1)} / {_f(c['verdict_cpu_ms_median'], 0)} |")
+    if pred:
+        alts = list(pred[0]["predicted_step_m"])
+        motions = list(pred[0]["predicted_step_m"][alts[0]])
+        lines += ["", "| sensor | scene | a (1/m) | " + " | ".join(f"{z} m: {' / '.join(motions)}" for z in alts)
+                  + " | measured / predicted |", "|---|---|---|" + "---|" * len(alts) + "---|"]
+        for p in pred:
+            lines.append(f"| {p['sensor']} | {p['scene']} | {_f(p['a_per_m'], 5)} | " + " | ".join(
+                " / ".join(f"{p['predicted_step_m'][z][m]:.3f}" for m in motions) for z in alts)
+                + f" | {' '.join(f'{x:.2f}' for x in p['measured_over_predicted'])} |")
     lines += ["", "| target | measured on | result | pass |", "|---|---|---|---|"]
     for t in tg:
         lines.append(f"| {t['target']} | {t['measured_on']} | {t['result']} | "
@@ -670,11 +736,12 @@ def main() -> None:
                 name = f"{scene}_{float(alt):g}m_{sensor}_{motion}_s{seed}"
                 if not any(n.startswith(name + "_") for n in rows):
                     missing.append(name)
-    result = {"code": keys, "set": a.set, "every": a.every, "cells": cells, "targets": tg,
+    pred = predictions(flights)
+    result = {"code": keys, "set": a.set, "every": a.every, "cells": cells, "targets": tg, "predictions": pred,
               "not_rendered": missing, "flights": flights}
     _write(a.out, result)
     print(f"wrote {a.out}")
-    md = markdown(cells, tg, missing)
+    md = markdown(cells, tg, pred, missing)
     print(md)
     if a.markdown:
         a.markdown.parent.mkdir(parents=True, exist_ok=True)
