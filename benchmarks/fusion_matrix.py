@@ -610,45 +610,49 @@ def markdown(cells: list[dict[str, Any]], tg: list[dict[str, Any]], pred: list[d
     return "\n".join(lines) + "\n"
 
 
-def plot(cells: list[dict[str, Any]], rows: list[dict[str, Any]], path: Path, tolerance_m: float) -> None:
-    """Left: the smallest step the fused map lets through (median over scenes and seeds) against altitude, one line
-    per sensor x motion, the per-frame limit dashed; right: recall and precision per frame against fused."""
+def plot(cells: list[dict[str, Any]], rows: list[dict[str, Any]], pred: list[dict[str, Any]], path: Path,
+         tolerance_m: float) -> None:
+    """Left: the smallest step the fused map lets through against altitude: each flight measured (markers, the
+    median over the cells the flight kept in view), the model (lines: the 4 m transect, solid; the floor no flight
+    lowers, dashed; clear_field's noise, the best texture); right: recall and precision per frame against fused,
+    per cell."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 3, figsize=(11, 3.4), dpi=90)
     colours = {"d435": "#D55E00", "d455": "#0072B2", "gauss0.003": "#009E73"}
-    styles = {"hover": ("x", ":"), "2": ("v", "-"), "4": ("o", "-"), "8": ("s", "-")}
-    by: dict[tuple[str, str], dict[float, list[float]]] = defaultdict(lambda: defaultdict(list))
-    per_frame: dict[str, dict[float, list[float]]] = defaultdict(lambda: defaultdict(list))
+    markers = {"hover": "x", "2": "v", "4": "o", "8": "s"}
     for r in rows:
         if r.get("step_min_core_m") is not None:
-            by[(r["sensor"], _motion(r["motion"]))][r["altitude_m"]].append(r["step_min_core_m"])
-        if r.get("frame_step_limit_m") is not None:
-            per_frame[r["sensor"]][r["altitude_m"]].append(r["frame_step_limit_m"])
-    for (sensor, motion), d in sorted(by.items()):
-        alts = sorted(d)
-        mk, ls = styles.get(motion, ("+", "-"))
-        ax[0].plot(alts, [np.median(d[a]) for a in alts], ls, marker=mk, color=colours.get(sensor, "k"), lw=1, ms=4,
-                   label=f"{sensor} {motion}" + ("" if motion == "hover" else " m"))
-    for sensor, d in sorted(per_frame.items()):
-        alts = sorted(d)
-        ax[0].plot(alts, [np.median(d[a]) for a in alts], "--", marker="_", ms=8, color=colours.get(sensor, "k"),
-                   lw=0.8, alpha=0.6)
+            ax[0].plot(r["altitude_m"], r["step_min_core_m"], markers.get(_motion(r["motion"]), "+"),
+                       color=colours.get(r["sensor"], "k"), ms=4, alpha=0.8)
+    for pr in pred:
+        if pr["scene"] != "clear_field":
+            continue
+        zs = sorted(pr["predicted_step_m"], key=float)
+        col = colours.get(pr["sensor"], "k")
+        ax[0].plot([float(z) for z in zs], [pr["predicted_step_m"][z]["4"] for z in zs], "-", color=col, lw=1,
+                   label=str(pr["sensor"]))
+        ax[0].plot([float(z) for z in zs], [pr["predicted_step_m"][z]["floor"] for z in zs], "--", color=col, lw=0.7)
+    for m, mk in markers.items():
+        ax[0].plot([], [], mk, color="k", ms=4, label=m if m == "hover" else f"{m} m")
     ax[0].axhline(tolerance_m, color="grey", lw=0.8)
-    ax[0].text(ax[0].get_xlim()[0], tolerance_m, " UAV tolerance", va="bottom", fontsize=7, color="grey")
+    ax[0].axhline(tolerance_m / 2, color="grey", lw=0.6, ls=":")
+    ax[0].text(4.6, tolerance_m, "UAV tolerance", va="bottom", fontsize=7, color="grey")
+    ax[0].text(4.6, tolerance_m / 2, "SAFE on level ground", va="bottom", fontsize=7, color="grey")
     ax[0].set_yscale("log")
+    ax[0].set_xlim(4.5, 12.5)
     ax[0].set_xlabel("altitude (m)")
     ax[0].set_ylabel("smallest step let through (m)")
-    ax[0].set_title("fused after 2 s (dashed: one frame)", fontsize=9)
-    ax[0].legend(fontsize=6, ncol=2)
+    ax[0].set_title("fused, 30 frames in 2 s", fontsize=9)
+    ax[0].legend(fontsize=6, ncol=2, loc="lower right")
     for k, (what, a) in enumerate((("recall", ax[1]), ("precision", ax[2]))):
         for c in cells:
             x, y = c[f"frame_{what}"], c[f"fused_{what}"]
             if x is None and y is None:
                 continue
-            mk, _ = styles.get(c["motion"], ("+", "-"))
+            mk = markers.get(c["motion"], "+")
             a.plot(-0.02 if x is None else x, -0.02 if y is None else y, mk, color=colours.get(c["sensor"], "k"), ms=4,
                    alpha=0.8)
         lo = 0.9 if k else 0.0
@@ -748,7 +752,7 @@ def main() -> None:
         a.markdown.write_text(md)
     if a.plot:
         from slzcli.config import load_config
-        plot(cells, flights, a.plot, load_config(None, a.set).uav.max_step_m)
+        plot(cells, flights, pred, a.plot, load_config(None, a.set).uav.max_step_m)
 
 
 if __name__ == "__main__":
