@@ -508,7 +508,7 @@ def targets(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 f"{sum(r.get('frame_site_proxy_safe') is not None for r in nos)} per-frame",
                 "pass": None if not nos else all(r.get("fused_site") is None for r in nos)})
     hov = [r for r in fused if r["motion"] == "hover"]
-    bad_h, undecided_h, advised_h, safe_h = [], 0, 0, 0
+    bad_h, undecided_h, advised_h, move_h, safe_h = [], 0, 0, 0, 0
     for r in hov:
         unsafe_site = (r.get("fused_site") is not None and not r["fused_site"]["truly_safe"]) \
             or r["fused_sites_over_frames_truly_unsafe"] > 0 or r["safe_cells_truly_unsafe"] > 0
@@ -518,11 +518,13 @@ def targets(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             undecided_h += 1
             adv = r.get("advice") or {}
             advised_h += bool(adv.get("text"))
+            move_h += bool(adv.get("hover"))
         else:
             safe_h += 1
     out.append({"target": "hovering: undecided with the advice, never unsafe (fused)",
                 "measured_on": f"{len(hov)} hover flights",
-                "result": f"{undecided_h} without a site ({advised_h} of them with advice), {safe_h} with a truly "
+                "result": f"{undecided_h} without a site ({advised_h} of them with advice, {move_h} saying to move), "
+                f"{safe_h} with a truly "
                 f"safe site, {len(bad_h)} with anything truly unsafe called safe"
                 + (f" ({', '.join(bad_h)})" if bad_h else ""),
                 "pass": (not bad_h and advised_h == undecided_h) if hov else None})
@@ -572,7 +574,7 @@ def _f(x: float | None, nd: int = 3) -> str:
 
 
 def markdown(cells: list[dict[str, Any]], tg: list[dict[str, Any]], pred: list[dict[str, Any]],
-             missing: list[str]) -> str:
+             rows: list[dict[str, Any]], missing: list[str]) -> str:
     lines = ["| sensor | z m | scene | motion m | seeds | per frame P / R | fused P / R | site per frame (proxy) | "
              "fused site | undecided | step per frame / fused / decided (m) | calibration | CPU fuse / verdict ms |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -599,6 +601,9 @@ def markdown(cells: list[dict[str, Any]], tg: list[dict[str, Any]], pred: list[d
     for t in tg:
         lines.append(f"| {t['target']} | {t['measured_on']} | {t['result']} | "
                      f"{'-' if t['pass'] is None else ('yes' if t['pass'] else '**no**')} |")
+    ft = frames_table(rows)
+    if ft:
+        lines += ["", ft]
     if missing:
         groups: dict[str, list[str]] = defaultdict(list)
         for name in missing:
@@ -608,6 +613,28 @@ def markdown(cells: list[dict[str, Any]], tg: list[dict[str, Any]], pred: list[d
         lines += ["", f"Not rendered yet ({len(missing)} queued flights): "
                   + "; ".join(f"{k} ({len(v)} scenes)" for k, v in groups.items())]
     return "\n".join(lines) + "\n"
+
+
+def frames_table(rows: list[dict[str, Any]], scene: str = "clear_field") -> str:
+    """The smallest step the fused map lets through on ``scene`` as the frames come in (median over seeds of the
+    median over the cells kept in view), per sensor, altitude and motion."""
+    groups: dict[tuple[str, float, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        if r["scene"] == scene and r.get("step_curve"):
+            groups[(r["sensor"], r["altitude_m"], _motion(r["motion"]))].append(r)
+    if not groups:
+        return ""
+    frames = sorted({e["frame"] + 1 for rs in groups.values() for r in rs for e in r["step_curve"]})
+    lines = [f"| {scene}: sensor | z m | motion m | " + " | ".join(f"{n} frames" for n in frames) + " |",
+             "|---|---|---|" + "---|" * len(frames)]
+    for (sensor, z, motion), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], _motion_m(kv[0][2]))):
+        vals = []
+        for n in frames:
+            v = [e["step_min_core_m"] for r in rs for e in r["step_curve"] if e["frame"] + 1 == n
+                 and e["step_min_core_m"] is not None]
+            vals.append(_f(float(np.median(v)) if v else None))
+        lines.append(f"| {sensor} | {z:g} | {motion} | " + " | ".join(vals) + " |")
+    return "\n".join(lines)
 
 
 def plot(cells: list[dict[str, Any]], rows: list[dict[str, Any]], pred: list[dict[str, Any]], path: Path,
@@ -677,6 +704,19 @@ def _write(path: Path, data: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
+def _queue_order(queue: Path | None) -> dict[str, int]:
+    """Flight name (without frames and rate) -> its place in the render queue (the order it is measured in)."""
+    if queue is None or not queue.exists():
+        return {}
+    out: dict[str, int] = {}
+    for line in queue.read_text().splitlines():
+        parts = line.split()
+        if len(parts) == 5:
+            scene, alt, sensor, motion, seed = parts
+            out.setdefault(f"{scene}_{float(alt):g}m_{sensor}_{motion}_s{seed}", len(out))
+    return out
+
+
 def main() -> None:
     ap = harness.parser(__doc__, NAME)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slz-fusion-cache",
@@ -695,7 +735,10 @@ def main() -> None:
     old = json.loads(a.out.read_text()) if a.out.exists() else {}
     cached = {r["flight"]: r for r in old.get("flights", [])}
     rows: dict[str, dict[str, Any]] = {}
-    for p in sorted(glob.glob(str(a.cache / (a.flights + ".npz")))):
+    order = _queue_order(a.queue)
+    paths = sorted(glob.glob(str(a.cache / (a.flights + ".npz"))),
+                   key=lambda p: (order.get(Path(p).stem.rsplit("_", 1)[0], len(order)), p))
+    for p in paths:
         path = Path(p)
         meta = parse_name(path.stem)
         if p.endswith(".tmp.npz") or meta is None:
@@ -731,21 +774,13 @@ def main() -> None:
                                                    _motion_m(r["motion"]), r["seed"]))
     cells = aggregate(flights)
     tg = targets(flights)
-    missing: list[str] = []
-    if a.queue is not None and a.queue.exists():
-        for line in a.queue.read_text().splitlines():
-            parts = line.split()
-            if len(parts) == 5:
-                scene, alt, sensor, motion, seed = parts
-                name = f"{scene}_{float(alt):g}m_{sensor}_{motion}_s{seed}"
-                if not any(n.startswith(name + "_") for n in rows):
-                    missing.append(name)
+    missing = [name for name in order if not any(n.startswith(name + "_") for n in rows)]
     pred = predictions(flights)
     result = {"code": keys, "set": a.set, "every": a.every, "cells": cells, "targets": tg, "predictions": pred,
               "not_rendered": missing, "flights": flights}
     _write(a.out, result)
     print(f"wrote {a.out}")
-    md = markdown(cells, tg, pred, missing)
+    md = markdown(cells, tg, pred, flights, missing)
     print(md)
     if a.markdown:
         a.markdown.parent.mkdir(parents=True, exist_ok=True)
