@@ -9,7 +9,7 @@
 Per cell (scene x altitude x sensor x seed, the grid of benchmarks/sensor_matrix.py) one `slz synth` recording,
 then every variant on it with `slz compare`'s machinery (``compare.compare_recording``, the variant's own
 method): ``paper``; ``paper_rgbd`` (the paper with slz's RGB-D SLAM); ``+D``, that base plus decision D, for
-every other decision D below; and ``default`` (all of them: tests/test_profiles.py holds that paper + every
+every other decision D below; and ``default`` (all of them: tests/config/test_profiles.py holds that paper + every
 decision is exactly the default config). The base of the map, mask and commit decisions is ``paper_rgbd``,
 not ``paper``, because the paper's monocular SLAM does not start on every flight (next paragraph): without a
 map there are no keyframes and so no detection to change, and a base that detects on some cells only would

@@ -38,7 +38,7 @@ from slzcli.landing.corners import square_corners  # noqa: E402
 from slzcli.outputs.files import write_json  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "ibvs_robustness.json"
-# Sites for the paper's starts (benchmarks/ibvs.py, tests/test_control_simulate.py): only scenario 1's
+# Sites for the paper's starts (benchmarks/ibvs.py, tests/control/test_control_simulate.py): only scenario 1's
 # site (3.24, 3.32, 0.4) is published; the others are chosen in view of each start (project).
 SITES = {1: (2.0, 1.5, 0.3), 2: (-1.5, 10.0, 0.0), 3: (1.5, -1.0, 0.0), 4: (-1.0, 2.0, 0.0)}
 PAPER_SITE_1 = (3.24, 3.32, 0.4)

@@ -33,6 +33,7 @@ REPO = Path(__file__).resolve().parent.parent
 RESULTS = REPO / "benchmarks" / "results" / "limits.json"
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
+sys.path.insert(0, str(REPO / "tests" / "control"))  # test_control_cli.write_landing
 import bad_inputs as B  # noqa: E402
 
 DETECT = ["--set", "slam.backend=odometry", "--set", "landing.detect_on=every_nth"]

@@ -1,7 +1,7 @@
 """Robustness of the built-in odometry: ATE over scene seeds, sensor-noise seeds and depth cuts.
 
 Why: an ATE limit is only honest if it holds over inputs that differ slightly (issue 14: a 5 cm change
-of the depth cut swung the ATE of tests/test_slam.py from 2.35 to 6.44 cm). For every input of the
+of the depth cut swung the ATE of tests/slam/test_slam.py from 2.35 to 6.44 cm). For every input of the
 SLAM tests (tests/slam_flight.py 'line' 480x360 and 'out_back' 320x240, 100 frames each) and each seed
 this runs the odometry: the line flight at the default depth range and at each depth cut of the sweep
 (the triangulation test), the out-and-back flight (loss and recovery). Optionally also the odometry of

@@ -8,7 +8,7 @@ the total.
 
 Frames: ``slz synth`` renders (default sensor: D435-like stereo, 640x480) of three scenes from 3, 5
 and 8 m, with their true poses (as SLAM gives them), and the ten real RealSense frames
-(../shared/data/realsense_floor, the documented mount of tests/test_terrain.py), when present.
+(../shared/data/realsense_floor, the documented mount of tests/terrain/test_terrain.py), when present.
 
 Each frame is run ``--runs`` times by the code of ``--before`` (a git revision: its terrain/ and
 scoring/ modules are loaded from ``git show`` into this process, as benchmarks/slam_robustness.py
@@ -70,7 +70,7 @@ cv2.setNumThreads(1)
 
 PAPER_MS = 1367.0                       # Sepahvand et al. 2024, Table 2: detection per frame
 REALSENSE = REPO.parent / "shared" / "data" / "realsense_floor"
-REALSENSE_MOUNT = Mount(64.4, 19.0)     # tests/test_terrain.py: the floor plane of frame 0
+REALSENSE_MOUNT = Mount(64.4, 19.0)     # tests/terrain/test_terrain.py: the floor plane of frame 0
 SCENES = ("playground", "parking_lot", "clear_field")
 ALTITUDES_M = (3, 5, 8)
 CACHE = Path(tempfile.gettempdir()) / "slz_stages"

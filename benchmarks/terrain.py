@@ -183,7 +183,7 @@ def main() -> None:
     frames = {"analytic_box_10m": (analytic_frame(intr), intr, np.array([0.0, 0.0, -1.0]))}
     real = realsense_frame()
     if real is not None:
-        # the floor's tilt measured by tests/test_terrain.py: pitch 64.4 deg, roll 19.0 deg
+        # the floor's tilt measured by tests/terrain/test_terrain.py: pitch 64.4 deg, roll 19.0 deg
         frames["realsense_000000"] = (real[0], real[1], np.array([0.326, -0.853, -0.408]))
 
     results: dict[str, Any] = {

@@ -3,7 +3,7 @@
 One generator per case: ``CASES[name](folder) -> path``. Each writes a small recording (or
 config file) with the project's own ``RecordingWriter`` (``write_raw`` and its message
 helpers for the odd cases) and returns the path to hand to ``slz info`` / ``slz detect``.
-``tests/test_bad_inputs.py`` says what slz must do with each.
+``tests/top/test_bad_inputs.py`` says what slz must do with each.
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ def synth_recording(path: Path, scene: str, frames: int, *options: str) -> Path:
 # Test files that run whole commands on rendered recordings (synth, detect, compare, batch, SLAM) or whole
 # simulated descents, and the property tests (measured: each such test 10-50 s on a loaded machine): marked
 # ``slow``, left out by ``make test-fast`` (the edit-run loop); ``make test`` runs everything. A test
-# elsewhere can be marked on its own with ``@pytest.mark.slow``.
+# elsewhere can be marked on its own with ``@pytest.mark.slow``. Base names: each is unique across tests/ folders.
 SLOW_FILES = frozenset({
     "test_api.py", "test_bad_inputs.py", "test_batch.py", "test_bounds.py", "test_column.py", "test_compare.py",
     "test_control_cli.py", "test_control_montecarlo.py", "test_control_simulate.py", "test_properties.py",

@@ -3,7 +3,7 @@
 Each looks well formed on its own: poses, tf, stamps, CameraInfo and images all decode. What is
 wrong is that one part contradicts another (poses in millimetres against depth in metres, a
 camera pose upside down against the ground it measures, ...). ``CASES[name](folder) -> path``;
-``tests/test_consistency.py`` says what slz must do with each.
+``tests/top/test_consistency.py`` says what slz must do with each.
 
 The frames: a camera 6 m above flat textured ground looking straight down, moving 0.094 m per
 frame along -x (the texture rolls 2 px per frame; 0.8 x width focal length). ``POSES`` are the

@@ -2,7 +2,7 @@
 
 Rendering costs ~0.4 s a frame, so 10,000 frames would take 45 min. Ping-pong order keeps the
 camera motion continuous (SLAM keeps tracking, no jump back to the start); frames are restamped
-at ``rate_hz``. Shared by tests/test_limits.py and benchmarks/long_run.py.
+at ``rate_hz``. Shared by tests/pipeline/test_limits.py and benchmarks/long_run.py.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Helpers shared by the tests/test_sources_*.py files: small known frames and recordings."""
+"""Helpers shared by the tests/sources/test_sources_*.py files: small known frames and recordings."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Every detection method by name: the one list ``--method``, ``scoring.method``, ``compare.methods`` and the
-JSON schema's enum follow (tests/test_run_assembly.py holds the schema to it).
+JSON schema's enum follow (tests/pipeline/test_run_assembly.py holds the schema to it).
 
 A leaf (it imports nothing of slzcli, not even for types, so that the config check can read it): the
 config check and the CLI's choices read the names without importing the methods; a method's module is

@@ -27,7 +27,7 @@ Decisions (documented here because they shape the numbers):
   the patch (a wall behind a box edge counts); near depth edges that only makes the patch
   look more cluttered, which is the safe direction.
 
-Checked against Open3D in tests/test_terrain.py: normals within a median 1.1 deg (90th
+Checked against Open3D in tests/terrain/test_terrain.py: normals within a median 1.1 deg (90th
 percentile < 2.2 deg) of ``estimate_normals`` with KNN k*k on noisy planes and ramps; patch
 curvature ~0 where Open3D's radius-0.5 m covariance is ~0, and 0.3-2x Open3D's where a step
 lower than the radius puts both levels in the ball. Open3D takes 0.6-1.7 s per 640x480

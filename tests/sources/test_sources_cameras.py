@@ -328,7 +328,7 @@ def test_realsense_viewer_bag_layout_is_read_and_registered(tmp_path: Path, runn
             w.write_raw(col + "/info/camera_info", "sensor_msgs/msg/CameraInfo", w._camera_info(K_COLOR, stamp), stamp)
             w.write_raw(dev + "/info/camera_info", "sensor_msgs/msg/CameraInfo", w._camera_info(K_DEPTH, stamp), stamp)
     # the floor is tilted and nothing measures gravity: the scene would be used, with its warnings
-    # (tests/test_gravity.py); the registration is what is tested here
+    # (tests/top/test_gravity.py); the registration is what is tested here
     res = runner.invoke(main, ["info", str(path), "--json", "--set", "camera.gravity.source=mount"])
     assert res.exit_code == 0, res.output
     info = json.loads(res.stdout)

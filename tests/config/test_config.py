@@ -196,7 +196,7 @@ def test_errors_survive_a_process_pool() -> None:
 
 
 @pytest.mark.parametrize(("item", "cause"), [
-    # found by tests/test_properties.py: --set uav.mass_kg=1 was refused naming uav.thrust_max_n
+    # found by tests/top/test_properties.py: --set uav.mass_kg=1 was refused naming uav.thrust_max_n
     ("uav.mass_kg=1", "uav.mass_kg: makes the weight uav.mass_kg x control.gravity_m_s2 = 9.81 N, which "
                       "uav.thrust_max_n = 7.8 must exceed (it could not hover)"),
     ("control.gravity_m_s2=30", "control.gravity_m_s2: makes the weight"),

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1] / "slzcli"
+ROOT = Path(__file__).resolve().parents[2] / "slzcli"
 
 DETECTION = ("pipeline", "summary", "compare", "batch", "methods")  # the run machinery and the methods it runs
 COMMANDS = ("cli", "api")  # the entry points: the command line and the Python API

@@ -23,7 +23,7 @@ from slzcli.outputs import run_lock
 
 FRAMES = 4
 SCENES = ("clear_field", "no_site", "parking_lot")  # sorted: the order a glob gives them
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

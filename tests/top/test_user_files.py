@@ -124,7 +124,7 @@ def test_another_config_is_refused_and_force_keeps_what_slz_did_not_write(runner
     first = detect(runner, rec, run)
     assert first["status"] == "site"
     # -> RUN/ibvs and RUN/ibvs2: every file a landing writes; a 0.5 s flight (a timeout, still exit 0) writes them
-    # all, and whether the UAV lands is not what is held here (tests/test_control_cli.py)
+    # all, and whether the UAV lands is not what is held here (tests/control/test_control_cli.py)
     short = ("--set", "control.sim.timeout_s=0.5")
     assert invoke(runner, "land", "simulate", str(run), "--offset", "1,-1,6", *short).exit_code == 0
     assert invoke(runner, "land", "simulate", str(run), "--offset", "0,1,5", "-o", str(run / "ibvs2"),
@@ -151,7 +151,7 @@ def test_another_config_is_refused_and_force_keeps_what_slz_did_not_write(runner
 def test_the_skip_keys_on_the_rules_files_bytes_not_its_name_or_mtime(runner, tmp_path) -> None:
     rec, run = B.good(tmp_path, n=3), tmp_path / "run"
     rules = tmp_path / "rules.yaml"
-    shutil.copy(Path(__file__).resolve().parent.parent / "slzcli" / "configs" / "fuzzy_rules.yaml", rules)
+    shutil.copy(Path(__file__).resolve().parents[2] / "slzcli" / "configs" / "fuzzy_rules.yaml", rules)
     opts = ("--set", f"scoring.fuzzy.rules={rules}")
     detect(runner, rec, run, *opts)
     assert detect(runner, rec, run, *opts).get("skipped") is True

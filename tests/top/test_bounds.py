@@ -28,7 +28,7 @@ from slzcli.errors import ConfigError, DecodeError, short_repr
 from slzcli.sources import decode
 from slzcli.sources.image_limits import FrameTooLarge, compressed_size
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 # ----------------------------------------------------------------------------- image headers

@@ -337,7 +337,7 @@ def test_a_level_flight_keeps_the_mount_and_says_nothing(tmp_path: Path, runner)
 
 
 # ----------------------------------------------------------------------------- the real frames
-FLOOR_FIT = (slice(400, 470), slice(220, 420))  # frame 0's floor (tests/test_terrain.py)
+FLOOR_FIT = (slice(400, 470), slice(220, 420))  # frame 0's floor (tests/terrain/test_terrain.py)
 
 
 def test_real_frames_as_a_realsense_bag_give_a_level_floor(realsense_dir: Path, tmp_path: Path) -> None:
@@ -347,7 +347,7 @@ def test_real_frames_as_a_realsense_bag_give_a_level_floor(realsense_dir: Path, 
         resolved = recording_gravity.resolve_recording(path, rec, CONFIG)
         frame = next(iter(resolved.frames(rec.frames())))
     assert resolved.gravity.source == "scene"
-    # measured: tilt 64.3 deg (pitch 62.7, roll 19.1; the hand fit of tests/test_terrain.py: 64.4, 19.0)
+    # measured: tilt 64.3 deg (pitch 62.7, roll 19.1; the hand fit of tests/terrain/test_terrain.py: 64.4, 19.0)
     assert 60 < resolved.gravity.tilt_deg < 68
     assert any("gravity from the scene alone" in w for w in resolved.gravity.warnings)
     slope = float(np.nanmedian(tm.frame_maps(frame, CONFIG).slope_deg[FLOOR_FIT]))

@@ -2,7 +2,7 @@
 
 `slz land simulate --runs N` measures where the UAV really touches down around a site; `slz detect
 --set uav.touchdown_dispersion_m=<p95>` adds that to `uav.margin_m` on every side of the footprint,
-so the mask (and slz synth's ground truth, tests/test_synth.py) keep that much more clearance.
+so the mask (and slz synth's ground truth, tests/synth/test_synth.py) keep that much more clearance.
 """
 
 from __future__ import annotations
