@@ -30,6 +30,7 @@ seeds) and the issue's targets are aggregated into the JSON, a markdown file and
 
 from __future__ import annotations
 
+import ast
 import glob
 import hashlib
 import inspect
@@ -39,6 +40,7 @@ import os
 import re
 import sys
 import tempfile
+import textwrap
 import time
 from collections import defaultdict
 from collections.abc import Callable
@@ -88,11 +90,26 @@ def _import_paths() -> None:
 
 
 def _hash_files(files: list[Path], extra: str) -> str:
-    h = hashlib.sha256(extra.encode())
+    """A hash of what the files do, not how they are commented: Python as its syntax tree without docstrings,
+    YAML as the data it loads to (a comment or a moved test path in a docstring recomputes nothing)."""
+    h = hashlib.sha256(_semantic(extra).encode())
     for f in sorted(set(files)):
         h.update(str(f.relative_to(harness.REPO)).encode())
-        h.update(f.read_bytes())
+        h.update(_semantic(f.read_text(), f.suffix).encode())
     return h.hexdigest()[:16]
+
+
+def _semantic(text: str, suffix: str = ".py") -> str:
+    if suffix in (".yaml", ".yml"):
+        import yaml
+        return json.dumps(yaml.safe_load(text), sort_keys=True)
+    tree = ast.parse(textwrap.dedent(text))
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
+                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
+            node.body = body[1:] or [ast.Pass()]  # type: ignore[attr-defined]
+    return ast.dump(tree)
 
 
 def _module_files(prefix_out: str | None) -> list[Path]:
@@ -114,7 +131,7 @@ def code_keys(every: int, sets: list[str]) -> dict[str, str]:
     arguments."""
     _import_paths()
     configs = sorted((harness.REPO / "slzcli" / "configs").glob("*.yaml"))
-    args = json.dumps({"every": every, "set": sets})
+    args = f"ARGS = {json.dumps({'every': every, 'set': sets})!r}\n"
     return {"frame": _hash_files(_module_files("slzcli.fusion") + configs, args + _source(measure_frame_path)),
             "fused": _hash_files(_module_files(None) + configs,
                                  args + _source(measure_fused_path, _cells_truly_safe, cell_truth, calibration,
@@ -122,7 +139,7 @@ def code_keys(every: int, sets: list[str]) -> dict[str, str]:
 
 
 def _source(*fns: Callable[..., Any]) -> str:
-    return "".join(inspect.getsource(f) for f in fns)
+    return "".join(textwrap.dedent(inspect.getsource(f)) for f in fns)
 
 
 def _file_id(p: Path) -> dict[str, int]:
