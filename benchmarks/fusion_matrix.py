@@ -387,8 +387,9 @@ def cell_truth(d: Any, reg: Any) -> tuple[np.ndarray, np.ndarray]:
 
 def calibration(d: Any, reg: Any) -> dict[str, Any] | None:
     """Fused height error over its stated std on the level cells the flight saw, the flight's common depth bias
-    (the stereo model's subpixel bias, harmless to flatness) removed by the median error: on open ground (at
-    least OPEN_CELLS from any cell that is not level, beyond the matcher's edge fattening) and near objects."""
+    (the stereo model's subpixel bias, harmless to flatness) removed by the median error: on open ground (more
+    than OPEN_CELLS from any cell that is not level, beyond the matcher's edge fattening, and from the edge of the
+    region, the seen ground's bounding box, whose rim few frames saw) and near either."""
     h_true, level = cell_truth(d, reg)
     ok = reg.seen & level & np.isfinite(reg.h) & (reg.var > 0)
     if np.count_nonzero(ok) < 50:
