@@ -745,6 +745,8 @@ def main() -> None:
     ap.add_argument("--fused-only", action="store_true", help="skip the per-frame path")
     ap.add_argument("--markdown", type=Path, help="write the cell and target tables here")
     ap.add_argument("--plot", type=Path, help="write the plot here (PNG)")
+    ap.add_argument("--cached-only", action="store_true", help="aggregate the flights already measured with this "
+                    "code, measure none")
     ap.add_argument("--queue", type=Path, help="the render queue (scene alt sensor motion seed per line): list "
                     "the flights not rendered yet")
     a = ap.parse_args()
@@ -766,6 +768,8 @@ def main() -> None:
         same_file = prev.get("file") == fid
         need = [k for k in ("frame", "fused") if not (k == "frame" and a.fused_only)
                 and not (same_file and prev.get(f"key_{k}") == keys[k])]
+        if need and a.cached_only:
+            continue
         row = dict(prev) if same_file else {}
         row.update({"flight": path.name, **meta, "file": fid, "every": a.every})
         if need:
