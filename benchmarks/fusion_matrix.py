@@ -796,14 +796,18 @@ def main() -> None:
                                                    _motion_m(r["motion"]), r["seed"]))
     cells = aggregate(flights)
     tg = targets(flights)
-    missing = [name for name in order if not any(n.startswith(name + "_") for n in rows)]
+    rendered = {Path(p).stem.rsplit("_", 1)[0] for p in paths}
+    missing = [name for name in order if name not in rendered]
+    unmeasured = sorted(rendered - {Path(n).stem.rsplit("_", 1)[0] for n in rows})
     pred = predictions(flights)
     result = {"code": keys, "set": a.set, "every": a.every, "cells": cells, "targets": tg, "predictions": pred,
-              "not_rendered": missing, "flights": flights}
+              "not_rendered": missing, "rendered_not_measured": unmeasured, "flights": flights}
     _write(a.out, result)
     print(f"wrote {a.out}")
     md = markdown(cells, tg, pred, flights, missing)
     print(md)
+    if unmeasured:
+        print(f"rendered, not measured ({len(unmeasured)}): {', '.join(unmeasured)}")
     if a.markdown:
         a.markdown.parent.mkdir(parents=True, exist_ok=True)
         a.markdown.write_text(md)
