@@ -143,7 +143,7 @@ def run_cell(scene: str, altitude: float, sensor: str, seed: int, frames: int, r
     from slzcli.synth.scenes import load_scene
 
     cfg = load_config(None, SENSORS[sensor] + FLIGHT)
-    x, y, _ = scenario_start(cfg, load_scene(scene).scenario)
+    x, y, _ = scenario_start(cfg.synth.scenarios, load_scene(scene).scenario)
     path = Path(tmp) / f"{scene}_{altitude:g}_{sensor}_{seed}.mcap"
     synthesize(path, SynthOptions(scene, frames, rate, PATH, seed, (x, y, altitude)), cfg)
     rows = run_variants(path, decisions, [], leave_one_out, only)

@@ -43,7 +43,7 @@ def run_cell(scene: str, altitude: float, sensor: str, frames: int, seed: int, t
     from slzcli.synth.scenes import load_scene
 
     cfg = load_config(None, SENSORS[sensor] + DETECT)
-    x, y, _ = scenario_start(cfg, load_scene(scene).scenario)
+    x, y, _ = scenario_start(cfg.synth.scenarios, load_scene(scene).scenario)
     path = Path(tmp) / f"{scene}_{altitude:g}_{sensor}_{seed}.mcap"
     synthesize(path, SynthOptions(scene, frames, cfg.synth.rate_hz, "hover", seed, (x, y, altitude)), cfg)
     t0 = time.perf_counter()

@@ -60,7 +60,8 @@ def cell_errors(path: Path) -> list[tuple[dict[tuple[int, int], int], np.ndarray
         flat &= np.abs(err - np.median(err[flat])) < 5.0 * mad
         mx, my = m.ix[sel][flat], m.iy[sel][flat]
         keys = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(mx, my, strict=True))}
-        out.append((keys, err[flat], m.u_px[sel][flat], m.v_px[sel][flat]))
+        u_px, v_px = m.pixels(params.cell_m)
+        out.append((keys, err[flat], u_px[sel][flat], v_px[sel][flat]))
     return out
 
 

@@ -163,7 +163,7 @@ class Flight:
         self.d = np.load(path)
         k = self.d["K"]
         self.intr = Intrinsics(float(k[0]), float(k[1]), float(k[2]), float(k[3]), int(k[4]), int(k[5]))
-        self.scorer = get_scorer(self.cfg, "fuzzy")
+        self.scorer = get_scorer(self.cfg.scoring, self.cfg.mask, "fuzzy")
         self.depth, self.T, self.safe = self.d["depth"], self.d["T"], self.d["safe"]
         self.n = len(self.T)
         self.due = [i for i in range(self.n) if i % every == every - 1 or i == self.n - 1]
@@ -185,8 +185,8 @@ def _pr(c: dict[str, int]) -> tuple[float | None, float | None]:
 
 def measure_frame_path(fl: Flight) -> dict[str, Any]:
     """The per-frame path (fuzzy score, mask) on the frames due."""
-    from slzcli.scoring import mask_score
-    from slzcli.terrain.maps import frame_maps
+    from slzcli.scoring import MaskParams, mask_score
+    from slzcli.terrain.maps import MapParams, frame_maps
     from slzcli.types import Frame
 
     c = {"tp": 0, "fp": 0, "fn": 0}
@@ -200,8 +200,9 @@ def measure_frame_path(fl: Flight) -> dict[str, Any]:
                       rgb=np.zeros((fl.intr.height, fl.intr.width, 3), np.uint8), depth_m=depth,
                       intrinsics=fl.intr, T_world_camera=fl.T[i])
         t0 = time.process_time()
-        maps = frame_maps(frame, fl.cfg, fl.noise[i])
-        m = mask_score(fl.scorer, fl.scorer(maps), depth, fl.intr, fl.cfg, maps.work, maps.up_camera).mask
+        maps = frame_maps(frame, MapParams.of(fl.cfg), fl.noise[i])
+        m = mask_score(fl.scorer, fl.scorer(maps), depth, fl.intr, MaskParams.of(fl.cfg), maps.work,
+                       maps.up_camera).mask
         cpu.append((time.process_time() - t0) * 1e3)
         vouched += bool(maps.work is None or maps.work.vouched)
         steps.append(0.0 if maps.work is None else float(maps.work.step_min_m))

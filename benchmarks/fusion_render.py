@@ -49,13 +49,13 @@ def render(out: Path, scene: str, altitude: float, sensor: str, motion: str, see
     cfg = load_config(None, sets)
     sc = load_scene(scene)
     world = build_world(sc, cfg)
-    x, y, _ = scenario_start(cfg, sc.scenario)
+    x, y, _ = scenario_start(cfg.synth.scenarios, sc.scenario)
     if kind == "transect":
         x -= 0.5 * float(motion)
     flight_seed, rng = seeds(seed)
     flight = make_flight((x, y, altitude), frames, rate, kind, cfg.synth.flight, flight_seed, cfg.synth.start_stamp_ns)
     depth, true, safe = [], [], []
-    for sf in render_frames(world, flight, cfg, rng):
+    for sf in render_frames(world, flight, cfg.synth.sensor, rng):
         depth.append(sf.frame.depth_m)
         true.append(sf.depth_true_m)
         safe.append(sf.safe)

@@ -47,7 +47,7 @@ def render(scene: str, altitude: float, sensor: str, seed: int, frames: int) -> 
     path = CACHE / f"{scene}_{altitude:g}_{sensor}_{seed}_{frames}.mcap"
     if not path.exists():
         cfg = load_config(None, SENSORS[sensor])
-        x, y, _ = scenario_start(cfg, load_scene(scene).scenario)
+        x, y, _ = scenario_start(cfg.synth.scenarios, load_scene(scene).scenario)
         sets = [a for s in SENSORS[sensor] for a in ("--set", s)]
         subprocess.run([sys.executable, "-m", "slzcli.cli", "synth", scene, "-o", str(path), "--frames", str(frames),
                         "--start", f"{x},{y},{altitude}", "--path", "hover", "--seed", str(seed), *sets],
@@ -65,7 +65,7 @@ def run_cell(cores: list[stages.Core], path: Path, sensor: str) -> dict[str, Any
     with open_recording(path, config) as rec:
         frames = [dataclasses.replace(f, T_world_camera=poses[i]) for i, f in enumerate(rec.frames())]
     for core in cores:
-        scorer = core.scoring.get_scorer(config)
+        scorer = core.scorer(config)
         tracker = core.noise.NoiseTracker(config.terrain.noise, config.terrain.noise_estimate)
         for frame in frames:
             _cpu, _wall, (maps, sm) = stages.run_frame(core, frame, config, scorer, tracker)

@@ -67,7 +67,7 @@ def timed(fn: Callable[..., T], *args: Any, **kwargs: Any) -> tuple[T, float, fl
 
 def real_camera_visibility(result: SimResult, config: Config, target: Target) -> float:
     """Fraction of IBVS control steps with all four corners inside the REAL (tilting) camera image."""
-    cam = ft.CameraModel.from_config(config)
+    cam = ft.CameraModel.from_config(config.camera, config.uav)
     log = result.log or {}
     ibvs = log["phase"][:, 0] == 0
     pix = log["corner_px"][ibvs, 0]

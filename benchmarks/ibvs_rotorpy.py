@@ -68,7 +68,7 @@ def slz_config(config: Config, case: str) -> Config:
     if case == "rigid":
         w = replace(w, drag_kg_s=0.0)
     elif case == "wind":
-        drag = rc.equivalent_drag_kg_s(rc.quad_params(config), config.uav.mass_kg, config.control.gravity_m_s2,
+        drag = rc.equivalent_drag_kg_s(rc.quad_params(config.uav), config.uav.mass_kg, config.control.gravity_m_s2,
                                        float(np.linalg.norm(WIND_M_S)))
         w = replace(w, mean_m_s=WIND_M_S, drag_kg_s=drag)
     return replace(config, control=replace(config.control, wind=w))
@@ -115,7 +115,8 @@ def main() -> None:
         for case in ("rigid", "calm", "wind"):
             cfg = slz_config(config, case)
             own = fly(target, start, cfg, None)
-            plant = rc.RotorPyPlant(config, aero=case != "rigid", wind_m_s=WIND_M_S if case == "wind" else None)
+            plant = rc.RotorPyPlant(config.control, config.uav, aero=case != "rigid",
+                                    wind_m_s=WIND_M_S if case == "wind" else None)
             other = fly(target, start, config, plant)
             cmp = agree(own, other)
             rows.append({"start": name, "site_world": target.center_world.tolist(), "start_world": start[0].tolist(),
@@ -132,7 +133,7 @@ def main() -> None:
     write_json(RESULTS, {
         "rotorpy_version": getattr(rotorpy, "__version__", None) or _dist_version("rotorpy"),
         "python": platform.python_version(),
-        "quad_params": {k: _jsonable(v) for k, v in rc.quad_params(config).items()},
+        "quad_params": {k: _jsonable(v) for k, v in rc.quad_params(config.uav).items()},
         "wind_m_s": list(WIND_M_S), "tolerance": {"touchdown_m": TOL_TD_M, "time_rel": TOL_TIME_REL,
                                                   "time_abs_s": TOL_TIME_ABS_S},
         "within_tolerance": ok, "cases": len(rows), "rows": rows})

@@ -21,10 +21,10 @@ from flights import render  # benchmarks/flights.py (the script's folder is on s
 
 from slzcli.config import load_config
 from slzcli.evaluate.safety import mask_counts, total
-from slzcli.scoring import get_scorer, score_frame
+from slzcli.scoring import MaskParams, get_scorer, score_frame
 from slzcli.sources import open_recording
 from slzcli.synth.groundtruth import load_ground_truth
-from slzcli.terrain.maps import frame_maps
+from slzcli.terrain.maps import MapParams, frame_maps
 
 HERE = Path(__file__).resolve().parent
 
@@ -32,17 +32,17 @@ HERE = Path(__file__).resolve().parent
 def evaluate(path: Path, overrides: list[str], methods: tuple[str, ...]) -> dict[str, dict]:
     config = load_config(None, overrides)
     truth = load_ground_truth(path)
-    scorers = {m: get_scorer(config, m) for m in methods}
+    scorers = {m: get_scorer(config.scoring, config.mask, m) for m in methods}
     counts: dict[str, list] = {m: [] for m in methods}
     safe_fraction: dict[str, list[float]] = {m: [] for m in methods}
     truth_fraction = []
     with open_recording(path, config) as rec:
         for frame in rec.frames():
-            maps = frame_maps(frame, config)
+            maps = frame_maps(frame, MapParams.of(config))
             gt = truth.safe_mask(frame.stamp_ns, tolerance_ns=round(config.synth.ground_truth.stamp_tolerance_ms * 1e6))
             truth_fraction.append(float(gt.mean()))
             for m, scorer in scorers.items():
-                sm = score_frame(scorer, maps, frame.depth_m, frame.intrinsics, config)
+                sm = score_frame(scorer, maps, frame.depth_m, frame.intrinsics, MaskParams.of(config))
                 counts[m].append(mask_counts(sm.mask, gt))
                 safe_fraction[m].append(float(sm.mask.mean()))
     out = {}

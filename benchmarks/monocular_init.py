@@ -39,16 +39,16 @@ def run(scene: str, altitude: float, seed: int, path: str, rate: float, frames: 
 
     cfg = load_config(None, ["synth.sensor.model=gaussian", *items], "paper")
     sc = load_scene(scene)
-    x, y, _ = scenario_start(cfg, sc.scenario)
+    x, y, _ = scenario_start(cfg.synth.scenarios, sc.scenario)
     world = build_world(sc, cfg)
     flight_seed, sensor_rng = seeds(seed)
     flight = make_flight((x, y, altitude), frames, rate, path, cfg.synth.flight, flight_seed,  # type: ignore[arg-type]
                          cfg.synth.start_stamp_ns)
-    backend = get_backend(cfg)
+    backend = get_backend(cfg.slam)
     est: list[np.ndarray | None] = []
     t0 = time.perf_counter()
     try:
-        for f in render_frames(world, flight, cfg, sensor_rng, scene):
+        for f in render_frames(world, flight, cfg.synth.sensor, sensor_rng, scene):
             est.append(backend.track(f.frame).T_world_camera)
     finally:
         backend.close()

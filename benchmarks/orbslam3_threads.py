@@ -33,7 +33,7 @@ def main() -> None:
         frames = list(rec.frames())
     digests = []
     for r in range(args.runs):
-        backend = OrbSlam3Backend(cfg)
+        backend = OrbSlam3Backend(cfg.slam)
         poses = []
         for f in frames:
             res = backend.track(f)

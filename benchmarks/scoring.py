@@ -28,7 +28,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from slzcli.config import load_config  # noqa: E402
-from slzcli.scoring import bayes, closed_form, fuzzy, get_scorer, lut, score_frame  # noqa: E402
+from slzcli.scoring import MaskParams, bayes, closed_form, fuzzy, get_scorer, lut, score_frame  # noqa: E402
 from slzcli.scoring.rules import load_rules  # noqa: E402
 from slzcli.types import Intrinsics, TerrainMaps  # noqa: E402
 
@@ -106,8 +106,8 @@ def main() -> None:
 
     maps, depth = realistic_maps()
     K = Intrinsics(462.137, 462.137, 320.0, 240.0, W, H)
-    fuzzy_c = get_scorer(config, "fuzzy")
-    bayes_s = get_scorer(config, "bayes")
+    fuzzy_c = get_scorer(config.scoring, config.mask, "fuzzy")
+    bayes_s = get_scorer(config.scoring, config.mask, "bayes")
     inputs = [maps.as_dict()[n] for n in rb.input_names]
     flat = np.stack([x.ravel() for x in inputs]).astype(np.float64)
     score = fuzzy_c(maps)
@@ -123,7 +123,8 @@ def main() -> None:
     rows["bayes fuse only"] = timed(lambda: bayes.fuse(list(maps.as_dict().values()), 0.5, 0.01), args.repeats)
     rows["mask (median depth + blur + erode + threshold)"] = timed(lambda: _mask_only(score, depth, K, config),
                                                                     args.repeats)
-    rows["score_frame (compiled fuzzy + mask)"] = timed(lambda: score_frame(fuzzy_c, maps, depth, K, config),
+    params = MaskParams.of(config)
+    rows["score_frame (compiled fuzzy + mask)"] = timed(lambda: score_frame(fuzzy_c, maps, depth, K, params),
                                                          args.repeats)
 
     exact_frame = fuzzy.evaluate_exact(rb, flat).reshape(H, W)

@@ -50,13 +50,13 @@ def true_noise_and_slope(scene: str, start: tuple[float, float, float], sensor: 
     from slzcli.synth.flight import make_flight
     from slzcli.synth.record import build_world, render_frames, seeds
     from slzcli.synth.scenes import load_scene
-    from slzcli.terrain.maps import frame_maps
+    from slzcli.terrain.maps import MapParams, frame_maps
 
     cfg = load_config(None, sensor)
     world = build_world(load_scene(scene), cfg)
     flight_seed, rng = seeds(seed)
     flight = make_flight(start, 1, cfg.synth.rate_hz, "hover", cfg.synth.flight, flight_seed, cfg.synth.start_stamp_ns)
-    sf = next(render_frames(world, flight, cfg, rng))
+    sf = next(render_frames(world, flight, cfg.synth.sensor, rng))
     d, t = sf.frame.depth_m.astype(np.float64), sf.depth_true_m.astype(np.float64)
     ok = np.isfinite(d) & np.isfinite(t) & (t > 0)
     err = (d[ok] - t[ok]) / (t[ok] ** 2)
@@ -71,7 +71,7 @@ def true_noise_and_slope(scene: str, start: tuple[float, float, float], sensor: 
         # that is the map working, not an error of its slope estimate)
         import cv2
 
-        maps = frame_maps(sf.frame, cfg)
+        maps = frame_maps(sf.frame, MapParams.of(cfg))
         n = sf.normal_world.astype(np.float64)
         true_slope = np.degrees(np.arccos(np.clip(np.abs(n[..., 2]), 0.0, 1.0)))
         ids = sf.object_id.astype(np.int32)
@@ -95,7 +95,7 @@ def run_cell(scene: str, altitude: float, sensor: str, frames: int, seed: int, t
     t0 = time.perf_counter()
     overrides = SENSORS[sensor]
     cfg = load_config(None, overrides + DETECT)
-    x, y, _ = scenario_start(cfg, load_scene(scene).scenario)
+    x, y, _ = scenario_start(cfg.synth.scenarios, load_scene(scene).scenario)
     start = (x, y, altitude)
     path = Path(tmp) / f"{scene}_{altitude:g}_{sensor}_{seed}.mcap"
     synthesize(path, SynthOptions(scene, frames, cfg.synth.rate_hz, "hover", seed, start), cfg)

@@ -74,7 +74,7 @@ def run(backend: str, frames: list[Frame], truth: Sequence[np.ndarray | None] | 
     config = load_config(overrides=[f"slam.backend={backend}"])
     results: list[TrackResult] = []
     kf_points: list[int] = []
-    with get_backend(config) as b:
+    with get_backend(config.slam) as b:
         t_first: float | None = None
         t0 = time.perf_counter()
         for f in frames:

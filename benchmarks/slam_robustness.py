@@ -77,7 +77,7 @@ def run(mod: ModuleType, frames: list, truth: list, overrides: list[str]) -> dic
     config = load_config(overrides=["slam.backend=odometry", *overrides])
     results, keyframes, times = [], [], []
     cpu0 = time.process_time()
-    with mod.OdometryBackend(config) as b:
+    with mod.OdometryBackend(config.slam) as b:
         for f in frames:
             t0 = time.perf_counter()
             results.append(b.track(f))

@@ -89,6 +89,18 @@ class Core:
     noise: types.ModuleType
     scoring: types.ModuleType
 
+    # a revision from before the stages took their own config sections takes the whole Config
+    def scorer(self, config: Any) -> Any:
+        if hasattr(self.scoring, "MaskParams"):
+            return self.scoring.get_scorer(config.scoring, config.mask)
+        return self.scoring.get_scorer(config)
+
+    def mask_params(self, config: Any) -> Any:
+        return self.scoring.MaskParams.of(config) if hasattr(self.scoring, "MaskParams") else config
+
+    def map_params(self, config: Any) -> Any:
+        return self.maps.MapParams.of(config) if hasattr(self.maps, "MapParams") else config
+
 
 def current_core() -> Core:
     import slzcli.scoring as scoring
@@ -192,10 +204,11 @@ def run_frame(core: Core, frame: Frame, config: Config, scorer: Any, tracker: An
         cpu[name], wall[name] = (time.thread_time() - c0) * 1e3, (time.perf_counter() - w0) * 1e3
         return out
 
+    map_params, mask_params = core.map_params(config), core.mask_params(config)
     noise = lap("noise", lambda: tracker.update(frame.depth_m))
-    maps = lap("maps", lambda: core.maps.frame_maps(frame, config, noise))
+    maps = lap("maps", lambda: core.maps.frame_maps(frame, map_params, noise))
     raw = lap("score", lambda: scorer(maps))
-    sm = lap("mask", lambda: core.scoring.mask_score(scorer, raw, frame.depth_m, frame.intrinsics, config,
+    sm = lap("mask", lambda: core.scoring.mask_score(scorer, raw, frame.depth_m, frame.intrinsics, mask_params,
                                                      maps.work, maps.up_camera))
     return cpu, wall, (maps, sm)
 
@@ -221,7 +234,7 @@ def time_case(cores: list[Core], case: Case, runs: int) -> dict[str, Any]:
     repeat: list[dict[str, float]] = []     # the first core against itself: run-to-run jitter
     trackers = {c.name: c.noise.NoiseTracker(case.config.terrain.noise, case.config.terrain.noise_estimate)
                 for c in cores}
-    scorers = {c.name: c.scoring.get_scorer(case.config) for c in cores}
+    scorers = {c.name: c.scorer(case.config) for c in cores}
     for frame in case.frames:
         samples: dict[str, dict[str, list[dict[str, float]]]] = {c.name: {"cpu": [], "wall": []} for c in cores}
         outputs = {}
@@ -307,7 +320,7 @@ def profile(core: Core, cases: list[Case], top: int) -> list[dict[str, Any]]:
     n = 0
     for case in cases:
         tracker = core.noise.NoiseTracker(case.config.terrain.noise, case.config.terrain.noise_estimate)
-        scorer = core.scoring.get_scorer(case.config)
+        scorer = core.scorer(case.config)
         for frame in case.frames:
             pr.enable()
             run_frame(core, frame, case.config, scorer, tracker)
@@ -398,7 +411,7 @@ def main() -> None:
     floor = floor_ms(depth, args.floor_passes, 50)
     ref_case = next(c for c in cases if c.name.startswith("playground 5"))
     ref_frame = ref_case.frames[0]
-    ref_maps = current_core().maps.frame_maps(ref_frame, ref_case.config)
+    ref_maps = current_core().maps.frame_maps(ref_frame, current_core().map_params(ref_case.config))
     tool = obvious_tool(ref_case, ref_frame, ref_maps, args.skfuzzy_pixels)
     after = overall["after"]["cpu"]["maps+score+mask"]
     before = overall["before"]["cpu"]["maps+score+mask"]

@@ -40,8 +40,8 @@ def stage_times(scene: str, frames: int) -> dict[str, float]:
     world = record.build_world(load_scene(scene), cfg)
     build_s = time.perf_counter() - t0
     flight_seed, rng = record.seeds(0)
-    flight = make_flight(record.scenario_start(cfg, 1), frames, cfg.synth.rate_hz, "hover", cfg.synth.flight,
-                         flight_seed, cfg.synth.start_stamp_ns)
+    flight = make_flight(record.scenario_start(cfg.synth.scenarios, 1), frames, cfg.synth.rate_hz, "hover",
+                         cfg.synth.flight, flight_seed, cfg.synth.start_stamp_ns)
     t = {"render": 0.0, "sensor": 0.0, "truth": 0.0}
     for T in flight.T_world_camera:
         a = time.perf_counter()
@@ -65,7 +65,7 @@ def recording(scene: str, frames: int, color: str, depth: str, folder: Path) -> 
     cfg = load_config()
     out = folder / f"{scene}_{color}_{depth}.mcap"
     opts = record.SynthOptions(scene=scene, frames=frames, rate_hz=cfg.synth.rate_hz, path="hover", seed=0,
-                               start_m=record.scenario_start(cfg, 1), fmt="mcap", color_encoding=color,
+                               start_m=record.scenario_start(cfg.synth.scenarios, 1), fmt="mcap", color_encoding=color,
                                depth_encoding=depth)
     t0 = time.perf_counter()
     record.synthesize(out, opts, cfg)

@@ -1,9 +1,11 @@
-"""`slz detect` end to end: frames per second with the stages overlapped against one at a time.
+"""`slz detect` end to end: frames per second with the stages overlapped against one at a time, and against
+the rate ORB-SLAM3 alone allows in the same run.
 
-    python benchmarks/throughput.py [--frames 300] [--repeats 2] [--keep DIR] [--backend orbslam3] [--set k=v ...]
+    python benchmarks/throughput.py [--frames 300] [--repeats 2] [--keep DIR] [--backend orbslam3]
+                                    [--size 848x480] [--variants 'NAME;...'] [--set k=v ...]
 
 Renders one `slz synth` descent (parking_lot, 8 m to 3 m, the default D435-like stereo depth,
-640x480) of ``--seed-frames`` frames, plays it forwards and backwards to ``--frames`` frames,
+``--size``, 640x480 by default) of ``--seed-frames`` frames, plays it forwards and backwards to ``--frames`` frames,
 then runs the real CLI (`python -m slzcli.cli detect --json`, a fresh process each time:
 start-up, vocabulary load and the final write included) in variants interleaved over
 ``--repeats`` rounds, so that a slow spell of a shared machine hits every variant:
@@ -13,7 +15,14 @@ start-up, vocabulary load and the final write included) in variants interleaved 
 - ``overlapped``: the defaults (frame n+1 tracked by the SLAM worker while frame n's maps are
   computed; files written by the background writer);
 - the same two with every frame a detection (``landing.detect_on=every_nth``,
-  ``landing.every_nth_frame=1``).
+  ``landing.every_nth_frame=1``);
+- ``fused``: the defaults with ``--method fused`` (every tracked frame fused into the world-fixed grid,
+  the fused verdict on the detection frames), and ``fused, sequential`` its reference.
+
+Against ORB-SLAM3 alone: per run, the rate its tracking allows (1000 / the median ms per frame of the SLAM
+worker's own time, run.json ``timings.slam``, measured in that very run) and the run's end-to-end rate
+divided by it (``of_slam_bound``: 1 = slz is as fast as its tracker; the target for ``fused`` is >= 0.7).
+The fusion's own cost is run.json ``timings.fuse`` (CPU time of the main thread per tracked frame).
 
 Per variant: median frames/s over the process's wall time, median ms per stage from run.json
 (slam is the worker's own time, slam_wait what the main loop waited for it), the ratio
@@ -40,13 +49,17 @@ REPO = Path(__file__).resolve().parent.parent
 RESULTS = REPO / "benchmarks" / "results" / "throughput.json"
 SEQUENTIAL = ("slam.track_ahead=false", "output.write_queue=0")
 EVERY_FRAME = ("landing.detect_on=every_nth", "landing.every_nth_frame=1")
-VARIANTS: dict[str, tuple[str, ...]] = {
+FUSED = ("--method", "fused")
+VARIANTS: dict[str, tuple[str, ...]] = {   # --set values, or a CLI option pair
     "sequential": SEQUENTIAL,
     "overlapped": (),
     "every frame, sequential": (*EVERY_FRAME, *SEQUENTIAL),
     "every frame, overlapped": EVERY_FRAME,
+    "fused, sequential": (*FUSED, *SEQUENTIAL),
+    "fused": FUSED,
 }
-REFERENCE = {"overlapped": "sequential", "every frame, overlapped": "every frame, sequential"}
+REFERENCE = {"overlapped": "sequential", "every frame, overlapped": "every frame, sequential",
+             "fused": "fused, sequential"}
 
 
 def slz(*args: str) -> subprocess.CompletedProcess[str]:
@@ -54,7 +67,18 @@ def slz(*args: str) -> subprocess.CompletedProcess[str]:
                           check=False)
 
 
-def render(folder: Path, frames: int, seed_frames: int) -> Path:
+def size_overrides(size: str) -> list[str]:
+    """camera.* for a WxH render with the paper's field of view (fx scales with the width)."""
+    width, height = (int(v) for v in size.lower().split("x"))
+    f = 462.137 * width / 640.0
+    out: list[str] = []
+    for key, value in (("width", width), ("height", height), ("fx", f), ("fy", f), ("cx", width / 2),
+                       ("cy", height / 2)):
+        out += ["--set", f"camera.{key}={value}"]
+    return out
+
+
+def render(folder: Path, frames: int, seed_frames: int, size: str = "640x480") -> Path:
     """A ``seed_frames`` descent rendered by `slz synth`, played forwards and backwards to ``frames`` frames at
     15 Hz (tests/long_recording.py: the motion stays continuous, SLAM keeps tracking; rendering 300 stereo frames
     takes the renderer longer than the benchmark itself)."""
@@ -63,22 +87,30 @@ def render(folder: Path, frames: int, seed_frames: int) -> Path:
 
     from slzcli.config import load_config
 
-    seed = folder / f"descent_{seed_frames}.mcap"
+    tag = "" if size == "640x480" else f"_{size}"
+    seed = folder / f"descent_{seed_frames}{tag}.mcap"
     if not seed.exists():
         res = slz("synth", "parking_lot", "-o", str(seed), "--frames", str(seed_frames), "--rate", "15",
-                  "--path", "descent", "--start", "0,0,8")
+                  "--path", "descent", "--start", "0,0,8", *size_overrides(size))
         if res.returncode != 0:
             raise SystemExit(f"synth failed: {res.stderr}")
-    path = folder / f"descent_{seed_frames}_x{frames}.mcap"
+    path = folder / f"descent_{seed_frames}{tag}_x{frames}.mcap"
     if not path.exists():
         write_ping_pong(seed, path, frames, load_config(), rate_hz=15.0)
     return path
 
 
+def cli_args(sets: tuple[str, ...]) -> list[str]:
+    """``key=value`` items as ``--set key=value``; an ``--option`` and the item after it as they are."""
+    out: list[str] = []
+    items = iter(sets)
+    for s in items:
+        out += [s, next(items)] if s.startswith("--") else ["--set", s]
+    return out
+
+
 def run(recording: Path, out: Path, sets: tuple[str, ...]) -> dict[str, Any]:
-    cmd = ["detect", str(recording), "-o", str(out), "--json", "--force"]
-    for s in sets:
-        cmd += ["--set", s]
+    cmd = ["detect", str(recording), "-o", str(out), "--json", "--force", *cli_args(sets)]
     t0 = time.perf_counter()
     res = slz(*cmd)
     wall = time.perf_counter() - t0
@@ -88,9 +120,17 @@ def run(recording: Path, out: Path, sets: tuple[str, ...]) -> dict[str, Any]:
     timings = json.loads((out / "run.json").read_text())["timings"]
     landing = json.loads((out / "landing.json").read_text())
     site = landing.get("site", {}).get("center_world")
+    fps = summary["frames"] / wall
+    slam_ms = timings.get("slam", {}).get("median_ms")
+    bound = 1000.0 / slam_ms if slam_ms else None
+    fuse = timings.get("fuse")
     return {"frames": summary["frames"], "detections": summary["detections"], "wall_s": round(wall, 3),
-            "fps": round(summary["frames"] / wall, 3), "status": summary["status"],
+            "fps": round(fps, 3), "status": summary["status"],
             "site": None if site is None else [round(v, 3) for v in site],
+            "slam_bound_fps": None if bound is None else round(bound, 2),
+            "of_slam_bound": None if bound is None else round(fps / bound, 3),
+            "fuse_cpu_ms": None if fuse is None else {k: round(fuse[k], 2) for k in ("median_ms", "mean_ms", "count")},
+            "load_1min": round(os.getloadavg()[0], 2),
             "stage_ms": {k: round(v["median_ms"], 2) for k, v in timings.items()}}
 
 
@@ -101,37 +141,46 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--backend", default="orbslam3", help="slam.backend of every run")
     ap.add_argument("--keep", type=Path, help="folder for the recording and runs (kept; reused when present)")
+    ap.add_argument("--size", default="640x480", help="WxH of the rendered frames")
+    ap.add_argument("--variants", default=";".join(VARIANTS), help="a subset of: " + "; ".join(VARIANTS)
+                    + " (separated by ';')")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="slz_throughput_"))
     work.mkdir(parents=True, exist_ok=True)
-    recording = render(work, args.frames, args.seed_frames)
+    recording = render(work, args.frames, args.seed_frames, args.size)
+    variants = {k.strip(): VARIANTS[k.strip()] for k in args.variants.split(";")}
     base = (f"slam.backend={args.backend}", *args.overrides)
-    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in VARIANTS}
+    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in variants}
     for _ in range(args.repeats):
-        for name, sets in VARIANTS.items():
+        for name, sets in variants.items():
             rows[name].append(run(recording, work / f"run_{name.replace(', ', '_').replace(' ', '_')}",
                                   (*base, *sets)))
     table: dict[str, Any] = {}
-    print(f"{'variant':<26} {'frames':>6} {'det':>4} {'frames/s':>8} {'x ref':>6} {'slam':>6} {'wait':>6} "
-          f"{'maps':>6} {'write':>6} {'waited':>6}  site")
+    print(f"{'variant':<26} {'frames':>6} {'det':>4} {'frames/s':>8} {'x ref':>6} {'x slam':>6} {'slam':>6} "
+          f"{'wait':>6} {'maps':>6} {'fuse':>6} {'write':>6} {'waited':>6}  site")
     for name, runs in rows.items():
         fps = statistics.median(r["fps"] for r in runs)
         stages = {k: statistics.median(r["stage_ms"].get(k, float("nan")) for r in runs)
                   for k in runs[0]["stage_ms"]}
         sites = {json.dumps(r["site"]) for r in runs}
+        of_slam = [r["of_slam_bound"] for r in runs if r["of_slam_bound"] is not None]
         table[name] = {"fps_median": round(fps, 3), "stage_ms_median": stages, "runs": runs,
+                       "of_slam_bound_median": round(statistics.median(of_slam), 3) if of_slam else None,
                        "same_site_every_run": len(sites) == 1}
         ref = REFERENCE.get(name)
-        ratio = fps / table[ref]["fps_median"] if ref else 1.0
+        ratio = fps / table[ref]["fps_median"] if ref and ref in table else 1.0
         table[name]["ratio_to_reference"] = round(ratio, 3)
+        nan = float("nan")
         print(f"{name:<26} {runs[0]['frames']:>6} {runs[0]['detections']:>4} {fps:>8.2f} {ratio:>6.2f} "
-              f"{stages.get('slam', float('nan')):>6.1f} {stages.get('slam_wait', float('nan')):>6.1f} "
-              f"{stages.get('maps', float('nan')):>6.1f} {stages.get('write', float('nan')):>6.1f} "
+              f"{table[name]['of_slam_bound_median'] or nan:>6.2f} "
+              f"{stages.get('slam', nan):>6.1f} {stages.get('slam_wait', nan):>6.1f} "
+              f"{stages.get('maps', nan):>6.1f} {stages.get('fuse', nan):>6.1f} {stages.get('write', nan):>6.1f} "
               f"{stages.get('write_wait', float('nan')):>6.1f}  {runs[0]['site']}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"frames": args.frames, "repeats": args.repeats, "base": list(base),
+                                    "size": args.size,
                                     "cpus": os.cpu_count(), "python": platform.python_version(),
                                     "load_avg_at_end": os.getloadavg(), "variants": table}, indent=2) + "\n")
     print(f"wrote {args.out}")

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from slzcli.config import Config
+from slzcli.config import Config, load_config
 from slzcli.errors import ConfigError, DatasetError
 
 
@@ -83,8 +83,6 @@ def _step_key(config: Config) -> str:
 
 @functools.lru_cache(maxsize=1)
 def _default_config() -> Config:
-    from slzcli.config import load_config
-
     return load_config()
 
 

@@ -586,7 +586,7 @@ def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scene
     if start is not None and len(start) != 3:
         raise click.UsageError("--start needs X,Y,Z")
     start_m = tuple(start) if start is not None else (
-        record.scenario_start(config, scenario) if scenario is not None else None)
+        record.scenario_start(config.synth.scenarios, scenario) if scenario is not None else None)
     s = config.synth
     options = record.SynthOptions(scene=scene, frames=frames or s.frames, rate_hz=rate_hz or s.rate_hz,
                                   path=path_kind or s.path, seed=s.seed if seed is None else seed,

@@ -184,9 +184,9 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
     t_start = time.perf_counter()
     with ExitStack() as stack:
         with limit.stage("opening the recording"):
-            truth = ground_truth_of(path, config)
+            truth = ground_truth_of(path, config.synth.ground_truth)
             source, config = open_source(path, config, stack)
-        slam = stack.enter_context(get_backend(config, source.has_poses, clouds=source.clouds))
+        slam = stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds))
         tracker = Tracker(config, slam)
         noise = NoiseTracker(config.terrain.noise, config.terrain.noise_estimate)  # the maps', shared
         runs = {m: MethodRun(m, PipelineRun(build(m, config), RunState()),
@@ -300,7 +300,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
     committed_of: dict[str, CommittedSite | None] = {}
     for m, run in runs.items():
         st = run.state
-        committed = commit(st.sites.sites, config)
+        committed = commit(st.sites.sites, config.landing, config.uav)
         committed_of[m] = committed
         timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
         timing["frame"] = _stats(run.frame_ms)

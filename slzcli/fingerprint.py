@@ -19,16 +19,36 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, cast
 
+import yaml
+
+from slzcli.bounds import MAX_BAG_METADATA_BYTES, read_regular
 from slzcli.config import Config
+from slzcli.errors import DatasetError, SlzError
+from slzcli.scoring.rules import resolve_rules_path
+from slzcli.slam.vocabulary import DEFAULT_VOCABULARY
+from slzcli.sources import guess_format
+from slzcli.sources.tum import read_list
+from slzcli.synth.groundtruth import BINDING_KEY, sidecar_paths
 from slzcli.version import __version__
 
 HASH_BLOCK = 1 << 20  # bytes read per step while hashing; I/O housekeeping, not tuning
-Entry = dict[str, Any]  # {"path", "size", "mtime_ns", "ctime_ns", "inode", "sha256"}
 _IDENTITY = ("size", "mtime_ns", "ctime_ns", "inode")
+
+
+class Entry(TypedDict):
+    """A file a run read: its identity and content (run.json's ``key.inputs`` rows)."""
+
+    path: str        # resolved
+    size: int
+    mtime_ns: int
+    ctime_ns: int
+    inode: int
+    sha256: str
 
 
 def sha256_of(path: Path) -> str:
@@ -46,19 +66,16 @@ def digest(path: Path, cache: dict[str, Entry]) -> Entry:
     """A file's identity and sha256; the cached sha256 when the identity is the one recorded."""
     p = Path(path).resolve()
     st = p.stat()
-    entry: Entry = {"path": str(p), "size": st.st_size, "mtime_ns": st.st_mtime_ns, "ctime_ns": st.st_ctime_ns,
-                    "inode": st.st_ino}
+    identity = {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "ctime_ns": st.st_ctime_ns, "inode": st.st_ino}
     old = cache.get(str(p))
-    if old is not None and all(old.get(k) == entry[k] for k in _IDENTITY) and isinstance(old.get("sha256"), str):
-        return {**entry, "sha256": old["sha256"]}
-    return {**entry, "sha256": sha256_of(p)}
+    same = old is not None and all(old.get(k) == identity[k] for k in _IDENTITY) and isinstance(old.get("sha256"), str)
+    sha = old["sha256"] if same and old is not None else sha256_of(p)
+    return Entry(path=str(p), size=st.st_size, mtime_ns=st.st_mtime_ns, ctime_ns=st.st_ctime_ns, inode=st.st_ino,
+                 sha256=sha)
 
 
 def recording_files(path: Path) -> list[Path]:
     """The files a recording's reader reads (see the module docstring); [] when there is nothing to read."""
-    from slzcli.errors import DatasetError
-    from slzcli.sources import guess_format
-
     p = Path(path)
     try:
         fmt = guess_format(p)
@@ -72,11 +89,6 @@ def recording_files(path: Path) -> list[Path]:
 
 
 def _rosbag2_files(folder: Path) -> list[Path]:
-    import yaml
-
-    from slzcli.bounds import MAX_BAG_METADATA_BYTES, read_regular
-    from slzcli.errors import SlzError
-
     meta = folder / "metadata.yaml"
     try:
         text = read_regular(meta, MAX_BAG_METADATA_BYTES, "rosbag2 metadata.yaml")
@@ -88,9 +100,6 @@ def _rosbag2_files(folder: Path) -> list[Path]:
 
 
 def _tum_files(folder: Path) -> list[Path]:
-    from slzcli.errors import SlzError
-    from slzcli.sources.tum import read_list
-
     out = [folder / n for n in ("rgb.txt", "depth.txt", "groundtruth.txt", "camera.yaml") if (folder / n).is_file()]
     images: set[Path] = set()
     for name in ("rgb.txt", "depth.txt"):
@@ -103,9 +112,6 @@ def _tum_files(folder: Path) -> list[Path]:
 
 def run_inputs(recording: Path, config: Config, cache: dict[str, Entry]) -> dict[str, list[Entry]]:
     """Every file the run reads, by role, with its identity and sha256."""
-    from slzcli.scoring.rules import resolve_rules_path
-    from slzcli.synth.groundtruth import sidecar_paths
-
     sidecars = sidecar_paths(recording)
     roles: dict[str, list[Path]] = {
         "recording": recording_files(recording),
@@ -123,8 +129,6 @@ def _may_use_orbslam3(config: Config) -> bool:
 def _vocabulary(config: Config) -> Path | None:
     if not _may_use_orbslam3(config):
         return None
-    from slzcli.slam.vocabulary import DEFAULT_VOCABULARY
-
     return Path(config.slam.vocabulary or DEFAULT_VOCABULARY).expanduser()
 
 
@@ -132,8 +136,6 @@ def versions(config: Config) -> dict[str, str | None]:
     """The versions in the key: slz's, and pyorbslam3's when the backend may be ORB-SLAM3."""
     out: dict[str, str | None] = {"slz": __version__}
     if _may_use_orbslam3(config):
-        from importlib.metadata import PackageNotFoundError, version
-
         try:
             out["pyorbslam3"] = version("pyorbslam3")
         except PackageNotFoundError:
@@ -149,11 +151,12 @@ def run_key(config: Config, method: str, inputs: dict[str, list[Entry]], vers: d
 
 
 def cache_of(run: dict[str, Any] | None) -> dict[str, Entry]:
-    """The digests a previous run.json recorded, by resolved path (empty when there are none)."""
+    """The digests a previous run.json recorded, by resolved path (empty when there are none). Rows as read:
+    ``digest`` trusts one only when its identity fields equal the file's and its sha256 is a string."""
     inputs = ((run or {}).get("key") or {}).get("inputs") or {}
     if not isinstance(inputs, dict):
         return {}
-    return {e["path"]: e for entries in inputs.values() if isinstance(entries, list)
+    return {e["path"]: cast(Entry, e) for entries in inputs.values() if isinstance(entries, list)
             for e in entries if isinstance(e, dict) and isinstance(e.get("path"), str)}
 
 
@@ -184,13 +187,13 @@ def what_changed(run: dict[str, Any], config: Config, method: str, inputs: dict[
     return "its key differs"
 
 
-def _changed_paths(before: Sequence[tuple[Any, Any]], now: Sequence[tuple[Any, Any]]) -> str:
+def _changed_paths(before: Sequence[tuple[object, object]], now: Sequence[tuple[object, object]]) -> str:
     old = dict(before)
     diff = [p for p, h in now if old.get(p) != h] + [p for p in old if p not in dict(now)]
     return "" if not diff else (Path(str(diff[0])).name + (f" (+{len(diff) - 1} more)" if len(diff) > 1 else ""))
 
 
-def _first_difference(a: Any, b: Any, prefix: str = "") -> str:
+def _first_difference(a: object, b: object, prefix: str = "") -> str:
     if isinstance(a, dict) and isinstance(b, dict):
         for k in sorted(set(a) | set(b)):
             d = _first_difference(a.get(k), b.get(k), f"{prefix}.{k}" if prefix else str(k))
@@ -210,13 +213,11 @@ def recording_binding(recording: Path, cache: dict[str, Entry] | None = None) ->
                   key=lambda e: (e["sha256"], e["size"]))
 
 
-def binding_problem(header: dict[str, Any], recording: Path, cache: dict[str, Entry] | None = None) -> str | None:
+def binding_problem(header: Mapping[str, object], recording: Path, cache: dict[str, Entry] | None = None) -> str | None:
     """Why the sidecar with ``header`` is not the ground truth of ``recording`` (None: it is bound to it).
 
     A sidecar without a binding (written before slz bound them) cannot be checked: None, and the
     caller warns (``UNBOUND``)."""
-    from slzcli.synth.groundtruth import BINDING_KEY
-
     bound = header.get(BINDING_KEY)
     if bound is None:
         return None

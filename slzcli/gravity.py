@@ -18,12 +18,14 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import CameraCfg, Config
 from slzcli.errors import DatasetError, SlzError
+from slzcli.slam import uses_recorded_poses
+from slzcli.sources import Recording, RecordingInfo, open_recording
+from slzcli.sources.imu import NO_IMU, read_imu
 from slzcli.terrain import gravity as g
 from slzcli.terrain.maps import gravity_up_in_camera
 from slzcli.types import Frame
@@ -41,13 +43,13 @@ class RecordingGravity:
     up_of: UpOf | None = None
     world_fix: np.ndarray | None = None  # 3x3: recorded poses' world rotated to the IMU's up (None: as recorded)
 
-    def config(self, config: Config) -> Config:
-        """``config`` with ``camera.mount`` set to the gravity used (unchanged when it is the mount)."""
+    def camera(self, camera: CameraCfg) -> CameraCfg:
+        """The ``camera`` section with ``mount`` set to the gravity used (unchanged when it is the mount)."""
         if self.gravity.source == "mount":
-            return config
-        return dataclasses.replace(config, camera=dataclasses.replace(config.camera, mount=self.gravity.mount()))
+            return camera
+        return dataclasses.replace(camera, mount=self.gravity.mount())
 
-    def info(self, info: Any) -> Any:
+    def info(self, info: RecordingInfo) -> RecordingInfo:
         """The recording's info with the gravity block and its warnings."""
         warnings = tuple(info.warnings) + tuple(w for w in self.gravity.warnings if w not in info.warnings)
         return dataclasses.replace(info, gravity=self.gravity.as_dict(), warnings=warnings)
@@ -63,26 +65,30 @@ class RecordingGravity:
             yield frame if self.up_of is None else dataclasses.replace(frame, up_camera=self.up_of(frame))
 
 
-def apply(path: Path, rec: Any, info: Any, config: Config) -> tuple[RecordingGravity, Any, Config]:
+def apply(path: Path, rec: Recording, info: RecordingInfo,
+          config: Config) -> tuple[RecordingGravity, RecordingInfo, Config]:
     """(the gravity, info, config) of a run on the open recording ``rec`` (see the module docstring): its
     frames get their own gravity through ``RecordingGravity.frames``."""
     resolved = resolve_recording(path, rec, config)
     for line in resolved.gravity.warnings:
         log.warning("%s: %s", path, line)
     log.info("%s: gravity from %s", path, resolved.gravity.line())
-    return resolved, resolved.info(info), resolved.config(config)
+    return resolved, resolved.info(info), dataclasses.replace(config, camera=resolved.camera(config.camera))
 
 
-def resolve_recording(path: Path, rec: Any, config: Config) -> RecordingGravity:
-    """Every source's estimate from the open recording ``rec`` (and a second reading of its first frames),
-    resolved; DatasetError naming the recording when a named source is missing or contradicted."""
-    cfg = config.camera.gravity
+def resolve_recording(path: Path, rec: Recording, config: Config) -> RecordingGravity:
+    """Every source's estimate from the open recording ``rec`` (and a second reading of its first frames,
+    opened again with ``config``), resolved; DatasetError naming the recording when a named source is
+    missing or contradicted. Recorded poses count only when the run uses them (``slam``)."""
+    camera = config.camera
+    cfg = camera.gravity
     found: dict[str, g.Estimate] = {}
     unavailable: dict[str, str] = {}
-    blocks = _imu(rec, config, found, unavailable)
-    poses, level = _frames(path, config, found, unavailable)
+    blocks = _imu(rec, camera, found, unavailable)
+    reopen = lambda: open_recording(path, config)  # noqa: E731
+    poses, level = _frames(reopen, camera, uses_recorded_poses(config.slam), found, unavailable)
     try:
-        gravity = g.resolve(found, config.camera.mount, cfg, unavailable, level)
+        gravity = g.resolve(found, camera.mount, cfg, unavailable, level)
     except ValueError as err:
         raise DatasetError(path, str(err)) from None
     up_of: UpOf | None = None
@@ -102,7 +108,7 @@ def resolve_recording(path: Path, rec: Any, config: Config) -> RecordingGravity:
         up_of = _imu_up_of(blocks, window)
         gravity = dataclasses.replace(gravity, per_frame=f"the IMU's quiet blocks within {window:g} s of the frame")
     elif gravity.source == "scene":
-        up_of = _scene_up_of(gravity.up, config)
+        up_of = _scene_up_of(gravity.up, camera)
         gravity = dataclasses.replace(gravity, per_frame=(
             f"the frame's own dominant plane within {cfg.scene.frame_prior_deg:g} deg of the recording's, "
             "else the recording's"))
@@ -138,8 +144,8 @@ def _imu_up_of(blocks: g.QuietBlocks, window_s: float) -> UpOf:
     return lambda frame: blocks.up_at(frame.stamp_ns, window_s)
 
 
-def _scene_up_of(recording_up: np.ndarray, config: Config) -> UpOf:
-    cfg = config.camera.gravity.scene
+def _scene_up_of(recording_up: np.ndarray, camera: CameraCfg) -> UpOf:
+    cfg = camera.gravity.scene
 
     def up_of(frame: Frame) -> np.ndarray:
         plane = g.dominant_plane(frame.depth_m, frame.intrinsics, recording_up, cfg.frame_prior_deg, cfg,
@@ -149,13 +155,12 @@ def _scene_up_of(recording_up: np.ndarray, config: Config) -> UpOf:
     return up_of
 
 
-def _imu(rec: Any, config: Config, found: dict[str, g.Estimate], unavailable: dict[str, str]) -> g.QuietBlocks | None:
-    cfg = config.camera.gravity.imu
+def _imu(rec: Recording, camera: CameraCfg, found: dict[str, g.Estimate],
+         unavailable: dict[str, str]) -> g.QuietBlocks | None:
+    cfg = camera.gravity.imu
     if not hasattr(rec, "log"):  # a TUM folder: no IMU slz reads
         unavailable["imu"] = "this format carries no sensor_msgs/Imu"
         return None
-    from slzcli.sources.imu import NO_IMU, read_imu
-
     try:
         samples = read_imu(rec, cfg)
     except SlzError as err:  # a damaged file: the frames' own pass says what it can still read
@@ -180,24 +185,21 @@ def _imu(rec: Any, config: Config, found: dict[str, g.Estimate], unavailable: di
     return blocks
 
 
-def _frames(path: Path, config: Config, found: dict[str, g.Estimate],
+def _frames(reopen: Callable[[], Recording], camera: CameraCfg, use_poses: bool, found: dict[str, g.Estimate],
             unavailable: dict[str, str]) -> tuple[list[tuple[int, np.ndarray]], float]:
-    """The recorded poses' and the scene's estimates from the first frames; their (stamp, R_world_camera) and
-    the median frame's share of points on a plane level under camera.mount (``terrain.gravity.level_share``)."""
-    from slzcli.slam import uses_recorded_poses
-    from slzcli.sources import open_recording
-
-    cfg = config.camera.gravity.scene
-    prior = gravity_up_in_camera(None, config.camera.mount)
+    """The recorded poses' (when ``use_poses``: the run takes them as given) and the scene's estimates from the
+    first frames of the recording ``reopen()`` opens again; their (stamp, R_world_camera) and the median frame's
+    share of points on a plane level under camera.mount (``terrain.gravity.level_share``)."""
+    cfg = camera.gravity.scene
+    prior = gravity_up_in_camera(None, camera.mount)
     pose_ups: list[np.ndarray] = []
     poses: list[tuple[int, np.ndarray]] = []
     level: list[float] = []
     planes: list[g.Plane] = []
     read = 0
     last = (cfg.frames - 1) * cfg.stride
-    use_poses = uses_recorded_poses(config)  # poses rejected or not chosen: no gravity source
     try:
-        with _quiet_readers(), open_recording(path, config) as other:
+        with _quiet_readers(), reopen() as other:
             frames = other.frames()
             for frame in frames:
                 if frame.index > last:

@@ -112,7 +112,7 @@ def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float,
     sets = [f"terrain.fusion.white_fraction={white}", "terrain.fusion.fixed_fraction=0",
             f"terrain.fusion.decorrelation_px={2.0 * corr_px}", *config_sets]
     cfg = load_config(None, sets)
-    ft = FusedTerrain(cfg, get_scorer(cfg, "fuzzy"))
+    ft = FusedTerrain(cfg, get_scorer(cfg.scoring, cfg.mask, "fuzzy"))
     stereo = Stereo(a_per_m, white, corr_px, seed)
     a_cell = cell_noise(stereo, ft.params.cell_m * INTR.fx / altitude_m)
     noise = DepthNoise.white(a_cell, "known") if noise_white else DepthNoise.flat(a_cell, "known")

@@ -16,7 +16,7 @@ from slzcli.errors import ConfigError, short_repr
 from slzcli.pinhole import intrinsics_problem
 
 
-def build(cls: type[_D], data: Any, path: str, source: str | None = None) -> _D:
+def build(cls: type[_D], data: object, path: str, source: str | None = None) -> _D:
     """Validate ``data`` against the dataclass ``cls`` recursively."""
     if not isinstance(data, dict):
         raise ConfigError(path, f"expected a section (mapping), got {_kind(data)}", source)
@@ -113,8 +113,8 @@ def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str
     return value
 
 
-def _alternatives(args: typing.Sequence[Any]) -> str:
-    plain = {float: "a number", int: "an integer", str: "a string", bool: "true or false"}
+def _alternatives(args: typing.Sequence[object]) -> str:
+    plain: dict[object, str] = {float: "a number", int: "an integer", str: "a string", bool: "true or false"}
     names: list[str] = []
     for arg in args:
         if typing.get_origin(arg) is Literal:
@@ -192,11 +192,11 @@ def _join(path: str, key: str) -> str:
     return f"{path}.{key}" if path else key
 
 
-def _kind(value: Any) -> str:
+def _kind(value: object) -> str:
     return {dict: "a mapping", list: "a list", str: "a string", bool: "a boolean",
             int: "an integer", float: "a number", type(None): "nothing"}.get(type(value), type(value).__name__)
 
 
-def _did_you_mean(word: str, candidates: typing.Iterable[Any]) -> str:
+def _did_you_mean(word: str, candidates: typing.Iterable[object]) -> str:
     close = difflib.get_close_matches(word, [str(c) for c in candidates], n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""

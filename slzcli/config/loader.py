@@ -91,7 +91,7 @@ def layer_sources(profile: str | None = None, config_file: str | Path | None = N
     return out
 
 
-def _leaves(data: Mapping[str, Any], prefix: str = "") -> list[str]:
+def _leaves(data: Mapping[str, object], prefix: str = "") -> list[str]:
     keys: list[str] = []
     for key, value in data.items():
         path = f"{prefix}{key}"

@@ -28,7 +28,7 @@ MAX_YAML_DEPTH = 32          # nesting of mappings and lists
 class YamlLimitError(yaml.YAMLError):
     """A YAML text over one of the reader's bounds (size, aliases, expanded values, depth)."""
 
-    def __init__(self, reason: str, mark: Any = None) -> None:
+    def __init__(self, reason: str, mark: yaml.Mark | None = None) -> None:
         self.reason, self.problem_mark = reason, mark
         super().__init__(reason)
 
@@ -48,7 +48,7 @@ class _BoundedLoader(yaml.SafeLoader):
         self._aliases = 0
         self._sizes: dict[int, int] = {}
 
-    def compose_node(self, parent: Any, index: Any) -> Any:
+    def compose_node(self, parent: yaml.Node | None, index: int) -> yaml.Node | None:
         if self.check_event(yaml.AliasEvent):
             self._aliases += 1
             if self._aliases > MAX_YAML_ALIASES:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import ControlCfg, UavCfg
 from slzcli.geometry import quat_wxyz_to_matrix
 
 # ENU <-> NED is the same proper rotation both ways: (x, y, z) -> (y, x, -z).
@@ -49,9 +49,8 @@ class Params:
     torque_max: np.ndarray       # (3,) N m
 
     @classmethod
-    def from_config(cls, config: Config) -> Params:
-        u = config.uav
-        return cls(u.mass_kg, np.array(u.inertia_kg_m2, float), config.control.gravity_m_s2,
+    def from_config(cls, control: ControlCfg, u: UavCfg) -> Params:
+        return cls(u.mass_kg, np.array(u.inertia_kg_m2, float), control.gravity_m_s2,
                    u.thrust_min_n, u.thrust_max_n, np.array(u.torque_max_n_m, float))
 
 
@@ -177,8 +176,8 @@ class Wind:
     drag_kg_s: float
 
     @classmethod
-    def from_config(cls, config: Config) -> Wind:
-        w = config.control.wind
+    def from_config(cls, control: ControlCfg) -> Wind:
+        w = control.wind
         return cls(enu_to_ned(np.array(w.mean_m_s, float)), w.gust_m_s, w.gust_tau_s, w.drag_kg_s)
 
     def initial_gust(self, z: np.ndarray) -> np.ndarray:

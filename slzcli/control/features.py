@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import CameraCfg, UavCfg
 from slzcli.control.dynamics import rot_z
 
 
@@ -39,8 +39,7 @@ class CameraModel:
     yaw_on_body: float           # gamma, rad
 
     @classmethod
-    def from_config(cls, config: Config) -> CameraModel:
-        c, u = config.camera, config.uav
+    def from_config(cls, c: CameraCfg, u: UavCfg) -> CameraModel:
         gamma = np.deg2rad(u.camera_yaw_deg)
         # Optical frame looking along body z (down): x_C = Rz(gamma) x_B, z_C = z_B.
         r_bc = rot_z(np.array([gamma]))[0]

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import ControlCfg
 
 
 @dataclass(frozen=True)
@@ -56,8 +56,7 @@ class Gains:
     max_tilt_rad: float
 
     @classmethod
-    def from_config(cls, config: Config) -> Gains:
-        c = config.control
+    def from_config(cls, c: ControlCfg) -> Gains:
         g = c.tuned if c.gain_set == "tuned" else c   # control.gain_set: the project's tuned gains or paper T3
         return cls(np.array(g.K_e, float), np.array(g.K_i, float), np.array(g.K_p, float), c.k_psi, c.k_psi_d,
                    (c.beta[0], c.beta[1]), (c.mu[0], c.mu[1]), c.desired_depth_m, np.deg2rad(c.max_tilt_cmd_deg))

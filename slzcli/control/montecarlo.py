@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from slzcli import bounds
-from slzcli.config import Config
+from slzcli.config import Config, ControlCfg
 from slzcli.control.simulate import SimResult, Target, sample_starts, simulate
 
 PERCENTILES = (5, 50, 95)
@@ -19,16 +19,14 @@ SUMMARY_FIELDS = ("stabilisation_time_s", "settling_time_s", "switch_time_s", "f
                   "touchdown_error_m", "landing_time_s", "max_tilt_deg", "approach_time_s", "recoveries")
 
 
-def batch_config(config: Config) -> Config:
-    """The config with control.noise, control.wind.gust_m_s and the switch threshold from control.montecarlo."""
-    c = config.control
+def batch_control(c: ControlCfg) -> ControlCfg:
+    """The ``control`` section with its noise, wind.gust_m_s and the switch threshold from its montecarlo block."""
     mc = c.montecarlo
     noise = replace(c.noise, position_sigma_m=mc.position_sigma_m, attitude_sigma_deg=mc.attitude_sigma_deg,
                     velocity_sigma_m_s=mc.velocity_sigma_m_s, position_drift_m_sqrt_s=mc.position_drift_m_sqrt_s,
                     yaw_drift_deg_sqrt_s=mc.yaw_drift_deg_sqrt_s)
-    control = replace(c, noise=noise, wind=replace(c.wind, gust_m_s=mc.gust_m_s),
-                      sim=replace(c.sim, switch_error_px=mc.switch_error_px))
-    return replace(config, control=control)
+    return replace(c, noise=noise, wind=replace(c.wind, gust_m_s=mc.gust_m_s),
+                   sim=replace(c.sim, switch_error_px=mc.switch_error_px))
 
 
 def run(target: Target, base_start_world: np.ndarray, runs: int, seed: int, config: Config, *,
@@ -38,8 +36,9 @@ def run(target: Target, base_start_world: np.ndarray, runs: int, seed: int, conf
     Starts are scattered and flown under the batch noise and gusts. Run i depends only on
     (seed, i), so a batch run in chunks (``first_run`` = 0, 250, 500, ...) equals it run at once.
     """
-    starts = sample_starts(base_start_world, runs, config, seed, first_run)
-    return simulate(target, starts, batch_config(config), log=False, seed=seed, first_run=first_run)
+    starts = sample_starts(base_start_world, runs, config.control.montecarlo, seed, first_run)
+    batch = replace(config, control=batch_control(config.control))
+    return simulate(target, starts, batch, log=False, seed=seed, first_run=first_run)
 
 
 ChunkSink = Callable[[SimResult, int], None]

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import ControlCfg, UavCfg
 from slzcli.control import dynamics as dyn
 from slzcli.errors import SlzError
 
@@ -56,9 +56,8 @@ def _rotorpy() -> tuple[Any, Any, Any]:
     return Multirotor, ConstantWind, NoWind
 
 
-def quad_params(config: Config) -> dict[str, Any]:
+def quad_params(u: UavCfg) -> dict[str, Any]:
     """RotorPy's ``quad_params`` for slz's UAV (``uav``) with RotorPy's own motor and aero coefficients."""
-    u = config.uav
     k_eta = u.thrust_max_n / (4.0 * ROTOR_SPEED_MAX_RAD_S ** 2)
     h = u.size_m[0] / 2.0 / math.sqrt(2.0)        # hub x, y: arm of half the body size along the diagonals
     return {
@@ -115,13 +114,14 @@ class RotorPyPlant:
     step to step (the motors' lag is part of what is checked), starting at the hover speed.
     """
 
-    def __init__(self, config: Config, *, wind_m_s: tuple[float, float, float] | None = None, aero: bool = True):
+    def __init__(self, control: ControlCfg, uav: UavCfg, *, wind_m_s: tuple[float, float, float] | None = None,
+                 aero: bool = True):
         multirotor, constant_wind, no_wind = _rotorpy()
-        self.params = quad_params(config)
+        self.params = quad_params(uav)
         self.vehicle = multirotor(self.params, control_abstraction="cmd_ctbm", aero=aero, enable_ground=False)
         self.wind = no_wind() if wind_m_s is None else constant_wind(*wind_m_s)
-        self.dt = config.control.sim.control_dt_s
-        hover = math.sqrt(config.uav.mass_kg * self.vehicle.g / (4.0 * self.params["k_eta"]))
+        self.dt = control.sim.control_dt_s
+        hover = math.sqrt(uav.mass_kg * self.vehicle.g / (4.0 * self.params["k_eta"]))
         self.hover_speed = hover
         self.rotor_speeds: np.ndarray | None = None
         self.t = 0.0

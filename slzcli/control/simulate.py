@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from slzcli import bounds
-from slzcli.config import Config, SimCfg
+from slzcli.config import Config, MonteCarloCfg, SimCfg, UavCfg
 from slzcli.control import dynamics as dyn
 from slzcli.control import features as ft
 from slzcli.control import ibvs
@@ -327,14 +327,14 @@ def _setup(target: Target, config: Config) -> _Setup:
     if n_sub < 1 or abs(ratio - n_sub) > 1e-6:
         raise ConfigError("control.sim.control_dt_s", "must be a whole multiple of control.sim.dynamics_dt_s")
     bounds.check(bounds.simulation_sizes(config, 1))   # before the step loop and its log
-    cam = ft.CameraModel.from_config(config)
+    cam = ft.CameraModel.from_config(config.camera, config.uav)
     corners = dyn.enu_to_ned(target.corners_world)
     a_d = ft.desired_area(corners, cam.f, c.desired_depth_m)
     r_star = math.sqrt(a_d / corners.shape[0])           # RMS corner radius at the hover, px
     dt = sim.control_dt_s
     return _Setup(
-        config=config, params=dyn.Params.from_config(config), cam=cam, gains=ibvs.Gains.from_config(config),
-        wind=dyn.Wind.from_config(config), center_world=np.asarray(target.center_world, float),
+        config=config, params=dyn.Params.from_config(c, config.uav), cam=cam, gains=ibvs.Gains.from_config(c),
+        wind=dyn.Wind.from_config(c), center_world=np.asarray(target.center_world, float),
         center_ned=dyn.enu_to_ned(np.asarray(target.center_world, float)), corners=corners,
         a_d=a_d, px_scale=np.array([cam.f, cam.f, r_star]),
         ground_z_ned=-float(target.center_world[2]) - config.uav.size_m[2] / 2,
@@ -553,12 +553,11 @@ def _stack(rows: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return {k: np.stack([r[k] for r in rows]) for k in rows[0]}
 
 
-def sample_starts(base_world: np.ndarray, runs: int, config: Config, seed: int, first_run: int = 0) -> np.ndarray:
-    """Monte Carlo starts: uniform disc around base (x, y), uniform +-dz, +-yaw (config montecarlo).
+def sample_starts(base_world: np.ndarray, runs: int, mc: MonteCarloCfg, seed: int, first_run: int = 0) -> np.ndarray:
+    """Monte Carlo starts: uniform disc around base (x, y), uniform +-dz, +-yaw (``control.montecarlo``).
 
     Run i's start comes from its own stream (seed, first_run + i): it does not depend on ``runs``.
     """
-    mc = config.control.montecarlo
     draws = np.array([run_generator(seed, first_run + i, START_STREAM).uniform(0.0, 1.0, 4) for i in range(runs)])
     draws = draws.reshape(runs, 4)
     radius = mc.start_radius_m * np.sqrt(draws[:, 0])
@@ -587,26 +586,26 @@ def resolve_start(target: Target, config: Config, scenario: int | None = None,
     if scenario is not None:
         if scenario not in SCENARIOS:
             raise ConfigError("--scenario", f"must be one of {sorted(SCENARIOS)}, got {scenario}")
-        return _above_site(np.array([*SCENARIOS[scenario], 0.0]), target, config, "--scenario")
+        return _above_site(np.array([*SCENARIOS[scenario], 0.0]), target, config.uav, "--scenario")
     if start is not None:
         if len(start) not in (3, 4):
             raise ConfigError("--start", f"expected x,y,z[,yaw], got {len(start)} values")
-        return _above_site(np.array([*start[:3], start[3] if len(start) > 3 else 0.0], float), target, config,
+        return _above_site(np.array([*start[:3], start[3] if len(start) > 3 else 0.0], float), target, config.uav,
                            "--start")
     off = offset if offset is not None else config.control.sim.start_offset_m
     if len(off) not in (3, 4):
         raise ConfigError("--offset", f"expected x,y,z[,yaw], got {len(off)} values")
     key = "--offset" if offset is not None else "control.sim.start_offset_m"
-    return _above_site(start_from_offsets(target, np.array(off, float))[0], target, config, key)
+    return _above_site(start_from_offsets(target, np.array(off, float))[0], target, config.uav, key)
 
 
-def _above_site(start: np.ndarray, target: Target, config: Config, key: str) -> np.ndarray:
+def _above_site(start: np.ndarray, target: Target, uav: UavCfg, key: str) -> np.ndarray:
     """``start`` when the UAV's body is clear of the site there; else a ConfigError naming ``key``.
 
     At or below ``site z + uav.size_m[2] / 2`` the simulation would stop at its first step on ground
     contact: nothing to simulate, and no landing to report.
     """
-    clear = config.uav.size_m[2] / 2
+    clear = uav.size_m[2] / 2
     height = float(start[2] - target.center_world[2])
     if not height > clear:
         raise ConfigError(key, f"the start is {height:.3g} m above the site (z {target.center_world[2]:.3g} m); the "

@@ -18,25 +18,25 @@ from typing import Any, Protocol
 import numpy as np
 
 from slzcli import fingerprint
-from slzcli.config import Config
+from slzcli.config import GroundTruthCfg
 from slzcli.errors import DatasetError
 from slzcli.evaluate.safety import MaskCounts, SiteTruth, mask_counts, site_truth, total, visible_cells
 from slzcli.evaluate.slam import ate_by_segment, rpe
 from slzcli.synth.groundtruth import BINDING_KEY, UNBOUND, GroundTruth, load_ground_truth, sidecar_paths
-from slzcli.types import Frame, ScoreMap
+from slzcli.types import Frame, FrameRef, ScoreMap
 
 log = logging.getLogger(__name__)
 
 
-def ground_truth_of(path: Path, config: Config, cache: dict[str, Any] | None = None) -> GroundTruth | None:
+def ground_truth_of(path: Path, cfg: GroundTruthCfg, cache: dict[str, Any] | None = None) -> GroundTruth | None:
     """The `slz synth` ground truth beside a recording, or None when it has no sidecar.
 
-    Its frames are looked up by stamp within ``synth.ground_truth.stamp_tolerance_ms``. A sidecar bound to
+    Its frames are looked up by stamp within ``cfg.stamp_tolerance_ms`` (``synth.ground_truth``). A sidecar bound to
     other recording files is refused (DatasetError); ``cache``: the recording's digests a run already took.
     """
     if not all(p.is_file() for p in sidecar_paths(path)):
         return None
-    tolerance_ns = round(config.synth.ground_truth.stamp_tolerance_ms * 1e6)
+    tolerance_ns = round(cfg.stamp_tolerance_ms * 1e6)
     gt = load_ground_truth(path)
     json_path = sidecar_paths(path)[1]
     problem = fingerprint.binding_problem(gt.header, Path(path), cache)
@@ -47,7 +47,7 @@ def ground_truth_of(path: Path, config: Config, cache: dict[str, Any] | None = N
     return replace(gt, stamp_tolerance_ns=tolerance_ns)
 
 
-def site_truth_of(truth: Any, frame: Any, center_camera: tuple[float, float, float]) -> SiteTruth:
+def site_truth_of(truth: GroundTruth, frame: Frame | FrameRef, center_camera: tuple[float, float, float]) -> SiteTruth:
     """The site in the ground-truth world: through the TRUE pose of its frame (not SLAM's)."""
     T = truth.T_world_camera[truth.index_of(frame.stamp_ns)]
     p = T[:3, :3] @ np.asarray(center_camera) + T[:3, 3]

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slzcli.fusion.measure import FrameCells, FusionParams, project_cells
+from slzcli.fusion.measure import CellView, FrameCells, FusionParams, cell_view
 
 _EMPTY = np.iinfo(np.int64).min      # owner of a slot no cell has used yet
 _RHO_MAX = 1.0 - 1e-9               # guards 1 - rho^2 against round-off
@@ -96,24 +96,26 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     """Add one frame's measurements to the grid (in place)."""
     p = grid.params
     k, owned = grid.slots(m.ix, m.iy)
-    st = grid.state[k]                                   # a gathered copy, written back at the end
+    st = np.take(grid.state, k, axis=0)  # a gathered copy, written back at the end
+    f = st.T                              # f[FIELD]: that field of every cell (a view)
     sw2 = m.sigma_w_m * m.sigma_w_m
     sc2 = m.sigma_c_m * m.sigma_c_m
     y = m.height_m
     # --- predict the shared error by the cell's image shift since its last look: the cell's centre at its
     # estimated height projected into the frame (the mean pixel of its samples jitters with the depth
     # noise, which moves samples across cell borders: a hover would seem to move)
-    h_ref = np.where(owned, st[:, H], y)
-    u_px, v_px, _ = _project(m, h_ref, grid.params.cell_m)
-    shift = np.hypot(u_px - st[:, U], v_px - st[:, V])
+    h_ref = np.where(owned, f[H], y)
+    view = cell_view(m.ix, m.iy, m.T_world_camera, m.intrinsics, p.cell_m)
+    u_px, v_px, _ = view.at(h_ref)
+    shift = np.hypot(u_px - f[U], v_px - f[V])
     rho = np.minimum(np.exp(-shift / p.decorrelation_px), _RHO_MAX)
-    sc_old = st[:, SIGC]
+    sc_old = f[SIGC]
     g = rho * np.divide(m.sigma_c_m, sc_old, out=np.ones_like(sc_old), where=sc_old > 0)
-    c = g * st[:, C]
-    p_hh = st[:, PHH]
-    p_hc = g * st[:, PHC]
-    p_cc = g * g * st[:, PCC] + (1.0 - rho * rho) * sc2
-    innov = y - (st[:, H] + c)
+    c = g * f[C]
+    p_hh = f[PHH]
+    p_hc = g * f[PHC]
+    p_cc = g * g * f[PCC] + (1.0 - rho * rho) * sc2
+    innov = y - (f[H] + c)
     s_t = p_hh + 2.0 * p_hc + p_cc + sw2
     # the gate holds the cell's variance, the measurement's and the pose's
     ok = innov * innov <= (p.gate_sigma ** 2) * (s_t + m.pose_var_m2)
@@ -125,22 +127,23 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     acc = owned & ok
     new = ~owned
     look = acc | new
-    # whole columns with np.where (cheaper than a dozen boolean gathers and scatters): accepted looks are
-    # updated, new cells start at h = y, c = 0 with the covariance of a flat prior, rejected ones keep theirs
-    st[:, H] = np.where(acc, st[:, H] + kh * innov, np.where(new, y, st[:, H]))
-    st[:, C] = np.where(acc, c + kc * innov, np.where(new, 0.0, st[:, C]))
-    st[:, PHH] = np.where(acc, p_hh - kh * kh * s_t, np.where(new, sc2 + sw2, st[:, PHH]))
-    st[:, PHC] = np.where(acc, p_hc - kh * kc * s_t, np.where(new, -sc2, st[:, PHC]))
-    st[:, PCC] = np.where(acc, p_cc - kc * kc * s_t, np.where(new, sc2, st[:, PCC]))
-    st[:, SPREAD] = np.where(new, m.spread_m, np.where(acc, np.maximum(st[:, SPREAD], m.spread_m), st[:, SPREAD]))
-    st[:, POSEV] = np.where(new, m.pose_var_m2, np.where(acc, np.minimum(st[:, POSEV], m.pose_var_m2),
-                                                         st[:, POSEV]))
-    st[:, U] = np.where(look, u_px, st[:, U])
-    st[:, V] = np.where(look, v_px, st[:, V])
-    st[:, SIGC] = np.where(look, m.sigma_c_m, st[:, SIGC])
-    st[:, SIG1] = np.where(look, np.sqrt((sc2 + sw2) / max(1.0 - p.fixed_fraction, 1e-9)), st[:, SIG1])
-    st[:, STEPR] = np.where(look, m.step_per_sigma, st[:, STEPR])
-    st[:, TANR] = np.where(look, m.tan_slope_per_sigma, st[:, TANR])
+    # whole rows, in place (cheaper than boolean gathers and scatters): accepted looks are updated, new cells
+    # start at h = y, c = 0 with the covariance of a flat prior, rejected ones keep theirs
+    with np.errstate(invalid="ignore"):   # a new cell's slot holds another cell's numbers until replaced
+        np.copyto(f[H], f[H] + kh * innov, where=acc)
+        np.copyto(f[C], c + kc * innov, where=acc)
+        np.copyto(f[PHH], p_hh - kh * kh * s_t, where=acc)
+        np.copyto(f[PHC], p_hc - kh * kc * s_t, where=acc)
+        np.copyto(f[PCC], p_cc - kc * kc * s_t, where=acc)
+        np.copyto(f[SPREAD], np.maximum(f[SPREAD], m.spread_m), where=acc)
+        np.copyto(f[POSEV], np.minimum(f[POSEV], m.pose_var_m2), where=acc)
+    for row, value in ((H, y), (C, 0.0), (PHH, sc2 + sw2), (PHC, -sc2), (PCC, sc2), (SPREAD, m.spread_m),
+                       (POSEV, m.pose_var_m2)):
+        np.copyto(f[row], value, where=new)
+    for row, value in ((U, u_px), (V, v_px), (SIGC, m.sigma_c_m),
+                       (SIG1, np.sqrt((sc2 + sw2) / max(1.0 - p.fixed_fraction, 1e-9))),
+                       (STEPR, m.step_per_sigma), (TANR, m.tan_slope_per_sigma)):
+        np.copyto(f[row], value, where=look)
     grid.state[k] = st
     kn = k[new]
     grid.owner[kn] = cell_key(m.ix[new], m.iy[new])
@@ -150,7 +153,7 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     grid.frames[k] += 1
     grid.rejected[k[owned & ~ok]] += 1
     grid.last_frame[k] = frame_index
-    _column(grid, m, k, st[:, H])
+    _column(grid, view, k, f[H])
     _sweep(grid, m)
     so = shift[owned]
     med = float(np.median(so)) if so.size else float("nan")
@@ -179,15 +182,10 @@ def _sweep(grid: FusedGrid, m: FrameCells) -> None:
     grid.owner[far] = _EMPTY
 
 
-def _project(m: FrameCells, h: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pixel (u, v) of the frame's cells' centres at heights ``h``, and whether they are in front of it."""
-    return project_cells(m.ix, m.iy, h, m.T_world_camera, m.intrinsics, cell_m)
-
-
-def _column(grid: FusedGrid, m: FrameCells, k: np.ndarray, h: np.ndarray) -> None:
+def _column(grid: FusedGrid, view: CellView, k: np.ndarray, h: np.ndarray) -> None:
     """A cell's descent column counts as seen once any frame had the point ``column_m`` above it in view."""
-    u, v, front = _project(m, h + grid.params.column_m, grid.params.cell_m)
-    intr = m.intrinsics
+    u, v, front = view.at(h + grid.params.column_m)
+    intr = view.intr
     with np.errstate(invalid="ignore"):
         inside = front & (u >= -0.5) & (u <= intr.width - 0.5) & (v >= -0.5) & (v <= intr.height - 0.5)
     grid.column[k[inside]] = True

@@ -18,6 +18,7 @@ but added to every fused variance (``grid.region``).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -78,8 +79,6 @@ class FrameCells:
     iy: np.ndarray           # int64 cell row (world y / cell_m, floored)
     height_m: np.ndarray     # float64 mean height of the cell's samples
     spread_m: np.ndarray     # float64 std of the samples' heights inside the cell
-    u_px: np.ndarray         # float64 image column of the cell's centre at its measured height
-    v_px: np.ndarray         # float64 image row
     sigma_w_m: np.ndarray    # float64 std of the part of the error that is new in this frame
     sigma_c_m: np.ndarray    # float64 std of the part that moves with the view
     pose_var_m2: np.ndarray  # float64 variance added by the pose
@@ -93,20 +92,47 @@ class FrameCells:
     def __len__(self) -> int:
         return int(self.ix.size)
 
+    def pixels(self, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Image (column, row) of the cells' centres at their measured heights (cells ``cell_m`` wide)."""
+        u, v, _ = project_cells(self.ix, self.iy, self.height_m, self.T_world_camera, self.intrinsics, cell_m)
+        return u, v
 
-def project_cells(ix: np.ndarray, iy: np.ndarray, h: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics,
-                  cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pixel (u, v) of cell centres at heights ``h`` in a frame, and whether they are in front of it."""
+
+@dataclass(frozen=True, eq=False)
+class CellView:
+    """Cells' centres in one frame's camera, the part that does not depend on their height: projections at
+    several heights (a cell's estimate, its descent column) share it."""
+
+    xy: tuple[np.ndarray, np.ndarray, np.ndarray]   # camera x, y, z of (centre - camera) at the camera's height
+    r_z: np.ndarray                                  # the camera axes' world-z components (R[2, :])
+    t_z: float
+    intr: Intrinsics
+
+    def at(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel (u, v) of the centres at heights ``h``, and whether they are in front of the camera."""
+        pz = h - self.t_z
+        xc = self.xy[0] + self.r_z[0] * pz
+        yc = self.xy[1] + self.r_z[1] * pz
+        zc = self.xy[2] + self.r_z[2] * pz
+        intr = self.intr
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return intr.fx * xc / zc + intr.cx, intr.fy * yc / zc + intr.cy, zc > 0
+
+
+def cell_view(ix: np.ndarray, iy: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics,
+              cell_m: float) -> CellView:
     T = np.asarray(T_world_camera, dtype=np.float64)
     R, t = T[:3, :3], T[:3, 3]
     px = (ix + 0.5) * cell_m - t[0]
     py = (iy + 0.5) * cell_m - t[1]
-    pz = h - t[2]
-    xc = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
-    yc = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
-    zc = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return intr.fx * xc / zc + intr.cx, intr.fy * yc / zc + intr.cy, zc > 0
+    xy = (R[0, 0] * px + R[1, 0] * py, R[0, 1] * px + R[1, 1] * py, R[0, 2] * px + R[1, 2] * py)
+    return CellView(xy, R[2, :].copy(), float(t[2]), intr)
+
+
+def project_cells(ix: np.ndarray, iy: np.ndarray, h: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics,
+                  cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel (u, v) of cell centres at heights ``h`` in a frame, and whether they are in front of it."""
+    return cell_view(ix, iy, T_world_camera, intr, cell_m).at(h)
 
 
 def sample_block_px(depth_m: float, focal_px: float, params: FusionParams) -> int:
@@ -119,23 +145,33 @@ def cell_sigma_m(noise: DepthNoise, depth_m: np.ndarray | float, focal_px: float
     """Std of one frame's mean depth over a cell at ``depth_m``: a_b z^2 with b the cell's side in pixels there."""
     z = np.asarray(depth_m, dtype=np.float64)
     b = cell_m * focal_px / np.maximum(z, 1e-6)
-    a = np.interp(np.log(np.maximum(b, 1.0)), np.log(_SCALES), np.log(np.maximum(_a_vector(noise), 1e-12)))
+    a = np.interp(np.log(np.maximum(b, 1.0)), _LOG_SCALES, _a_vector(noise))
     return np.exp(a) * z * z
 
 
 _SCALES = np.array([1.0, 2.0, 4.0, 8.0, 16.0])
+_LOG_SCALES = np.log(_SCALES)
 
 
+@functools.lru_cache(maxsize=8)
 def _a_vector(noise: DepthNoise) -> np.ndarray:
-    out = np.array([noise.a_at(b) for b in _SCALES])
+    """log a at ``_SCALES`` (one noise estimate serves many frames: computed once)."""
+    out = np.log(np.maximum(np.array([noise.a_at(b) for b in _SCALES]), 1e-12))
+    out.setflags(write=False)
     return out
 
 
 def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray, noise: DepthNoise,
-                params: FusionParams, step_per_sigma: float, tan_slope_per_sigma: float) -> FrameCells | None:
-    """The cells a frame saw and their height measurements (None: no depth). ``T_world_camera``: gravity-aligned."""
+                params: FusionParams, step_per_sigma: float, tan_slope_per_sigma: float,
+                z_med: float | None = None) -> FrameCells | None:
+    """The cells a frame saw and their height measurements (None: no depth). ``T_world_camera``: gravity-aligned;
+    ``z_med``: the frame's median depth when the caller has it.
+
+    Vectorised over the block grid as a whole (the rays broadcast from a row and a column): samples without
+    depth, or beyond the window, go to one extra bin that is dropped, so nothing is gathered or compressed."""
     depth = np.asarray(depth_m, dtype=np.float32)
-    z_med = median_depth_m(depth)
+    if z_med is None:
+        z_med = median_depth_m(depth)
     if z_med is None:
         return None
     intr = fit_intrinsics(intrinsics, depth.shape)
@@ -147,43 +183,50 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
         intr_b = fit_intrinsics(intr, depth_b.shape)
     else:
         depth_b, ok, intr_b = depth, valid, intr
-    rx, ry = pixel_rays(intr_b)
-    flat_ok = np.flatnonzero(ok)
-    if flat_ok.size == 0:
+    all_ok = bool(ok.all())
+    if not all_ok and not ok.any():
         return None
-    wb = depth_b.shape[1]
-    rows, cols = np.divmod(flat_ok, wb)
-    z = depth_b.reshape(-1)[flat_ok]
-    xr = rx[0, cols]
-    yr = ry[rows, 0]
+    rx, ry = pixel_rays(intr_b)
+    z = depth_b if all_ok else np.where(ok, depth_b, np.float32(0))
     T = np.asarray(T_world_camera, dtype=np.float64)
     R, t = T[:3, :3].astype(np.float32), T[:3, 3]
     # float32 relative to the camera (4 um at 50 m), the camera's position added in float64 via the cell index
-    wx = (R[0, 0] * xr + R[0, 1] * yr + R[0, 2]) * z
-    wy = (R[1, 0] * xr + R[1, 1] * yr + R[1, 2]) * z
-    up = R[2, 0] * xr + R[2, 1] * yr + R[2, 2]        # vertical component of each sample's ray (z = 1)
+    wx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * z
+    wy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * z
+    up = R[2, 0] * rx + R[2, 1] * ry + R[2, 2]        # vertical component of each sample's ray (z = 1)
     wz = up * z
     inv = 1.0 / params.cell_m
-    ix = np.floor((wx + np.float32(t[0] % params.cell_m)) * np.float32(inv)).astype(np.int64)
-    iy = np.floor((wy + np.float32(t[1] % params.cell_m)) * np.float32(inv)).astype(np.int64)
+    ix = _floor(wx, np.float32(t[0] % params.cell_m), np.float32(inv))
+    iy = _floor(wy, np.float32(t[1] % params.cell_m), np.float32(inv))
     cx, cy = math.floor(t[0] * inv), math.floor(t[1] * inv)
     # never more than the window: a frame wider than it keeps the cells nearest the camera
     half = params.side_cells // 2 - 1
-    near = (np.abs(ix) <= half) & (np.abs(iy) <= half)
-    if not near.all():
-        ix, iy, wz, z, up = (a[near] for a in (ix, iy, wz, z, up))
-        if ix.size == 0:
+    keep = None if all_ok else ok          # samples without depth sit at the camera's cell: in the window
+    x0, x1, y0, y1 = int(ix.min()), int(ix.max()), int(iy.min()), int(iy.max())
+    if max(-x0, x1, -y0, y1) > half:
+        near = (np.abs(ix) <= half) & (np.abs(iy) <= half)
+        keep = near if keep is None else keep & near
+        if not keep.any():
             return None
-    x0, y0 = int(ix.min()), int(iy.min())
-    nx = int(ix.max()) - x0 + 1
-    flat = (iy - y0) * nx + (ix - x0)
-    size = nx * (int(iy.max()) - y0 + 1)
-    count = np.bincount(flat, minlength=size)
+    if keep is not None:
+        x0, x1 = _bounds(ix, keep)
+        y0, y1 = _bounds(iy, keep)
+    nx = x1 - x0 + 1
+    size = nx * (y1 - y0 + 1)
+    # the bin index in float32 (whole numbers below 2^24: exact), one conversion to integers
+    ff = iy - np.float32(y0)
+    ff *= np.float32(nx)
+    ff += ix
+    ff -= np.float32(x0)
+    if keep is not None:
+        np.copyto(ff, np.float32(size), where=~keep)     # the dropped samples' bin
+    flat = ff.reshape(-1).astype(np.intp)
+    count = np.bincount(flat, minlength=size + 1)[:size]
     idx = np.flatnonzero(count >= _MIN_SAMPLES)
     n = count[idx].astype(np.float64)
 
     def mean(values: np.ndarray) -> np.ndarray:
-        return np.bincount(flat, weights=values, minlength=size)[idx] / n
+        return np.bincount(flat, weights=values.reshape(-1), minlength=size + 1)[idx] / n
 
     h = mean(wz)
     spread = np.sqrt(np.maximum(mean(wz * wz) - h * h, 0.0))
@@ -196,13 +239,27 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
     sc = sigma * math.sqrt(1.0 - wf - params.fixed_fraction)
     cells_x = idx % nx + x0 + cx
     cells_y = idx // nx + y0 + cy
-    u, v, _ = project_cells(cells_x, cells_y, h, T, intr, params.cell_m)
     pose_var = np.full(idx.size, params.pose_sigma_m ** 2)
     if params.pose_sigma_rad > 0:
         r2 = ((cells_x + 0.5) * params.cell_m - t[0]) ** 2 + ((cells_y + 0.5) * params.cell_m - t[1]) ** 2
         pose_var += r2 * params.pose_sigma_rad ** 2
-    return FrameCells(cells_x, cells_y, h, spread, u, v, sw, sc, pose_var, t.copy(), T, intr, z_med,
+    return FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
                       step_per_sigma, tan_slope_per_sigma)
+
+
+def _floor(w: np.ndarray, offset: np.float32, inv: np.float32) -> np.ndarray:
+    """floor((w + offset) inv), the cell index in float32 (whole numbers: exact below 2^24)."""
+    a = w + offset
+    np.multiply(a, inv, out=a)
+    np.floor(a, out=a)
+    return a
+
+
+def _bounds(i: np.ndarray, keep: np.ndarray) -> tuple[int, int]:
+    """(min, max) of ``i`` where ``keep``."""
+    lo = np.where(keep, i, np.inf).min()
+    hi = np.where(keep, i, -np.inf).max()
+    return int(lo), int(hi)
 
 
 def frame_limit_ratios(noise: DepthNoise, depth_m: float, focal_px: float, config: Config,
@@ -228,4 +285,4 @@ def measure_frame(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: n
         return None
     intr = fit_intrinsics(intrinsics, np.asarray(depth_m).shape)
     step, tan = frame_limit_ratios(noise, z, 0.5 * (intr.fx + intr.fy), config, params)
-    return frame_cells(depth_m, intrinsics, T_world_camera, noise, params, step, tan)
+    return frame_cells(depth_m, intrinsics, T_world_camera, noise, params, step, tan, z)

@@ -8,7 +8,6 @@ another frame, so its cells start empty (``slam/segments.py``), and the memory s
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -37,7 +36,6 @@ class FusedTerrain:
     segment: int | None = None
     grid: FusedGrid | None = None
     frames: int = 0
-    fuse_ms: list[float] = field(default_factory=list)
     last: FuseStats | None = None
     shifts: list[float] = field(default_factory=list)     # recent median image shifts per frame
     depth_m: float = math.nan
@@ -54,7 +52,6 @@ class FusedTerrain:
         """Fuse one tracked frame (no pose: nothing to fuse)."""
         if T_world_camera is None:
             return None
-        t0 = time.perf_counter()
         if segment != self.segment or self.grid is None:
             self.segment, self.grid = segment, FusedGrid.empty(self.params)
             self.shifts.clear()
@@ -76,7 +73,6 @@ class FusedTerrain:
             self.noise = noise
             self.camera_m = cells.camera_m
         self.frames += 1
-        self.fuse_ms.append((time.perf_counter() - t0) * 1e3)
         return stats
 
     def noise_scale(self) -> float:
@@ -119,9 +115,9 @@ class FusedTerrain:
                       math.tan(math.radians(work.slope_min_deg)))
 
 
-def _pixel_cells(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
-                 T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(row j, column i, inside) of every pixel's cell in the region (its point on the ground, by its depth)."""
+def pixel_cells(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray) -> np.ndarray:
+    """Per pixel of a frame: the flat index (row j, column i: j nx + i) of its cell in the region (its point on
+    the ground, by its depth); the region's size where it has no depth or falls outside (``cells_in_frame``)."""
     depth = np.asarray(depth_m, dtype=np.float32)
     intr = fit_intrinsics(intrinsics, depth.shape)
     rx, ry = pixel_rays(intr)
@@ -134,29 +130,33 @@ def _pixel_cells(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
     wx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * z + np.float32(t[0] - ox)
     wy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * z + np.float32(t[1] - oy)
     inv = np.float32(1.0 / reg.cell_m)
-    i = np.floor(wx * inv).astype(np.int64)
-    j = np.floor(wy * inv).astype(np.int64)
+    # the cell's column and row in float32 (whole numbers, exact below 2^24), one conversion to integers
+    i = np.floor(wx * inv, out=wx)
+    j = np.floor(wy * inv, out=wy)
     ny, nx = reg.shape
     inside = valid & (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
-    return j, i, inside
+    j *= np.float32(nx)
+    j += i
+    np.copyto(j, np.float32(ny * nx), where=~inside)
+    return j.astype(np.intp)
+
+
+def cells_in_frame(values: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """A per-cell map of the region at every pixel of a frame (``pixel_cells``; 0 / False where no cell)."""
+    flat = values.reshape(-1)
+    return np.append(flat, np.zeros(1, flat.dtype))[index]
 
 
 def render_in_frame(values: np.ndarray, fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
                     T_world_camera: np.ndarray) -> np.ndarray:
     """A per-cell float map of the region at every pixel of a frame (0 where no depth or outside)."""
-    j, i, inside = _pixel_cells(fm, depth_m, intrinsics, T_world_camera)
-    out = np.zeros(inside.shape, np.float32)
-    out[inside] = values[j[inside], i[inside]]
-    return out
+    return cells_in_frame(values.astype(np.float32), pixel_cells(fm, depth_m, intrinsics, T_world_camera))
 
 
 def verdict_in_frame(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
                      T_world_camera: np.ndarray) -> np.ndarray:
     """Per pixel of a frame: its cell's verdict is SAFE (the fused mask rendered into the frame's pixels)."""
-    j, i, inside = _pixel_cells(fm, depth_m, intrinsics, T_world_camera)
-    out = np.zeros(inside.shape, bool)
-    out[inside] = fm.verdict[j[inside], i[inside]] == SAFE
-    return out
+    return cells_in_frame(fm.verdict == SAFE, pixel_cells(fm, depth_m, intrinsics, T_world_camera))
 
 
 def frame_depth_m(depth_m: np.ndarray) -> float | None:

@@ -227,7 +227,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     n_sq = max(1, 2 * math.ceil((params.square_m / cell - 1) / 2) + 1)
     kernel = np.ones((n_sq, n_sq), np.uint8)
     clear_score = cv2.erode(sm.astype(np.float32), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
-    thr = scorer.threshold(config)  # type: ignore[attr-defined]
+    thr = scorer.threshold  # type: ignore[attr-defined]
     mask = clear_score > thr
 
     # the limits of the per-frame path, scaled by the cell's fused std (correlated noise at coarser scales

@@ -17,6 +17,8 @@ from slzcli.errors import ConfigError
 from slzcli.methods import registry
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from slzcli.config import Config
     from slzcli.types import Detection, TerrainMaps, TrackedFrame
 
@@ -28,8 +30,9 @@ class Method(Protocol):
     reads_maps: bool  # the terrain maps' noise limits gate it (else it reads depth points and poses only)
     selects: str      # how its site is chosen, one line
 
-    def observe(self, tracked: TrackedFrame) -> None:
-        """Every tracked frame, in order, before ``detect`` on the frames due (a stateless method ignores it)."""
+    def observe(self, tracked: TrackedFrame) -> Mapping[str, float] | None:
+        """Every tracked frame, in order, before ``detect`` on the frames due (a stateless method ignores it);
+        returns the time (ms) of its own stages on that frame, added to the run's timings (or None)."""
 
     def detect(self, tracked: TrackedFrame, maps: TerrainMaps, maps_ms: float) -> Detection:
         """The detection of a frame due: score, mask and (when the inputs vouch) the site; ``maps_ms``: the

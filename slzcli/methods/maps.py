@@ -9,15 +9,14 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-from slzcli.config import Config
+from slzcli.config import Config, LandingCfg, UavCfg
 from slzcli.landing.select import SelectParams, select_site
-from slzcli.scoring import SCORERS, Scorer, mask_score
+from slzcli.scoring import SCORERS, MaskParams, Scorer, mask_score
 from slzcli.types import Detection, TerrainMaps, TrackedFrame
 
 
-def select_params(config: Config, rule: str, min_extent_factor: float) -> SelectParams:
+def select_params(lc: LandingCfg, uav: UavCfg, rule: str, min_extent_factor: float) -> SelectParams:
     """The site selection's parameters: ``rule`` and the cluster's least extent (footprints) are the method's."""
-    lc, uav = config.landing, config.uav
     return SelectParams(
         kmeans_k=lc.kmeans_k, normal_radius_m=lc.normal_radius_m, min_cluster_points=lc.min_cluster_points,
         footprint_m=(uav.footprint_m[0], uav.footprint_m[1]), min_extent_factor=min_extent_factor, rule=rule,
@@ -30,7 +29,7 @@ class MapMethod:
     """Score the maps, mask, and (with a pose, map points and maps that vouch) select the site."""
 
     name: str
-    config: Config
+    mask: MaskParams
     scorer: Scorer
     params: SelectParams
     selects: str
@@ -46,7 +45,7 @@ class MapMethod:
         raw = self.scorer(maps)
         t["score"] = _lap(t0)
         t0 = time.perf_counter()
-        score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.config, maps.work, maps.up_camera)
+        score = mask_score(self.scorer, raw, frame.depth_m, frame.intrinsics, self.mask, maps.work, maps.up_camera)
         t["mask"] = _lap(t0)
         edge = maps.edge_distance_m
         selection = None
@@ -61,14 +60,15 @@ class MapMethod:
 
 
 def fuzzy(config: Config) -> MapMethod:
-    return MapMethod("fuzzy", config, SCORERS["fuzzy"].from_config(config),
-                     select_params(config, "min_normal_variance", config.landing.min_extent_factor),
+    return MapMethod("fuzzy", MaskParams.of(config), SCORERS["fuzzy"].from_config(config.scoring, config.mask),
+                     select_params(config.landing, config.uav, "min_normal_variance",
+                                   config.landing.min_extent_factor),
                      "the cluster of the least normal variance among those that meet the footprint")
 
 
 def bayes(config: Config) -> MapMethod:
-    return MapMethod("bayes", config, SCORERS["bayes"].from_config(config),
-                     select_params(config, "largest", config.landing.bayes_min_extent_factor),
+    return MapMethod("bayes", MaskParams.of(config), SCORERS["bayes"].from_config(config.scoring, config.mask),
+                     select_params(config.landing, config.uav, "largest", config.landing.bayes_min_extent_factor),
                      "the largest cluster that meets the footprint (BASELINE.md)")
 
 

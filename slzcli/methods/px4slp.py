@@ -62,7 +62,8 @@ class GridMethod:
 
 
 def px4slp(config: Config) -> GridMethod:
-    return GridMethod(Px4SlpPlanner.from_config(config), (config.uav.footprint_m[0], config.uav.footprint_m[1]))
+    return GridMethod(Px4SlpPlanner.from_config(config.scoring.px4slp),
+                      (config.uav.footprint_m[0], config.uav.footprint_m[1]))
 
 
 def _lap(t0: float) -> float:

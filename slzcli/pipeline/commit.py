@@ -10,19 +10,20 @@ keyframe") takes the last detection's site instead.
 
 from __future__ import annotations
 
-from slzcli.config import Config
+from slzcli.config import LandingCfg, UavCfg
 from slzcli.landing.commit import commit as rank_sites
 from slzcli.types import CommittedSite, FoundSite
 
 
-def commit_radius_m(config: Config) -> float:
+def commit_radius_m(landing: LandingCfg, uav: UavCfg) -> float:
     """How close (in plan, metres) two detections' site centres must be to confirm each other."""
-    return config.landing.commit_radius_factor * config.uav.footprint_m[0]
+    return landing.commit_radius_factor * uav.footprint_m[0]
 
 
-def commit(sites: list[FoundSite], config: Config) -> CommittedSite | None:
-    """The committed site of a run's sites under the config's rule, radius and score band."""
-    return commit_site(sites, commit_radius_m(config), config.landing.commit, config.landing.commit_score_band)
+def commit(sites: list[FoundSite], landing: LandingCfg, uav: UavCfg) -> CommittedSite | None:
+    """The committed site of a run's sites under ``landing``'s rule, radius (in ``uav`` footprints) and score
+    band."""
+    return commit_site(sites, commit_radius_m(landing, uav), landing.commit, landing.commit_score_band)
 
 
 def commit_site(sites: list[FoundSite], side_m: float, rule: str = "agree",

@@ -105,8 +105,9 @@ def run(source: Source, tracker: Tracker, runs: Sequence[MethodRun], noise: Nois
         for t in frames:
             for s in sinks:
                 s.tracked(t)
-            for m in methods:
-                m.observe(t)
+            for r in runs:
+                for name, ms in (r.method.observe(t) or {}).items():  # a stateful method's per-frame stages
+                    r.state.timer.add(name, ms)
             if t.due:
                 with limit.stage(f"detection on frame {t.frame.index}"):
                     try:
@@ -114,7 +115,7 @@ def run(source: Source, tracker: Tracker, runs: Sequence[MethodRun], noise: Nois
                     except FrameError as err:  # the frame's content: name the recording and the frame
                         raise DatasetError(source.path, f"frame {t.frame.index}: {err}") from err
                 for r, d in zip(runs, dets, strict=True):
-                    tally(r.state, d, r.method, config)
+                    tally(r.state, d, r.method, config.terrain, config.uav)
                 for s in sinks:
                     s.detected(t, maps, dets)
             for s in sinks:
@@ -139,7 +140,7 @@ def method_run(config: Config, method: str, tracker: Tracker, spool: Path | None
 def finish(source: Source, config: Config, mr: MethodRun, tracker: Tracker, truth: TruthEvaluator | None,
            wall_s: float, key: dict[str, Any]) -> RunResult:
     """The committed site (``landing.commit``) and landing.json / run.json of a finished run."""
-    committed = commit(mr.state.sites.sites, config)
+    committed = commit(mr.state.sites.sites, config.landing, config.uav)
     return summarise(source.path, config, mr.method.name, source.info(), source.report(), mr.state, tracker.slam_name,
                      tracker.poses_are_recorded, committed, truth, wall_s, key)
 
@@ -166,7 +167,7 @@ def detect_in_memory(source: Source, config: Config, method: str, limit: StageLi
     # the keyframes' map points spool to a temporary folder, as slz detect's do to its run folder: the summary
     # reads them (the site's height above the ground) and memory does not grow with the recording
     with tempfile.TemporaryDirectory(prefix="slz-spool-") as spool:
-        with get_backend(config, source.has_poses, clouds=source.clouds) as slam:
+        with get_backend(config.slam, source.has_poses, clouds=source.clouds) as slam:
             tracker = Tracker(config, slam, KeyframeLog(Path(spool)))
             mr = method_run(config, method, tracker)
             assert mr.state.noise is not None
@@ -179,7 +180,7 @@ def detect_recording_in_memory(path: Path, config: Config, method: str, limit: S
     """A recording read once, nothing written (the API without ``out_dir``)."""
     with ExitStack() as stack:
         with limit.stage("opening the recording"):
-            gt = ground_truth_of(path, config)
+            gt = ground_truth_of(path, config.synth.ground_truth)
             source, config = open_source(path, config, stack)
         return detect_in_memory(source, config, method, limit, None if gt is None else TruthEvaluator(gt))
 
@@ -233,12 +234,12 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     t_start = time.perf_counter()
     with output_dir.build(out_dir, output_dir.DETECT, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
-            gt = ground_truth_of(path, config, fingerprint.cache_of({"key": key}))  # digests taken once
+            gt = ground_truth_of(path, config.synth.ground_truth, fingerprint.cache_of({"key": key}))  # digests once
             truth = None if gt is None else TruthEvaluator(gt)  # a sink: detection never reads the truth
             source, config = open_source(path, config, stack)
         results = results_mcap.open_results(tmp, config, source.recording.recorded_frames())
         stack.enter_context(results)   # __enter__ returns the writer itself
-        slam = stack.enter_context(get_backend(config, source.has_poses, clouds=source.clouds))
+        slam = stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds))
         tracker = Tracker(config, slam, KeyframeLog(tmp / SPOOL_DIR))
         mr = method_run(config, method, tracker, tmp / SPOOL_DIR)
         state = mr.state

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from slzcli import gravity
@@ -100,10 +100,12 @@ def open_source(path: Path, config: Config, stack: ExitStack) -> tuple[Recording
     are no source of it), the camera preset's depth noise prior and the frame period ORB-SLAM3 is told
     (``slam.orbslam3.nominal_period_s: auto``)."""
     rec = stack.enter_context(open_recording(path, config))
-    config, info = vet_recorded_poses(path, rec, rec.info(), config)  # rejected poses: an error, or another backend
+    slam, info = vet_recorded_poses(path, rec, rec.info(), config.slam, config.sources.pose_tolerance_ms)
+    config = replace(config, slam=slam)  # rejected poses: an error, or another backend
     resolved, info, config = gravity.apply(path, rec, info, config)
-    config = with_frame_period(with_noise_prior(config, info.camera_preset), info)
-    return RecordingSource(path, rec, info, has_recorded_clouds(info, config), resolved), config
+    config = with_noise_prior(config, info.camera_preset)
+    config = replace(config, slam=with_frame_period(config.slam, info))
+    return RecordingSource(path, rec, info, has_recorded_clouds(info, config.slam), resolved), config
 
 
 def _chain(first: Frame, rest: Iterator[Frame]) -> Iterator[Frame]:

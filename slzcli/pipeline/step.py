@@ -13,18 +13,18 @@ from dataclasses import replace
 
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import Config, TerrainCfg, UavCfg
 from slzcli.funnel import frame_funnel
 from slzcli.methods.base import Method
 from slzcli.outputs.site_log import SiteLog
 from slzcli.summary import RunState
 from slzcli.terrain.limits import limit_reason
-from slzcli.terrain.maps import frame_maps
+from slzcli.terrain.maps import MapParams, frame_maps
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.types import Candidate, DepthNoise, Detection, Frame, Site, TerrainMaps, TrackedFrame
 
 
-def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
+def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, params: MapParams,
                noise: DepthNoise | None = None) -> tuple[TerrainMaps, float]:
     """The four terrain maps of a frame (with its SLAM pose, when there is one) and their time in ms.
 
@@ -34,14 +34,15 @@ def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, config: Config,
     """
     posed = replace(frame, T_world_camera=T_world_camera)
     t0 = time.perf_counter()
-    maps = frame_maps(posed, config, noise)
+    maps = frame_maps(posed, params, noise)
     return maps, (time.perf_counter() - t0) * 1e3
 
 
 def step(tracked: TrackedFrame, methods: Sequence[Method], config: Config,
          noise: NoiseTracker) -> tuple[TerrainMaps, list[Detection]]:
     """A frame due: its maps (with the run's depth noise), then each method's detection on them, in order."""
-    maps, maps_ms = posed_maps(tracked.frame, tracked.T_world_camera, config, noise.update(tracked.frame.depth_m))
+    maps, maps_ms = posed_maps(tracked.frame, tracked.T_world_camera, MapParams.of(config),
+                               noise.update(tracked.frame.depth_m))
     return maps, [detect_one(m, tracked, maps, maps_ms) for m in methods]
 
 
@@ -50,8 +51,9 @@ def detect_one(method: Method, tracked: TrackedFrame, maps: TerrainMaps, maps_ms
     return method.detect(tracked, maps, maps_ms)
 
 
-def tally(state: RunState, det: Detection, method: Method, config: Config) -> None:
-    """Add one detection to a run's accumulators: stage times, counts, the no-site evidence, sites."""
+def tally(state: RunState, det: Detection, method: Method, terrain: TerrainCfg, uav: UavCfg) -> None:
+    """Add one detection to a run's accumulators: stage times, counts, the no-site evidence (the limits of
+    ``terrain`` and ``uav`` a frame that does not vouch failed), sites."""
     score, work = det.score, det.maps.work
     if score.column_cut > 0 or score.mask.any():
         cut = state.column_cut
@@ -63,7 +65,7 @@ def tally(state: RunState, det: Detection, method: Method, config: Config) -> No
         worst = state.worst_unvouched
         if worst is None or work.altitude_m > worst.altitude_m:
             state.worst_unvouched = work
-            state.unvouched_reason = limit_reason(work, config.terrain, config.uav)
+            state.unvouched_reason = limit_reason(work, terrain, uav)
     if method.reads_maps and work is not None and (state.highest is None or work.altitude_m > state.highest.altitude_m):
         state.highest = work
     for name, ms in det.timings_ms.items():

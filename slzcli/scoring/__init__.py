@@ -1,8 +1,9 @@
 """Scoring stage: TerrainMaps -> landing score -> ScoreMap (score + landing mask).
 
-``SCORERS`` maps a map-scoring method's name to its scorer class; ``get_scorer(config)`` builds one.
-A scorer maps the four terrain maps to a float32 score in [0, 1] (1 = good for landing);
-pixels without depth (``valid`` False) score 0. ``score_frame`` adds the landing mask.
+``SCORERS`` maps a map-scoring method's name to its scorer class; ``get_scorer(config.scoring,
+config.mask)`` builds one. A scorer maps the four terrain maps to a float32 score in [0, 1] (1 = good
+for landing) and carries the threshold its score is cut at; pixels without depth (``valid`` False)
+score 0. ``score_frame`` adds the landing mask, which reads what ``MaskParams`` holds.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import Config, MaskCfg, ScoringCfg, UavCfg
 from slzcli.errors import ConfigError
 from slzcli.funnel import MaskFunnel, mask_funnel
 from slzcli.geometry import valid_depth
@@ -46,12 +47,13 @@ class FuzzyScorer:
 
     rules: RuleBase
     evaluator: str
+    threshold: float  # mask.threshold: a pixel above it may be safe
     compiled: CompiledEvaluator | None = field(default=None)
     name: str = "fuzzy"
 
     @classmethod
-    def from_config(cls, config: Config) -> FuzzyScorer:
-        cfg = config.scoring.fuzzy
+    def from_config(cls, scoring: ScoringCfg, mask: MaskCfg) -> FuzzyScorer:
+        cfg = scoring.fuzzy
         rules = load_rules(cfg.rules)
         unknown = [name for name in rules.input_names if name not in TerrainMaps.NAMES]
         if unknown:
@@ -59,10 +61,7 @@ class FuzzyScorer:
                               f"{', '.join(TerrainMaps.NAMES)}{did_you_mean(unknown[0], TerrainMaps.NAMES)}",
                               rules.source)
         compiled = compile_fuzzy(rules, cfg.lut_levels) if cfg.evaluator == "compiled" else None
-        return cls(rules, cfg.evaluator, compiled)
-
-    def threshold(self, config: Config) -> float:
-        return config.mask.threshold
+        return cls(rules, cfg.evaluator, mask.threshold, compiled)
 
     def score_arrays(self, inputs: dict[str, np.ndarray], valid: np.ndarray | None = None) -> np.ndarray:
         """Score of the named input maps (the rules file's input names), float32 in [0, 1]."""
@@ -85,14 +84,13 @@ class BayesScorer:
 
     prior: float
     eps: float
+    threshold: float  # scoring.bayes.threshold: a posterior above it may be safe
     name: str = "bayes"
 
     @classmethod
-    def from_config(cls, config: Config) -> BayesScorer:
-        return cls(config.scoring.bayes.prior, config.scoring.bayes.eps)
-
-    def threshold(self, config: Config) -> float:
-        return config.scoring.bayes.threshold
+    def from_config(cls, scoring: ScoringCfg, mask: MaskCfg) -> BayesScorer:
+        """``mask`` is not read (the posterior has its own threshold): the signature every scorer shares."""
+        return cls(scoring.bayes.prior, scoring.bayes.eps, scoring.bayes.threshold)
 
     def score_arrays(self, inputs: dict[str, np.ndarray], valid: np.ndarray | None = None) -> np.ndarray:
         score = bayes.fuse([inputs[name] for name in TerrainMaps.NAMES], self.prior, self.eps)
@@ -121,23 +119,37 @@ SCORERS: dict[str, type[FuzzyScorer] | type[BayesScorer]] = {"fuzzy": FuzzyScore
 # the scorers of the four maps; the detection methods (these two and px4slp) are slzcli.methods.registry's
 
 
-def get_scorer(config: Config, method: str | None = None) -> Scorer:
-    """The scorer for ``scoring.method`` (or ``method``, e.g. for ``slz compare``)."""
-    name = method or config.scoring.method
+def get_scorer(scoring: ScoringCfg, mask: MaskCfg, method: str | None = None) -> Scorer:
+    """The scorer for ``scoring.method`` (or ``method``, e.g. for ``slz compare``), cutting at its threshold."""
+    name = method or scoring.method
     if name not in SCORERS:
         raise ConfigError("scoring.method", f"{name!r} does not score the four terrain maps (scorers: "
                                             f"{', '.join(SCORERS)}); run it through slz detect or slz compare")
-    return SCORERS[name].from_config(config)
+    return SCORERS[name].from_config(scoring, mask)
+
+
+@dataclass(frozen=True)
+class MaskParams:
+    """What the landing mask reads: the ``mask`` section, the UAV's footprint and clearance (``uav``) and the
+    hover height above the site the final descent starts from (``control.desired_depth_m``)."""
+
+    mask: MaskCfg
+    uav: UavCfg
+    desired_depth_m: float
+
+    @classmethod
+    def of(cls, config: Config) -> MaskParams:
+        return cls(config.mask, config.uav, config.control.desired_depth_m)
 
 
 def score_frame(scorer: Scorer, maps: TerrainMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
-                config: Config) -> ScoreMap:
+                params: MaskParams) -> ScoreMap:
     """Score the maps and make the landing mask (min filter of the UAV footprint, then threshold)."""
-    return mask_score(scorer, scorer(maps), depth_m, intrinsics, config, maps.work, maps.up_camera)
+    return mask_score(scorer, scorer(maps), depth_m, intrinsics, params, maps.work, maps.up_camera)
 
 
 def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics,
-               config: Config, work: Working | None = None, up_camera: np.ndarray | None = None) -> ScoreMap:
+               params: MaskParams, work: Working | None = None, up_camera: np.ndarray | None = None) -> ScoreMap:
     """The landing mask of a score already computed (so the pipeline can time the two apart).
 
     ``work``: the maps' working scale; nothing is called safe where its noise limits fail (the
@@ -148,24 +160,24 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
     pixels each step left (``slzcli.funnel``).
     """
     depth = np.asarray(depth_m)
-    mc = config.mask
-    threshold = scorer.threshold(config)
+    mc = params.mask
+    threshold = scorer.threshold
     above = int(np.count_nonzero(np.greater(score, threshold)))  # the funnel's count, while the score is in cache
     valid = valid_depth(depth)
     if mc.clearance == "plan" and up_camera is not None:
-        m = plan_block_px(depth, intrinsics, config)
+        m = plan_block_px(depth, intrinsics, params)
         if m > 1:
             depth_b, _ = block_depth(depth, valid, m)
             score_b = cv2.resize(np.asarray(score, np.float32), depth_b.shape[::-1], interpolation=cv2.INTER_AREA)
-            sm, before_b = _mask(scorer, score_b, depth_b, fit_intrinsics(intrinsics, depth_b.shape), config,
+            sm, before_b = _mask(scorer, score_b, depth_b, fit_intrinsics(intrinsics, depth_b.shape), params,
                                  up_camera)
             mask, footprint = _upsampled(sm.mask, before_b, valid)
             sm = ScoreMap(sm.method, score, mask, sm.column_cut)
         else:
-            sm, before = _mask(scorer, score, depth, intrinsics, config, up_camera)
+            sm, before = _mask(scorer, score, depth, intrinsics, params, up_camera)
             footprint = None if before is None else int(np.count_nonzero(before))
     else:
-        sm, _ = _mask(scorer, score, depth, intrinsics, config, None)
+        sm, _ = _mask(scorer, score, depth, intrinsics, params, None)
         footprint = None
     column = int(np.count_nonzero(sm.mask))
     if work is not None and not work.vouched:
@@ -175,7 +187,7 @@ def mask_score(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsic
             np.logical_and(sm.mask, depth <= work.vouch_depth_m, out=sm.mask)
     plan = mc.clearance == "plan" and up_camera is not None
     return replace(sm, funnel=_funnel(score, depth, valid, threshold, above, footprint, column, sm.mask, intrinsics,
-                                      config, plan, work))
+                                      params, plan, work))
 
 
 def _upsampled(mask_b: np.ndarray, before_b: np.ndarray | None, valid: np.ndarray) -> tuple[np.ndarray, int | None]:
@@ -195,8 +207,8 @@ def _upsampled(mask_b: np.ndarray, before_b: np.ndarray | None, valid: np.ndarra
 
 
 def _funnel(score: np.ndarray, depth: np.ndarray, valid: np.ndarray, threshold: float, above: int,
-            footprint: int | None, column: int, final: np.ndarray, intrinsics: Intrinsics, config: Config, plan: bool,
-            work: Working | None) -> MaskFunnel:
+            footprint: int | None, column: int, final: np.ndarray, intrinsics: Intrinsics, params: MaskParams,
+            plan: bool, work: Working | None) -> MaskFunnel:
     """The pixels each mask step left (``slzcli.funnel``). ``footprint`` None: no column rule ran, so the
     footprint step left what the column step did; ``above``: the pixels whose score is above the threshold.
     The score is 0 where there is no depth: its maximum and the pixels above the threshold are those of the
@@ -204,16 +216,16 @@ def _funnel(score: np.ndarray, depth: np.ndarray, valid: np.ndarray, threshold: 
     The median depth is the working scale's (the same median), measured here only without one."""
     depth_px = int(np.count_nonzero(valid))
     best = float(np.max(score)) if above == 0 and score.size else None   # what the reason needs: below it
-    uav = config.uav
-    side = config.mask.margin_factor * max(uav.footprint_m) + 2.0 * uav.clearance_m
+    uav = params.uav
+    side = params.mask.margin_factor * max(uav.footprint_m) + 2.0 * uav.clearance_m
     d = work.altitude_m if work is not None else median_depth_m(depth)
     view = None if d is None else (intrinsics.width * d / intrinsics.fx, intrinsics.height * d / intrinsics.fy)
     counts = (depth_px, above, column if footprint is None else footprint, column, int(np.count_nonzero(final)))
-    return mask_funnel(valid.size, counts, threshold, best, side, config.control.desired_depth_m if plan else None,
+    return mask_funnel(valid.size, counts, threshold, best, side, params.desired_depth_m if plan else None,
                        d, view)
 
 
-def plan_block_px(depth_m: np.ndarray, intrinsics: Intrinsics, config: Config) -> int:
+def plan_block_px(depth_m: np.ndarray, intrinsics: Intrinsics, params: MaskParams) -> int:
     """The block side m (px) the plan-view filter runs on: the coarsest that still puts
     ``mask.plan_samples_per_cell`` samples across a plan cell at the frame's median depth (0: every pixel).
 
@@ -221,33 +233,33 @@ def plan_block_px(depth_m: np.ndarray, intrinsics: Intrinsics, config: Config) -
     larger): so m does not move with ``uav.margin_m`` or the touch-down dispersion, and a larger
     clearance gives a mask inside the smaller one's, on the same samples.
     """
-    mc = config.mask
+    mc = params.mask
     depth = median_depth_m(depth_m)
     if depth is None or mc.plan_samples_per_cell <= 0:
         return 1
-    cell_m = mc.margin_factor * max(config.uav.footprint_m) / mc.plan_cells_per_footprint
+    cell_m = mc.margin_factor * max(params.uav.footprint_m) / mc.plan_cells_per_footprint
     px_m = depth / (0.5 * (intrinsics.fx + intrinsics.fy))
     return max(1, math.floor(cell_m / (mc.plan_samples_per_cell * px_m)))
 
 
-def _mask(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, config: Config,
+def _mask(scorer: Scorer, score: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, params: MaskParams,
           up_camera: np.ndarray | None) -> tuple[ScoreMap, np.ndarray | None]:
     """Footprint filter, threshold and column rule of a score and the depth image it is on; and the mask
     before the column rule (None: the rule did not run)."""
-    mc = config.mask
+    mc = params.mask
     plan = points = None
     if mc.clearance == "plan" and up_camera is not None:
         plan = (fit_intrinsics(intrinsics, depth_m.shape), up_camera, mc.plan_cells_per_footprint)
         points = camera_points(depth_m, plan[0])          # once, for the plan filter and the column
-    sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, config.uav.footprint_m,
-                      mc.margin_factor, scorer.threshold(config), mc.smooth_m, plan=plan,
-                      margin_m=config.uav.clearance_m, points=points)
+    sm = landing_mask(scorer.name, score, depth_m, intrinsics.fx, intrinsics.fy, params.uav.footprint_m,
+                      mc.margin_factor, scorer.threshold, mc.smooth_m, plan=plan,
+                      margin_m=params.uav.clearance_m, points=points)
     if plan is None:
         return sm, None
     # the final descent's column must have been in view (control.desired_depth_m hover)
     footprint = sm.mask.copy()
     before = int(np.count_nonzero(footprint))
-    np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], config.control.desired_depth_m,
+    np.logical_and(sm.mask, column_in_view(depth_m, plan[0], plan[1], params.desired_depth_m,
                                            points=points, among=sm.mask), out=sm.mask)
     if before:
         sm = ScoreMap(sm.method, sm.score, sm.mask, 1.0 - int(np.count_nonzero(sm.mask)) / before)

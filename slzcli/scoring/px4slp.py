@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import Px4SlpCfg
 from slzcli.geometry import back_project
 from slzcli.types import Intrinsics
 
@@ -58,8 +58,7 @@ class Px4SlpParams:
     warm_start: bool
 
     @classmethod
-    def from_config(cls, config: Config) -> Px4SlpParams:
-        c = config.scoring.px4slp
+    def from_config(cls, c: Px4SlpCfg) -> Px4SlpParams:
         return cls(c.grid_size_m, c.cell_size_m, c.n_points_threshold, c.std_dev_threshold_m, c.smoothing_size,
                    c.mean_diff_thr_m, c.max_n_mean_diff_cells, c.min_n_land_cells, c.alpha, c.beta, c.can_land_thr,
                    c.smoothing_land_cell, c.warm_start)
@@ -182,8 +181,8 @@ class Px4SlpPlanner:
     name: str = NAME
 
     @classmethod
-    def from_config(cls, config: Config) -> Px4SlpPlanner:
-        return cls(Px4SlpParams.from_config(config))
+    def from_config(cls, cfg: Px4SlpCfg) -> Px4SlpPlanner:
+        return cls(Px4SlpParams.from_config(cfg))
 
     def step(self, memory: Px4SlpMemory, depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray,
              segment: int) -> tuple[GridState, np.ndarray]:

@@ -15,7 +15,6 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import yaml
@@ -151,7 +150,7 @@ def load_rules(name: str) -> RuleBase:
     return parse_rule_base(data, source=str(path), digest=hashlib.sha256(text.encode()).hexdigest()[:16])
 
 
-def parse_rule_base(data: Any, source: str = "<rules>", digest: str = "") -> RuleBase:
+def parse_rule_base(data: object, source: str = "<rules>", digest: str = "") -> RuleBase:
     """Validate the YAML mapping and parse every rule."""
     if not isinstance(data, dict):
         raise ConfigError("", "the rules file must be a mapping with inputs, output, rules", source)
@@ -178,7 +177,7 @@ def parse_rule_base(data: Any, source: str = "<rules>", digest: str = "") -> Rul
     return RuleBase(inputs, output, rules, leaves, source, digest)
 
 
-def _variable(name: Any, spec: Any, key: str, source: str) -> Variable:
+def _variable(name: str, spec: object, key: str, source: str) -> Variable:
     if not isinstance(spec, dict) or set(spec) != {"universe", "terms"}:
         raise ConfigError(key, "expected a mapping with universe: [lo, hi] and terms:", source)
     uni = spec["universe"]
@@ -209,7 +208,7 @@ def _variable(name: Any, spec: Any, key: str, source: str) -> Variable:
     return Variable(str(name), (float(uni[0]), float(uni[1])), tuple(names), tuple(fns))
 
 
-def _is_number(v: Any) -> bool:
+def _is_number(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
@@ -312,7 +311,7 @@ def _flatten(args: Iterable[Node], kind: type[And] | type[Or]) -> list[Node]:
     return out
 
 
-def _parse_rule(text: Any, number: int, inputs: tuple[Variable, ...], output: Variable,
+def _parse_rule(text: object, number: int, inputs: tuple[Variable, ...], output: Variable,
                 leaves: tuple[tuple[int, int], ...], source: str) -> Rule:
     if not isinstance(text, str):
         raise ConfigError(f"rule {number}", f"expected a rule string, got {text!r}", source)
@@ -320,6 +319,6 @@ def _parse_rule(text: Any, number: int, inputs: tuple[Variable, ...], output: Va
     return Rule(number, " ".join(text.split()), premise, term)
 
 
-def did_you_mean(word: str, candidates: Iterable[Any]) -> str:
+def did_you_mean(word: str, candidates: Iterable[object]) -> str:
     close = difflib.get_close_matches(word, [str(c) for c in candidates], n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""

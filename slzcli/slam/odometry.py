@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -25,6 +25,9 @@ from slzcli.slam.bundle import bundle_adjust
 from slzcli.slam.features import detect, make_orb, ratio_matches
 from slzcli.slam.keyframes import is_new_keyframe
 from slzcli.types import Frame
+
+if TYPE_CHECKING:
+    from slzcli.config import SlamCfg
 
 log = logging.getLogger(__name__)
 
@@ -43,10 +46,10 @@ class _KF:
 class OdometryBackend(BackendBase):
     name = "odometry"
 
-    def __init__(self, config: Any) -> None:
-        self.cfg = config.slam.odometry
-        self.kf_cfg = config.slam.keyframe
-        o = config.slam.orb
+    def __init__(self, slam: SlamCfg) -> None:
+        self.cfg = slam.odometry
+        self.kf_cfg = slam.keyframe
+        o = slam.orb
         self.orb = make_orb(o.n_features, o.n_levels, o.scale_factor, o.fast_threshold)
         self.xyz = np.zeros((0, 3))
         self.desc = np.zeros((0, 32), np.uint8)

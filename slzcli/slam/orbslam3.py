@@ -48,7 +48,7 @@ from slzcli.slam.vocabulary import DEFAULT_VOCABULARY, read_vocabulary
 from slzcli.types import Frame, Intrinsics
 
 if TYPE_CHECKING:
-    from slzcli.config import Config
+    from slzcli.config import SlamCfg
 
 log = logging.getLogger(__name__)
 _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
@@ -157,11 +157,11 @@ class OrbSlam3Backend(BackendBase):
 
     name = "orbslam3"
 
-    def __init__(self, config: Config, vocabulary: str | Path | None = None) -> None:
+    def __init__(self, slam: SlamCfg, vocabulary: str | Path | None = None) -> None:
         if not available():
             raise SlzError("slam.backend: orbslam3 needs the optional pyorbslam3 package "
                            "(pip install 'slz[orbslam3]'; GPL-3.0)")
-        cfg = config.slam
+        cfg = slam
         path = Path(vocabulary or cfg.vocabulary or DEFAULT_VOCABULARY)
         read_vocabulary(path)  # validate before the native loader trusts it
         self.vocab_path = str(path)

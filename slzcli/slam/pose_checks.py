@@ -36,12 +36,13 @@ import numpy as np
 
 from slzcli.errors import DatasetError
 from slzcli.geometry import invert_pose, transform_points
+from slzcli.slam import choose_backend
 from slzcli.slam.features import detect, make_orb, ratio_matches
 from slzcli.sources.sync import stamp_offset_ns
 from slzcli.types import Frame
 
 if TYPE_CHECKING:
-    from slzcli.config import Config
+    from slzcli.config import SlamCfg
     from slzcli.sources import RecordingInfo
 
 log = logging.getLogger(__name__)
@@ -182,10 +183,10 @@ def _pairs(n: int) -> Iterator[tuple[int, int]]:
             step *= 2
 
 
-def check(frames: Sequence[Seen], pose_stamps: Sequence[int], config: Config, topic: str) -> Verdict:
-    """The verdict on the recorded poses of ``frames`` (see the module docstring)."""
-    pc = config.slam.pose_check
-    tol_ms = config.sources.pose_tolerance_ms
+def check(frames: Sequence[Seen], pose_stamps: Sequence[int], slam: SlamCfg, tol_ms: float, topic: str) -> Verdict:
+    """The verdict on the recorded poses of ``frames`` (see the module docstring); ``tol_ms``: how far apart a
+    frame and its pose may be stamped (``sources.pose_tolerance_ms``)."""
+    pc = slam.pose_check
     posed = [f for f in frames if f.T_world_camera is not None]
     if not frames:
         return Verdict(unchecked=("no frame to check the recorded poses against",))
@@ -223,7 +224,7 @@ def check(frames: Sequence[Seen], pose_stamps: Sequence[int], config: Config, to
         a, b = frames[i], frames[j]
         if a.T_world_camera is None or b.T_world_camera is None or not np.isfinite(a.median_depth_m):
             continue
-        motion = depth_motion(a, b, config.slam.odometry.ratio_test, config.slam.odometry.pnp_reprojection_px,
+        motion = depth_motion(a, b, slam.odometry.ratio_test, slam.odometry.pnp_reprojection_px,
                               pc.min_matches)
         if motion is None:
             continue
@@ -341,54 +342,52 @@ def _stamp_problem(frames: Sequence[Seen], posed: Sequence[Seen], pose_stamps: S
             "recording's clocks, or raise sources.pose_tolerance_ms if that offset is how the poses are stamped")
 
 
-def seen_frames(frames: Iterable[Frame], config: Config) -> list[Seen]:
+def seen_frames(frames: Iterable[Frame], slam: SlamCfg) -> list[Seen]:
     """The first ``slam.pose_check.frames`` frames as the check keeps them (one frame's images at a time)."""
-    o, od = config.slam.orb, config.slam.odometry
+    o, od = slam.orb, slam.odometry
     orb = make_orb(o.n_features, o.n_levels, o.scale_factor, o.fast_threshold)
     out = []
     for frame in frames:
         out.append(seen(frame, orb, od.min_depth_m, od.max_depth_m))
-        if len(out) >= config.slam.pose_check.frames:
+        if len(out) >= slam.pose_check.frames:
             break
     return out
 
 
-def vet_recorded_poses(path: Path, rec: Any, info: RecordingInfo, config: Config) -> tuple[Config, RecordingInfo]:
-    """``config`` and ``info`` for a run whose recorded poses have been checked.
+def vet_recorded_poses(path: Path, rec: Any, info: RecordingInfo, slam: SlamCfg,
+                       tol_ms: float) -> tuple[SlamCfg, RecordingInfo]:
+    """The ``slam`` section and ``info`` for a run whose recorded poses have been checked (``tol_ms``:
+    ``sources.pose_tolerance_ms``).
 
     Nothing changes when the poses are not to be used (no pose stream, or another backend chosen) or
     pass. Rejected poses: DatasetError under ``slam.backend: recorded``; under ``auto`` the backend
     becomes the one a recording without poses gets, and ``info.warnings`` says why (run.json).
     What could not be checked is a warning too.
     """
-    from slzcli.slam import choose_backend
-
     topic = next((c.topic for c in info.choices if c.role == "pose" and c.topic), None)
-    if topic is None or choose_backend(config, True) != "recorded" or not config.slam.pose_check.frames:
-        return config, info
+    if topic is None or choose_backend(slam, True) != "recorded" or not slam.pose_check.frames:
+        return slam, info
     rec.quiet_frames = True  # the run's own pass gives the per-frame warnings
     try:
         with closing(rec.frames()) as frames:
-            kept = seen_frames(frames, config)
+            kept = seen_frames(frames, slam)
     finally:
         rec.quiet_frames = False
-    verdict = check(kept, rec.pose_stamps(config.slam.pose_check.max_pose_stamps), config, topic)
+    verdict = check(kept, rec.pose_stamps(slam.pose_check.max_pose_stamps), slam, tol_ms, topic)
     notes: list[str] = [f"recorded poses not checked for {what}" for what in verdict.unchecked]
     if verdict.problem:
-        if config.slam.backend == "recorded":
+        if slam.backend == "recorded":
             raise DatasetError(path, f"recorded poses rejected: {verdict.problem} (slam.backend: recorded; set "
                                      "it to auto to track the frames instead)")
-        fallback = choose_backend(dataclasses.replace(config, slam=dataclasses.replace(
-            config.slam, points_topic="")), False)
+        fallback = choose_backend(dataclasses.replace(slam, points_topic=""), False)
         notes.insert(0, f"recorded poses rejected: {verdict.problem}; tracking with {_NAMES.get(fallback, fallback)} "
                         f"instead (slam.backend {fallback})")
-        slam = dataclasses.replace(config.slam, backend=fallback, points_topic="")  # type: ignore[arg-type]
-        config = dataclasses.replace(config, slam=slam)
+        slam = dataclasses.replace(slam, backend=fallback, points_topic="")  # type: ignore[arg-type]
     for note in notes:
         log.warning("%s: %s", path, note)
     if notes:
         info = dataclasses.replace(info, warnings=(*info.warnings, *notes))
-    return config, info
+    return slam, info
 
 
 _NAMES = {"orbslam3": "ORB-SLAM3", "odometry": "the built-in odometry"}

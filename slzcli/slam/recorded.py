@@ -20,16 +20,16 @@ from slzcli.slam.keyframes import is_new_keyframe
 from slzcli.types import Frame
 
 if TYPE_CHECKING:
-    from slzcli.config import Config
+    from slzcli.config import SlamCfg
     from slzcli.sources import RecordingInfo
 
 
-def has_recorded_clouds(info: RecordingInfo, config: Config) -> bool:
+def has_recorded_clouds(info: RecordingInfo, slam: SlamCfg) -> bool:
     """Whether the frames of this recording carry map clouds: ``slam.points_topic`` is set and has messages.
 
     A points topic missing from the recording is refused by the reader's ``frames()``.
     """
-    topic = config.slam.points_topic
+    topic = slam.points_topic
     return bool(topic) and any(s.topic == topic and s.count > 0 for s in info.streams)
 
 
@@ -44,12 +44,12 @@ class RecordedBackend(BackendBase):
     poses_are_recorded = True
     map_points_from_depth = True
 
-    def __init__(self, config: Config, clouds: bool = False) -> None:
+    def __init__(self, slam: SlamCfg, clouds: bool = False) -> None:
         """``clouds``: whether the frames carry recorded map clouds (``has_recorded_clouds``)."""
         self.clouds = clouds
         self._keyframe: MapPoints | None = None
         self._n_kf = 0
-        self._kf_cfg = config.slam.keyframe
+        self._kf_cfg = slam.keyframe
         self._last_kf_pose: np.ndarray | None = None
 
     def track(self, frame: Frame) -> TrackResult:

@@ -12,15 +12,25 @@ is a segfault later), so ``parse_vocabulary`` checks everything it relies on.
 from __future__ import annotations
 
 import logging
+import time
 import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from slzcli.bounds import MAX_VOCABULARY_BYTES, read_regular
 from slzcli.errors import DatasetError
+from slzcli.outputs import safe_output
+from slzcli.outputs.files import write_text
+from slzcli.slam.features import detect, make_orb
+from slzcli.sources import open_recording
+from slzcli.types import Frame
+
+if TYPE_CHECKING:
+    from slzcli.config import Config, OrbCfg
 
 log = logging.getLogger(__name__)
 
@@ -266,8 +276,6 @@ def _numeric_table(body: str, n_lines: int, source: str) -> np.ndarray:
 
 def read_vocabulary(path: str | Path) -> Vocabulary:
     """Read and validate a vocabulary file (plain text; the native loader reads no gzip)."""
-    from slzcli.bounds import MAX_VOCABULARY_BYTES, read_regular
-
     p = Path(path)
     if not p.is_file():
         raise DatasetError(p, "vocabulary file not found")
@@ -278,10 +286,8 @@ def read_vocabulary(path: str | Path) -> Vocabulary:
     return parse_vocabulary(text, str(p))
 
 
-def frame_descriptors(frames: Iterable[Any], orb_cfg: Any) -> list[np.ndarray]:
+def frame_descriptors(frames: Iterable[Frame], orb_cfg: OrbCfg) -> list[np.ndarray]:
     """One ORB descriptor array per frame (a frame = a document for the IDF weights)."""
-    from slzcli.slam.features import detect, make_orb
-
     orb = make_orb(orb_cfg.n_features, orb_cfg.n_levels, orb_cfg.scale_factor, orb_cfg.fast_threshold)
     return [d for d in (detect(orb, f.rgb)[1] for f in frames) if len(d)]
 
@@ -300,7 +306,7 @@ class BuildReport:
     seconds: float
 
 
-def build_from_recordings(paths: Sequence[str | Path], out: str | Path, config: Any,
+def build_from_recordings(paths: Sequence[str | Path], out: str | Path, config: Config,
                           force: bool = False) -> BuildReport:
     """Train a vocabulary from evenly spaced frames of the recordings, write it, and check it loads back.
 
@@ -308,12 +314,6 @@ def build_from_recordings(paths: Sequence[str | Path], out: str | Path, config: 
     ``force`` and only when it is a vocabulary (``safe_output``); checked before the training and
     again before the write.
     """
-    import time
-
-    from slzcli.outputs import safe_output
-    from slzcli.outputs.files import write_text
-    from slzcli.sources import open_recording
-
     def check() -> None:
         safe_output.refuse_inputs(Path(out), [Path(p) for p in paths])
         safe_output.check_file(Path(out), force=force, ours=safe_output.is_vocabulary, label="a vocabulary")

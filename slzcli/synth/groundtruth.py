@@ -26,7 +26,9 @@ from typing import Any, BinaryIO, Protocol
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
+from slzcli.bounds import load_json
 from slzcli.config import GroundTruthCfg, UavCfg
 from slzcli.errors import DatasetError
 
@@ -153,7 +155,7 @@ class PackedMasks:
     def __getitem__(self, i: int) -> np.ndarray:
         return np.unpackbits(self.packed[int(i)], axis=-1, count=self.shape[2]).astype(bool)
 
-    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+    def __array__(self, dtype: npt.DTypeLike | None = None, copy: bool | None = None) -> np.ndarray:
         out = np.unpackbits(np.asarray(self.packed), axis=-1, count=self.shape[2]).astype(bool)
         return out if dtype is None else out.astype(dtype)
 
@@ -184,7 +186,7 @@ class ZipMemberFrames:
             raise DatasetError(self.path, f"{self.member} is cut short at frame {i}")
         return np.frombuffer(data, self.dtype).reshape(self.shape[1:])
 
-    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+    def __array__(self, dtype: npt.DTypeLike | None = None, copy: bool | None = None) -> np.ndarray:
         out = np.stack([self[i] for i in range(len(self))]) if len(self) else np.empty(self.shape, self.dtype)
         return out if dtype is None else out.astype(dtype)
 
@@ -287,8 +289,6 @@ def load_ground_truth(recording_path: str | Path) -> GroundTruth:
     if not npz_path.is_file() or not json_path.is_file():
         raise DatasetError(recording_path, f"no ground truth ({npz_path.name} and {json_path.name} expected "
                                            "next to it; only `slz synth` recordings have one)")
-    from slzcli.bounds import load_json
-
     header = load_json(json_path, "ground-truth header (.gt.json)")
     if not isinstance(header, dict) or header.get("format") != GT_FORMAT \
             or header.get("version") not in READABLE_VERSIONS:

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from slzcli import bounds, fingerprint
-from slzcli.config import Config
+from slzcli.config import CameraCfg, Config, ScenariosCfg, SensorCfg
 from slzcli.errors import ConfigError, OutputError
 from slzcli.outputs import files, run_lock, safe_output
 from slzcli.outputs.recording import FORMATS, RecordingWriter
@@ -95,16 +95,15 @@ class SynthFrame:
     normal_world: np.ndarray   # float32 HxWx3
 
 
-def scenario_start(config: Config, scenario: int) -> tuple[float, float, float]:
-    """The paper's start position of scenario 1..4 (config synth.scenarios)."""
+def scenario_start(scenarios: ScenariosCfg, scenario: int) -> tuple[float, float, float]:
+    """The paper's start position of scenario 1..4 (``synth.scenarios``)."""
     if scenario not in (1, 2, 3, 4):
         raise ConfigError("--scenario", f"must be 1, 2, 3 or 4, got {scenario}")
-    start = getattr(config.synth.scenarios, f"s{scenario}_m")
+    start = getattr(scenarios, f"s{scenario}_m")
     return float(start[0]), float(start[1]), float(start[2])
 
 
-def intrinsics_of(config: Config) -> Intrinsics:
-    c = config.camera
+def intrinsics_of(c: CameraCfg) -> Intrinsics:
     return Intrinsics(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
 
 
@@ -118,7 +117,7 @@ def build_world(scene: Scene, config: Config) -> World:
     objects = np.array([p.object_id for p in meshes.parts], dtype=np.uint16)
     raster = compute_raster(renderer.cast, meshes.extent_xy, top, landable, objects, config.uav,
                             config.synth.ground_truth)
-    intr = intrinsics_of(config)
+    intr = intrinsics_of(config.camera)
     return World(scene, meshes, renderer, raster, intr, get_depth_sensor(config.synth.sensor, renderer, intr))
 
 
@@ -128,13 +127,13 @@ def seeds(seed: int) -> tuple[int, np.random.Generator]:
     return int(flight_ss.generate_state(1)[0]), np.random.default_rng(sensor_ss)
 
 
-def render_frames(world: World, flight: Flight, config: Config, sensor_rng: np.random.Generator,
+def render_frames(world: World, flight: Flight, sensor: SensorCfg, sensor_rng: np.random.Generator,
                   source: str = "") -> Iterator[SynthFrame]:
-    """Render, apply the sensor model and attach the truth, one frame at a time."""
+    """Render, apply the sensor model (``synth.sensor``) and attach the truth, one frame at a time."""
     for i, (stamp, T) in enumerate(zip(flight.stamps_ns, flight.T_world_camera, strict=True)):
         r = world.renderer.render(T, world.intrinsics)
         depth = world.depth_sensor.measure(r.depth_m, T, sensor_rng)
-        rgb = apply_color_model(r.rgb, config.synth.sensor, sensor_rng)
+        rgb = apply_color_model(r.rgb, sensor, sensor_rng)
         frame = Frame(index=i, stamp_ns=int(stamp), rgb=rgb, depth_m=depth, intrinsics=world.intrinsics,
                       T_world_camera=T.copy(), source=source)
         yield SynthFrame(frame, pixel_safe_mask(world.raster, r.point_world, r.hit), r.object_id,
@@ -163,7 +162,7 @@ def synthesize(out: Path, options: SynthOptions, config: Config, preview: Path |
     bounds.check(bounds.synth_frames(config, options.frames))
     scene = load_scene(options.scene, options.variants)
     if options.start_m is None:
-        options = dataclasses.replace(options, start_m=scenario_start(config, scene.scenario))
+        options = dataclasses.replace(options, start_m=scenario_start(config.synth.scenarios, scene.scenario))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -248,7 +247,7 @@ def _render_into(stage: Path, out: Path, options: SynthOptions, scene: Scene, co
     with TruthSpool(stage, options.frames, intr.height, intr.width) as spool:
         with RecordingWriter(staged, options.fmt, color_encoding=options.color_encoding,
                              depth_encoding=options.depth_encoding) as writer:
-            for sf in render_frames(world, flight, config, sensor_rng, source=str(out)):
+            for sf in render_frames(world, flight, config.synth.sensor, sensor_rng, source=str(out)):
                 upto = 0 if imu is None else int(np.searchsorted(imu.stamps_ns, sf.frame.stamp_ns, side="right"))
                 for k in range(imu_next, upto):  # the IMU samples up to this frame, in time order
                     assert imu is not None

@@ -16,6 +16,7 @@ import dataclasses
 import difflib
 import types
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
@@ -285,7 +286,7 @@ def _read(path: Path) -> dict[str, Any]:
     return data
 
 
-def _only_keys(data: dict[str, Any], allowed: set[str], where: str, source: str) -> None:
+def _only_keys(data: Mapping[str, object], allowed: set[str], where: str, source: str) -> None:
     for key in data:
         if key not in allowed:
             close = difflib.get_close_matches(str(key), sorted(allowed), n=1, cutoff=0.6)
@@ -293,7 +294,7 @@ def _only_keys(data: dict[str, Any], allowed: set[str], where: str, source: str)
             raise SceneError(f"{where}{key}", f"unknown key{hint}", source=source)
 
 
-def _build(cls: type[_D], data: Any, where: str, source: str) -> _D:
+def _build(cls: type[_D], data: object, where: str, source: str) -> _D:
     """Validate a mapping into dataclass ``cls`` (defaults allowed, unknown keys rejected)."""
     if not isinstance(data, dict):
         raise SceneError(where, f"expected a mapping, got {type(data).__name__}", source=source)

@@ -28,7 +28,17 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from slzcli.config import Config, DepthVarianceCfg, FlatnessCfg, InclinationCfg, Mount, SteepnessCfg, TerrainCfg, UavCfg
+from slzcli.config import (
+    Config,
+    DepthVarianceCfg,
+    FlatnessCfg,
+    InclinationCfg,
+    Mount,
+    SteepnessCfg,
+    TerrainCfg,
+    UavCfg,
+    load_config,
+)
 from slzcli.errors import DatasetError, FrameError
 from slzcli.terrain.geometry import (
     NormalField,
@@ -423,8 +433,6 @@ def mount_from_up(up_camera: np.ndarray) -> tuple[float, float]:
 @functools.lru_cache(maxsize=1)
 def _default_uav() -> UavCfg:
     """The default config's UAV: the limits a bare depth image is mapped for (no config given)."""
-    from slzcli.config import load_config
-
     return load_config().uav
 
 
@@ -575,14 +583,28 @@ def _grid_maps(db: _Depth, intr_b: Intrinsics, block: int, rough: np.ndarray, ro
                        up_camera=up, grid=grid)
 
 
-def frame_maps(frame: Frame, config: Config, noise: DepthNoise | None = None) -> TerrainMaps:
+@dataclass(frozen=True)
+class MapParams:
+    """What a frame's maps read: the ``terrain`` section, the UAV (its limits set the working scale) and
+    ``camera.mount`` (gravity for a frame without a pose or its own)."""
+
+    terrain: TerrainCfg
+    uav: UavCfg
+    mount: Mount
+
+    @classmethod
+    def of(cls, config: Config) -> MapParams:
+        return cls(config.terrain, config.uav, config.camera.mount)
+
+
+def frame_maps(frame: Frame, params: MapParams, noise: DepthNoise | None = None) -> TerrainMaps:
     """compute_maps with gravity from the frame's pose (or ``camera.mount``) and windows from the noise.
 
     ``noise``: what the recording's ``NoiseTracker`` says; None measures it on this frame alone
     (or takes ``terrain.noise`` when that is a number).
     """
-    up = frame_up(frame, config.camera.mount)
+    up = frame_up(frame, params.mount)
     if noise is None:
-        noise = NoiseTracker(config.terrain.noise, config.terrain.noise_estimate).update(frame.depth_m)
-    work = frame_working(frame.depth_m, frame.intrinsics, noise, config.terrain, config.uav)
-    return compute_maps(frame, None, up, config.terrain, work, noise)
+        noise = NoiseTracker(params.terrain.noise, params.terrain.noise_estimate).update(frame.depth_m)
+    work = frame_working(frame.depth_m, frame.intrinsics, noise, params.terrain, params.uav)
+    return compute_maps(frame, None, up, params.terrain, work, noise)

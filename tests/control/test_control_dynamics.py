@@ -12,7 +12,8 @@ from slzcli.control import ibvs
 
 @pytest.fixture(scope="module")
 def params() -> dyn.Params:
-    return dyn.Params.from_config(load_config())
+    config = load_config()
+    return dyn.Params.from_config(config.control, config.uav)
 
 
 def test_enu_ned_is_a_proper_self_inverse_rotation() -> None:
@@ -85,7 +86,7 @@ def test_tilt_limit_saturates_and_reports_it(params: dyn.Params) -> None:
 
 def test_control_law_closes_ef_dynamics() -> None:
     """Substituting F into e_f' = (K_e - 2S) e' - (S' + S^2) e - F/(m z*) gives -K_p e_f - K_i e_i."""
-    gains = ibvs.Gains.from_config(load_config())
+    gains = ibvs.Gains.from_config(load_config().control)
     rng = np.random.default_rng(1)
     e, e_dot, e_i = rng.normal(size=(3, 4, 3))
     psi_rate, psi_acc = rng.normal(size=(2, 4))

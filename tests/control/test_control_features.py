@@ -56,7 +56,7 @@ def test_yaw_feature_is_the_corner_line_angle_and_turns_against_the_body(corners
 
 
 def test_real_camera_sees_a_square_below_centred_and_misses_one_far_away(corners_ned: np.ndarray) -> None:
-    cam = ft.CameraModel.from_config(load_config())
+    cam = ft.CameraModel.from_config(load_config().camera, load_config().uav)
     r_ic = np.eye(3)[None] @ cam.R_BC  # level body, heading north
     t_ic = corners_ned.mean(axis=0)[None] - np.array([0.0, 0.0, 3.0])
     uv, depth = ft.camera_pixels(corners_ned, r_ic, t_ic, cam)

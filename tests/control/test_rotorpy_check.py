@@ -33,7 +33,7 @@ def test_state_round_trips_between_ned_frd_and_rotorpy_frames() -> None:
 
 def test_quad_params_reproduce_the_uav_thrust_range() -> None:
     cfg = load_config(None, [])
-    p = rc.quad_params(cfg)
+    p = rc.quad_params(cfg.uav)
     assert 4 * p["k_eta"] * p["rotor_speed_max"] ** 2 == pytest.approx(cfg.uav.thrust_max_n)
     assert 4 * p["k_eta"] * p["rotor_speed_min"] ** 2 == pytest.approx(cfg.uav.thrust_min_n)
     assert p["mass"] == cfg.uav.mass_kg and p["Izz"] == cfg.uav.inertia_kg_m2[2]
@@ -49,7 +49,7 @@ def test_rotorpy_lands_where_slz_lands_from_scenario_1() -> None:
     target = Target(c, square_corners(c, (cfg.uav.footprint_m[0], cfg.uav.footprint_m[1])))
     start = np.array([[0.0, 0.0, 10.0, 0.0]])
     own = simulate(target, start, cfg).metrics(0)
-    other = simulate(target, start, cfg, plant=rc.RotorPyPlant(cfg)).metrics(0)
+    other = simulate(target, start, cfg, plant=rc.RotorPyPlant(cfg.control, cfg.uav)).metrics(0)
     assert own["reason"] == other["reason"] == "touchdown"
     assert abs(own["touchdown_error_m"] - other["touchdown_error_m"]) <= 0.05
     for key in ("stabilisation_time_s", "landing_time_s"):

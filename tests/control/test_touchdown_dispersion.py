@@ -17,7 +17,7 @@ from conftest import GAUSSIAN
 from slzcli.cli import main
 from slzcli.config import load_config
 from slzcli.control.montecarlo import table
-from slzcli.scoring import get_scorer, mask_score
+from slzcli.scoring import MaskParams, get_scorer, mask_score
 from slzcli.types import Intrinsics
 
 K = Intrinsics(fx=320.0, fy=320.0, cx=159.5, cy=119.5, width=320, height=240)
@@ -41,8 +41,8 @@ def test_dispersion_shrinks_the_mask_by_its_plan_width(dispersion_m: float) -> N
     both sides. Limits: at most the analytic width + 1 pixel, at least analytic - 2 cells - 1 pixel."""
     cfg = load_config(None, [f"uav.touchdown_dispersion_m={dispersion_m}"])
     assert cfg.uav.clearance_m == pytest.approx(cfg.uav.margin_m + dispersion_m)
-    sm = mask_score(get_scorer(cfg), _open_square_score(), np.full((K.height, K.width), ALTITUDE_M, np.float32),
-                    K, cfg, up_camera=UP)
+    sm = mask_score(get_scorer(cfg.scoring, cfg.mask), _open_square_score(),
+                    np.full((K.height, K.width), ALTITUDE_M, np.float32), K, MaskParams.of(cfg), up_camera=UP)
     side = max(cfg.uav.footprint_m) * cfg.mask.margin_factor + 2 * cfg.uav.clearance_m
     analytic = 2 * HALF_OPEN_M - side
     cell, px = side / cfg.mask.plan_cells_per_footprint, ALTITUDE_M / K.fx

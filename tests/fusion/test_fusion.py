@@ -161,7 +161,7 @@ def test_two_heights_are_refused() -> None:
     assert np.all(reg.rejected[inner] > params.two_heights_fraction * reg.frames[inner])
     from slzcli.fusion.verdict import fused_maps
     from slzcli.scoring import get_scorer
-    fm = fused_maps(reg, cfg, params, get_scorer(cfg, "fuzzy"))
+    fm = fused_maps(reg, cfg, params, get_scorer(cfg.scoring, cfg.mask, "fuzzy"))
     assert np.all(fm.refused[inner]) and not np.any(fm.verdict[inner] == SAFE)
     assert np.all(fm.verdict[inner] == UNSAFE)
 
@@ -194,3 +194,84 @@ def test_memory_stays_bounded_over_a_long_flight() -> None:
     x0, _, nx, _ = b
     assert nx <= params.side_cells
     assert (x0 + nx) * params.cell_m > 199.0 - 0.5 * 20 and x0 * params.cell_m > 199.0 - 25.0
+
+
+def _cells_by_compression(depth: np.ndarray, T: np.ndarray, params: FusionParams) -> dict[tuple[int, int], tuple]:
+    """The frame's cells the plain way (samples with depth and within the window compressed out, then binned):
+    the reference ``frame_cells`` must equal, whatever it does to be fast."""
+    import math as m
+
+    from slzcli.geometry import pixel_rays, valid_depth
+    from slzcli.terrain.geometry import block_depth, median_depth_m
+
+    z_med = median_depth_m(depth)
+    assert z_med is not None
+    f = 0.5 * (INTR.fx + INTR.fy)
+    b = max(1, m.floor(params.cell_m / (params.samples_per_cell * z_med / f)))
+    depth_b, ok = block_depth(depth, valid_depth(depth), b) if b > 1 else (depth, valid_depth(depth))
+    rx, ry = pixel_rays(INTR.scaled(depth_b.shape[1], depth_b.shape[0]) if b > 1 else INTR)
+    rows, cols = np.nonzero(ok)
+    z, xr, yr = depth_b[rows, cols], rx[0, cols], ry[rows, 0]
+    R, t = T[:3, :3].astype(np.float32), T[:3, 3]
+    wx = (R[0, 0] * xr + R[0, 1] * yr + R[0, 2]) * z
+    wy = (R[1, 0] * xr + R[1, 1] * yr + R[1, 2]) * z
+    wz = (R[2, 0] * xr + R[2, 1] * yr + R[2, 2]) * z
+    inv = np.float32(1.0 / params.cell_m)
+    ix = np.floor((wx + np.float32(t[0] % params.cell_m)) * inv).astype(np.int64)
+    iy = np.floor((wy + np.float32(t[1] % params.cell_m)) * inv).astype(np.int64)
+    half = params.side_cells // 2 - 1
+    near = (np.abs(ix) <= half) & (np.abs(iy) <= half)
+    cells: dict[tuple[int, int], list[float]] = {}
+    for x, y, h in zip(ix[near], iy[near], wz[near], strict=True):
+        cells.setdefault((int(x) + m.floor(t[0] * inv), int(y) + m.floor(t[1] * inv)), []).append(float(h))
+    return {k: (float(np.mean(v)) + t[2], len(v)) for k, v in cells.items() if len(v) >= 2}
+
+
+@pytest.mark.parametrize("window_m", [40.0, 3.0])
+def test_frame_cells_equal_the_plain_binning_with_holes_and_beyond_the_window(window_m: float) -> None:
+    """Holes (no depth: NaN, 0, inf) and a view wider than the window (3 m: most samples beyond it) go to a
+    dropped bin in ``frame_cells``; its cells and heights are those of compressing them out first (the way it
+    was done before it was made fast)."""
+    params = FusionParams.from_config(load_config(None, [f"terrain.fusion.window_m={window_m}"]))
+    T = pose(0.3, -0.2, 6.0, yaw_deg=20.0)
+    rng = np.random.default_rng(3)
+    depth = exact_depth(T, Block(-0.5, 0.5, -0.4, 0.6, 0.3)) + rng.normal(0, 0.02, (INTR.height, INTR.width))
+    depth = depth.astype(np.float32)
+    depth[rng.random(depth.shape) < 0.3] = np.nan
+    depth[:40, :60] = 0.0
+    depth[200:, 250:] = np.inf
+    cells = frame_cells(depth, INTR, T, DepthNoise.white(0.001, "known"), params, 2.0, 0.1)
+    assert cells is not None
+    want = _cells_by_compression(depth, T, params)
+    got = {(int(x), int(y)): float(h) for x, y, h in zip(cells.ix, cells.iy, cells.height_m, strict=True)}
+    assert set(got) == set(want) and len(got) > 100
+    assert max(abs(got[k] - want[k][0]) for k in got) < 1e-6   # float64 sums in another order: rounding only
+    span = int(cells.ix.max() - cells.ix.min()) + 1
+    half = params.side_cells // 2 - 1
+    if window_m < 10:   # the view (~8 m wide at 6 m) was cut to the window's cells around the camera
+        assert span == 2 * half + 1
+    else:
+        assert span < 2 * half + 1
+
+
+def test_slz_detect_times_the_fusion_of_every_frame(tmp_path) -> None:
+    """run.json ``timings.fuse``: one sample per frame (the fusion of every tracked frame, not only the frames
+    due), its median and mean; the detections are fewer than the frames, so the count tells them apart."""
+    import json
+
+    from click.testing import CliRunner
+    from conftest import GAUSSIAN, HALF_SIZE, synth_recording
+
+    from slzcli.cli import main
+
+    rec = synth_recording(tmp_path / "flight.mcap", "clear_field", 6, *GAUSSIAN, *HALF_SIZE)
+    out = tmp_path / "run"
+    res = CliRunner().invoke(main, ["detect", str(rec), "-o", str(out), "--method", "fused", "--set",
+                                    "slam.backend=odometry", "--set", "landing.detect_on=every_nth", "--set",
+                                    "landing.every_nth_frame=3"])
+    assert res.exit_code == 0, res.output
+    run = json.loads((out / "run.json").read_text())
+    fuse = run["timings"]["fuse"]
+    assert fuse["count"] == run["summary"]["frames"] == 6
+    assert run["summary"]["detections"] == 2
+    assert fuse["median_ms"] > 0 and fuse["mean_ms"] > 0

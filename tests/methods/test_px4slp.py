@@ -21,7 +21,7 @@ from slzcli.landing.px4slp import choose_patch, grid_site, patch_disk, search_of
 from slzcli.scoring.px4slp import Px4SlpMemory, Px4SlpParams, Px4SlpPlanner, cell_statistics, update
 from slzcli.types import Intrinsics
 
-P = Px4SlpParams.from_config(load_config())   # upstream's defaults (SafeLandingPlannerNode.cfg)
+P = Px4SlpParams.from_config(load_config().scoring.px4slp)   # upstream's defaults (SafeLandingPlannerNode.cfg)
 ORIGIN = np.zeros(3)
 
 

@@ -50,14 +50,14 @@ class Kept(Sink):
 def run_core(path: Path, config: Config,
              method: str) -> tuple[list[Detection], RunState, TruthEvaluator, Method]:
     """open / track / the frame loop with the ground truth and a sink that keeps the detections."""
-    gt = ground_truth_of(path, config)
+    gt = ground_truth_of(path, config.synth.ground_truth)
     assert gt is not None
     truth = TruthEvaluator(gt)
     limit = StageLimit(None, str(path))
     kept = Kept()
     with ExitStack() as stack:
         source, config = open_source(path, config, stack)
-        tracker = Tracker(config, stack.enter_context(get_backend(config, source.has_poses, clouds=source.clouds)))
+        tracker = Tracker(config, stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds)))
         mr = method_run(config, method, tracker)
         assert mr.state.noise is not None
         run(source, tracker, [mr], mr.state.noise, limit, [TruthSink(truth), kept])
@@ -74,7 +74,7 @@ def test_the_core_gives_what_slz_detect_writes(runner, recording, tmp_path) -> N
     summary = json.loads((tmp_path / "run" / "run.json").read_text())["summary"]
     assert summary["detections"] == len(dets) == state.detections
     assert total(truth.masks).as_dict() == summary["ground_truth"]["mask"]
-    committed = commit(state.sites.sites, config)
+    committed = commit(state.sites.sites, config.landing, config.uav)
     assert (committed is None) == (landing["status"] != "site")
     if committed is not None:
         assert landing["frame"]["index"] == committed.frame.index
@@ -138,7 +138,7 @@ def test_slam_is_handed_the_next_frame_before_this_frames_detection(recording, m
     limit = StageLimit(None, str(recording))
     with ExitStack() as stack:
         source, config = open_source(recording, config, stack)
-        slam = stack.enter_context(get_backend(config, False))
+        slam = stack.enter_context(get_backend(config.slam, False))
         real_submit, real_collect = slam.submit, slam.collect
         def submit(frame):
             events.append(f"submit {frame.index}")

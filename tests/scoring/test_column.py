@@ -17,7 +17,7 @@ from conftest import GAUSSIAN
 
 from slzcli.cli import main
 from slzcli.config import load_config
-from slzcli.scoring import get_scorer, mask_score
+from slzcli.scoring import MaskParams, get_scorer, mask_score
 from slzcli.types import Intrinsics
 
 K = Intrinsics(fx=320.0, fy=320.0, cx=160.0, cy=120.0, width=320, height=240)
@@ -37,8 +37,8 @@ def test_the_column_keeps_the_analytic_share_of_the_view() -> None:
     h = cfg.control.desired_depth_m
     cuts = []
     for altitude in (3.0, 5.0, 10.0):
-        sm = mask_score(get_scorer(cfg), np.ones((K.height, K.width), np.float32), level_ground(altitude), K, cfg,
-                        up_camera=UP)
+        sm = mask_score(get_scorer(cfg.scoring, cfg.mask), np.ones((K.height, K.width), np.float32),
+                        level_ground(altitude), K, MaskParams.of(cfg), up_camera=UP)
         assert sm.mask.mean() == pytest.approx(((altitude - h) / altitude) ** 2, abs=0.02)
         cuts.append(sm.column_cut)
     assert cuts[0] > cuts[1] > cuts[2] > 0
@@ -46,8 +46,8 @@ def test_the_column_keeps_the_analytic_share_of_the_view() -> None:
 
 def test_column_cut_is_zero_without_plan_view() -> None:
     cfg = load_config(None, ["mask.clearance=image"])
-    sm = mask_score(get_scorer(cfg), np.ones((K.height, K.width), np.float32), level_ground(3.0), K, cfg,
-                    up_camera=UP)
+    sm = mask_score(get_scorer(cfg.scoring, cfg.mask), np.ones((K.height, K.width), np.float32), level_ground(3.0), K,
+                    MaskParams.of(cfg), up_camera=UP)
     assert sm.column_cut == 0.0
 
 

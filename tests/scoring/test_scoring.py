@@ -18,6 +18,7 @@ from slzcli.scoring import (
     SCORERS,
     BayesScorer,
     FuzzyScorer,
+    MaskParams,
     bayes,
     closed_form,
     compile_fuzzy,
@@ -93,7 +94,8 @@ def _random_and_kinks(n: int, seed: int = 3) -> np.ndarray:
 def test_compiled_default_is_the_exact_closed_form(rb):
     """The scorer's compiled evaluator for the shipped rules is the closed form: max |compiled -
     exact| <= 1e-5 on 100k random inputs plus the kink grid (measured 1.3e-7: float32 rounding)."""
-    scorer = get_scorer(load_config())
+    config = load_config()
+    scorer = get_scorer(config.scoring, config.mask)
     assert isinstance(scorer, FuzzyScorer)
     assert isinstance(scorer.compiled, closed_form.ClosedFormFuzzy)
     x = _random_and_kinks(4)
@@ -378,7 +380,7 @@ def test_rules_with_unknown_input_map_rejected_by_scorer(tmp_path, rules_data):
     path.write_text(yaml.safe_dump(data))
     config = load_config(overrides=[f"scoring.fuzzy.rules={path}"])
     with pytest.raises(ConfigError, match=r"r\.yaml.*'flatnes'.*did you mean 'flatness'"):
-        get_scorer(config)
+        get_scorer(config.scoring, config.mask)
 
 
 # ----------------------------------------------------------------------------- Bayes
@@ -429,7 +431,7 @@ def _maps(shape=(40, 50), seed=0, valid=None):
 def test_scorers_registry_range_and_invalid(method, evaluator):
     assert set(SCORERS) == {"fuzzy", "bayes"}
     config = load_config(overrides=[f"scoring.method={method}", f"scoring.fuzzy.evaluator={evaluator}"])
-    scorer = get_scorer(config)
+    scorer = get_scorer(config.scoring, config.mask)
     assert isinstance(scorer, FuzzyScorer if method == "fuzzy" else BayesScorer)
     valid = np.ones((40, 50), bool)
     valid[:5] = False
@@ -445,8 +447,8 @@ def test_score_frame_uses_method_threshold():
     maps = _maps()
     depth = np.full((40, 50), 5.0, np.float32)
     K = Intrinsics(46.0, 46.0, 25.0, 20.0, 50, 40)
-    fz = score_frame(get_scorer(config, "fuzzy"), maps, depth, K, config)
-    bz = score_frame(get_scorer(config, "bayes"), maps, depth, K, config)
+    fz = score_frame(get_scorer(config.scoring, config.mask, "fuzzy"), maps, depth, K, MaskParams.of(config))
+    bz = score_frame(get_scorer(config.scoring, config.mask, "bayes"), maps, depth, K, MaskParams.of(config))
     assert fz.method == "fuzzy" and not fz.mask.any()
     assert bz.method == "bayes" and bz.mask.all()
 

@@ -53,7 +53,7 @@ def out_back_flight():
 def _run(backend_name: str, frames, **overrides):
     config = load_config(overrides=[f"slam.backend={backend_name}", *[f"{k}={v}" for k, v in overrides.items()]])
     results, keyframes = [], []
-    with get_backend(config) as b:
+    with get_backend(config.slam) as b:
         for f in frames:
             results.append(b.track(f))
             kf = b.keyframe()
@@ -182,14 +182,14 @@ def test_malformed_vocabulary_never_reaches_the_native_loader(tmp_path, line_fli
     bad.write_text(GOOD.replace(" 0.7", " -1"))
     config = load_config(overrides=["slam.backend=orbslam3", f"slam.vocabulary={bad}"])
     with pytest.raises(SlzError, match=r"bad\.txt"):
-        get_backend(config)
+        get_backend(config.slam)
 
 
 @needs_orbslam3
 def test_a_dead_worker_is_an_slz_error(line_flight) -> None:
     frames, _ = line_flight
     config = load_config(overrides=["slam.backend=orbslam3"])
-    with get_backend(config) as b:
+    with get_backend(config.slam) as b:
         b.track(frames[0])
         cast(Any, b)._proc.kill()  # stands in for a native crash (a private of the ORB-SLAM3 backend)
         with pytest.raises(SlzError, match=r"died .*SIGKILL"):
@@ -200,9 +200,9 @@ def test_a_dead_worker_is_an_slz_error(line_flight) -> None:
 def test_auto_prefers_recorded_then_orbslam3_then_odometry() -> None:
     assert set(BACKENDS) == {"recorded", "orbslam3", "odometry"}
     config = load_config()
-    assert choose_backend(config, has_recorded_poses=True) == "recorded"
-    assert choose_backend(config, has_recorded_poses=False) == ("orbslam3" if orbslam3_available() else "odometry")
-    assert choose_backend(load_config(overrides=["slam.backend=odometry"]), True) == "odometry"
+    assert choose_backend(config.slam, has_recorded_poses=True) == "recorded"
+    assert choose_backend(config.slam, has_recorded_poses=False) == ("orbslam3" if orbslam3_available() else "odometry")
+    assert choose_backend(load_config(overrides=["slam.backend=odometry"]).slam, True) == "odometry"
 
 
 # ----------------------------------------------------------------------------- recorded + CLI
@@ -230,7 +230,7 @@ def _open_with_clouds(path, config):
 
     rec = open_recording(path, config)
     rec.open()
-    return rec, has_recorded_clouds(rec.info(), config)
+    return rec, has_recorded_clouds(rec.info(), config.slam)
 
 
 def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_flight) -> None:
@@ -248,7 +248,7 @@ def test_recorded_backend_reproduces_the_recorded_poses(tmp_path, out_back_fligh
                                      "slam.points_topic=/orb_slam3/map_points"])
     assert mid - frames[2].stamp_ns <= config.sources.pose_tolerance_ms * 1e6
     rec, clouds = _open_with_clouds(path, config)
-    with rec, RecordedBackend(config, clouds) as b:
+    with rec, RecordedBackend(config.slam, clouds) as b:
         assert clouds
         read = list(rec.frames())
         out = [(b.track(f), b.keyframe()) for f in read]

@@ -172,8 +172,8 @@ def test_level_ground_at_10_m_under_heavy_white_noise_scores_safe_and_a_kerb_doe
     work = tm.frame_working(d, K, noise, CONFIG.terrain, CONFIG.uav)
     assert work is not None and work.vouched
     maps = tm.compute_maps(d, K, DOWN, CONFIG.terrain, work, noise)
-    from slzcli.scoring import get_scorer, score_frame
-    sm = score_frame(get_scorer(CONFIG), maps, d, K, CONFIG)
+    from slzcli.scoring import MaskParams, get_scorer, score_frame
+    sm = score_frame(get_scorer(CONFIG.scoring, CONFIG.mask), maps, d, K, MaskParams.of(CONFIG))
     far = np.abs(x + 3.0) < 1.0                            # 4-6 m from the kerb
     rows = slice(100, 380)
     # measured over seeds 0-2: 100 % of the far ground safe, 0 % within 1 m of the kerb (limits 90 %, 0 within 0.3 m)

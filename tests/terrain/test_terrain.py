@@ -375,12 +375,12 @@ def test_pitched_camera_over_level_ground_needs_the_right_gravity() -> None:
     depth = plane_depth(-up, 10.0)          # ground: up . P = -10 m, i.e. (-up) . P = 10
     frame = Frame(index=0, stamp_ns=0, rgb=np.zeros((K.height, K.width, 3), np.uint8), depth_m=depth,
                   intrinsics=K, T_world_camera=pose)
-    with_pose = tm.frame_maps(frame, CONFIG)
+    with_pose = tm.frame_maps(frame, tm.MapParams.of(CONFIG))
     assert with_pose.steepness[INNER].min() > 0.99
     mounted = dataclasses.replace(CONFIG, camera=dataclasses.replace(CAM, mount=Mount(30.0, 0.0)))
     no_pose = dataclasses.replace(frame, T_world_camera=None)
-    assert tm.frame_maps(no_pose, mounted).steepness[INNER].min() > 0.99
-    wrong = tm.frame_maps(no_pose, CONFIG)                        # assumes straight down
+    assert tm.frame_maps(no_pose, tm.MapParams.of(mounted)).steepness[INNER].min() > 0.99
+    wrong = tm.frame_maps(no_pose, tm.MapParams.of(CONFIG))                        # assumes straight down
     np.testing.assert_allclose(wrong.slope_deg[INNER], 30.0, atol=0.05)
     assert wrong.steepness[INNER].max() < 0.02
 
@@ -455,7 +455,7 @@ def test_realsense_floor_scores_well_with_the_measured_tilt(realsense_dir: Path)
                               terrain=terrain(inclination={"radius_m": 0.15}))
     frame = Frame(index=0, stamp_ns=0, rgb=np.zeros((*depth.shape, 3), np.uint8), depth_m=depth,
                   intrinsics=intr)
-    maps = tm.frame_maps(frame, cfg)
+    maps = tm.frame_maps(frame, tm.MapParams.of(cfg))
     # measured: floor steepness medians 0.70 / 0.64 (per-pixel slope noise of the 5 px normals on
     # RealSense depth: median 9-10 deg), inclination 0.95 / 0.99; hazards' slope medians 72-82 deg
     for floor in (FLOOR_FIT, FLOOR_LEFT):
@@ -468,7 +468,7 @@ def test_realsense_floor_scores_well_with_the_measured_tilt(realsense_dir: Path)
     # the box's patches straddle its edges: its face is far less planar-looking than the floor
     assert np.median(maps.inclination[BOX_FACE]) < 0.5
     # without the tilt the floor is "steep" (measured against the optical axis)
-    nadir = tm.frame_maps(frame, dataclasses.replace(cfg, camera=CAM))
+    nadir = tm.frame_maps(frame, tm.MapParams.of(dataclasses.replace(cfg, camera=CAM)))
     assert np.median(nadir.steepness[FLOOR_FIT]) < 0.05
 
 
@@ -545,15 +545,15 @@ def test_realsense_noise_is_measured_and_near_the_d435_figure(realsense_dir: Pat
 def test_realsense_floor_at_the_papers_altitude_scores_safe_and_the_hazards_do_not(realsense_dir: Path) -> None:
     """Frame 0 with the documented mount, its depth scaled by 10: the scene as the paper's UAV sees it from
     ~10 m (slopes kept, the box 3 m high, the real sensor's noise structure kept at 1/10 of a)."""
-    from slzcli.scoring import get_scorer, score_frame
+    from slzcli.scoring import MaskParams, get_scorer, score_frame
 
     depth, intr = load_realsense(realsense_dir, 0)
     depth = depth * np.float32(10.0)
     cfg = dataclasses.replace(CONFIG, camera=dataclasses.replace(CAM, mount=REALSENSE_MOUNT))
     frame = Frame(index=0, stamp_ns=0, rgb=np.zeros((*depth.shape, 3), np.uint8), depth_m=depth, intrinsics=intr)
-    maps = tm.frame_maps(frame, cfg)
+    maps = tm.frame_maps(frame, tm.MapParams.of(cfg))
     assert maps.work is not None and maps.work.vouched
-    sm = score_frame(get_scorer(cfg), maps, depth, intr, cfg)
+    sm = score_frame(get_scorer(cfg.scoring, cfg.mask), maps, depth, intr, MaskParams.of(cfg))
     # measured: floor score medians 0.73 / 0.73, 69 % / 88 % of the regions in the mask (the footprint
     # does not fit right next to the box); box, wall, door scores 0.06 and never in the mask
     for floor in (FLOOR_FIT, FLOOR_LEFT):

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from slzcli.config import load_config
-from slzcli.scoring import get_scorer, mask_score, plan_block_px, score_maps
+from slzcli.scoring import MaskParams, get_scorer, mask_score, plan_block_px, score_maps
 from slzcli.scoring.mask import camera_points, column_in_view
 from slzcli.terrain.limits import working_scale
-from slzcli.terrain.maps import frame_maps
+from slzcli.terrain.maps import MapParams, frame_maps
 from slzcli.terrain.noise import DepthNoise
 from slzcli.types import Frame, Intrinsics
 
@@ -61,7 +61,7 @@ def test_maps_on_the_grid_are_the_grid_upsampled() -> None:
     depth = frame.depth_m.copy()
     depth[100:140, 100:180] = np.nan                                            # a hole
     frame = Frame(0, 0, frame.rgb, depth, K, frame.T_world_camera)
-    maps = frame_maps(frame, CONFIG)
+    maps = frame_maps(frame, MapParams.of(CONFIG))
     assert maps.grid is not None and maps.work is not None and maps.grid.block_px == maps.work.block_px >= 3
     gh, gw = maps.grid.valid.shape
     assert (gh, gw) == (K.height // maps.grid.block_px, K.width // maps.grid.block_px)
@@ -72,7 +72,7 @@ def test_maps_on_the_grid_are_the_grid_upsampled() -> None:
         up = cv2.resize(maps.grid.maps[name], (K.width, K.height), interpolation=cv2.INTER_LINEAR)
         inside = cv2.erode(valid.view(np.uint8), np.ones((9, 9), np.uint8)).view(bool)   # away from the hole
         np.testing.assert_array_equal(full[inside], up[inside])
-    scorer = get_scorer(CONFIG)
+    scorer = get_scorer(CONFIG.scoring, CONFIG.mask)
     score = score_maps(scorer, maps)
     on_grid = scorer.score_arrays(maps.grid.maps, maps.grid.valid)
     want = cv2.resize(on_grid, (K.width, K.height), interpolation=cv2.INTER_LINEAR)
@@ -101,11 +101,11 @@ def test_plan_block_follows_the_footprint_cell_not_the_margins() -> None:
     for z in (3.0, 5.0, 10.0):
         want = max(1, math.floor(cell / (CONFIG.mask.plan_samples_per_cell * z / K.fx)))
         depth = np.full((K.height, K.width), z, np.float32)
-        assert plan_block_px(depth, K, CONFIG) == want
+        assert plan_block_px(depth, K, MaskParams.of(CONFIG)) == want
         wider = load_config(None, ["uav.touchdown_dispersion_m=0.3", "uav.margin_m=0.3"])
-        assert plan_block_px(depth, K, wider) == want
+        assert plan_block_px(depth, K, MaskParams.of(wider)) == want
     assert plan_block_px(np.full((K.height, K.width), 5.0, np.float32), K,
-                         load_config(None, ["mask.plan_samples_per_cell=0"])) == 1        # 0: every pixel
+                         MaskParams.of(load_config(None, ["mask.plan_samples_per_cell=0"]))) == 1    # 0: every pixel
 
 
 @pytest.mark.parametrize("altitude", [5.0, 8.0])
@@ -129,14 +129,15 @@ def test_the_plan_filter_on_blocks_keeps_the_box_clear_and_the_open_ground(altit
         frame, dist = _box_frame(altitude, seed)
         masks = []
         for c in (cfg, every):
-            scorer = get_scorer(c)
-            maps = frame_maps(frame, c)
-            sm = mask_score(scorer, score_maps(scorer, maps), frame.depth_m, K, c, maps.work, maps.up_camera)
+            scorer = get_scorer(c.scoring, c.mask)
+            maps = frame_maps(frame, MapParams.of(c))
+            sm = mask_score(scorer, score_maps(scorer, maps), frame.depth_m, K, MaskParams.of(c), maps.work,
+                            maps.up_camera)
             assert not sm.mask[dist < side / 2 - cell].any()
             assert sm.mask.mean() > 0.1                     # open ground is called safe
             masks.append(sm.mask)
-        m = plan_block_px(frame.depth_m, K, cfg)
-        assert plan_block_px(frame.depth_m, K, every) == 1 < m
+        m = plan_block_px(frame.depth_m, K, MaskParams.of(cfg))
+        assert plan_block_px(frame.depth_m, K, MaskParams.of(every)) == 1 < m
         blocks, pixels = masks
         to_pixels = cv2.distanceTransform((~pixels).view(np.uint8), cv2.DIST_L2, 5)   # px to the every-pixel mask
         to_blocks = cv2.distanceTransform((~blocks).view(np.uint8), cv2.DIST_L2, 5)

@@ -198,7 +198,7 @@ def test_a_sidecar_of_another_scene_is_refused(two_scenes: tuple[Path, Path], tm
                                            "scene 'no_site'")
     assert set(tmp_path.iterdir()) == before
     with pytest.raises(DatasetError, match="ground truth of another recording"):
-        ground_truth_of(rec, load_config())
+        ground_truth_of(rec, load_config().synth.ground_truth)
 
 
 def test_an_edited_recording_no_longer_matches_its_sidecar(two_scenes: tuple[Path, Path], tmp_path: Path) -> None:
@@ -209,7 +209,7 @@ def test_an_edited_recording_no_longer_matches_its_sidecar(two_scenes: tuple[Pat
         fh.seek(-1, 1)
         fh.write(bytes([byte[0] ^ 0xFF]))
     with pytest.raises(DatasetError, match="ground truth of another recording"):
-        ground_truth_of(rec, load_config())
+        ground_truth_of(rec, load_config().synth.ground_truth)
 
 
 def test_an_unbound_sidecar_is_used_with_a_warning(two_scenes: tuple[Path, Path], tmp_path: Path,

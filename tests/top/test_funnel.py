@@ -28,7 +28,7 @@ from slzcli.landing.select import select_site
 from slzcli.methods.base import build
 from slzcli.methods.maps import fuzzy
 from slzcli.pipeline.step import tally
-from slzcli.scoring import get_scorer, mask_score
+from slzcli.scoring import MaskParams, get_scorer, mask_score
 from slzcli.slam import MapPoints
 from slzcli.summary import RunState, no_site_reason
 from slzcli.terrain.limits import working_scale
@@ -60,7 +60,7 @@ def detection(cfg: Config, score: np.ndarray, altitude_m: float, *, work=None, x
     one = np.ones(depth.shape, np.float32)
     maps = TerrainMaps(one, one, one, np.full(depth.shape, steepness, np.float32), valid,
                        np.full(depth.shape, slope_deg, np.float32), None, work, UP)
-    sm = mask_score(get_scorer(cfg), score.astype(np.float32), depth, K, cfg, work, UP)
+    sm = mask_score(get_scorer(cfg.scoring, cfg.mask), score.astype(np.float32), depth, K, MaskParams.of(cfg), work, UP)
     frame = Frame(0, 0, np.zeros((K.height, K.width, 3), np.uint8), depth, K)
     T = down_pose(altitude_m)
     points = selection = None
@@ -73,7 +73,7 @@ def detection(cfg: Config, score: np.ndarray, altitude_m: float, *, work=None, x
 def reason_of(cfg: Config, *dets: Detection) -> tuple[str, RunState]:
     state, method = RunState(), build("fuzzy", cfg)
     for d in dets:
-        tally(state, d, method, cfg)
+        tally(state, d, method, cfg.terrain, cfg.uav)
     return no_site_reason(state, "odometry", 1), state
 
 

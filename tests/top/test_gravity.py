@@ -350,8 +350,8 @@ def test_real_frames_as_a_realsense_bag_give_a_level_floor(realsense_dir: Path, 
     # measured: tilt 64.3 deg (pitch 62.7, roll 19.1; the hand fit of tests/terrain/test_terrain.py: 64.4, 19.0)
     assert 60 < resolved.gravity.tilt_deg < 68
     assert any("gravity from the scene alone" in w for w in resolved.gravity.warnings)
-    slope = float(np.nanmedian(tm.frame_maps(frame, CONFIG).slope_deg[FLOOR_FIT]))
-    level = float(np.nanmedian(tm.frame_maps(dataclasses.replace(frame, up_camera=None), CONFIG)
+    slope = float(np.nanmedian(tm.frame_maps(frame, tm.MapParams.of(CONFIG)).slope_deg[FLOOR_FIT]))
+    level = float(np.nanmedian(tm.frame_maps(dataclasses.replace(frame, up_camera=None), tm.MapParams.of(CONFIG))
                                .slope_deg[FLOOR_FIT]))
     assert slope < 4.0   # measured 1.6 deg (1.4 with the hand-measured mount)
     assert level > 55.0  # measured 65.5 deg: the straight-down mount, as before

@@ -23,6 +23,8 @@ The rules, one line each (``RULES``: importing package -> packages it must not i
 - Only ``slzcli.cli`` may import ``slzcli.cli`` (``FORBIDDEN_FOR_ALL``).
 - No import cycle among slzcli modules, counting every import (``test_no_cycle``); the ground floor
   (``GROUND``: types, errors, version, pinhole, methods.registry) imports nothing of slzcli above it.
+- Imports stand at module top: at most ``MAX_FUNCTION_LEVEL`` import statements of slzcli inside a
+  function outside the entry points (cli, api), a ceiling lowered as they move.
 """
 
 from __future__ import annotations
@@ -207,3 +209,34 @@ def test_the_ground_floor_names_nothing_above_it() -> None:
     bad = [f"{m} imports {n}" for m, allowed in GROUND.items() for n, _, _ in IMPORTS[m]
            if n not in allowed and n != "slzcli.methods"]
     assert not bad, bad
+
+
+
+ENTRY_POINTS = ("slzcli.cli", "slzcli.api")  # they import the run lazily on purpose (start-up time, no numpy)
+MAX_FUNCTION_LEVEL = 33  # import statements of slzcli inside a function outside ENTRY_POINTS: lower it as they move
+
+
+def function_imports(tree: ast.AST) -> list[int]:
+    """The lines of the import statements of slzcli (absolute or relative) inside a function body."""
+    lines: set[int] = set()
+    for fn in ast.walk(tree):
+        if isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+            for node in ast.walk(fn):
+                if (isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").startswith("slzcli"))) \
+                        or (isinstance(node, ast.Import) and any(a.name.startswith("slzcli") for a in node.names)):
+                    lines.add(node.lineno)
+    return sorted(lines)
+
+
+def test_function_imports_finds_every_form() -> None:
+    src = ("import slzcli.types\nfrom slzcli import errors\n"
+           "def f():\n    import numpy\n    from slzcli import x\n    from . import y\n"
+           "    def g():\n        import slzcli.z\n")
+    assert function_imports(ast.parse(src)) == [5, 6, 8]
+
+
+def test_function_level_imports_stay_few() -> None:
+    """An import belongs at module top; one inside a function hides a dependency (and used to hide a cycle)."""
+    found = [f"{m}:{line}" for m, path in MODULES.items() if m not in ENTRY_POINTS
+             for line in function_imports(ast.parse(path.read_text()))]
+    assert len(found) <= MAX_FUNCTION_LEVEL, "\n".join(found)

@@ -23,7 +23,7 @@ from slzcli.terrain.maps import compute_maps
 from slzcli.types import Intrinsics, TerrainMaps
 
 CONFIG = load_config()
-FUZZY = get_scorer(CONFIG, "fuzzy")
+FUZZY = get_scorer(CONFIG.scoring, CONFIG.mask, "fuzzy")
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 

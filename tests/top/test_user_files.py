@@ -386,7 +386,7 @@ def test_synth_force_never_pairs_a_recording_with_the_old_truth(runner, tmp_path
 
     out = tmp_path / "f.mcap"
     assert invoke(runner, "synth", "no_site", "-o", str(out), *SYNTH).exit_code == 0
-    assert ground_truth_of(out, load_config()) is not None
+    assert ground_truth_of(out, load_config().synth.ground_truth) is not None
     real = os.replace
 
     def killed_after_the_recording(src, dst):
@@ -399,7 +399,7 @@ def test_synth_force_never_pairs_a_recording_with_the_old_truth(runner, tmp_path
     assert res.exit_code == 130
     monkeypatch.undo()
     # the old header went first: no recording is paired with the wrong truth
-    assert ground_truth_of(out, load_config()) is None
+    assert ground_truth_of(out, load_config().synth.ground_truth) is None
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # an interrupt cleans up
 
 
