@@ -30,7 +30,6 @@ Writes benchmarks/results/ablation.json after every cell and prints a table.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -40,9 +39,9 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Literal
 
+import harness
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
 SCENES = ("clear_field", "parking_lot", "playground", "office", "slopes", "no_site")
 SENSORS: dict[str, list[str]] = {   # as benchmarks/sensor_matrix.py
     "ideal": ["synth.sensor.model=ideal"],
@@ -257,7 +256,7 @@ def tables(rows: list[dict[str, Any]]) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "ablation")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--altitudes", default="3,5,7.5,10")
     ap.add_argument("--sensors", default=",".join(SENSORS))
@@ -270,7 +269,6 @@ def main() -> None:
     ap.add_argument("--variants", default="", help="Run only these variants (names as printed, e.g. "
                     "default,default-absolute); default: all.")
     ap.add_argument("--recordings", nargs="*", type=Path, help="Run the variants on these recordings instead.")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "ablation.json")
     ap.add_argument("--table", nargs="+", type=Path, metavar="RESULT",
                     help="Print the README's tables from these result files (a later file's row wins) and exit.")
     args = ap.parse_args()
@@ -293,7 +291,7 @@ def main() -> None:
                                                                                         for d in decisions}}
 
     def save() -> None:
-        args.out.write_text(json.dumps({**run, "rows": rows, "summary": summarise(rows)}, indent=1) + "\n")
+        harness.write_results(args.out, {**run, "rows": rows, "summary": summarise(rows)}, indent=1, say=False)
 
     if args.recordings:
         for p in args.recordings:

@@ -16,10 +16,8 @@ machine's cores are shared with other jobs: the load average is recorded.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import platform
 import resource
 import subprocess
 import sys
@@ -27,8 +25,9 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-RESULTS = REPO / "benchmarks" / "results" / "batch.json"
+import harness
+
+REPO = harness.REPO
 SCENES = ("clear_field", "parking_lot", "playground", "office", "slopes", "no_site")
 
 
@@ -81,7 +80,7 @@ def run(label: str, folder: Path, out: Path, *extra: str) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "batch")
     ap.add_argument("--recordings", type=int, default=8)
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--workers", default="1,2", help="comma-separated local worker counts")
@@ -123,14 +122,9 @@ def main() -> None:
               f"{r.get('parallel_efficiency', float('nan')):>8.2f}"
               f"{'n/a' if r['cores_busy'] is None else format(r['cores_busy'], '.2f'):>11}{rss:>18}"
               f"{r['peak_orbslam3_rss_mb']:>10.0f}")
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({
+    harness.write_results(args.out, {
         "what": "slz detect over a batch of synthetic recordings (benchmarks/batch.py)",
-        "recordings": args.recordings, "frames_each": args.frames, "synth_s": round(synth_s, 1),
-        "machine": {"cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
-                    "note": "cores shared with other jobs running at the same time; see load averages"},
-        "runs": rows}, indent=2) + "\n")
-    print(f"-> {RESULTS}")
+        "recordings": args.recordings, "frames_each": args.frames, "synth_s": round(synth_s, 1), "runs": rows})
 
 
 if __name__ == "__main__":

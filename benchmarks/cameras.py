@@ -11,14 +11,11 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
-import json
-import platform
 import statistics
 import time
 from collections.abc import Callable
-from pathlib import Path
 
+import harness
 import numpy as np
 
 from slzcli.sources import decode
@@ -26,7 +23,6 @@ from slzcli.sources.registration import depth_rays, register_depth
 from slzcli.sources.undistort import undistort_color, undistort_depth, undistort_maps
 from slzcli.types import Intrinsics
 
-HERE = Path(__file__).resolve().parent
 K_DEPTH = Intrinsics(424.0, 424.0, 423.5, 239.5, 848, 480)
 K_COLOR = Intrinsics(615.0, 615.5, 319.5, 239.5, 640, 480)
 K_DISTORTED = Intrinsics(615.0, 615.5, 319.5, 239.5, 640, 480, "plumb_bob", (0.12, -0.25, 0.001, -0.0005, 0.1))
@@ -52,7 +48,7 @@ def median_ms(fn: Callable[[], object], runs: int) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "cameras")
     ap.add_argument("--runs", type=int, default=15)
     args = ap.parse_args()
     depth = scene()
@@ -79,12 +75,11 @@ def main() -> None:
     for name, ms in rows.items():
         print(f"{name:58s} {ms:10.2f} {ms / ref:9.1f}")
     print(f"{'depth rays of the 848x480 camera (once per recording)':58s} {once_ms:10.2f}")
-    out = {"machine": platform.processor() or platform.machine(), "runs": args.runs,
+    out = {"runs": args.runs,
            "median_ms": {k: round(v, 3) for k, v in rows.items()},
            "ratio_to_resize": {k: round(v / ref, 2) for k, v in rows.items()},
            "depth_rays_once_ms": round(once_ms, 2)}
-    (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "cameras.json").write_text(json.dumps(out, indent=2) + "\n")
+    harness.write_results(args.out, out)
 
 
 if __name__ == "__main__":

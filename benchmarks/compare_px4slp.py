@@ -14,9 +14,7 @@ benchmarks/results/compare_px4slp.csv and .json (after every cell).
 
 from __future__ import annotations
 
-import argparse
 import csv
-import json
 import sys
 import tempfile
 import time
@@ -24,9 +22,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-from sensor_matrix import DETECT, SCENES, SENSORS  # noqa: E402
+import harness
+from sensor_matrix import DETECT, SCENES, SENSORS
 
 METHODS = ("fuzzy", "bayes", "px4slp")
 DEFAULT_CELLS = ",".join([f"{s}:5:d435" for s in SCENES] +
@@ -68,21 +65,20 @@ def run_cell(scene: str, altitude: float, sensor: str, frames: int, seed: int, t
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "compare_px4slp")
     ap.add_argument("--cells", default=DEFAULT_CELLS, help="scene:altitude:sensor,...")
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "compare_px4slp")
     args = ap.parse_args()
     cells = [(s, float(z), sensor) for s, z, sensor in (c.split(":") for c in args.cells.split(","))]
     rows: list[dict[str, Any]] = []
     args.out.parent.mkdir(parents=True, exist_ok=True)
 
     def save() -> None:
-        args.out.with_suffix(".json").write_text(json.dumps(
-            {"frames": args.frames, "seed": args.seed, "detect": DETECT, "sensors": SENSORS, "methods": METHODS,
-             "rows": rows}, indent=1) + "\n")
+        harness.write_results(args.out.with_suffix(".json"), {
+            "frames": args.frames, "seed": args.seed, "detect": DETECT, "sensors": SENSORS, "methods": METHODS,
+            "rows": rows}, indent=1, say=False)
         with args.out.with_suffix(".csv").open("w", newline="") as fh:
             w = csv.DictWriter(fh, COLUMNS, extrasaction="ignore")
             w.writeheader()

@@ -11,28 +11,25 @@ the largest truly safe area in view. Writes benchmarks/results/detect.json.
 
 from __future__ import annotations
 
-import argparse
 import json
 import tempfile
 from pathlib import Path
 from typing import Any
 
+import harness
 from flights import render  # benchmarks/flights.py (the script's folder is on sys.path)
 
 from slzcli.config import load_config
 from slzcli.outputs.summary_json import summary_json
 from slzcli.pipeline import RunOptions, detect_recording
 
-HERE = Path(__file__).resolve().parent
-
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "detect")
     ap.add_argument("recordings", nargs="*", type=Path)
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--method", default="fuzzy")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "detect.json")
     args = ap.parse_args()
     config = load_config(None, args.overrides)
     rows = {}
@@ -58,10 +55,7 @@ def main() -> None:
                   f"{f(mask.get('precision'), 2):>5} {f(mask.get('recall'), 2):>5}  {s['status']:<12} "
                   f"{site.get('safe', '-')!s:>5} {f(site.get('clearance_m'), 2):>7} "
                   f"{f(site.get('to_best_centre_m'), 2):>9}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"method": args.method, "overrides": args.overrides, "runs": rows},
-                                   indent=2, default=str) + "\n")
-    print(f"wrote {args.out}")
+    harness.write_results(args.out, {"method": args.method, "overrides": args.overrides, "runs": rows})
 
 
 if __name__ == "__main__":

@@ -12,20 +12,19 @@ the report's share of it. Writes benchmarks/results/detect_report.json.
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
+import harness
+
 from slzcli.config import load_config
 from slzcli.outputs import run_folder
 from slzcli.pipeline import RunOptions, detect_recording
 from slzcli.synth.record import SynthOptions, synthesize
 
-HERE = Path(__file__).resolve().parent
 BASE = ("synth.sensor.model=gaussian", "slam.backend=odometry")
 
 
@@ -58,11 +57,10 @@ def run_level(rec: Path, out: Path, level: str, repeats: int, overrides: list[st
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "detect_report")
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--repeats", type=int, default=5, help="report builds per run (median kept)")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "detect_report.json")
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -75,9 +73,8 @@ def main() -> None:
     for r in rows:
         print(f"{r['level']:<8} {r['detections']:>4} {r['report_median_ms']:>16.1f} {r['report_max_ms']:>7.1f} "
               f"{r['run_wall_s']:>7.2f} {r['report_share_pct']:>8.2f} {r['report_bytes']:>9,}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"frames": args.frames, "repeats": args.repeats, "base": list(BASE),
-                                    "overrides": args.overrides, "levels": rows}, indent=2) + "\n")
+    harness.write_results(args.out, {"frames": args.frames, "repeats": args.repeats, "base": list(BASE),
+                                     "overrides": args.overrides, "levels": rows})
 
 
 if __name__ == "__main__":

@@ -16,17 +16,15 @@ benchmarks/results/fusion_decorrelation_NAME.json.
 
 from __future__ import annotations
 
-import argparse
 import glob
 import itertools
-import json
 import math
 import tempfile
 from pathlib import Path
 
+import harness
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
 FLAT_SPREAD_M = 0.02
 BINS_PX = (0.0, 1.0, 2.0, 4.0, 6.0, 9.0, 13.0, 18.0, 25.0, 35.0, 50.0, 70.0, 100.0, 140.0)
 
@@ -90,7 +88,7 @@ def pair_stats(frames: list, max_pairs: int = 400) -> tuple[np.ndarray, np.ndarr
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = harness.parser(__doc__, "fusion_decorrelation", out=False)  # the name says which flights
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slz-fusion-cache",
                     help="rendered flights (benchmarks/fusion_render.py --out)")
     ap.add_argument("--flights", default="*d435*")
@@ -132,8 +130,8 @@ def main() -> None:
     fit = {"white_fraction": round(float(best[1]), 3), "fixed_fraction": round(float(best[2]), 3),
            "decorrelation_px": round(float(best[3]), 2), "sse": best[0]}
     print("fit:", fit)
-    out = HERE / "results" / f"fusion_decorrelation_{a.name}.json"
-    out.write_text(json.dumps({"flights": rows, "bins": table, "fit": fit}, indent=1) + "\n")
+    harness.write_results(harness.results_path(f"fusion_decorrelation_{a.name}"),
+                          {"flights": rows, "bins": table, "fit": fit}, indent=1)
 
 
 if __name__ == "__main__":

@@ -9,20 +9,20 @@ once more on the IMU-less one with ``camera.gravity.source=mount`` (the straight
 before it read gravity from the recording). Reported: the gravity source, its angle to the mount (the
 vehicle's 1.5 deg wobble and the IMU's bias are in it), the status, whether the committed site is truly
 safe, and the mask precision against the ground truth. 320x240, 12 frames at 5 Hz (2.2 s: 11 IMU blocks),
-the gaussian depth model. Prints a table, writes benchmarks/results/gravity_tilt.json. The findings are
+the gaussian depth model. Prints a table, writes benchmarks/results/gravity_tilt.json (``rows``). The findings are
 in docs/METHOD.md ("Gravity from the recording").
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import tempfile
 from pathlib import Path
 from typing import Any
 
-HERE = Path(__file__).resolve().parent
+import harness
+
 SCENE_OF = {(15.0, -25.0): "playground"}  # relief under one of the mounts; the rest over the parking lot
 HALF = ("--set", "camera.width=320", "--set", "camera.height=240", "--set", "camera.fx=231.0685",
         "--set", "camera.fy=231.0685", "--set", "camera.cx=160", "--set", "camera.cy=120")
@@ -61,7 +61,7 @@ def run(runner: Any, tmp: Path, pitch: float, roll: float, seed: int, imu: bool,
 def main() -> None:
     from click.testing import CliRunner
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = harness.parser(__doc__, "gravity_tilt")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--mounts", default="22:9,30:0,15:-25,0:30", help="pitch:roll pairs, degrees")
     ap.add_argument("--set", dest="sets", action="append", default=[])
@@ -77,8 +77,8 @@ def main() -> None:
                     row["gravity_setting"] = sets[0].split("=")[1] if sets else "auto"
                     rows.append(row)
                     print(json.dumps(row), flush=True)
-    (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "gravity_tilt.json").write_text(json.dumps(rows, indent=1) + "\n")
+    harness.write_results(args.out, {"seeds": args.seeds, "mounts": args.mounts, "set": args.sets, "rows": rows},
+                          indent=1)
     print(f"{'scene':12} {'mount':>9} {'seed':>4} {'input':6} {'gravity':8} {'err':>5} {'status':12} "
           f"{'safe':5} {'precision':>9}")
     for r in rows:

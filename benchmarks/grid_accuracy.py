@@ -16,28 +16,24 @@ Prints per cell and the pooled precision / recall, writes benchmarks/results/gri
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import json
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 from typing import Any
 
+import harness
 import numpy as np
+import stages  # the before/after loader of the detection core
+from sensor_matrix import SCENES, SENSORS
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-import stages  # noqa: E402  (the before/after loader of the detection core)
-from sensor_matrix import SCENES, SENSORS  # noqa: E402
-
-from slzcli.config import load_config  # noqa: E402
-from slzcli.evaluate.safety import mask_counts, total  # noqa: E402
-from slzcli.sources import open_recording  # noqa: E402
-from slzcli.synth.groundtruth import load_ground_truth  # noqa: E402
-from slzcli.synth.record import scenario_start  # noqa: E402
-from slzcli.synth.scenes import load_scene  # noqa: E402
+from slzcli.config import load_config
+from slzcli.evaluate.safety import mask_counts, total
+from slzcli.sources import open_recording
+from slzcli.synth.groundtruth import load_ground_truth
+from slzcli.synth.record import scenario_start
+from slzcli.synth.scenes import load_scene
 
 CACHE = Path(tempfile.gettempdir()) / "slz_grid_accuracy"
 
@@ -82,14 +78,13 @@ def pooled(rows: list[dict[str, Any]], name: str) -> dict[str, Any]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "grid_accuracy")
     ap.add_argument("--before", default="aed6bd3")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--altitudes", default="3,5,7.5,10")
     ap.add_argument("--sensors", default="d435,gauss0.003")
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--frames", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "grid_accuracy.json")
     args = ap.parse_args()
     cores = [stages.revision_core(args.before), stages.current_core()]
     rows: list[dict[str, Any]] = []
@@ -107,9 +102,9 @@ def main() -> None:
                           f"{f(b['precision']):>11} {f(a['precision']):>6} {f(b['recall']):>13} {f(a['recall']):>6}",
                           flush=True)
                     summary = {n: pooled(rows, n) for n in ("before", "after")}
-                    args.out.parent.mkdir(parents=True, exist_ok=True)
-                    args.out.write_text(json.dumps({"before": args.before, "frames": args.frames, "sensors": SENSORS,
-                                                    "pooled": summary, "rows": rows}, indent=1) + "\n")
+                    harness.write_results(args.out, {"before": args.before, "frames": args.frames,
+                                                     "sensors": SENSORS, "pooled": summary, "rows": rows},
+                                          indent=1, say=False)
     for n in ("before", "after"):
         s = pooled(rows, n)
         print(f"pooled {n}: precision {f(s['precision'])} recall {f(s['recall'])}")

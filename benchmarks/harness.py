@@ -1,7 +1,9 @@
 """What every benchmark shares: its arguments, the machine it ran on, where its results go, and a run of
 the code as it was at another commit (a reference to compare the current code against).
 
-A benchmark is a script: ``sys.path`` holds its own folder, so ``import harness`` finds this module.
+A benchmark is a script: ``sys.path`` holds its own folder, so ``import harness`` finds this module, and
+importing it puts the checkout's own package first on the path (a benchmark measures the code beside it,
+not an installed copy). Every script in benchmarks/ imports it; tests/benchmarks/test_benchmark_scripts.py holds that.
 """
 
 from __future__ import annotations
@@ -20,6 +22,18 @@ from typing import Any
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS_DIR = REPO / "benchmarks" / "results"
+TESTS = REPO / "tests"
+# the real RealSense frames: beside the checkout, or wherever SLZ_REALSENSE_DIR says (as for the tests)
+REALSENSE = Path(os.environ.get("SLZ_REALSENSE_DIR") or REPO.parent / "shared" / "data" / "realsense_floor")
+if str(REPO) not in sys.path:
+    sys.path.insert(1, str(REPO))  # after the script's own folder, before site-packages
+
+
+def use_test_helpers() -> None:
+    """Make the shared test helpers in tests/ (slam_flight, bad_inputs, skfuzzy_oracle, ...) importable: the
+    flights and scenes the tests check are the ones a benchmark should measure."""
+    if str(TESTS) not in sys.path:
+        sys.path.insert(1, str(TESTS))
 
 
 def results_path(name: str, suffix: str = ".json") -> Path:
@@ -27,17 +41,24 @@ def results_path(name: str, suffix: str = ".json") -> Path:
     return RESULTS_DIR / f"{name}{suffix}"
 
 
-def parser(doc: str | None, name: str) -> argparse.ArgumentParser:
-    """An argument parser described by the script's docstring, with ``--out`` defaulting to ``results_path(name)``."""
-    ap = argparse.ArgumentParser(description=(doc or name).strip().splitlines()[0])
-    ap.add_argument("--out", type=Path, default=results_path(name), help="results JSON (default %(default)s)")
+def parser(doc: str | None, name: str, out: bool = True) -> argparse.ArgumentParser:
+    """An argument parser described by the script's docstring (its first line; ``--help`` shows the rest),
+    with ``--out`` defaulting to ``results_path(name)`` unless ``out`` is false (a results name that
+    depends on another option)."""
+    first, _, rest = (doc or name).strip().partition("\n")
+    ap = argparse.ArgumentParser(description=first, epilog=rest.strip() or None,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    if out:
+        ap.add_argument("--out", type=Path, default=results_path(name), help="results JSON (default %(default)s)")
     return ap
 
 
 def machine() -> dict[str, Any]:
-    """What a timing or a result depends on beside the code: interpreter, libraries, processor, cores."""
+    """What a timing or a result depends on beside the code: interpreter, libraries, processor, cores, and
+    the load average when the results are written (the cores may be shared with other jobs)."""
     info: dict[str, Any] = {"python": platform.python_version(), "platform": platform.platform(),
-                            "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count()}
+                            "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+                            "load_avg": [round(v, 2) for v in os.getloadavg()]}
     for lib, module in (("numpy", "numpy"), ("opencv", "cv2")):
         try:
             info[lib] = __import__(module).__version__
@@ -46,15 +67,30 @@ def machine() -> dict[str, Any]:
     return info
 
 
-def write_results(path: Path, results: dict[str, Any]) -> None:
-    """The results with the machine beside them, as indented JSON."""
+def write_results(path: Path, results: dict[str, Any], indent: int = 2, say: bool = True) -> None:
+    """The results with the machine beside them, as indented strict JSON (NaN and infinities as null, as in
+    every JSON slz writes), written whole or not at all (a run stopped part way leaves the previous file).
+    A benchmark that saves after every cell passes ``say=False`` and says where it wrote at the end."""
+    from slzcli.outputs.files import finite_json
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({**results, "machine": machine()}, indent=2) + "\n")
-    print(f"wrote {path}")
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(finite_json({**results, "machine": machine()}), indent=indent, default=str,
+                              allow_nan=False) + "\n")
+    tmp.replace(path)
+    if say:
+        print(f"wrote {path}")
 
 
 def git(*args: str) -> str:
     return subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True, check=True).stdout.strip()
+
+
+def source_at(rev: str, path: str) -> str:
+    """The text of the repository's file ``path`` (relative to the root) at git revision ``rev``: the old
+    code a benchmark loads beside the current one."""
+    return subprocess.run(["git", "show", f"{rev}:{path}"], cwd=REPO, capture_output=True, text=True,
+                          check=True).stdout
 
 
 @contextmanager

@@ -15,15 +15,13 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from dataclasses import fields, replace  # noqa: E402
-from pathlib import Path  # noqa: E402
 from typing import Any, TypeVar  # noqa: E402
 
+import harness  # noqa: E402
 import numpy as np  # noqa: E402
 
 from slzcli.config import Config, load_config  # noqa: E402
@@ -31,9 +29,7 @@ from slzcli.control import features as ft  # noqa: E402
 from slzcli.control import montecarlo  # noqa: E402
 from slzcli.control.simulate import SCENARIOS, SimResult, Target, simulate, start_from_offsets  # noqa: E402
 from slzcli.landing.corners import square_corners  # noqa: E402
-from slzcli.outputs.files import write_json  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results" / "ibvs.json"
 # Sites (world ENU) for the four paper starts. The paper publishes only scenario 1's site
 # (3.24, 3.32, 0.4); the others are chosen in view of each start (project choice).
 SITES = {1: (2.0, 1.5, 0.3), 2: (-1.5, 10.0, 0.0), 3: (1.5, -1.0, 0.0), 4: (-1.0, 2.0, 0.0)}
@@ -152,16 +148,14 @@ def monte_carlo(config: Config, runs: int, budget_s: float, chunk: int) -> tuple
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = harness.parser(__doc__, "ibvs")
     ap.add_argument("--mc-runs", type=int, default=1000)
     ap.add_argument("--mc-budget-s", type=float, default=300.0)
     ap.add_argument("--chunk", type=int, default=250)
     ap.add_argument("--strict-runs", type=int, default=100, help="Monte Carlo runs with the paper's 1 px switch")
     args = ap.parse_args()
     config = load_config()
-    load = os.getloadavg()
-    report: dict[str, Any] = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
-                                          "loadavg_start": load}}
+    report: dict[str, Any] = {"loadavg_start": os.getloadavg()}
 
     rows = scenarios(config)
     report["scenarios"] = rows
@@ -215,8 +209,7 @@ def main() -> None:
     print(montecarlo.table(s2))
 
     report["loadavg_end"] = os.getloadavg()
-    write_json(RESULTS, json.loads(json.dumps(report, default=float)))
-    print(f"\n-> {RESULTS}")
+    harness.write_results(args.out, json.loads(json.dumps(report, default=float)))
 
 
 if __name__ == "__main__":

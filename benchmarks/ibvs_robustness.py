@@ -23,21 +23,19 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
+import harness  # noqa: E402
 import numpy as np  # noqa: E402
 
 from slzcli.config import Config, load_config  # noqa: E402
 from slzcli.control import montecarlo  # noqa: E402
 from slzcli.control.simulate import SCENARIOS, Target, simulate, start_from_offsets  # noqa: E402
 from slzcli.landing.corners import square_corners  # noqa: E402
-from slzcli.outputs.files import write_json  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results" / "ibvs_robustness.json"
 # Sites for the paper's starts (benchmarks/ibvs.py, tests/control/test_control_simulate.py): only scenario 1's
 # site (3.24, 3.32, 0.4) is published; the others are chosen in view of each start (project).
 SITES = {1: (2.0, 1.5, 0.3), 2: (-1.5, 10.0, 0.0), 3: (1.5, -1.0, 0.0), 4: (-1.0, 2.0, 0.0)}
@@ -139,13 +137,12 @@ def plot(sweep: list[dict[str, Any]], radius: float, path: Path) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = harness.parser(__doc__, "ibvs_robustness")
     ap.add_argument("--runs", type=int, default=100, help="Monte Carlo runs per target / ablation cell")
     ap.add_argument("--sweep-runs", type=int, default=100, help="runs per sweep cell (0: no sweep)")
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--sections", default="nominal,targets,ablation,sweep",
                     help="comma-separated subset of nominal,targets,ablation,sweep")
-    ap.add_argument("--out", type=Path, default=RESULTS, help="JSON to write (the plot goes beside it)")
     args = ap.parse_args()
     sections = set(args.sections.split(","))
     config = load_config()
@@ -182,8 +179,7 @@ def main() -> None:
         plot(report["sweep"], config.control.sim.success_radius_m, args.out.with_suffix(".png"))
 
     report["loadavg_end"] = os.getloadavg()
-    write_json(args.out, json.loads(json.dumps(report, default=float)))
-    print(f"-> {args.out}")
+    harness.write_results(args.out, json.loads(json.dumps(report, default=float)))
 
 
 def nominal_section(report: dict[str, Any]) -> None:

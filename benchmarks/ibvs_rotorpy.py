@@ -23,21 +23,18 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import platform  # noqa: E402
 import time  # noqa: E402
 from dataclasses import replace  # noqa: E402
-from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
+import harness  # noqa: E402
 import numpy as np  # noqa: E402
 
 from slzcli.config import Config, load_config  # noqa: E402
 from slzcli.control import rotorpy_check as rc  # noqa: E402
 from slzcli.control.simulate import SCENARIOS, Target, simulate, start_from_offsets  # noqa: E402
 from slzcli.landing.corners import square_corners  # noqa: E402
-from slzcli.outputs.files import write_json  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results" / "ibvs_rotorpy.json"
 # The sites of benchmarks/ibvs.py (the paper publishes only scenario 1's, (3.24, 3.32, 0.4)).
 SITES = {1: (2.0, 1.5, 0.3), 2: (-1.5, 10.0, 0.0), 3: (1.5, -1.0, 0.0), 4: (-1.0, 2.0, 0.0)}
 PAPER_SITE_1 = (3.24, 3.32, 0.4)
@@ -104,6 +101,7 @@ def fmt(v: Any) -> str:
 
 
 def main() -> None:
+    args = harness.parser(__doc__, "ibvs_rotorpy").parse_args()
     import rotorpy
 
     config = load_config(None, [])
@@ -130,14 +128,12 @@ def main() -> None:
     ok = sum(r["within_tolerance"] for r in rows)
     print(f"within tolerance: {ok}/{len(rows)} (touch-down within {TOL_TD_M} m, times within "
           f"{100 * TOL_TIME_REL:.0f} % + {TOL_TIME_ABS_S} s, same end reason)")
-    write_json(RESULTS, {
+    harness.write_results(args.out, {
         "rotorpy_version": getattr(rotorpy, "__version__", None) or _dist_version("rotorpy"),
-        "python": platform.python_version(),
         "quad_params": {k: _jsonable(v) for k, v in rc.quad_params(config.uav).items()},
         "wind_m_s": list(WIND_M_S), "tolerance": {"touchdown_m": TOL_TD_M, "time_rel": TOL_TIME_REL,
                                                   "time_abs_s": TOL_TIME_ABS_S},
         "within_tolerance": ok, "cases": len(rows), "rows": rows})
-    print(f"wrote {RESULTS}")
 
 
 def _dist_version(name: str) -> str | None:

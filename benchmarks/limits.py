@@ -15,10 +15,7 @@ Prints the numbers and writes benchmarks/results/limits.json.
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
-import platform
 import signal
 import subprocess
 import sys
@@ -27,14 +24,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+import harness
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-RESULTS = REPO / "benchmarks" / "results" / "limits.json"
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
-sys.path.insert(0, str(REPO / "tests" / "control"))  # test_control_cli.write_landing
+harness.use_test_helpers()
 import bad_inputs as B  # noqa: E402
+from landing_file import write_landing  # noqa: E402
+
+REPO = harness.REPO
 
 DETECT = ["--set", "slam.backend=odometry", "--set", "landing.detect_on=every_nth"]
 
@@ -100,8 +97,6 @@ def sigterm_latency(rec: Path, folder: Path, delays: list[float]) -> list[dict[s
 
 
 def montecarlo_memory(folder: Path, runs_list: list[int]) -> list[dict[str, Any]]:
-    from test_control_cli import write_landing
-
     run = folder / "RUN"
     write_landing(run)
     rows = []
@@ -114,7 +109,7 @@ def montecarlo_memory(folder: Path, runs_list: list[int]) -> list[dict[str, Any]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "limits")
     ap.add_argument("--sizes", default="640x480,2048x1536,4096x4096")
     ap.add_argument("--delays", default="5,15,25,35")
     ap.add_argument("--runs", default="1024,8192")
@@ -122,8 +117,7 @@ def main() -> None:
     ap.add_argument("--skip-mc", action="store_true")
     args = ap.parse_args()
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    out: dict[str, object] = {"machine": f"{platform.node()} {os.cpu_count()} cores, {platform.python_version()}",
-                              "date": time.strftime("%Y-%m-%d")}
+    out: dict[str, object] = {"date": time.strftime("%Y-%m-%d")}
     with tempfile.TemporaryDirectory(prefix="slz_limits_") as tmp:
         folder = Path(tmp)
         out["memory_by_frame_size"] = memory_by_size(folder, sizes)  # type: ignore[arg-type]
@@ -133,8 +127,7 @@ def main() -> None:
                                                      [float(d) for d in args.delays.split(",")])
         if not args.skip_mc:
             out["montecarlo_memory"] = montecarlo_memory(folder, [int(n) for n in args.runs.split(",")])
-    RESULTS.write_text(json.dumps(out, indent=2) + "\n")
-    print(f"-> {RESULTS}")
+    harness.write_results(args.out, out)
 
 
 if __name__ == "__main__":

@@ -11,11 +11,10 @@ frame before SLAM), so this isolates maps + fusion + mask.
 
 from __future__ import annotations
 
-import argparse
-import json
 import tempfile
 from pathlib import Path
 
+import harness
 import numpy as np
 from flights import render  # benchmarks/flights.py (the script's folder is on sys.path)
 
@@ -25,8 +24,6 @@ from slzcli.scoring import MaskParams, get_scorer, score_frame
 from slzcli.sources import open_recording
 from slzcli.synth.groundtruth import load_ground_truth
 from slzcli.terrain.maps import MapParams, frame_maps
-
-HERE = Path(__file__).resolve().parent
 
 
 def evaluate(path: Path, overrides: list[str], methods: tuple[str, ...]) -> dict[str, dict]:
@@ -53,12 +50,11 @@ def evaluate(path: Path, overrides: list[str], methods: tuple[str, ...]) -> dict
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "masks")
     ap.add_argument("recordings", nargs="*", type=Path)
     ap.add_argument("--set", dest="overrides", action="append", default=[])
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--methods", default="fuzzy,bayes")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "masks.json")
     args = ap.parse_args()
     methods = tuple(args.methods.split(","))
     with tempfile.TemporaryDirectory() as tmp:
@@ -72,9 +68,7 @@ def main() -> None:
                 f = lambda v: "  n/a" if v is None else f"{v:.3f}"  # noqa: E731
                 print(f"{path.stem:<18} {m:<6} {f(r['precision']):>9} {f(r['recall']):>7} {f(r['iou']):>6} "
                       f"{100 * r['mask_safe_fraction']:>6.1f} {100 * r['true_safe_fraction']:>6.1f}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"overrides": args.overrides, "results": results}, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    harness.write_results(args.out, {"overrides": args.overrides, "results": results})
 
 
 if __name__ == "__main__":

@@ -15,16 +15,13 @@ Prints a table, writes benchmarks/results/monocular_init.json. The findings are 
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import time
-from pathlib import Path
 from typing import Any
 
+import harness
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
 SCENES = ("clear_field", "parking_lot", "playground", "office", "slopes", "no_site")
 
 
@@ -77,7 +74,7 @@ def _f(v: Any, p: int = 2) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "monocular_init")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--altitudes", default="5,10")
     ap.add_argument("--seeds", default="0,1")
@@ -85,7 +82,6 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=30.0, help="Hz (the paper's camera: 30 fps)")
     ap.add_argument("--seconds", type=float, default=2.0, help="length of each flight")
     ap.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. synth.flight.speed_m_s=1")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "monocular_init.json")
     args = ap.parse_args()
     frames = max(2, round(args.seconds * args.rate))
     rows: list[dict[str, Any]] = []
@@ -102,8 +98,8 @@ def main() -> None:
                     print(f"{scene:<12} {alt:>5g} {seed:>4} {path:<9} {init:>5} {_f(r.get('init_s')):>5} "
                           f"{_f(r.get('flown_at_init_m')):>7} {r.get('tracked_frames', 0):>3}/{frames:<3} "
                           f"{_f(r.get('scale_ratio')):>5} {_f(r.get('ate_m'), 3):>6}", flush=True)
-                    args.out.write_text(json.dumps({"rate_hz": args.rate, "frames": frames, "set": args.set,
-                                                    "rows": rows}, indent=1) + "\n")
+                    harness.write_results(args.out, {"rate_hz": args.rate, "frames": frames, "set": args.set,
+                                                     "rows": rows}, indent=1, say=False)
     inits = [r for r in rows if r["init_frame"] is not None]
     print(f"\ninitialised {len(inits)} of {len(rows)}; wrote {args.out}")
 

@@ -6,15 +6,16 @@ Run: .venv/bin/python benchmarks/orbslam3_threads.py RECORDING [--runs 8] [--pau
 The frames are decoded once and handed to a fresh ``OrbSlam3Backend`` (worker process) per run,
 so slz's side is identical bit for bit; ``--pause`` sleeps after every frame so that ORB-SLAM3's
 LocalMapping and LoopClosing threads are idle before the next frame is tracked. Prints a digest
-of each run's poses and how many distinct ones there were (README "Reproducibility").
+of each run's poses and how many distinct ones there were (README "Reproducibility"); writes them to
+benchmarks/results/orbslam3_threads.json.
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import time
 
+import harness
 import numpy as np
 
 from slzcli.config import load_config
@@ -23,7 +24,7 @@ from slzcli.sources import open_recording
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "orbslam3_threads")
     ap.add_argument("recording")
     ap.add_argument("--runs", type=int, default=8)
     ap.add_argument("--pause", type=float, default=0.0, help="seconds to sleep after each frame")
@@ -44,6 +45,9 @@ def main() -> None:
         digests.append(hashlib.sha256(np.asarray(poses).tobytes()).hexdigest()[:12])
         print(r, digests[-1], "last position", np.round(poses[-1][:3, 3], 6), flush=True)
     print(f"distinct pose sequences: {len(set(digests))} of {args.runs}")
+    harness.write_results(args.out, {"recording": str(args.recording), "runs": args.runs, "pause_s": args.pause,
+                                     "frames": len(frames), "pose_digests": digests,
+                                     "distinct": len(set(digests))})
 
 
 if __name__ == "__main__":

@@ -11,9 +11,6 @@ Prints a table and writes benchmarks/results/read.json. Usage:
 
 from __future__ import annotations
 
-import argparse
-import json
-import platform
 import resource
 import shutil
 import statistics
@@ -23,6 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import harness
 import numpy as np
 
 from slzcli.config import load_config
@@ -30,7 +28,6 @@ from slzcli.outputs.recording import RecordingWriter
 from slzcli.sources import open_recording
 from slzcli.types import Frame, Intrinsics
 
-HERE = Path(__file__).resolve().parent
 W, H = 640, 480
 INTR = Intrinsics(617.25, 617.55, 317.39, 245.98, W, H)
 CASES = [  # (format, colour encoding, depth encoding)
@@ -89,7 +86,7 @@ def child_peak_rss(path: Path) -> tuple[int, int]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "read")
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--memory-format", default="mcap")
@@ -125,13 +122,8 @@ def main() -> None:
     print("\npeak RSS of a reader process: "
           + ", ".join(f"{m['frames']} frames {m['peak_rss_mib']} MiB" for m in memory))
     result = {"benchmark": "read", "resolution": [W, H], "runs": args.runs, "read": rows, "memory": memory,
-              "machine": {"python": platform.python_version(), "cpu_count": __import__("os").cpu_count(),
-                          "note": "shared machine (2 cores, other jobs running): numbers are indicative"},
               "self_peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024}
-    out = HERE / "results" / "read.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"\nwrote {out}")
+    harness.write_results(args.out, result)
 
 
 if __name__ == "__main__":

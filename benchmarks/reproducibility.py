@@ -13,24 +13,19 @@ precision / recall range. The odometry and recorded backends must give one of ea
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
-import platform
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+import harness
 import numpy as np
-
-REPO = Path(__file__).resolve().parent.parent
-RESULTS = REPO / "benchmarks" / "results" / "reproducibility.json"
 
 
 def slz(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "slzcli.cli", *args], cwd=REPO, capture_output=True, text=True,
-                          check=False)
+    return harness.slz(*args, check=False)
 
 
 def digest(path: Path, drop: str | None = None) -> str:
@@ -73,14 +68,12 @@ def spread(runs: list[dict]) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "reproducibility")
     ap.add_argument("--runs", type=int, default=8, help="ORB-SLAM3 runs per scene (odometry, recorded: 3)")
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--scenes", default="parking_lot,playground,office")
-    ap.add_argument("--out", type=Path, default=RESULTS, help="results JSON (default benchmarks/results/...)")
     args = ap.parse_args()
-    out: dict = {"command": " ".join(sys.argv), "frames": args.frames, "machine": platform.platform(),
-                 "python": platform.python_version(), "scenes": {}}
+    out: dict = {"command": " ".join(sys.argv), "frames": args.frames, "scenes": {}}
     with tempfile.TemporaryDirectory(prefix="slz-repro-") as tmp:
         for scene in args.scenes.split(","):
             rec = Path(tmp) / f"{scene}.mcap"
@@ -96,8 +89,7 @@ def main() -> None:
                       f"{s['distinct_trajectory']}/{s['distinct_sites_csv']}/{s['distinct_landing']}, "
                       f"ATE {s['ate_m']} m, site max from median {s['site_max_from_median_m']} m "
                       f"({s['with_site']} with a site), recall {s['recall']}", flush=True)
-    args.out.write_text(json.dumps(out, indent=1) + "\n")
-    print(f"-> {args.out}")
+    harness.write_results(args.out, out, indent=1)
 
 
 if __name__ == "__main__":

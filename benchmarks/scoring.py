@@ -15,16 +15,12 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse  # noqa: E402
 import itertools  # noqa: E402
-import json  # noqa: E402
-import platform  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
+import harness  # noqa: E402
 import numpy as np  # noqa: E402
 
 from slzcli.config import load_config  # noqa: E402
@@ -32,11 +28,10 @@ from slzcli.scoring import MaskParams, bayes, closed_form, fuzzy, get_scorer, lu
 from slzcli.scoring.rules import load_rules  # noqa: E402
 from slzcli.types import Intrinsics, TerrainMaps  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+harness.use_test_helpers()
 from skfuzzy_oracle import skfuzzy_simulation  # noqa: E402
 
 H, W = 480, 640
-RESULTS = Path(__file__).resolve().parent / "results" / "scoring.json"
 
 
 def realistic_maps(seed: int = 0) -> tuple[TerrainMaps, np.ndarray]:
@@ -86,7 +81,7 @@ def skfuzzy_ms_per_pixel(rb, n: int) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = harness.parser(__doc__, "scoring")
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--sk-pixels", type=int, default=500)
     args = ap.parse_args()
@@ -157,10 +152,8 @@ def main() -> None:
     print("(the reference row measures the machine's contention: 0.13 ms on this machine at load 0.5)")
     print(f"mean score {float(score[maps.valid].mean()):.3f}")
 
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({
-        "frame": [W, H], "threads": 1, "load_average_start": load0, "cpu_count": os.cpu_count(),
-        "python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
+    harness.write_results(args.out, {
+        "frame": [W, H], "threads": 1, "load_average_start": load0,
         "median_ms": {k: {"wall": v[0], "cpu": v[1]} for k, v in rows.items()},
         "closed_form": {"ops": len(program.program), "buffers": program.n_registers,
                         "chunk_px": closed_form.CHUNK_PX, "build_s": program_build_s,
@@ -170,8 +163,7 @@ def main() -> None:
                   "max_error_frame": frame_err, "points": int(pts.shape[1])},
         "skfuzzy": {"ms_per_pixel": sk_ms_px, "pixels": args.sk_pixels, "frame_ms_extrapolated": sk_frame_ms,
                     "compiled_over_skfuzzy": compiled_ms / sk_frame_ms},
-    }, indent=2))
-    print(f"wrote {RESULTS}")
+    })
 
 
 def _mask_only(score: np.ndarray, depth: np.ndarray, K: Intrinsics, config) -> None:

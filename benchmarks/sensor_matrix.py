@@ -19,8 +19,6 @@ safe; no_site gives no site everywhere.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import sys
 import tempfile
@@ -29,9 +27,9 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import harness
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
 SCENES = ("clear_field", "parking_lot", "playground", "office", "slopes", "no_site")
 # name -> config overrides of the synth sensor
 SENSORS: dict[str, list[str]] = {
@@ -128,14 +126,13 @@ def verdict(r: dict[str, Any]) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "sensor_matrix")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--altitudes", default="3,5,7.5,10")
     ap.add_argument("--sensors", default=",".join(SENSORS))
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "sensor_matrix.json")
     args = ap.parse_args()
     cells = [(s, float(z), sensor, int(seed)) for s in args.scenes.split(",") for z in args.altitudes.split(",")
              for sensor in args.sensors.split(",") for seed in args.seeds.split(",")]
@@ -146,8 +143,8 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
 
     def save() -> None:  # after every cell: a matrix of hours is not lost to one late failure
-        args.out.write_text(json.dumps({"frames": args.frames, "detect": DETECT, "sensors": SENSORS, "rows": rows},
-                                       indent=1) + "\n")
+        harness.write_results(args.out, {"frames": args.frames, "detect": DETECT, "sensors": SENSORS, "rows": rows},
+                              indent=1, say=False)
 
     # one cell per worker process where Python allows (3.11+): a cell's memory (stereo matching at 848x480)
     # goes back when it ends

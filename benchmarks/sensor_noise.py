@@ -16,15 +16,12 @@ f = 424 px (848 px, 90 deg HFOV), B = 50 mm (D435) or 95 mm (D455).
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
+import harness
 import numpy as np
 
 from slzcli.config import load_config
@@ -33,7 +30,6 @@ from slzcli.synth.flight import R_WORLD_CAMERA_DOWN
 from slzcli.synth.scenes import SCENES_DIR, load_scene
 from slzcli.synth.sensor import get_depth_sensor
 
-HERE = Path(__file__).resolve().parent
 RANGES_M = (2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0)
 MODELS = {
     "stereo d435": ["synth.sensor.model=stereo", "synth.sensor.preset=d435"],
@@ -180,7 +176,7 @@ def timing(frames: int) -> dict[str, dict[str, float]]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "sensor_noise")
     ap.add_argument("--seeds", type=int, default=2, help="hover positions / noise draws per range")
     ap.add_argument("--timing-frames", type=int, default=5)
     args = ap.parse_args()
@@ -216,11 +212,9 @@ def main() -> None:
               f"{cell('stereo d455', 'level plane', z)} | {cell('stereo d455', 'parking_lot ground', z)} | {g} |")
     result = {"ranges_m": list(RANGES_M), "seeds": args.seeds, "rows": rows, "variants_8m": var,
               "timing_640x480": times,
-              "cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
               "config": {"stereo": load_config().to_dict()["synth"]["sensor"]["stereo"]},
               "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "sensor_noise.json").write_text(json.dumps(result, indent=1) + "\n")
+    harness.write_results(args.out, result, indent=1)
 
 
 if __name__ == "__main__":

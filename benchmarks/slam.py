@@ -6,26 +6,22 @@ Flights: the analytic rendered flights of tests/slam_flight.py ('line' 100 frame
 tracking only (frames already in memory). Prints a table; writes results/slam.json.
 Also any `slz synth` recordings given as arguments (true poses from /ground_truth/camera_pose;
 the recorded backend replays them, as a check that ATE is then 0).
-Usage: .venv/bin/python benchmarks/slam.py [SYNTH.mcap ...]
+Usage: .venv/bin/python benchmarks/slam.py [SYNTH.mcap ...] [--out JSON]
 """
 
 from __future__ import annotations
 
 import json
-import platform
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import cv2
+import harness
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
-sys.path.insert(0, str(REPO / "tests"))
-
+harness.use_test_helpers()
 import slam_flight  # noqa: E402
 
 from slzcli.config import load_config  # noqa: E402
@@ -35,7 +31,7 @@ from slzcli.slam.orbslam3 import available  # noqa: E402
 from slzcli.slam.vocabulary import DEFAULT_VOCABULARY, frame_descriptors, train_vocabulary, vocabulary_text  # noqa: E402
 from slzcli.types import Frame, Intrinsics  # noqa: E402
 
-REALSENSE = REPO.parent / "shared" / "data" / "realsense_floor"
+REALSENSE = harness.REALSENSE
 
 
 def imread(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
@@ -109,6 +105,9 @@ def run(backend: str, frames: list[Frame], truth: Sequence[np.ndarray | None] | 
 
 
 def main() -> None:
+    ap = harness.parser(__doc__, "slam")
+    ap.add_argument("recordings", nargs="*", help="slz synth recordings (true poses: the recorded backend too)")
+    args = ap.parse_args()
     flights: dict[str, tuple[list[Frame], Sequence[np.ndarray | None] | None]] = {
         "line_480x360": slam_flight.render_flight(100, "line", width=480, height=360, supersample=1),
         "out_back_320x240": slam_flight.render_flight(100, "out_back", width=320, height=240, supersample=1),
@@ -116,7 +115,7 @@ def main() -> None:
     }
     backends = ["odometry"] + (["orbslam3"] if available() else [])
     rows = []
-    for path in sys.argv[1:]:
+    for path in args.recordings:
         flights[f"synth:{Path(path).stem}"] = synth_frames(path)
     from dataclasses import replace
     for name, (frames, truth) in flights.items():
@@ -150,11 +149,7 @@ def main() -> None:
           f"{vocab_row['descriptors']} descriptors / {vocab_row['frames']} frames; ORB {vocab_row['extract_s']:.2f} s, "
           f"training {vocab_row['train_s']:.2f} s, {vocab_row['text_bytes'] / 1024:.0f} KiB "
           f"(packaged default {vocab_row['default_file_bytes'] / 1024:.0f} KiB)")
-    out = HERE / "results" / "slam.json"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps({"machine": {"python": platform.python_version(), "cpus": __import__("os").cpu_count()},
-                               "rows": rows, "vocabulary": vocab_row}, indent=2) + "\n")
-    print(f"wrote {out}")
+    harness.write_results(args.out, {"rows": rows, "vocabulary": vocab_row})
 
 
 if __name__ == "__main__":

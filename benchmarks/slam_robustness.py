@@ -14,13 +14,8 @@ Usage: .venv/bin/python benchmarks/slam_robustness.py [--baseline d5543df] [--se
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
-import json
-import os
 import pickle
-import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -28,11 +23,10 @@ from pathlib import Path
 from types import ModuleType
 
 import cv2
+import harness
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
-sys.path.insert(0, str(REPO / "tests"))
+harness.use_test_helpers()
 
 import slam_flight  # noqa: E402
 
@@ -63,8 +57,7 @@ def flight(kind: str, seed: int, noise_seed: int | None) -> tuple[list, list]:
 
 def baseline_module(rev: str) -> ModuleType:
     """slzcli/slam/odometry.py as it was at git revision ``rev``, as a module of its own."""
-    src = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:slzcli/slam/odometry.py"], check=True,
-                         capture_output=True, text=True).stdout
+    src = harness.source_at(rev, "slzcli/slam/odometry.py")
     spec = importlib.util.spec_from_loader(f"slzcli.slam._odometry_{rev}", loader=None)
     assert spec is not None
     mod = importlib.util.module_from_spec(spec)
@@ -148,14 +141,13 @@ def len_ok(r: dict) -> int:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = harness.parser(__doc__, "slam_robustness")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="scene seeds (noise-free)")
     ap.add_argument("--noise-seeds", type=int, nargs="*", default=[0, 1], help="noise seeds on scene 0")
     ap.add_argument("--cuts", type=float, nargs="*", default=CUTS, help="depth cuts (m) for the line flight")
     ap.add_argument("--baseline", help="git revision whose odometry.py runs too (e.g. d5543df)")
     ap.add_argument("--no-current", action="store_true", help="run only the baseline")
     ap.add_argument("--threads-check", action="store_true", help="also seed 0 with cv2.setNumThreads(1)")
-    ap.add_argument("--out", default=str(HERE / "results" / "slam_robustness.json"))
     args = ap.parse_args()
     impls: dict[str, ModuleType] = {}
     if args.baseline:
@@ -193,13 +185,8 @@ def main() -> None:
         print(f"{s['impl']:18} {s['case']:13} {s['threads']:>3} {s['runs']:>4} {s['ate_median_cm']:10.2f} "
               f"{s['ate_max_cm']:10.2f} {at:24} {s['not_all_ok']:>3} {s['ms_per_frame_median']:8.1f} "
               f"{s['cpu_ms_per_frame']:9.1f}")
-    out = Path(args.out)
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps({"machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
-                                           "opencv": cv2.__version__, "cv2_threads_default": default_threads},
-                               "args": vars(args), "wall_s": time.perf_counter() - t_start,
-                               "summary": summary, "rows": rows}, indent=2) + "\n")
-    print(f"wrote {out}")
+    harness.write_results(args.out, {"cv2_threads_default": default_threads, "args": vars(args),
+                                     "wall_s": time.perf_counter() - t_start, "summary": summary, "rows": rows})
 
 
 if __name__ == "__main__":

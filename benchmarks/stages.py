@@ -37,11 +37,9 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse  # noqa: E402
 import cProfile  # noqa: E402
 import dataclasses  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import pstats  # noqa: E402
 import statistics  # noqa: E402
 import subprocess  # noqa: E402
@@ -55,12 +53,11 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
+import harness  # noqa: E402
 import numpy as np  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
+harness.use_test_helpers()
+REPO = harness.REPO
 
 from slzcli.config import Config, Mount, load_config  # noqa: E402
 from slzcli.sources import open_recording  # noqa: E402
@@ -69,7 +66,7 @@ from slzcli.types import Frame, Intrinsics, TerrainMaps  # noqa: E402
 cv2.setNumThreads(1)
 
 PAPER_MS = 1367.0                       # Sepahvand et al. 2024, Table 2: detection per frame
-REALSENSE = REPO.parent / "shared" / "data" / "realsense_floor"
+REALSENSE = harness.REALSENSE
 REALSENSE_MOUNT = Mount(64.4, 19.0)     # tests/terrain/test_terrain.py: the floor plane of frame 0
 SCENES = ("playground", "parking_lot", "clear_field")
 ALTITUDES_M = (3, 5, 8)
@@ -121,8 +118,7 @@ def revision_core(rev: str) -> Core:
             current = saved[name]
             is_package = current is not None and hasattr(current, "__path__")
             path = name.replace(".", "/") + ("/__init__.py" if is_package else ".py")
-            src = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:{path}"], check=True,
-                                 capture_output=True, text=True).stdout
+            src = harness.source_at(rev, path)
             mod = types.ModuleType(name)
             mod.__file__ = f"{rev}:{path}"
             if is_package:
@@ -347,7 +343,7 @@ def summary(per: list[list[float]]) -> dict[str, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "stages")
     ap.add_argument("--before", default="43fd46a", help="git revision of the 'before' code (default: %(default)s)")
     ap.add_argument("--runs", type=int, default=5, help="timed runs per frame and code (after one warm-up)")
     ap.add_argument("--frames", type=int, default=4, help="frames per synth recording")
@@ -357,7 +353,6 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true", help="also profile both (cProfile, CPU time)")
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), help="synth scenes (default: %(default)s)")
     ap.add_argument("--check", action="store_true", help="only the timing table and the differences (no references)")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "stages.json")
     args = ap.parse_args()
 
     cases = synth_cases(args.frames, args.seed, tuple(args.scenes))
@@ -366,9 +361,7 @@ def main() -> None:
         cases.append(real)
     cores = [revision_core(args.before), current_core()]
     results: dict[str, Any] = {
-        "machine": {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
-                    "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-                    "cv2_threads": cv2.getNumThreads(), "load_avg_start": os.getloadavg()},
+        "cv2_threads": cv2.getNumThreads(), "load_avg_start": os.getloadavg(),
         "before": args.before, "runs": args.runs, "cases": {},
     }
     all_per: dict[str, dict[str, list[list[float]]]] = {c.name: {"cpu": [], "wall": []} for c in cores}
@@ -422,7 +415,6 @@ def main() -> None:
     results["ratios"] = {"paper_over_after": PAPER_MS / after, "paper_over_before": PAPER_MS / before,
                          "before_over_after": before / after, "obvious_tool_over_after": tool["total_ms"] / after,
                          "after_over_floor": after / floor}
-    results["machine"]["load_avg_end"] = os.getloadavg()
     if args.profile:
         results["profile"] = {c.name: profile(c, cases, 25) for c in cores}
 
@@ -446,11 +438,7 @@ def main() -> None:
             print(f"\nprofile {c.name} (own CPU ms per frame)")
             for r in results["profile"][c.name][:15]:
                 print(f"  {r['own_ms']:7.2f} {r['cum_ms']:7.2f}  {r['function']}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(results, indent=2) + "\n")
-    tmp.replace(args.out)
-    print(f"\nwrote {args.out}")
+    harness.write_results(args.out, results)
 
 
 if __name__ == "__main__":

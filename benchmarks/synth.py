@@ -8,15 +8,12 @@ recording rows time the whole `synthesize` (render + encode + write + sidecar + 
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+import harness
 
 from slzcli.config import load_config
 from slzcli.synth import record
@@ -24,8 +21,6 @@ from slzcli.synth.flight import make_flight
 from slzcli.synth.groundtruth import pixel_safe_mask
 from slzcli.synth.scenes import load_scene
 from slzcli.synth.sensor import apply_color_model
-
-HERE = Path(__file__).resolve().parent
 
 
 def size_of(path: Path) -> int:
@@ -77,7 +72,7 @@ def recording(scene: str, frames: int, color: str, depth: str, folder: Path) -> 
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "synth")
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--scene", default="parking_lot")
     args = ap.parse_args()
@@ -95,12 +90,9 @@ def main() -> None:
     for r in recs:
         print(f"{r['encoding']:<18} {r['frames']:>6} {r['seconds']:>7.1f} {r['frames_per_s']:>6.2f} "
               f"{r['recording_mb']:>8.1f} {r['mb_per_frame']:>9.2f} {r['ground_truth_mb']:>7.1f}")
-    result = {"scene": args.scene, "resolution": [640, 480], "cpus": os.cpu_count(),
-              "python": platform.python_version(),
-              "numpy": np.__version__, "stages": stages, "recordings": recs,
+    result = {"scene": args.scene, "resolution": [640, 480], "stages": stages, "recordings": recs,
               "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "synth.json").write_text(json.dumps(result, indent=1) + "\n")
+    harness.write_results(args.out, result, indent=1)
 
 
 if __name__ == "__main__":

@@ -27,14 +27,13 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUME
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
-from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
+import harness  # noqa: E402
 import numpy as np  # noqa: E402
 
 from slzcli.config import load_config  # noqa: E402
@@ -42,8 +41,7 @@ from slzcli.terrain import geometry as geo  # noqa: E402
 from slzcli.terrain import maps as tm  # noqa: E402
 from slzcli.types import Intrinsics  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-REALSENSE = HERE.parent.parent / "shared" / "data" / "realsense_floor"
+REALSENSE = harness.REALSENSE
 cv2.setNumThreads(1)
 
 
@@ -164,7 +162,7 @@ def allocator_comparison(frame: str, runs: int) -> dict[str, dict[str, float]]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "terrain")
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--o3d-runs", type=int, default=2)
     ap.add_argument("--child-total", metavar="FRAME", help=argparse.SUPPRESS)
@@ -187,9 +185,7 @@ def main() -> None:
         frames["realsense_000000"] = (real[0], real[1], np.array([0.326, -0.853, -0.408]))
 
     results: dict[str, Any] = {
-        "machine": {"python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
-                    "cpu": platform.processor() or platform.machine(), "cv2_threads": cv2.getNumThreads(),
-                    "load_avg": os.getloadavg()},
+        "cv2_threads": cv2.getNumThreads(), "load_avg_start": os.getloadavg(),
         "runs": args.runs, "frames": {},
     }
     for name, (depth, k, up) in frames.items():
@@ -209,12 +205,7 @@ def main() -> None:
         total = by_stage["total_compute_maps"]["median_ms"]
         print(f"  four maps together: {total:.1f} ms; Open3D normals alone (knn25) take "
               f"{o['knn25_ms'] / total:.0f}x that")
-    out = HERE / "results" / "terrain.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(results, indent=2) + "\n")
-    tmp.replace(out)
-    print(f"\nwrote {out}")
+    harness.write_results(args.out, results)
 
 
 if __name__ == "__main__":

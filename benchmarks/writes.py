@@ -29,7 +29,6 @@ Writes benchmarks/results/writes.json.
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import statistics
@@ -42,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import harness
 import numpy as np
 
 import slzcli.pipeline as pipeline
@@ -51,7 +51,6 @@ from slzcli.outputs.overlay import detection_overlay_bgr
 from slzcli.pipeline import RunOptions, detect_recording
 from slzcli.synth.record import SynthOptions, synthesize
 
-HERE = Path(__file__).resolve().parent
 BASE = ("synth.sensor.model=gaussian", "landing.detect_on=every_nth", "landing.every_nth_frame=1",
         "slam.backend=odometry")
 ENCODE_REPEATS = 15
@@ -296,11 +295,10 @@ def encodings(dets: list[Any], tmp: Path) -> dict[str, dict[str, float]]:
 
 # ----------------------------------------------------------------------------- main
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "writes")
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--repeats", type=int, default=2, help="runs per variant; the medians of all are kept")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "writes.json")
     args = ap.parse_args()
     variants: dict[str, tuple[list[str], bool]] = {"before": ([], True)}
     variants |= {f"level={lv}": ([f"output.level={lv}"], False) for lv in ("summary", "maps", "all")}
@@ -333,10 +331,8 @@ def main() -> None:
     print(f"\n{'encoding (one 640x480 detection frame)':<82} {'CPU ms':>7} {'bytes':>11}")
     for name, r in enc.items():
         print(f"{name:<82} {r['cpu_ms']:>7.2f} {r['bytes']:>11,}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"frames": args.frames, "repeats": args.repeats, "base": list(BASE),
-                                    "overrides": args.overrides, "variants": table, "encodings": enc},
-                                   indent=2) + "\n")
+    harness.write_results(args.out, {"frames": args.frames, "repeats": args.repeats, "base": list(BASE),
+                                     "overrides": args.overrides, "variants": table, "encodings": enc})
 
 
 if __name__ == "__main__":

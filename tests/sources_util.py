@@ -1,4 +1,4 @@
-"""Helpers shared by the tests/sources/test_sources_*.py files: small known frames and recordings."""
+"""Helpers shared by tests in several folders: small known frames and recordings, the real frames as recordings."""
 
 from __future__ import annotations
 
@@ -73,6 +73,23 @@ def realsense_recording(root: Path, path: Path, fmt: str) -> Path:
             depth = np.where(raw > 0, raw * unit_m, np.nan).astype(np.float32)
             w.write_frame(Frame(i, T0_NS + i * PERIOD_NS, bgr[:, :, ::-1].copy(), depth, intr))
     return path
+
+
+def realsense_bag(root: Path, out: Path) -> Path:
+    """The real frames as a realsense-ros bag (aligned depth, 16UC1 millimetres: REP 118), depth decoded as
+    float32 millimetres / 1000 (the arithmetic a TUM folder with ``depth_scale: 1000`` gets)."""
+    import cv2
+
+    k = realsense_intrinsics(root)
+    with RecordingWriter(out, "ros1") as w:
+        for i, f in enumerate(sorted((root / "color").glob("*.png"))):
+            raw = cv2.imread(str(root / "depth" / f.name), cv2.IMREAD_UNCHANGED)
+            bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            assert raw is not None and bgr is not None
+            depth = np.where(raw > 0, raw.astype(np.float32) / np.float32(1000), np.nan).astype(np.float32)
+            rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            w.write_frame(Frame(i, T0_NS + i * PERIOD_NS, rgb, depth, k))
+    return out
 
 
 def write_cloud(w: RecordingWriter, topic: str, stamp: int, xyz: np.ndarray) -> None:

@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from conftest import synth_recording
-from sources_util import PERIOD_NS, known_frame, pose
-from test_depth_units import realsense_bag
+from sources_util import PERIOD_NS, known_frame, pose, realsense_bag
 
 from slzcli.cli import main
 from slzcli.config import load_config

@@ -6,18 +6,15 @@ import json
 import shutil
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from sources_util import realsense_intrinsics
+from sources_util import realsense_bag, realsense_intrinsics
 from test_sources_tum import make_tum
 
 from slzcli.cli import main
 from slzcli.config import load_config
-from slzcli.outputs.recording import RecordingWriter
 from slzcli.sources.depth_check import depth_range, implausible
-from slzcli.types import Frame
 
 CFG = load_config().sources.depth_check
 T0_NS = 1_700_000_000_000_000_000
@@ -40,20 +37,6 @@ def realsense_tum(root: Path, out: Path, extra_yaml: str = "") -> Path:
     (out / "depth.txt").write_text("\n".join(depth) + "\n")
     (out / "camera.yaml").write_text(f"fx: {k.fx}\nfy: {k.fy}\ncx: {k.cx}\ncy: {k.cy}\nwidth: {k.width}\n"
                                      f"height: {k.height}\n{extra_yaml}")
-    return out
-
-
-def realsense_bag(root: Path, out: Path) -> Path:
-    """The real frames as a realsense-ros bag (aligned depth, 16UC1 millimetres: REP 118)."""
-    k = realsense_intrinsics(root)
-    with RecordingWriter(out, "ros1") as w:
-        for i, f in enumerate(sorted((root / "color").glob("*.png"))):
-            raw = cv2.imread(str(root / "depth" / f.name), cv2.IMREAD_UNCHANGED)
-            bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
-            assert raw is not None and bgr is not None
-            depth = np.where(raw > 0, raw.astype(np.float32) / np.float32(1000), np.nan).astype(np.float32)
-            rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-            w.write_frame(Frame(i, T0_NS + i * PERIOD_NS, rgb, depth, k))
     return out
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import bad_inputs as B
 import pytest
 from click.testing import CliRunner
-from test_control_cli import write_landing
+from landing_file import write_landing
 from test_user_files import FAST, invoke, refused, snapshot
 
 from slzcli import bounds

@@ -216,7 +216,7 @@ def test_synth_sizes_are_refused_naming_the_key() -> None:
 
 
 def test_a_landing_with_a_tiny_step_is_refused_before_it_starts(tmp_path: Path, runner: CliRunner) -> None:
-    from test_control_cli import write_landing
+    from landing_file import write_landing
 
     run = tmp_path / "RUN"
     write_landing(run)
@@ -231,7 +231,7 @@ def test_a_landing_with_a_tiny_step_is_refused_before_it_starts(tmp_path: Path, 
 
 # ----------------------------------------------------------------------------- Monte Carlo in chunks
 def test_chunked_monte_carlo_equals_one_batch_and_holds_one_chunk(monkeypatch: pytest.MonkeyPatch) -> None:
-    from test_control_montecarlo import BASE, run_values, same, target
+    from montecarlo_util import BASE, run_values, same, target
 
     from slzcli.control import montecarlo, noise, simulate
 
@@ -256,7 +256,7 @@ def test_chunked_monte_carlo_equals_one_batch_and_holds_one_chunk(monkeypatch: p
 
 
 def test_monte_carlo_rows_are_streamed_with_progress_lines(tmp_path: Path, runner: CliRunner) -> None:
-    from test_control_cli import write_landing
+    from landing_file import write_landing
 
     run = tmp_path / "RUN"
     write_landing(run)
@@ -281,7 +281,7 @@ def _slz_subprocess(args: list[str], tmp_path: Path) -> subprocess.Popen[str]:
 
 
 def test_sigterm_stops_a_monte_carlo_batch_and_leaves_no_table(tmp_path: Path) -> None:
-    from test_control_cli import write_landing
+    from landing_file import write_landing
 
     run = tmp_path / "RUN"
     write_landing(run)

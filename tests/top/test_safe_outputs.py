@@ -18,7 +18,7 @@ from pathlib import Path
 import bad_inputs as B
 import pytest
 from click.testing import CliRunner
-from test_control_cli import write_landing
+from landing_file import write_landing
 from test_user_files import FAST, SYNTH, invoke, refused, snapshot
 
 from slzcli.outputs import safe_output
