@@ -16,8 +16,6 @@ Writes benchmarks/results/landing_grid.json.
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
 import tempfile
 import time
@@ -25,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import harness
 import numpy as np
 
 from slzcli import api
@@ -33,7 +32,6 @@ from slzcli.methods import fused
 from slzcli.outputs import results_mcap
 from slzcli.types import LandingGrid
 
-RESULTS = Path(__file__).resolve().parent / "results" / "landing_grid.json"
 NAMES = ("unseen", "unsafe", "undecided", "safe")
 
 
@@ -108,7 +106,7 @@ def sizes(repeats: int) -> list[dict[str, Any]]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "landing_grid")
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--repeats", type=int, default=20)
     args = ap.parse_args()
@@ -120,8 +118,7 @@ def main() -> None:
     print("| cells | ms (CPU, median) | bytes | after LZ4 |\n|---|---|---|---|")
     for r in table:
         print(f"| {r['cells']} | {r['ms_median']:.2f} | {r['bytes']:,} | {r['lz4_bytes']:,} |")
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({"run": run, "sizes": table}, indent=1) + "\n")
+    harness.write_results(args.out, {"run": run, "sizes": table}, indent=1)
 
 
 if __name__ == "__main__":

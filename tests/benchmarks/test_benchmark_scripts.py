@@ -15,7 +15,7 @@ import pytest
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 SCRIPTS = sorted(BENCHMARKS.glob("*.py"))
 # scripts another change is converting to the harness at the same time; each leaves this set when it imports it
-NOT_YET = frozenset({"fusion_matrix.py", "fusion_render.py", "long_run.py", "throughput.py"})
+NOT_YET = frozenset({"fusion_render.py", "long_run.py", "throughput.py"})
 # what the harness does for a script: its own copies of it are what the rule is for
 BOILERPLATE = {("argparse", "ArgumentParser"): "its own argument parser (harness.parser)",
                ("sys.path", "insert"): "its own sys.path entries (harness.use_test_helpers)",
