@@ -43,13 +43,16 @@ from typing import Any
 
 import numpy as np
 
+from slzcli.bounds import load_json
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
+from slzcli.evaluate.slam import ate_by_segment
 from slzcli.evaluate.truth import ground_truth_of
+from slzcli.geometry import project
 from slzcli.methods.base import build
 from slzcli.methods.registry import names as method_names
-from slzcli.outputs import output_dir, run_lock
+from slzcli.outputs import files, output_dir, run_lock
 from slzcli.outputs.records_json import to_json_object
 from slzcli.pipeline.commit import commit
 from slzcli.pipeline.run import MethodRun as PipelineRun
@@ -61,6 +64,7 @@ from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
 from slzcli.sources.formats import run_suffixes
 from slzcli.summary import RunState, no_site_reason, site_record, site_truth, untracked_frames
+from slzcli.synth.groundtruth import sidecar_paths
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
 from slzcli.types import CommittedSite, Detection, FigureFrame, TerrainMaps, TrackedFrame
@@ -260,8 +264,6 @@ def _view(d: Detection) -> dict[str, Any]:
     sel = d.selection
     corners = None
     if sel is not None and sel.site is not None and d.T_world_camera is not None:
-        from slzcli.geometry import project
-
         corners, _ = project(np.asarray(sel.site.corners_world), d.T_world_camera, d.frame.K, d.score.mask.shape)
     return {"rgb": d.frame.rgb, "score": d.score.score.astype(np.float16), "mask": d.score.mask,
             "projected": None if sel is None else sel.projected, "kept": None if sel is None else sel.kept,
@@ -365,8 +367,6 @@ def _ate_rmse(tracker: Tracker, truth: Any | None) -> float | None:
     """SLAM's ATE (m, each map segment aligned on its own) against the true poses; None without truth or poses."""
     if truth is None:
         return None
-    from slzcli.evaluate.slam import ate_by_segment
-
     true: list[np.ndarray | None] = []
     for stamp in tracker.trajectory.stamps:
         try:
@@ -442,13 +442,10 @@ def render_variants(path: Path, config: Config, out_dir: Path, variants: tuple[s
     """Re-render a synth recording's scene once per variant (same flight, seed and frames) into ``out_dir``."""
 
     from slzcli.synth import record
-    from slzcli.synth.groundtruth import sidecar_paths
 
     header_path = sidecar_paths(path)[1]
     if not header_path.is_file():
         raise DatasetError(path, f"--variants needs a `slz synth` recording ({header_path.name} not found)")
-    from slzcli.bounds import load_json
-
     header = load_json(header_path, "ground-truth header (.gt.json)")
     try:
         base = tuple(header.get("variants", []))
@@ -488,8 +485,6 @@ def compare(paths: list[Path], config: Config, out_dir: Path, methods: tuple[str
     from slzcli.outputs import report
 
     methods = resolve_methods(methods) if methods else resolve_methods(config.compare.methods, "compare.methods")
-    from slzcli.synth.groundtruth import sidecar_paths
-
     for p in paths:
         if not Path(p).exists():
             raise DatasetError(p, "no such file or folder")
@@ -541,8 +536,6 @@ def compare_profiles(paths: list[Path], configs: dict[str, Config], out_dir: Pat
     same recording frames (checked by their stamps). ``method``: the fusion of every profile (None:
     each profile's ``scoring.method``).
     """
-    from slzcli.outputs import files
-
     if len(configs) < 2:
         raise ConfigError("--profiles", f"give at least two different profiles to compare, got {', '.join(configs)}")
     if method is not None and method not in method_names():
