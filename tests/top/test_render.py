@@ -74,17 +74,19 @@ def test_the_fused_advice_is_its_own_record_rounded_as_it_says() -> None:
     """The fused map's advice becomes landing.json's and the summary's ``advice`` (records.DecideAdvice), with the
     figures rounded as its text gives them, and reads back from the JSON unchanged."""
     from slzcli.fusion.advice import Advice
-    from slzcli.methods.fused import advice_record
     from slzcli.outputs.records_json import from_json, to_json_object
     from slzcli.records import DecideAdvice
 
     a = Advice(x_m=1.23456, y_m=-2.0, factor=3.0, frames=12, sideways_m=1.2345, descend_to_m=None, hover=False)
-    rec = advice_record(a)
+    rec = a.record()
     assert rec == DecideAdvice("fused", a.text(), 12, 1.23, None, False, 1.235, -2.0)
     assert "12 more frames or 1.2 m of sideways flight" in rec.text
     assert from_json(DecideAdvice, to_json_object(rec)) == rec
-    hover = advice_record(Advice(0.0, 0.0, 5.0, None, 2.0, 4.5, True))
-    assert hover.hover and hover.frames is None and hover.descend_to_m == 4.5 and "move" in hover.text
+    hover = Advice(0.0, 0.0, 5.0, None, 2.0, 4.5, True).record()
+    assert hover.hover and hover.frames is None and hover.descend_to_m == 4.5
+    assert hover.text == ("hovering: more frames will not decide the ground at (0.0, 0.0) m; move: fly 2.0 m sideways "
+                          "or descend to 4.5 m")
+    assert Advice(0.0, 0.0, 5.0, 1, None, None, False).text() == "to decide the ground at (0.0, 0.0) m: 1 more frame"
 
 
 def test_a_run_whose_frames_could_not_vouch_is_told_the_altitude_that_would() -> None:
