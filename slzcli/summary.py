@@ -47,7 +47,7 @@ from slzcli.records import (
 from slzcli.slam.segments import Segment, primary_segment, segment_table
 from slzcli.sources.recording import RecordingInfo
 from slzcli.synth.groundtruth import GroundTruth
-from slzcli.terrain.limits import vouchable_altitude_m
+from slzcli.terrain.limits import WouldVouch
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.types import CommittedSite, PairingReport, RunResult, Working
 from slzcli.version import __version__
@@ -71,12 +71,17 @@ class RunState:
     noise: NoiseTracker | None = None  # the depth noise of the detection frames, smoothed over the run
     unvouched: int = 0                 # detection frames whose noise hides what the UAV cannot tolerate
     worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
-    unvouched_reason: str = ""         # limits.limit_reason of that frame
+    would_vouch: WouldVouch | None = None   # what that frame hides and below which altitude it would vouch
     highest: Working | None = None     # the highest detection frame's working scale (depth_limits without a site)
     column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
     advice: DecideAdvice | None = None  # the method's own advice of the latest detection frame (fused)
     method_reason: str = ""            # a method the maps do not gate (px4slp): why its latest frame gave no site
     funnel: FunnelLog = field(default_factory=FunnelLog)  # what each filter left in each detection frame
+
+    @property
+    def unvouched_reason(self) -> str:
+        """The no-site reason of the highest frame that could not vouch ("" without one)."""
+        return "" if self.would_vouch is None else self.would_vouch.reason()
 
 
 def versions() -> dict[str, str]:
@@ -171,20 +176,19 @@ def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
     return reason
 
 
-def decide_advice(st: RunState, config: Config) -> DecideAdvice | None:
+def decide_advice(st: RunState) -> DecideAdvice | None:
     """What would decide the ground of a run without a site: the method's own advice of its latest detection
     frame (fused), else, when depth noise kept detection frames from vouching, the altitude below which the
-    highest of them would have vouched (the per-frame limits, ``limits.limit_reason``); else None."""
+    highest of them would have vouched (the per-frame limits, ``limits.would_vouch``); else None."""
     if st.advice is not None:
         return st.advice
-    work = st.worst_unvouched
-    if work is None:
+    v = st.would_vouch
+    if v is None:
         return None
-    below = vouchable_altitude_m(work.noise, work.focal_px, config.terrain, config.uav, work.altitude_m)
-    hides = f"at {work.altitude_m:.1f} m the depth noise hides {work.hidden()}"
-    if below is None:
+    hides = v.hides(with_sigma=False)
+    if v.below_m is None:
         return DecideAdvice("depth_limits", f"{hides}, and at no altitude would it not with this sensor")
-    return DecideAdvice("depth_limits", f"descend below {below:.1f} m ({hides})", descend_to_m=round(below, 2))
+    return DecideAdvice("depth_limits", f"descend below {v.below_m:.1f} m ({hides})", descend_to_m=round(v.below_m, 2))
 
 
 def noise_summary(st: RunState) -> dict[str, object]:
@@ -280,7 +284,7 @@ def summarise(facts: RunFacts, config: Config, st: RunState, committed: Committe
     reason = no_site_reason(st, facts.slam_name, len(st.keyframes))
     site: SiteRecord | None = None
     spread: SpreadRecord | None = None
-    advice = decide_advice(st, config) if committed is None else None
+    advice = decide_advice(st) if committed is None else None
     if committed is not None:
         site = site_record(committed, site_truth(None if truth is None else truth.truth, committed),
                            _height(committed.site.center_world, st, table, primary, config))
