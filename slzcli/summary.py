@@ -52,7 +52,7 @@ from slzcli.terrain.noise import NoiseTracker
 from slzcli.types import CommittedSite, PairingReport, RunResult, Working
 from slzcli.version import __version__
 
-PER_FRAME_STAGES = ("maps", "score", "mask", "slam", "select")  # the per-frame total; "write" is apart
+PER_FRAME_STAGES = ("maps", "score", "mask", "slam", "select", "fuse")  # the per-frame total; "write" is apart
 _COLUMN_CUT_NOTED = 0.5  # the column rule is named in a no-site reason when it removed at least this share
 
 
@@ -98,8 +98,11 @@ def versions() -> dict[str, str]:
 def stage_timings(timing: dict[str, dict[str, float]], method: str) -> dict[str, float]:
     """landing.json / run.json ``timings_ms``: the median of each stage (ms), ``total`` of the per-frame ones."""
     med = {k: round(v["median_ms"], 3) for k, v in timing.items()}
+    # a method that keeps state fuses every frame (``fuse``, its CPU time): a detection frame pays it too, so
+    # it is in the total; methods without that stage have no key
+    fuse = {"fuse": med["fuse"]} if "fuse" in med else {}
     return {"maps": med.get("maps", 0.0), method: med.get("score", 0.0), "mask": med.get("mask", 0.0),
-            "slam": med.get("slam", 0.0), "select": med.get("select", 0.0),
+            "slam": med.get("slam", 0.0), "select": med.get("select", 0.0), **fuse,
             "total": round(sum(med.get(k, 0.0) for k in PER_FRAME_STAGES), 3),
             "write": med.get("write", 0.0),  # a detection frame's files (output.level) + results.mcap; not in total
             "write_wait": med.get("write_wait", 0.0)}  # of which the main loop waited (the writer runs beside it)
