@@ -13,6 +13,7 @@ The depth noise of a frame that is not due is the last one the run measured on a
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.fusion.advice import Advice, GroundTrack
 from slzcli.fusion.grid import region, seen_bounds
-from slzcli.fusion.output import landing_grid, write_landing_map
+from slzcli.fusion.output import Judged, landing_grid, write_landing_map
 from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
 from slzcli.fusion.verdict import SAFE, fused_maps
 from slzcli.landing.select import Selection, SelectParams, select_site
@@ -92,8 +93,9 @@ class FusedMethod:
                 selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)
+        # the cells judged, built when a sink writes them (results.mcap, in its writer), not on the compute path
         grid = None if fm is None or not fm.region.seen.any() else \
-            landing_grid(fm, tracked.segment, *self.last_fused, crop=True)   # the cells judged, for results.mcap
+            functools.partial(landing_grid, Judged.of(fm), tracked.segment, *self.last_fused, crop=True)
         return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment,
                          None if advice is None else advice.record(), grid)
 
