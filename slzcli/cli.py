@@ -519,7 +519,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
     from slzcli import bounds
 
     bounds.check(bounds.simulation_sizes(config, runs))
-    target, _ = ibvs_out.read_target(run, config.uav.footprint_m)
+    target = ibvs_out.read_target(run, config.uav.footprint_m)
     target = check_target(ibvs_out.landing_path(run), target, config.uav.footprint_m,
                           config.control.sim.target_tolerance)
     out = output or ibvs_out.landing_path(run).parent / "ibvs"
