@@ -78,7 +78,7 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
     page = _template().render(
         name=Path(s.source).name, css=Markup(CSS),
         # the picture sections are drawn here (image panel, SVG); the rest is the template's
-        result=Markup(_result(s, landing)), funnel=Markup(funnel_section(dict(result.run.funnel))),
+        result=Markup(_result(s, landing)), funnel=Markup(funnel_section(result.run.funnel)),
         landing_map=Markup(_landing_map(run_dir, committed, _advice_text(landing.advice))),
         figure5=Markup(_figure5(run_dir, panel_frame, committed is not None and
                                 committed.frame.index == panel_frame, level, reverse)),
