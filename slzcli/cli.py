@@ -39,7 +39,7 @@ log = logging.getLogger("slzcli")
 # text printed without ``--json``.
 CommandResult = tuple[Mapping[str, object], str]
 Command = Callable[..., CommandResult | None]  # a command body: the parsed options as keywords, ``config`` resolved
-F = TypeVar("F", bound=Callable[..., object])  # a click callback that an option decorator returns as it was
+CallbackT = TypeVar("CallbackT", bound=Callable[..., object])  # a click callback, returned as it was
 
 
 # ----------------------------------------------------------------------------- shared plumbing
@@ -276,7 +276,7 @@ def _time_bound(ctx: click.Context, param: click.Parameter, value: str | None) -
     return kind, seconds
 
 
-def window_options(fn: F) -> F:
+def window_options(fn: CallbackT) -> CallbackT:
     """--start, --end, --stride, --max-frames: the part of a recording read (config sources.window)."""
     for option in reversed([
         click.option("--start", "win_start", callback=_time_bound, metavar="S|@STAMP",
@@ -611,7 +611,7 @@ def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scene
     return summary, text
 
 
-def timeout_option(help_text: str) -> Callable[[F], F]:
+def timeout_option(help_text: str) -> Callable[[CallbackT], CallbackT]:
     """``--timeout SECONDS``: a bound on each stage of a run (slzcli/timeout.py)."""
     # The largest wait both SIGALRM's setitimer and threading.Timer accept (about 292 years).
     return click.option("--timeout", "timeout_s", type=FiniteFloatRange(0, threading.TIMEOUT_MAX, min_open=True),
