@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 
 from slzcli.outputs import output_dir
 
 
-def _older_compare(folder: Path, doc: dict[str, object], names: tuple[str, ...]) -> None:
+def _older_compare(folder: Path, doc: Mapping[str, object], names: tuple[str, ...]) -> None:
     folder.mkdir(exist_ok=True)
     (folder / "compare.json").write_text(json.dumps(doc))
     for name in names:
