@@ -57,7 +57,8 @@ def test_a_wobbling_hover_that_cannot_decide_says_to_move(seed: int) -> None:
     8 m): nothing safe, every seen cell undecided, sideways 2.6-3.4 m (allowed: under 10 m)."""
     *_, (_, ft, track, fm) = _fly("hover", seed, 40, a_per_m=0.001)
     assert ft.shift_per_frame_px() > 0.1 * ft.params.decorrelation_px    # the shift alone says "moving"
-    assert ft.advice(fm).frames is not None                             # ... and "N more frames"
+    old = ft.advice(fm)
+    assert old is not None and old.frames is not None                   # ... and "N more frames"
     assert track.speed_m_s() < _hover_speed() / 2
     assert not np.any(fm.verdict == SAFE) and np.mean(fm.verdict[fm.region.seen] == UNDECIDED) > 0.5
     adv = ft.advice(fm, track.hovering(_hover_speed()))

@@ -24,6 +24,19 @@ def hover(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return synth_recording(tmp_path_factory.mktemp("hover") / "hover.mcap", "clear_field", 9, *HALF_SIZE)
 
 
+def _count_grids(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Counts the fused method's landing grids as they are built (one entry each)."""
+    built: list[int] = []
+    orig = fused.landing_grid
+
+    def counted(*a: Any, **k: Any) -> Any:
+        built.append(1)
+        return orig(*a, **k)
+
+    monkeypatch.setattr(fused, "landing_grid", counted)
+    return built
+
+
 def _detect(rec: Path, out: Path, *sets: str) -> dict[str, Any]:
     res = CliRunner().invoke(main, ["detect", str(rec), "-o", str(out), "--method", "fused", *RECORDED,
                                     "--set", "landing.detect_on=every_nth", "--set", "landing.every_nth_frame=3",
@@ -37,9 +50,7 @@ def test_a_hover_without_a_site_is_told_to_move_and_its_fusion_is_timed(hover: P
     """landing.json of a hover with no site: its advice says more frames will not decide and to move (no
     frames); ``timings_ms.fuse`` is run.json's median of the fusion of every frame, inside ``total``; the
     detections' landing grids reach results.mcap, built as it writes them."""
-    built: list[int] = []
-    orig = fused.landing_grid
-    monkeypatch.setattr(fused, "landing_grid", lambda *a, **k: built.append(1) or orig(*a, **k))
+    built = _count_grids(monkeypatch)
     landing = _detect(hover, tmp_path / "run")
     run = json.loads((tmp_path / "run" / "run.json").read_text())
     assert landing["status"] == "no_safe_site"
@@ -58,9 +69,7 @@ def test_a_hover_without_a_site_is_told_to_move_and_its_fusion_is_timed(hover: P
 def test_without_results_mcap_no_landing_grid_is_built(hover: Path, tmp_path: Path,
                                                        monkeypatch: pytest.MonkeyPatch) -> None:
     """No sink writes the detections' landing grids: none is built (the method hands over how to build it)."""
-    built: list[int] = []
-    orig = fused.landing_grid
-    monkeypatch.setattr(fused, "landing_grid", lambda *a, **k: built.append(1) or orig(*a, **k))
+    built = _count_grids(monkeypatch)
     _detect(hover, tmp_path / "run", "--set", "output.results_mcap=false")
     assert not (tmp_path / "run" / "results.mcap").exists()
     assert built == []
