@@ -51,7 +51,7 @@ def rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fal
         odd: bool = False, n: int | None = None) -> Any:
     """A schema field with a range: ``lo <= v <= hi`` (``lo < v`` when lo_open), odd ints, list length n.
 
-    ``Any`` as ``dataclasses.field`` without a default: the field's annotation gives its type."""
+    Typed as ``dataclasses.field`` without a default is: the field's annotation gives its type."""
     return field(metadata={RULE: Rule(lo=lo, hi=hi, lo_open=lo_open, odd=odd, n=n)})
 
 
