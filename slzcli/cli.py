@@ -648,6 +648,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
       slz detect 'flights/*.bag' -o runs/ --workers 2
     """
     from slzcli import batch
+    from slzcli.outputs.records_json import to_json_object
     from slzcli.pipeline import RunOptions
 
     config = _windowed(config, win_start, win_end, stride, max_frames)
@@ -686,7 +687,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     if failed:
         raise SlzError(f"{len(failed)} of {len(rows)} recordings failed (first: {failed[0].error}); "
                        f"status of each in {batch_dir / 'summary.csv'}")
-    totals = {**result.totals(), "summary_files": [str(p) for p in result.summary_files]}
+    totals = {**to_json_object(result.totals()), "summary_files": [str(p) for p in result.summary_files]}
     runs = [_batch_row(r, given, given_run) for r in rows]
     return envelope("batch", {"batch": totals, "runs": runs}), render.batch_text(totals, rows)
 
