@@ -14,11 +14,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import overload
+from typing import TYPE_CHECKING, overload
 
-from slzcli.compare_records import Comparison, ProfileComparison
 from slzcli.outputs.records_json import from_json, to_json_object
 from slzcli.records import RunSummary
+
+if TYPE_CHECKING:  # the compare records hold numpy arrays; the command line imports this module without numpy
+    from slzcli.compare_records import Comparison, ProfileComparison
 
 SCHEMA_VERSION = "1.2"
 DECIMALS = 6       # digits after the point for |x| >= 1; project decision (1 um, 1 us)
