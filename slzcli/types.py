@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -128,6 +128,34 @@ class StreamChoice:
     role: str
     topic: str | None
     reason: str
+
+
+class GravityEstimateDoc(TypedDict):
+    up_camera: list[float]
+    detail: str
+    spread_deg: float
+    angle_to_used_deg: float
+
+
+class GravityDisagreementDoc(TypedDict):
+    sources: list[str]
+    angle_deg: float
+
+
+class GravityDoc(TypedDict):
+    """Where world up came from, as JSON (``terrain.gravity.Gravity.as_dict``: ``slz info --json``, run.json)."""
+
+    source: str
+    detail: str
+    up_camera: list[float]
+    tilt_deg: float
+    pitch_deg: float
+    roll_deg: float
+    per_frame: str
+    estimates: dict[str, GravityEstimateDoc]
+    disagreements: list[GravityDisagreementDoc]
+    warnings: list[str]
+    notes: list[str]
 
 
 @dataclass(frozen=True)
@@ -504,15 +532,6 @@ class Detection:
     advice: DecideAdvice | None = None  # a method that can tell: what would decide the ground it could not
     landing_grid: Callable[[], LandingGrid] | None = None  # a method's landing map as of this frame (fused: the
     # cells in view), built when a sink writes it
-
-
-@dataclass(frozen=True, eq=False)
-class FigureFrame:
-    """The arrays of one detection frame for the Figure 6 panel."""
-
-    index: int
-    rgb: np.ndarray
-    per_method: dict[str, dict[str, Any]]
 
 
 # ----------------------------------------------------------------------------- slz land simulate
