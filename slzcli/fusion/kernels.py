@@ -24,10 +24,10 @@ from numba import njit
 # the float fields of a grid slot (grid.FusedGrid.state's columns; grid.py names them)
 H, C, PHH, PHC, PCC, SIGC, SIG1, U, V, SPREAD, POSEV, STEPR, TANR = range(13)
 
-_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}   # numpy's float errors: inf / nan, no exception
+_jit = njit(cache=True, nogil=True, error_model="numpy")   # numpy's float errors: inf / nan, no exception
 
 
-@njit(**_JIT)
+@_jit
 def inverse_depth(depth):
     """(1 / depth where it is finite and positive else 0, that validity as 1 / 0), both float32: the per-pixel
     half of ``terrain.geometry.block_depth`` (whose block means ``cv2.resize`` takes), in one pass."""
@@ -46,7 +46,7 @@ def inverse_depth(depth):
     return inv, valid
 
 
-@njit(**_JIT)
+@_jit
 def bin_samples(a, b, blocks, rx, ry, r, off_x, off_y, inv, half, min_samples, t, cell, cxy, pose_var2, rad2):
     """One frame's samples binned into cells: per cell with ``min_samples`` or more, the means of the samples'
     height (relative to the camera), squared height, depth and ray's vertical component, float64 sums in
@@ -166,7 +166,7 @@ def bin_samples(a, b, blocks, rx, ry, r, off_x, off_y, inv, half, min_samples, t
     return 1, cells_x, cells_y, h, spread, zc, upc, pose_var
 
 
-@njit(**_JIT)
+@_jit
 def _pixel(px, py, h, r, t, cam):
     """Pixel (u, v) and depth of the point (px, py) from the camera in plan at height ``h``
     (``measure.CellView.at``'s arithmetic)."""
@@ -177,7 +177,7 @@ def _pixel(px, py, h, r, t, cam):
     return cam[0] * xc / zc + cam[2], cam[1] * yc / zc + cam[3], zc
 
 
-@njit(**_JIT)
+@_jit
 def cell_shifts(owner, state, ix, iy, y, side, cell, r, t, cam):
     """Per cell of a frame: its slot, whether the slot holds it, its centre's pixel at its height (the fused
     one when held, else the measured ``y``) and how far that moved in the image since the last look.
@@ -199,18 +199,18 @@ def cell_shifts(owner, state, ix, iy, y, side, cell, r, t, cam):
     return slot, owned, u, v, shift
 
 
-@njit(**_JIT)
+@_jit
 def _max(a, b):
     """np.maximum: NaN when either is."""
     return a if (a != a or a >= b) else b
 
 
-@njit(**_JIT)
+@_jit
 def _min(a, b):
     return a if (a != a or a <= b) else b
 
 
-@njit(**_JIT)
+@_jit
 def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned, u, v, rho, ix, iy, y, sigma_w,
                  sigma_c, spread, pose_var, gate2, sig1_den, step_ratio, tan_ratio, frame_index, column_m, cell,
                  r, t, cam, width, height):
@@ -283,7 +283,7 @@ def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned
     return n_new, n_rej, nis[:n_owned]
 
 
-@njit(**_JIT)
+@_jit
 def _select(a, k):
     """The k-th smallest of ``a`` (no NaN), in place (quickselect, median-of-three pivot): after it,
     a[:k] <= a[k] <= a[k + 1:]."""
@@ -311,7 +311,7 @@ def _select(a, k):
     return a[k]
 
 
-@njit(**_JIT)
+@_jit
 def median_inplace(a):
     """``np.median`` of ``a`` (NaN when any is NaN or there are none), reordering it: the middle value, or the
     mean of the two middle ones summed in ``a``'s own type, as numpy's."""
@@ -331,7 +331,7 @@ def median_inplace(a):
     return (lo + hi) * 0.5
 
 
-@njit(**_JIT)
+@_jit
 def median_depth(depth, step):
     """``terrain.geometry.median_depth_m``: the median of the finite, positive depths on the grid of every
     ``step``-th pixel (NaN: none)."""
@@ -346,7 +346,7 @@ def median_depth(depth, step):
     return median_inplace(buf[:n])
 
 
-@njit(**_JIT)
+@_jit
 def sweep(owner, cx, cy, reach, empty):
     """Forget (owner = ``empty``) the cells more than ``reach`` cells from cell (cx, cy) in x or y."""
     for k in range(owner.size):
