@@ -250,9 +250,10 @@ def _tilted(rng: np.random.Generator, x: float, y: float, z: float) -> np.ndarra
 
 def _frame(rng: np.random.Generator, T: np.ndarray, intr: Intrinsics = INTR) -> np.ndarray:
     """Depth of a plane with a block, noise, and holes: NaN, 0, inf, negative, a whole corner empty."""
-    block = Block(*rng.uniform(-1, 0, 2), *rng.uniform(0.2, 1.5, 2), float(rng.uniform(0.1, 0.8)))
-    depth = exact_depth(T, Block(block.x0, block.x0 + block.x1, block.y0, block.y0 + block.y1, block.height_m),
-                        intr) + rng.normal(0, 0.03, (intr.height, intr.width))
+    x0, y0 = (float(v) for v in rng.uniform(-1, 0, 2))
+    w, d = (float(v) for v in rng.uniform(0.2, 1.5, 2))
+    block = Block(x0, x0 + w, y0, y0 + d, float(rng.uniform(0.1, 0.8)))
+    depth = exact_depth(T, block, intr) + rng.normal(0, 0.03, (intr.height, intr.width))
     depth = depth.astype(np.float32)
     holes = rng.random(depth.shape)
     depth[holes < 0.1] = np.nan
