@@ -532,15 +532,6 @@ class Detection:
     landing_grid: LandingGrid | None = None  # a method's landing map as of this frame (fused: the cells in view)
 
 
-@dataclass(frozen=True, eq=False)
-class FigureFrame:
-    """The arrays of one detection frame for the Figure 6 panel."""
-
-    index: int
-    rgb: np.ndarray
-    per_method: dict[str, dict[str, Any]]
-
-
 # ----------------------------------------------------------------------------- slz land simulate
 @dataclass(frozen=True)
 class Target:
