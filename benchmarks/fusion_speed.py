@@ -14,8 +14,10 @@ the replay is single-threaded; the wall clock of a loaded machine is not a cost)
 fresh interpreter, in the same run (so both see the same machine load), and the two compared: the fused
 heights, variances, looks and frames of every cell, the maps' verdicts on every detection frame and the
 rendered masks must be equal up to float rounding (heights and variances within 1e-9 relative, verdicts
-and masks identical). ``--resize WxH``: the frames resized (nearest) to another size first (the cache's
-640 x 480 to the D435's 848 x 480; the intrinsics scaled with them). The machine's load (``os.getloadavg``)
+and masks identical); the arrays that are not the same bits are listed beside (``not_bit_identical``). The
+reference's replay is this script run from that checkout (the harness puts the package beside it first).
+``--resize WxH``: the frames resized (nearest) to another size first (the cache's 640 x 480 to the D435's
+848 x 480; the intrinsics scaled with them). The machine's load (``os.getloadavg``)
 is written beside the numbers: two cores shared with other jobs. Writes benchmarks/results/fusion_speed.json.
 """
 
@@ -25,6 +27,7 @@ import glob
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -137,6 +140,14 @@ def compare(new: Path, old: Path) -> dict[str, Any]:
     return diff
 
 
+def not_bitwise(new: Path, old: Path) -> list[str]:
+    """The arrays of two dumps that are not the same bits (NaN equal to NaN)."""
+    a, b = np.load(new), np.load(old)
+    return sorted(k for k in set(a.files) & set(b.files)
+                  if a[k].shape != b[k].shape or a[k].dtype != b[k].dtype
+                  or not np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f"))
+
+
 def main() -> None:
     ap = harness.parser(__doc__, "fusion_speed")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slz-fusion-cache")
@@ -149,8 +160,10 @@ def main() -> None:
     ap.add_argument("--json-row", action="store_true", help=argparse_hidden())
     a = ap.parse_args()
     flights = [Path(p) for p in sorted(glob.glob(str(a.cache / (a.flights + ".npz")))) if not p.endswith(".tmp.npz")]
-    if a.json_row:   # the reference run: one flight, its row on stdout
-        print(json.dumps(replay(flights[0], a.every, a.repeats, a.resize, a.dump)))
+    if a.json_row:   # the reference run: one flight, its row on stdout, and whose code ran it
+        import slzcli
+
+        print(json.dumps({**replay(flights[0], a.every, a.repeats, a.resize, a.dump), "package": slzcli.__file__}))
         return
     rows = []
     with tempfile.TemporaryDirectory(prefix="slz-fusion-speed-") as tmp:
@@ -161,8 +174,10 @@ def main() -> None:
             if a.reference:
                 row["reference"] = _reference(a, p, Path(tmp) / "old.npz")
                 row["differences"] = compare(Path(tmp) / "new.npz", Path(tmp) / "old.npz")
+                row["not_bit_identical"] = not_bitwise(Path(tmp) / "new.npz", Path(tmp) / "old.npz")
             rows.append(row)
-            print(_line(p.name, new, row.get("reference"), row.get("differences"), load), flush=True)
+            print(_line(p.name, new, row.get("reference"), row.get("differences"), load)
+                  + (f" | not bit-identical: {row['not_bit_identical'] or 'none'}" if a.reference else ""), flush=True)
     harness.write_results(a.out, {"reference": a.reference, "repeats": a.repeats, "every": a.every,
                                   "resize": a.resize, "flights": rows})
 
@@ -180,16 +195,20 @@ def _line(name: str, new: dict[str, Any], ref: dict[str, Any] | None, diff: dict
 
 
 def _reference(a: Any, flight: Path, dump: Path) -> dict[str, Any]:
-    """The replay of one flight by the code at ``a.reference``, in a fresh interpreter."""
+    """The replay of one flight by the code at ``a.reference``, in a fresh interpreter: this script and the harness
+    copied into that checkout's benchmarks/ (the harness puts the package beside the script first on the path)."""
     with harness.reference_checkout(a.reference) as code:
-        cmd = [sys.executable, str(Path(__file__).resolve()), "--cache", str(flight.parent), "--flights",
-               flight.name.removesuffix(".npz"), "--repeats", str(a.repeats), "--every", str(a.every),
+        for own in (Path(__file__), Path(harness.__file__)):
+            shutil.copyfile(own, code / "benchmarks" / own.name)
+        cmd = [sys.executable, str(code / "benchmarks" / Path(__file__).name), "--cache", str(flight.parent),
+               "--flights", flight.name.removesuffix(".npz"), "--repeats", str(a.repeats), "--every", str(a.every),
                "--dump", str(dump), "--json-row"] + (["--resize", a.resize] if a.resize else [])
-        res = subprocess.run(cmd, env={**os.environ, "PYTHONPATH": str(code)}, capture_output=True, text=True,
-                             check=False)
+        res = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if res.returncode != 0:
         raise SystemExit(f"the reference replay failed:\n{res.stderr}")
     row: dict[str, Any] = json.loads(res.stdout.strip().splitlines()[-1])
+    if not Path(row.pop("package")).resolve().is_relative_to(code.resolve()):
+        raise SystemExit(f"the reference replay ran other code than {a.reference}'s")
     return row
 
 

@@ -31,13 +31,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slzcli.fusion.measure import CellView, FrameCells, FusionParams, cell_view
+from slzcli.fusion import kernels
+from slzcli.fusion.kernels import PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, H
+from slzcli.fusion.measure import FrameCells, FusionParams
 
 _EMPTY = np.iinfo(np.int64).min      # owner of a slot no cell has used yet
 _RHO_MAX = 1.0 - 1e-9               # guards 1 - rho^2 against round-off
-# the float state of a cell, one row per slot (one gather and one scatter per frame)
-H, C, PHH, PHC, PCC, SIGC, SIG1, U, V, SPREAD, POSEV, STEPR, TANR = range(13)
-_FIELDS = 13
+_FIELDS = 13                         # the float state of a cell, one row per slot (kernels names the fields)
 
 
 def cell_key(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
@@ -93,74 +93,40 @@ class FuseStats:
 
 
 def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
-    """Add one frame's measurements to the grid (in place)."""
+    """Add one frame's measurements to the grid (in place): two compiled loops over the frame's cells
+    (``kernels``), the decorrelation's ``exp`` between them.
+
+    Per cell: predict the shared error by the cell's image shift since its last look (the cell's centre at its
+    estimated height projected into the frame: the mean pixel of its samples jitters with the depth noise, which
+    moves samples across cell borders, and a hover would seem to move); gate the innovation on the cell's
+    variance, the measurement's and the pose's; update accepted looks, start new cells at h = y, c = 0 with the
+    covariance of a flat prior, keep rejected ones. The update proper leaves the pose out: a frame's pose error
+    is common to its cells (a height offset, a tilt over the view), not terrain; it widens the gate and the
+    reported variance only."""
     p = grid.params
-    k, owned = grid.slots(m.ix, m.iy)
-    st = np.take(grid.state, k, axis=0)  # a gathered copy, written back at the end
-    f = st.T                              # f[FIELD]: that field of every cell (a view)
-    sw2 = m.sigma_w_m * m.sigma_w_m
-    sc2 = m.sigma_c_m * m.sigma_c_m
-    y = m.height_m
-    # --- predict the shared error by the cell's image shift since its last look: the cell's centre at its
-    # estimated height projected into the frame (the mean pixel of its samples jitters with the depth
-    # noise, which moves samples across cell borders: a hover would seem to move)
-    h_ref = np.where(owned, f[H], y)
-    view = cell_view(m.ix, m.iy, m.T_world_camera, m.intrinsics, p.cell_m)
-    u_px, v_px, _ = view.at(h_ref)
-    shift = np.hypot(u_px - f[U], v_px - f[V])
-    rho = np.minimum(np.exp(-shift / p.decorrelation_px), _RHO_MAX)
-    sc_old = f[SIGC]
-    g = rho * np.divide(m.sigma_c_m, sc_old, out=np.ones_like(sc_old), where=sc_old > 0)
-    c = g * f[C]
-    p_hh = f[PHH]
-    p_hc = g * f[PHC]
-    p_cc = g * g * f[PCC] + (1.0 - rho * rho) * sc2
-    innov = y - (f[H] + c)
-    s_t = p_hh + 2.0 * p_hc + p_cc + sw2
-    # the gate holds the cell's variance, the measurement's and the pose's
-    ok = innov * innov <= (p.gate_sigma ** 2) * (s_t + m.pose_var_m2)
-    # the update proper leaves the pose out: a frame's pose error is common to its cells (a height offset,
-    # a tilt over the view), not terrain; it widens the gate and the reported variance only
-    with np.errstate(invalid="ignore", divide="ignore"):
-        kh = (p_hh + p_hc) / s_t
-        kc = (p_hc + p_cc) / s_t
-    acc = owned & ok
-    new = ~owned
-    look = acc | new
-    # whole rows, in place (cheaper than boolean gathers and scatters): accepted looks are updated, new cells
-    # start at h = y, c = 0 with the covariance of a flat prior, rejected ones keep theirs
-    with np.errstate(invalid="ignore"):   # a new cell's slot holds another cell's numbers until replaced
-        np.copyto(f[H], f[H] + kh * innov, where=acc)
-        np.copyto(f[C], c + kc * innov, where=acc)
-        np.copyto(f[PHH], p_hh - kh * kh * s_t, where=acc)
-        np.copyto(f[PHC], p_hc - kh * kc * s_t, where=acc)
-        np.copyto(f[PCC], p_cc - kc * kc * s_t, where=acc)
-        np.copyto(f[SPREAD], np.maximum(f[SPREAD], m.spread_m), where=acc)
-        np.copyto(f[POSEV], np.minimum(f[POSEV], m.pose_var_m2), where=acc)
-    for row, value in ((H, y), (C, 0.0), (PHH, sc2 + sw2), (PHC, -sc2), (PCC, sc2), (SPREAD, m.spread_m),
-                       (POSEV, m.pose_var_m2)):
-        np.copyto(f[row], value, where=new)
-    for row, value in ((U, u_px), (V, v_px), (SIGC, m.sigma_c_m),
-                       (SIG1, np.sqrt((sc2 + sw2) / max(1.0 - p.fixed_fraction, 1e-9))),
-                       (STEPR, m.step_per_sigma), (TANR, m.tan_slope_per_sigma)):
-        np.copyto(f[row], value, where=look)
-    grid.state[k] = st
-    kn = k[new]
-    grid.owner[kn] = cell_key(m.ix[new], m.iy[new])
-    grid.frames[kn] = 0
-    grid.rejected[kn] = 0
-    grid.column[kn] = False
-    grid.frames[k] += 1
-    grid.rejected[k[owned & ~ok]] += 1
-    grid.last_frame[k] = frame_index
-    _column(grid, view, k, f[H])
+    intr = m.intrinsics
+    T = np.asarray(m.T_world_camera, dtype=np.float64)
+    r, t = np.ascontiguousarray(T[:3, :3]), np.array(T[:3, 3])
+    cam = np.array([intr.fx, intr.fy, intr.cx, intr.cy], np.float64)
+    ix, iy = np.ascontiguousarray(m.ix, np.int64), np.ascontiguousarray(m.iy, np.int64)
+    y = np.ascontiguousarray(m.height_m, np.float64)
+    k, owned, u_px, v_px, shift = kernels.cell_shifts(grid.owner, grid.state, ix, iy, y, p.side_cells, p.cell_m, r,
+                                                      t, cam)
+    rho = np.exp(-shift / p.decorrelation_px)
+    np.minimum(rho, _RHO_MAX, out=rho)
+
+    def f64(a: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(a, np.float64)
+
+    new, rejected, nis = kernels.update_cells(
+        grid.owner, grid.state, grid.frames, grid.rejected, grid.column, grid.last_frame, k, owned, u_px, v_px, rho,
+        ix, iy, y, f64(m.sigma_w_m), f64(m.sigma_c_m), f64(m.spread_m), f64(m.pose_var_m2), p.gate_sigma ** 2,
+        max(1.0 - p.fixed_fraction, 1e-9), float(m.step_per_sigma), float(m.tan_slope_per_sigma), int(frame_index),
+        float(p.column_m), float(p.cell_m), r, t, cam, int(intr.width), int(intr.height))
     _sweep(grid, m)
-    so = shift[owned]
-    med = float(np.median(so)) if so.size else float("nan")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        nis = innov[owned] ** 2 / s_t[owned]
-    nis_med = float(np.median(nis)) if nis.size else float("nan")
-    return FuseStats(len(m), int(np.count_nonzero(new)), int(np.count_nonzero(owned & ~ok)), med, nis_med)
+    med = float(kernels.median_inplace(shift[owned]))
+    nis_med = float(kernels.median_inplace(nis))
+    return FuseStats(len(m), int(new), int(rejected), med, nis_med)
 
 
 def _sweep(grid: FusedGrid, m: FrameCells) -> None:
@@ -173,22 +139,7 @@ def _sweep(grid: FusedGrid, m: FrameCells) -> None:
     if last[0] != _EMPTY and max(abs(cx - int(last[0])), abs(cy - int(last[1]))) < max(1, s // 8):
         return
     grid.swept_at[:] = (cx, cy)
-    held = grid.owner != _EMPTY
-    keys = grid.owner
-    xs = keys >> 32
-    ys = (keys & 0xFFFFFFFF).astype(np.int64)
-    ys = np.where(ys >= 1 << 31, ys - (1 << 32), ys)
-    far = held & ((np.abs(xs - cx) > s // 2) | (np.abs(ys - cy) > s // 2))
-    grid.owner[far] = _EMPTY
-
-
-def _column(grid: FusedGrid, view: CellView, k: np.ndarray, h: np.ndarray) -> None:
-    """A cell's descent column counts as seen once any frame had the point ``column_m`` above it in view."""
-    u, v, front = view.at(h + grid.params.column_m)
-    intr = view.intr
-    with np.errstate(invalid="ignore"):
-        inside = front & (u >= -0.5) & (u <= intr.width - 0.5) & (v >= -0.5) & (v <= intr.height - 0.5)
-    grid.column[k[inside]] = True
+    kernels.sweep(grid.owner, cx, cy, s // 2, int(_EMPTY))
 
 
 @dataclass(frozen=True, eq=False)

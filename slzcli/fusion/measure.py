@@ -25,8 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from slzcli.config import Config
-from slzcli.geometry import fit_intrinsics, pixel_rays, valid_depth
-from slzcli.terrain.geometry import block_depth, median_depth_m
+from slzcli.fusion import kernels
+from slzcli.geometry import fit_intrinsics, pixel_rays
+from slzcli.terrain.geometry import DEPTH_SUBSAMPLE, median_depth_m
 from slzcli.terrain.noise import DepthNoise
 from slzcli.types import Intrinsics
 
@@ -161,105 +162,53 @@ def _a_vector(noise: DepthNoise) -> np.ndarray:
     return out
 
 
+def frame_median_m(depth_m: np.ndarray) -> float | None:
+    """``terrain.geometry.median_depth_m`` (a float32 frame's by one compiled pass)."""
+    if depth_m.dtype != np.float32 or depth_m.ndim != 2:
+        return median_depth_m(depth_m)
+    z = float(kernels.median_depth(kernels.readonly(depth_m, np.float32), DEPTH_SUBSAMPLE))
+    return z if math.isfinite(z) else None
+
+
 def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray, noise: DepthNoise,
                 params: FusionParams, step_per_sigma: float, tan_slope_per_sigma: float,
                 z_med: float | None = None) -> FrameCells | None:
     """The cells a frame saw and their height measurements (None: no depth). ``T_world_camera``: gravity-aligned;
     ``z_med``: the frame's median depth when the caller has it.
 
-    Vectorised over the block grid as a whole (the rays broadcast from a row and a column): samples without
-    depth, or beyond the window, go to one extra bin that is dropped, so nothing is gathered or compressed."""
+    The samples are binned by one compiled loop (``kernels.bin_samples``: numpy's passes over ~100,000 samples
+    were most of the fusion's time); samples without depth, or beyond the window, are skipped there."""
     depth = np.asarray(depth_m, dtype=np.float32)
     if z_med is None:
-        z_med = median_depth_m(depth)
+        z_med = frame_median_m(depth)
     if z_med is None:
         return None
     intr = fit_intrinsics(intrinsics, depth.shape)
     f = 0.5 * (intr.fx + intr.fy)
     m = sample_block_px(z_med, f, params)
-    valid = valid_depth(depth)
     if m > 1:
-        depth_b, ok = block_depth(depth, valid, m)
-        intr_b = fit_intrinsics(intr, depth_b.shape)
+        a, b = kernels.block_means(depth, m)
+        intr_b = fit_intrinsics(intr, a.shape)
     else:
-        depth_b, ok, intr_b = depth, valid, intr
-    all_ok = bool(ok.all())
-    if not all_ok and not ok.any():
-        return None
+        a, b, intr_b = depth, None, intr
     rx, ry = pixel_rays(intr_b)
-    z = depth_b if all_ok else np.where(ok, depth_b, np.float32(0))
     T = np.asarray(T_world_camera, dtype=np.float64)
-    R, t = T[:3, :3].astype(np.float32), T[:3, 3]
-    # float32 relative to the camera (4 um at 50 m), the camera's position added in float64 via the cell index
-    wx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * z
-    wy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * z
-    up = R[2, 0] * rx + R[2, 1] * ry + R[2, 2]        # vertical component of each sample's ray (z = 1)
-    wz = up * z
+    t = T[:3, 3]
+    # a sample's cell in float32 relative to the camera's (4 um at 50 m), the camera's own cell added as integers
     inv = 1.0 / params.cell_m
-    ix = _floor(wx, np.float32(t[0] % params.cell_m), np.float32(inv))
-    iy = _floor(wy, np.float32(t[1] % params.cell_m), np.float32(inv))
-    cx, cy = math.floor(t[0] * inv), math.floor(t[1] * inv)
-    # never more than the window: a frame wider than it keeps the cells nearest the camera
-    half = params.side_cells // 2 - 1
-    keep = None if all_ok else ok          # samples without depth sit at the camera's cell: in the window
-    x0, x1, y0, y1 = int(ix.min()), int(ix.max()), int(iy.min()), int(iy.max())
-    if max(-x0, x1, -y0, y1) > half:
-        near = (np.abs(ix) <= half) & (np.abs(iy) <= half)
-        keep = near if keep is None else keep & near
-        if not keep.any():
-            return None
-    if keep is not None:
-        x0, x1 = _bounds(ix, keep)
-        y0, y1 = _bounds(iy, keep)
-    nx = x1 - x0 + 1
-    size = nx * (y1 - y0 + 1)
-    # the bin index in float32 (whole numbers below 2^24: exact), one conversion to integers
-    ff = iy - np.float32(y0)
-    ff *= np.float32(nx)
-    ff += ix
-    ff -= np.float32(x0)
-    if keep is not None:
-        np.copyto(ff, np.float32(size), where=~keep)     # the dropped samples' bin
-    flat = ff.reshape(-1).astype(np.intp)
-    count = np.bincount(flat, minlength=size + 1)[:size]
-    idx = np.flatnonzero(count >= _MIN_SAMPLES)
-    n = count[idx].astype(np.float64)
-
-    def mean(values: np.ndarray) -> np.ndarray:
-        return np.bincount(flat, weights=values.reshape(-1), minlength=size + 1)[idx] / n
-
-    h = mean(wz)
-    spread = np.sqrt(np.maximum(mean(wz * wz) - h * h, 0.0))
-    h += t[2]
-    zc = mean(z)
-    upc = np.abs(mean(up))
+    cxy = (math.floor(t[0] * inv), math.floor(t[1] * inv))
+    rad2 = params.pose_sigma_rad ** 2 if params.pose_sigma_rad > 0 else 0.0
+    found, cells_x, cells_y, h, spread, zc, upc, pose_var = kernels.bin_frame(
+        a, b, rx, ry, T[:3, :3], t[0] % params.cell_m, t[1] % params.cell_m, inv, params.side_cells // 2 - 1,
+        _MIN_SAMPLES, t, params.cell_m, cxy, params.pose_sigma_m ** 2, rad2)
+    if not found:
+        return None
     sigma = cell_sigma_m(noise, zc, f, params.cell_m) * upc
     wf = params.white_fraction
     sw = sigma * math.sqrt(wf)
     sc = sigma * math.sqrt(1.0 - wf - params.fixed_fraction)
-    cells_x = idx % nx + x0 + cx
-    cells_y = idx // nx + y0 + cy
-    pose_var = np.full(idx.size, params.pose_sigma_m ** 2)
-    if params.pose_sigma_rad > 0:
-        r2 = ((cells_x + 0.5) * params.cell_m - t[0]) ** 2 + ((cells_y + 0.5) * params.cell_m - t[1]) ** 2
-        pose_var += r2 * params.pose_sigma_rad ** 2
     return FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
                       step_per_sigma, tan_slope_per_sigma)
-
-
-def _floor(w: np.ndarray, offset: np.float32, inv: np.float32) -> np.ndarray:
-    """floor((w + offset) inv), the cell index in float32 (whole numbers: exact below 2^24)."""
-    a = w + offset
-    np.multiply(a, inv, out=a)
-    np.floor(a, out=a)
-    return a
-
-
-def _bounds(i: np.ndarray, keep: np.ndarray) -> tuple[int, int]:
-    """(min, max) of ``i`` where ``keep``."""
-    lo = np.where(keep, i, np.inf).min()
-    hi = np.where(keep, i, -np.inf).max()
-    return int(lo), int(hi)
 
 
 def frame_limit_ratios(noise: DepthNoise, depth_m: float, focal_px: float, config: Config,
@@ -280,7 +229,7 @@ def frame_limit_ratios(noise: DepthNoise, depth_m: float, focal_px: float, confi
 def measure_frame(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray, noise: DepthNoise,
                   config: Config, params: FusionParams) -> FrameCells | None:
     """``frame_cells`` with the frame's limit ratios from its own noise and median depth."""
-    z = median_depth_m(np.asarray(depth_m))
+    z = frame_median_m(np.asarray(depth_m))
     if z is None:
         return None
     intr = fit_intrinsics(intrinsics, np.asarray(depth_m).shape)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from slzcli.config import Config
+from slzcli.fusion import kernels
 from slzcli.fusion.advice import Advice, advise
 from slzcli.fusion.grid import FusedGrid, FuseStats, fuse, region_around
 from slzcli.fusion.measure import FusionParams, frame_limit_ratios, measure_frame
@@ -46,6 +47,7 @@ class FusedTerrain:
 
     def __post_init__(self) -> None:
         self.params = FusionParams.from_config(self.config)
+        kernels.warm_up()     # the compiled loops ready before the run's first (timed) frame
 
     def add(self, depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray | None,
             noise: DepthNoise, segment: int, frame_index: int) -> FuseStats | None:

@@ -1,0 +1,416 @@
+"""The fusion's per-frame loops, compiled (numba): a frame's samples binned into cells, and the cells' update.
+
+Why compiled: a frame is ~100,000 samples and ~12,000 cells, and the array expressions of ``measure`` and
+``grid`` passed over them some 60 times (temporaries, masks, gathers, scatters, one ``np.bincount`` per
+mean): numpy's fixed cost per pass was most of the fusion's time. Each loop here does the same IEEE operations
+in the same order as the expressions it replaces (float32 where they were float32, weighted sums in sample
+order as ``np.bincount`` adds them), so the results are the same bits; ``exp`` and ``log``, whose numpy
+versions are vectorised and differ from libm's in the last bit, stay in numpy between the loops
+(tests/fusion/test_kernels.py holds the loops equal to the array expressions on random frames and grids).
+
+Compiled on first use and cached on disk beside this file (``cache=True``); ``warm_up`` does that before a
+run's first timed frame. ``nogil``: a thread that fuses does not hold up the others.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import cv2
+import numpy as np
+from numba import njit
+
+# the float fields of a grid slot (grid.FusedGrid.state's columns; grid.py names them)
+H, C, PHH, PHC, PCC, SIGC, SIG1, U, V, SPREAD, POSEV, STEPR, TANR = range(13)
+
+_jit = njit(cache=True, nogil=True, error_model="numpy")   # numpy's float errors: inf / nan, no exception
+
+
+@_jit
+def inverse_depth(depth):
+    """(1 / depth where it is finite and positive else 0, that validity as 1 / 0), both float32: the per-pixel
+    half of ``terrain.geometry.block_depth`` (whose block means ``cv2.resize`` takes), in one pass."""
+    inv = np.empty(depth.shape, np.float32)
+    valid = np.empty(depth.shape, np.float32)
+    one, zero = np.float32(1.0), np.float32(0.0)
+    for j in range(depth.shape[0]):
+        for i in range(depth.shape[1]):
+            d = depth[j, i]
+            if d > 0 and d < np.inf:
+                inv[j, i] = one / d
+                valid[j, i] = one
+            else:
+                inv[j, i] = zero
+                valid[j, i] = zero
+    return inv, valid
+
+
+@_jit
+def bin_samples(a, b, blocks, rx, ry, r, off_x, off_y, inv, half, min_samples, t, cell, cxy, pose_var2, rad2):
+    """One frame's samples binned into cells: per cell with ``min_samples`` or more, the means of the samples'
+    height (relative to the camera), squared height, depth and ray's vertical component, float64 sums in
+    sample order.
+
+    The samples: ``blocks``: block means, ``a`` of inverse depth and ``b`` of validity (``block_depth``: a
+    block needs half its pixels with depth; its depth is b / a); else ``a`` is the depth (finite and positive:
+    a sample). ``rx`` (W,), ``ry`` (H,): the rays; ``r``: the pose's rotation in float32; a sample's cell is
+    floor((w + off) inv) in float32 relative to the camera's cell ``cxy``. ``half``: cells farther than that
+    from the camera's cell in x or y are dropped when any sample is that far (the window). Returns (status,
+    cells_x, cells_y, h, spread, zc, upc, pose_var): status 0 with empty arrays when no sample was kept."""
+    n_rows, n_cols = a.shape
+    fx = np.empty((n_rows, n_cols), np.float32)
+    fy = np.empty((n_rows, n_cols), np.float32)
+    zs = np.empty((n_rows, n_cols), np.float32)
+    oks = np.empty((n_rows, n_cols), np.bool_)
+    zero = np.float32(0.0)
+    big = np.float32(np.inf)
+    ax0, ax1, ay0, ay1 = big, -big, big, -big     # bounds over every sample (those without depth sit at 0)
+    kx0, kx1, ky0, ky1 = big, -big, big, -big     # ... over the samples with depth
+    for j in range(n_rows):
+        y = ry[j]
+        bx = r[0, 1] * y
+        by = r[1, 1] * y
+        for i in range(n_cols):
+            if blocks:
+                num, den = a[j, i], b[j, i]
+                good = den >= 0.5 and num > 0
+                z = den / num if good else zero
+            else:
+                z = a[j, i]
+                good = z > 0 and z < big
+                if not good:
+                    z = zero
+            x = rx[i]
+            wx = (r[0, 0] * x + bx + r[0, 2]) * z
+            wy = (r[1, 0] * x + by + r[1, 2]) * z
+            ca = np.floor((wx + off_x) * inv)
+            cb = np.floor((wy + off_y) * inv)
+            fx[j, i] = ca
+            fy[j, i] = cb
+            zs[j, i] = z
+            oks[j, i] = good
+            ax0, ax1, ay0, ay1 = min(ax0, ca), max(ax1, ca), min(ay0, cb), max(ay1, cb)
+            if good:
+                kx0, kx1, ky0, ky1 = min(kx0, ca), max(kx1, ca), min(ky0, cb), max(ky1, cb)
+    fh = np.float32(half)
+    far = max(-ax0, ax1, -ay0, ay1) > fh
+    if far:   # the view is wider than the window: the samples near the camera's cell only
+        kx0, kx1, ky0, ky1 = big, -big, big, -big
+        for j in range(n_rows):
+            for i in range(n_cols):
+                ca, cb = fx[j, i], fy[j, i]
+                if oks[j, i] and abs(ca) <= fh and abs(cb) <= fh:
+                    kx0, kx1, ky0, ky1 = min(kx0, ca), max(kx1, ca), min(ky0, cb), max(ky1, cb)
+    if not kx0 <= kx1:
+        e = np.empty(0, np.float64)
+        return 0, np.empty(0, np.int64), np.empty(0, np.int64), e, e, e, e, e
+    x0, y0 = int(kx0), int(ky0)
+    nx = int(kx1) - x0 + 1
+    size = nx * (int(ky1) - y0 + 1)
+    count = np.zeros(size, np.int64)
+    sums = np.zeros((size, 4), np.float64)   # wz, wz^2, z, up
+    for j in range(n_rows):
+        y = ry[j]
+        bz = r[2, 1] * y
+        for i in range(n_cols):
+            if not oks[j, i]:
+                continue
+            ca, cb = fx[j, i], fy[j, i]
+            if far and not (abs(ca) <= fh and abs(cb) <= fh):
+                continue
+            k = (int(cb) - y0) * nx + int(ca) - x0
+            z = zs[j, i]
+            up = r[2, 0] * rx[i] + bz + r[2, 2]
+            wz = up * z
+            count[k] += 1
+            sums[k, 0] += wz
+            sums[k, 1] += wz * wz
+            sums[k, 2] += z
+            sums[k, 3] += up
+    cells = 0
+    for k in range(size):
+        if count[k] >= min_samples:
+            cells += 1
+    cells_x = np.empty(cells, np.int64)
+    cells_y = np.empty(cells, np.int64)
+    h = np.empty(cells, np.float64)
+    spread = np.empty(cells, np.float64)
+    zc = np.empty(cells, np.float64)
+    upc = np.empty(cells, np.float64)
+    pose_var = np.empty(cells, np.float64)
+    c = 0
+    for k in range(size):
+        if count[k] < min_samples:
+            continue
+        n = np.float64(count[k])
+        m = sums[k, 0] / n
+        d = sums[k, 1] / n - m * m
+        if d < 0.0:
+            d = 0.0
+        spread[c] = np.sqrt(d)
+        h[c] = m + t[2]
+        zc[c] = sums[k, 2] / n
+        upc[c] = abs(sums[k, 3] / n)
+        gx = k % nx + x0 + cxy[0]
+        gy = k // nx + y0 + cxy[1]
+        cells_x[c] = gx
+        cells_y[c] = gy
+        if rad2 > 0.0:
+            dx = (gx + 0.5) * cell - t[0]
+            dy = (gy + 0.5) * cell - t[1]
+            pose_var[c] = pose_var2 + (dx * dx + dy * dy) * rad2
+        else:
+            pose_var[c] = pose_var2
+        c += 1
+    return 1, cells_x, cells_y, h, spread, zc, upc, pose_var
+
+
+@_jit
+def _pixel(px, py, h, r, t, cam):
+    """Pixel (u, v) and depth of the point (px, py) from the camera in plan at height ``h``
+    (``measure.CellView.at``'s arithmetic)."""
+    pz = h - t[2]
+    xc = (r[0, 0] * px + r[1, 0] * py) + r[2, 0] * pz
+    yc = (r[0, 1] * px + r[1, 1] * py) + r[2, 1] * pz
+    zc = (r[0, 2] * px + r[1, 2] * py) + r[2, 2] * pz
+    return cam[0] * xc / zc + cam[2], cam[1] * yc / zc + cam[3], zc
+
+
+@_jit
+def cell_shifts(owner, state, ix, iy, y, side, cell, r, t, cam):
+    """Per cell of a frame: its slot, whether the slot holds it, its centre's pixel at its height (the fused
+    one when held, else the measured ``y``) and how far that moved in the image since the last look.
+    ``cam``: fx, fy, cx, cy."""
+    n = ix.size
+    slot = np.empty(n, np.int64)
+    owned = np.empty(n, np.bool_)
+    u = np.empty(n, np.float64)
+    v = np.empty(n, np.float64)
+    shift = np.empty(n, np.float64)
+    for c in range(n):
+        k = (iy[c] % side) * side + ix[c] % side
+        own = owner[k] == ((ix[c] << 32) ^ (iy[c] & 0xFFFFFFFF))
+        px = (ix[c] + 0.5) * cell - t[0]
+        py = (iy[c] + 0.5) * cell - t[1]
+        uc, vc, _ = _pixel(px, py, state[k, H] if own else y[c], r, t, cam)
+        slot[c], owned[c], u[c], v[c] = k, own, uc, vc
+        shift[c] = math.hypot(uc - state[k, U], vc - state[k, V])
+    return slot, owned, u, v, shift
+
+
+@_jit
+def _max(a, b):
+    """np.maximum: NaN when either is."""
+    return a if (a != a or a >= b) else b
+
+
+@_jit
+def _min(a, b):
+    return a if (a != a or a <= b) else b
+
+
+@_jit
+def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned, u, v, rho, ix, iy, y, sigma_w,
+                 sigma_c, spread, pose_var, gate2, sig1_den, step_ratio, tan_ratio, frame_index, column_m, cell,
+                 r, t, cam, width, height):
+    """The Kalman update of a frame's cells in their slots (in place; grid.fuse says what each step means).
+    Returns (new cells, rejected, the normalised innovation squared of the cells held before, in order)."""
+    n = slot.size
+    nis = np.empty(n, np.float64)
+    n_owned = 0
+    n_new = 0
+    n_rej = 0
+    for c in range(n):
+        k = slot[c]
+        own = owned[c]
+        sw2 = sigma_w[c] * sigma_w[c]
+        sc2 = sigma_c[c] * sigma_c[c]
+        rh = rho[c]
+        sc_old = state[k, SIGC]
+        g = rh * (sigma_c[c] / sc_old) if sc_old > 0 else rh * 1.0
+        cc = g * state[k, C]
+        p_hh = state[k, PHH]
+        p_hc = g * state[k, PHC]
+        p_cc = g * g * state[k, PCC] + (1.0 - rh * rh) * sc2
+        innov = y[c] - (state[k, H] + cc)
+        s_t = p_hh + 2.0 * p_hc + p_cc + sw2
+        ok = innov * innov <= gate2 * (s_t + pose_var[c])
+        if own:
+            nis[n_owned] = innov * innov / s_t
+            n_owned += 1
+            if ok:
+                kh = (p_hh + p_hc) / s_t
+                kc = (p_hc + p_cc) / s_t
+                state[k, H] = state[k, H] + kh * innov
+                state[k, C] = cc + kc * innov
+                state[k, PHH] = p_hh - kh * kh * s_t
+                state[k, PHC] = p_hc - kh * kc * s_t
+                state[k, PCC] = p_cc - kc * kc * s_t
+                state[k, SPREAD] = _max(state[k, SPREAD], spread[c])
+                state[k, POSEV] = _min(state[k, POSEV], pose_var[c])
+            else:
+                rejected[k] += 1
+                n_rej += 1
+        else:
+            n_new += 1
+            state[k, H] = y[c]
+            state[k, C] = 0.0
+            state[k, PHH] = sc2 + sw2
+            state[k, PHC] = -sc2
+            state[k, PCC] = sc2
+            state[k, SPREAD] = spread[c]
+            state[k, POSEV] = pose_var[c]
+            owner[k] = (ix[c] << 32) ^ (iy[c] & 0xFFFFFFFF)
+            frames[k] = 0
+            rejected[k] = 0
+            column[k] = False
+        if ok or not own:
+            state[k, U] = u[c]
+            state[k, V] = v[c]
+            state[k, SIGC] = sigma_c[c]
+            state[k, SIG1] = np.sqrt((sc2 + sw2) / sig1_den)
+            state[k, STEPR] = step_ratio
+            state[k, TANR] = tan_ratio
+        frames[k] += 1
+        last_frame[k] = frame_index
+        # the descent column: the point column_m above the cell's (updated) height in view
+        px = (ix[c] + 0.5) * cell - t[0]
+        py = (iy[c] + 0.5) * cell - t[1]
+        uc, vc, zc = _pixel(px, py, state[k, H] + column_m, r, t, cam)
+        if zc > 0 and uc >= -0.5 and uc <= width - 0.5 and vc >= -0.5 and vc <= height - 0.5:
+            column[k] = True
+    return n_new, n_rej, nis[:n_owned]
+
+
+@_jit
+def _select(a, k):
+    """The k-th smallest of ``a`` (no NaN), in place (quickselect, median-of-three pivot): after it,
+    a[:k] <= a[k] <= a[k + 1:]."""
+    lo, hi = 0, a.size - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        x, y, z = a[lo], a[mid], a[hi]
+        pivot = max(min(x, y), min(max(x, y), z))
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return a[k]
+
+
+@_jit
+def median_inplace(a):
+    """``np.median`` of ``a`` (NaN when any is NaN or there are none), reordering it: the middle value, or the
+    mean of the two middle ones summed in ``a``'s own type, as numpy's."""
+    n = a.size
+    if n == 0:
+        return np.nan
+    for i in range(n):
+        if a[i] != a[i]:
+            return np.nan
+    k = n // 2
+    hi = _select(a, k)
+    if n % 2:
+        return hi * 1.0
+    lo = a[0]
+    for i in range(1, k):
+        lo = max(lo, a[i])
+    return (lo + hi) * 0.5
+
+
+@_jit
+def median_depth(depth, step):
+    """``terrain.geometry.median_depth_m``: the median of the finite, positive depths on the grid of every
+    ``step``-th pixel (NaN: none)."""
+    buf = np.empty(((depth.shape[0] + step - 1) // step) * ((depth.shape[1] + step - 1) // step), depth.dtype)
+    n = 0
+    for j in range(0, depth.shape[0], step):
+        for i in range(0, depth.shape[1], step):
+            d = depth[j, i]
+            if d > 0 and d < np.inf:
+                buf[n] = d
+                n += 1
+    return median_inplace(buf[:n])
+
+
+@_jit
+def sweep(owner, cx, cy, reach, empty):
+    """Forget (owner = ``empty``) the cells more than ``reach`` cells from cell (cx, cy) in x or y."""
+    for k in range(owner.size):
+        key = owner[k]
+        if key == empty:
+            continue
+        x = key >> 32
+        y = key & 0xFFFFFFFF
+        if y >= 1 << 31:
+            y -= 1 << 32
+        if abs(x - cx) > reach or abs(y - cy) > reach:
+            owner[k] = empty
+
+
+def bin_frame(a: np.ndarray, b: np.ndarray | None, rx: np.ndarray, ry: np.ndarray, r: np.ndarray, off_x: float,
+              off_y: float, inv: float, half: int, min_samples: int, t: np.ndarray, cell: float, cxy: tuple[int, int],
+              pose_var2: float, rad2: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                      np.ndarray, np.ndarray]:
+    """``bin_samples`` with its arguments in the types it was compiled for (one compilation serves every frame):
+    ``b`` None: ``a`` is the depth, else the block means (inverse depth, validity)."""
+    f32 = np.float32
+    a = readonly(a, f32)
+    return bin_samples(a, a if b is None else readonly(b, f32), b is not None, readonly(rx.reshape(-1), f32),
+                       readonly(ry.reshape(-1), f32), np.array(r, f32), f32(off_x), f32(off_y), f32(inv), int(half),
+                       int(min_samples), np.array(t, np.float64), float(cell), np.array(cxy, np.int64),
+                       float(pose_var2), float(rad2))
+
+
+def block_means(depth: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Block x block means of inverse depth and of validity (``terrain.geometry.block_depth``'s, which
+    ``bin_samples`` turns into samples)."""
+    inv, valid = inverse_depth(readonly(depth, np.float32))
+    h, w = depth.shape
+    size = (max(1, w // block), max(1, h // block))
+    return (cv2.resize(inv, size, interpolation=cv2.INTER_AREA),
+            cv2.resize(valid, size, interpolation=cv2.INTER_AREA))
+
+
+def readonly(a: np.ndarray, dtype: type) -> np.ndarray:
+    """A contiguous read-only view (a copy only when the layout or type differs): the one array type compiled."""
+    v = np.ascontiguousarray(a, dtype).view()
+    v.flags.writeable = False
+    return v
+
+
+@functools.lru_cache(maxsize=1)
+def warm_up() -> None:
+    """Compile the loops (or load them from the disk cache) on a tiny frame, once per process, so that no
+    timed frame pays for it."""
+    r = np.eye(3)
+    t = np.zeros(3)
+    cam = np.ones(4)
+    one = np.ones((2, 2), np.float32)
+    for b in (None, one):
+        bin_frame(one, b, np.zeros(2), np.zeros(2), r, 0.0, 0.0, 1.0, 4, 2, t, 1.0, (0, 0), 0.0, 0.0)
+    block_means(one, 1)
+    median_depth(readonly(one, np.float32), 4)
+    median_inplace(np.zeros(2))
+    sweep(np.zeros(1, np.int64), 0, 0, 1, -1)
+    i = np.zeros(1, np.int64)
+    x = np.zeros(1)
+    owner = np.zeros(1, np.int64)
+    state = np.zeros((1, 13))
+    slot, owned, u, v, _ = cell_shifts(owner, state, i, i, x, 1, 1.0, r, t, cam)
+    update_cells(owner, state, np.zeros(1, np.int32), np.zeros(1, np.int32), np.zeros(1, bool),
+                 np.zeros(1, np.int64), slot, owned, u, v, x, i, i, x, x, x, x, x, 1.0, 1.0, 0.0, 0.0, 0, 1.0, 1.0,
+                 r, t, cam, 1, 1)
