@@ -324,6 +324,14 @@ class UavCfg:
 
 
 @schema
+class RaisedCfg:
+    radius_m: float = rng(0, lo_open=True)
+    ground_share: float = rng(0, 1, lo_open=True)
+    confidence_sigma: float = rng(0)
+    min_points: int = rng(1)
+
+
+@schema
 class LandingCfg:
     every_nth_frame: int = rng(1)
     kmeans_k: int = rng(1, 100)
@@ -338,6 +346,7 @@ class LandingCfg:
     commit_radius_factor: float = rng(0)
     commit_score_band: float = rng(0, 1)
     max_normal_pairs: int = rng(1)
+    raised: RaisedCfg
     commit: Literal["agree", "latest"] = "agree"
 
 

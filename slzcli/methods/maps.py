@@ -10,6 +10,7 @@ import time
 from dataclasses import dataclass
 
 from slzcli.config import Config, LandingCfg, UavCfg
+from slzcli.landing.raised import RaisedParams
 from slzcli.landing.select import SelectParams, select_site
 from slzcli.scoring import SCORERS, MaskParams, Scorer, mask_score
 from slzcli.types import Detection, TerrainMaps, TrackedFrame
@@ -21,7 +22,8 @@ def select_params(lc: LandingCfg, uav: UavCfg, rule: str, min_extent_factor: flo
         kmeans_k=lc.kmeans_k, normal_radius_m=lc.normal_radius_m, min_cluster_points=lc.min_cluster_points,
         footprint_m=(uav.footprint_m[0], uav.footprint_m[1]), min_extent_factor=min_extent_factor, rule=rule,
         seed=lc.seed, edge_clearance_m=lc.edge_clearance_factor * max(uav.size_m[:2]),
-        max_tilt_deg=uav.max_slope_deg, max_normal_pairs=lc.max_normal_pairs)
+        max_tilt_deg=uav.max_slope_deg, max_normal_pairs=lc.max_normal_pairs,
+        raised=RaisedParams.of(lc.raised, (uav.footprint_m[0], uav.footprint_m[1]), uav.margin_m, uav.max_step_m))
 
 
 @dataclass(frozen=True, eq=False)
