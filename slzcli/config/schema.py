@@ -325,10 +325,11 @@ class UavCfg:
 
 @schema
 class RaisedCfg:
-    radius_m: float = rng(0, lo_open=True)
+    ground_radius_m: float = rng(0, lo_open=True)
     ground_share: float = rng(0, 1, lo_open=True)
-    confidence_sigma: float = rng(0)
-    min_points: int = rng(1)
+    margin_sigma: float = rng(0)
+    min_cells: int = rng(1)
+    ground_cell_m: float = rng(0, lo_open=True)
 
 
 @schema

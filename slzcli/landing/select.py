@@ -89,8 +89,10 @@ def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray, max_pairs: i
 
 def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray, mask: np.ndarray,
                 score: np.ndarray, params: SelectParams, *, up_world: np.ndarray = WORLD_UP,
-                edge_distance_m: np.ndarray | None = None) -> Selection:
-    """Choose the landing site among the map points of one keyframe (METHOD 2.5)."""
+                edge_distance_m: np.ndarray | None = None, around_world: np.ndarray | None = None) -> Selection:
+    """Choose the landing site among the map points of one keyframe (METHOD 2.5); ``around_world``: the points
+    the raised-surface rule reads the ground around a cluster from (``raised.surroundings``; None: the map
+    points)."""
     n = xyz_world.shape[0]
     pixels, inside = project(xyz_world, T_world_camera, K, mask.shape)
     kept = np.zeros(n, bool)
@@ -116,7 +118,7 @@ def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray
     for c in range(k):  # k is a handful of clusters: not a per-point loop
         member = lab == c
         candidates.append(_candidate(c, pts[member], normals[member], min_extent, params, T_world_camera, K, mask,
-                                     xyz_world, up))
+                                     xyz_world if around_world is None else around_world, up))
     good = [c for c in candidates if c.qualifies]
     if not good:
         reasons = "; ".join(f"cluster {c.cluster}: {c.reason}" for c in candidates)

@@ -48,9 +48,9 @@ def check(xyz: np.ndarray, slope_deg: float = 0.0) -> Raised:
 @pytest.mark.parametrize("sigma", [0.01, 0.05, 0.3])
 def test_a_box_top_is_refused_with_its_height(sigma: float) -> None:
     """The mezzanine case, points with 0.01-0.3 m of height noise (0.3: the gaussian sensor's pixel at 10 m).
-    Measured over seeds 0-4: heights 1.792-1.796 (0.01), 1.760-1.779 (0.05), 1.562-1.676 (0.3: the quantile's
-    noise share z_q sigma comes off at the noise's upper bound, conservative), thresholds 0.10-0.60. Allowed
-    1.77 - sigma (margins 0.03, 0.04, 0.09) to 1.82 (margin 0.02)."""
+    Measured over seeds 0-4: heights 1.791-1.795 (0.01), 1.755-1.775 (0.05), 1.531-1.647 (0.3: the quantile's
+    noise share z_q sigma comes off at the noise's upper bound, conservative), thresholds 0.10-0.65. Allowed
+    1.77 - sigma (margins 0.03, 0.04, 0.06) to 1.82 (margin 0.02)."""
     for seed in SEEDS:
         r = check(scene(np.random.default_rng(seed), sigma=sigma, box_h=1.8))
         assert r.refused and r.measured
@@ -62,19 +62,19 @@ def test_a_box_top_is_refused_with_its_height(sigma: float) -> None:
 @pytest.mark.parametrize("sigma", [0.01, 0.05, 0.3])
 def test_a_site_on_a_5_degree_slope_is_not_refused(sigma: float) -> None:
     """The slope's own ground is the site's plane: its height above it is noise. Measured over seeds 0-4:
-    |height| <= 0.005 (0.01), 0.027 (0.05), 0.160 (0.3) against thresholds 0.10-0.60; allowed: not refused and
-    |height| <= 0.03 + 0.6 sigma (margins 0.031, 0.033, 0.05)."""
+    |height| <= 0.007 (0.01), 0.035 (0.05), 0.210 (0.3) against thresholds 0.10-0.65; allowed: not refused and
+    |height| <= 0.03 + 0.8 sigma (margins 0.031, 0.035, 0.06)."""
     for seed in SEEDS:
         r = check(scene(np.random.default_rng(seed), sigma=sigma, slope_deg=5.0), slope_deg=5.0)
         assert r.measured and not r.refused
-        assert abs(r.height_m or 0.0) <= 0.03 + 0.6 * sigma
+        assert abs(r.height_m or 0.0) <= 0.03 + 0.8 * sigma
 
 
 @pytest.mark.parametrize("sigma", [0.01, 0.03])
 def test_a_terrace_within_the_tolerance_is_not_refused_and_one_beyond_it_is(sigma: float) -> None:
     """A 0.05 m terrace (the UAV steps 0.09 m) is ground; 0.25 m is raised. Measured over seeds 0-4: heights
-    0.042-0.046 / 0.027-0.038 (0.05 m, sigma 0.01 / 0.03; thresholds 0.102-0.107 / 0.125-0.141), 0.242-0.246 /
-    0.226-0.238 (0.25 m). Allowed: within 0.01 + sigma of the true height (margins >= 0.012)."""
+    0.041-0.045 / 0.023-0.035 (0.05 m, sigma 0.01 / 0.03; thresholds 0.103-0.109 / 0.128-0.146), 0.241-0.245 /
+    0.223-0.235 (0.25 m). Allowed: within 0.01 + sigma of the true height (margins >= 0.011)."""
     for seed in SEEDS:
         low = check(scene(np.random.default_rng(seed), sigma=sigma, box_h=0.05))
         assert low.measured and not low.refused and abs((low.height_m or 0.0) - 0.05) <= 0.01 + sigma
@@ -83,7 +83,7 @@ def test_a_terrace_within_the_tolerance_is_not_refused_and_one_beyond_it_is(sigm
 
 
 def test_a_box_on_a_5_degree_slope_is_refused() -> None:
-    """A level box top on sloping ground: measured 1.758-1.798 over seeds 0-4; allowed 1.8 +- 0.1."""
+    """A level box top on sloping ground: measured 1.765-1.798 over seeds 0-4; allowed 1.8 +- 0.1."""
     for seed in SEEDS:
         r = check(scene(np.random.default_rng(seed), sigma=0.03, box_h=1.8, slope_deg=5.0))
         assert r.refused and abs((r.height_m or 0.0) - 1.8) <= 0.1
@@ -97,7 +97,7 @@ def test_too_few_points_around_is_not_measured_and_not_refused() -> None:
 
 def test_level_ground_is_never_refused_over_many_seeds() -> None:
     """False refusals on level ground: 0 in 200 seeds at each noise (the threshold is 3 standard errors); measured,
-    the height stayed 0.092 (sigma 0.01) and 0.142 m (0.3) below its threshold at the closest."""
+    the height stayed 0.093 (sigma 0.01) and 0.190 m (0.3) below its threshold at the closest."""
     for sigma in (0.01, 0.3):
         for seed in range(200):
             xyz = scene(np.random.default_rng(seed), sigma=sigma, n=1500)
@@ -105,10 +105,10 @@ def test_level_ground_is_never_refused_over_many_seeds() -> None:
 
 
 def test_the_params_come_from_config() -> None:
-    want = RaisedParams(0.09, 0.5 * math.hypot(0.856, 0.856), 3.0, 0.34, 3.0, 20)   # footprint 0.656 + 2 x 0.1 margin
+    want = RaisedParams(0.09, 0.5 * math.hypot(0.856, 0.856), 3.0, 0.34, 3.0, 20, 0.25)   # footprint + 2 margins
     assert dataclasses.replace(PARAMS, inner_radius_m=0.0) == dataclasses.replace(want, inner_radius_m=0.0)
     assert PARAMS.inner_radius_m == pytest.approx(want.inner_radius_m)
-    cfg = load_config(None, ["landing.raised.radius_m=5"])
+    cfg = load_config(None, ["landing.raised.ground_radius_m=5"])
     assert raised_params(cfg).radius_m == 5.0
 
 
@@ -177,7 +177,7 @@ def _safe_on_top(fm: FusedMaps) -> np.ndarray:
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_fused_site_is_not_on_a_box_top_the_verdict_calls_safe(seed: int) -> None:
     """The fused verdict calls the middle of the box top safe (every other rule passes: 22-23 of its 1080 cells,
-    seeds 0-2) and the rule refuses every one of them, measured at 1.796-1.801 m (threshold 0.091 m); allowed
+    seeds 0-2) and the rule refuses every one of them, measured at 1.796-1.801 m (threshold 0.092 m); allowed
     1.8 +- 0.1. With the ground made unsafe, the fused map's site is on the box without the rule and none with it."""
     fm = _fused(Block(*BOX, 1.8), seed=seed)
     top = _safe_on_top(fm)
@@ -196,8 +196,8 @@ def test_the_fused_site_is_not_on_a_box_top_the_verdict_calls_safe(seed: int) ->
 @pytest.mark.parametrize(("block", "slope_deg"), [(None, 5.0), (Block(*BOX, 0.05), 0.0)])
 def test_the_fused_site_on_a_slope_or_a_low_terrace_stays(block: Block | None, slope_deg: float) -> None:
     """A 5-degree slope, a 0.05 m terrace: the fused map's site is the same with the rule as without it, and no
-    safe cell of the terrace's top (649, seed 0) is refused: measured heights 0.033-0.049 m against a threshold of
-    0.092 (terrace; margin 0.04), -0.007-0.010 on the slope (1080 safe cells)."""
+    safe cell of the terrace's top (649, seed 0) is refused: measured heights 0.034-0.053 m against a threshold of
+    0.093 (terrace; margin 0.04), -0.008-0.011 on the slope (1080 safe cells)."""
     fm = _fused(block, slope_deg)
     site = best_site(fm)
     assert site is not None
