@@ -13,10 +13,10 @@ x, y. Already rendered flights are skipped.
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
+import harness
 import numpy as np
 
 SENSORS: dict[str, list[str]] = {
@@ -72,8 +72,8 @@ def render(out: Path, scene: str, altitude: float, sensor: str, motion: str, see
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--out", type=Path, required=True)
+    ap = harness.parser(__doc__, "fusion_render", out=False)   # renders, not a results file
+    ap.add_argument("--out", type=Path, required=True, help="folder of the rendered flights (.npz each)")
     ap.add_argument("--scenes", default="clear_field,parking_lot,office")
     ap.add_argument("--altitudes", default="7.5")
     ap.add_argument("--sensors", default="d435")

@@ -82,6 +82,18 @@ def write_results(path: Path, results: dict[str, Any], indent: int = 2, say: boo
         print(f"wrote {path}")
 
 
+def size_overrides(size: str) -> list[str]:
+    """``--set camera.*`` for a ``WxH`` render with the paper's field of view (fx = 462.137 px at 640 wide,
+    scaled with the width; the principal point in the middle): long renders at other sizes."""
+    width, height = (int(v) for v in size.lower().split("x"))
+    f = 462.137 * width / 640.0
+    out: list[str] = []
+    for key, value in (("width", width), ("height", height), ("fx", f), ("fy", f), ("cx", width / 2),
+                       ("cy", height / 2)):
+        out += ["--set", f"camera.{key}={value}"]
+    return out
+
+
 def git(*args: str) -> str:
     return subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True, check=True).stdout.strip()
 

@@ -27,11 +27,9 @@ fractions of the run's wall time: flat means memory does not grow with the frame
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import os
-import platform
 import resource
 import shutil
 import subprocess
@@ -40,36 +38,19 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-RESULTS = REPO / "benchmarks" / "results" / "long_run.json"
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
+import harness
+
+harness.use_test_helpers()
 from long_recording import write_ping_pong  # noqa: E402
 
+REPO = harness.REPO
 SAMPLE_S = 0.2
 RATE_HZ = 20.0
 
 
-def slz(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "slzcli.cli", *args], cwd=REPO, capture_output=True, text=True,
-                          check=False)
-
-
-def size_overrides(width: int, height: int) -> list[str]:
-    """camera.* for a WxH render with the paper's field of view (fx scales with the width)."""
-    f = 462.137 * width / 640.0
-    out = []
-    for key, value in (("width", width), ("height", height), ("fx", f), ("fy", f), ("cx", width / 2),
-                       ("cy", height / 2)):
-        out += ["--set", f"camera.{key}={value}"]
-    return out
-
-
-def render_seed(folder: Path, frames: int, width: int, height: int) -> Path:
+def render_seed(folder: Path, frames: int, size: str) -> Path:
     path = folder / "seed.mcap"
-    res = slz("synth", "parking_lot", "-o", str(path), "--frames", str(frames), *size_overrides(width, height))
-    if res.returncode != 0:
-        raise SystemExit(f"synth failed: {res.stderr}")
+    harness.slz("synth", "parking_lot", "-o", str(path), "--frames", str(frames), *harness.size_overrides(size))
     return path
 
 
@@ -177,7 +158,7 @@ def fusion_only(frames: int) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "long_run")
     ap.add_argument("--lengths", default="1000,10000")
     ap.add_argument("--size", default="640x480", help="WxH of the rendered frames")
     ap.add_argument("--seed-frames", type=int, default=100)
@@ -188,20 +169,17 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, help="work folder to keep (default: a temporary one)")
     ap.add_argument("--fusion-only", type=int, metavar="N", help="only the fused method's state over N frames, "
                     "in this process (no recording, no SLAM)")
-    ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     if args.fusion_only:
         row = fusion_only(args.fusion_only)
         print(json.dumps(row))
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"fusion_only": row, "cpus": os.cpu_count(), "python": platform.python_version(),
-                                        "load_avg": [round(v, 2) for v in os.getloadavg()]}, indent=1) + "\n")
+        harness.write_results(args.out, {"fusion_only": row})
         return
     lengths = [int(x) for x in args.lengths.split(",")]
     width, height = (int(v) for v in args.size.lower().split("x"))
     work = args.keep or Path(tempfile.mkdtemp(prefix="slz_long_"))
     work.mkdir(parents=True, exist_ok=True)
-    seed = render_seed(work, args.seed_frames, width, height)
+    seed = render_seed(work, args.seed_frames, args.size)
     all_modes = {"keyframes": [], "every": ["landing.detect_on=every_nth", f"landing.every_nth_frame={args.every}"]}
     modes = {m if m != "every" else f"every_{args.every}": all_modes[m] for m in args.modes.split(",")}
     rows = []
@@ -235,13 +213,10 @@ def main() -> None:
             print(f"{mode}: peak RSS {max(by_n)} vs {min(by_n)} frames = x{ratios[mode]['peak_rss_ratio']} "
                   f"({ratios[mode]['peak_rss_delta_mb']:+} MiB); "
                   f"ORB-SLAM3 worker x{ratios[mode]['orbslam3_rss_ratio']}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({
+    harness.write_results(args.out, {
         "method": args.method, "size": [width, height], "seed_frames": args.seed_frames, "rows": rows, "ratios": ratios,
-        "largest_process_peak_mb": round(largest, 1), "cpus": os.cpu_count(), "python": platform.python_version(),
-        "load_avg": [round(v, 2) for v in os.getloadavg()], "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-    }, indent=1) + "\n")
-    print(f"wrote {args.out}")
+        "largest_process_peak_mb": round(largest, 1), "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
+        indent=1)
     if args.keep is None:
         shutil.rmtree(work, ignore_errors=True)  # the run folders: ~5 GB at 10,000 frames
 

@@ -33,20 +33,16 @@ bit-reproducible, benchmarks/reproducibility.py). Writes benchmarks/results/thro
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import platform
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parent.parent
-RESULTS = REPO / "benchmarks" / "results" / "throughput.json"
+import harness
+
 SEQUENTIAL = ("slam.track_ahead=false", "output.write_queue=0")
 EVERY_FRAME = ("landing.detect_on=every_nth", "landing.every_nth_frame=1")
 FUSED = ("--method", "fused")
@@ -62,27 +58,11 @@ REFERENCE = {"overlapped": "sequential", "every frame, overlapped": "every frame
              "fused": "fused, sequential"}
 
 
-def slz(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "slzcli.cli", *args], cwd=REPO, capture_output=True, text=True,
-                          check=False)
-
-
-def size_overrides(size: str) -> list[str]:
-    """camera.* for a WxH render with the paper's field of view (fx scales with the width)."""
-    width, height = (int(v) for v in size.lower().split("x"))
-    f = 462.137 * width / 640.0
-    out: list[str] = []
-    for key, value in (("width", width), ("height", height), ("fx", f), ("fy", f), ("cx", width / 2),
-                       ("cy", height / 2)):
-        out += ["--set", f"camera.{key}={value}"]
-    return out
-
-
 def render(folder: Path, frames: int, seed_frames: int, size: str = "640x480") -> Path:
     """A ``seed_frames`` descent rendered by `slz synth`, played forwards and backwards to ``frames`` frames at
     15 Hz (tests/long_recording.py: the motion stays continuous, SLAM keeps tracking; rendering 300 stereo frames
     takes the renderer longer than the benchmark itself)."""
-    sys.path.insert(0, str(REPO / "tests"))
+    harness.use_test_helpers()
     from long_recording import write_ping_pong
 
     from slzcli.config import load_config
@@ -90,10 +70,8 @@ def render(folder: Path, frames: int, seed_frames: int, size: str = "640x480") -
     tag = "" if size == "640x480" else f"_{size}"
     seed = folder / f"descent_{seed_frames}{tag}.mcap"
     if not seed.exists():
-        res = slz("synth", "parking_lot", "-o", str(seed), "--frames", str(seed_frames), "--rate", "15",
-                  "--path", "descent", "--start", "0,0,8", *size_overrides(size))
-        if res.returncode != 0:
-            raise SystemExit(f"synth failed: {res.stderr}")
+        harness.slz("synth", "parking_lot", "-o", str(seed), "--frames", str(seed_frames), "--rate", "15",
+                    "--path", "descent", "--start", "0,0,8", *harness.size_overrides(size))
     path = folder / f"descent_{seed_frames}{tag}_x{frames}.mcap"
     if not path.exists():
         write_ping_pong(seed, path, frames, load_config(), rate_hz=15.0)
@@ -112,10 +90,8 @@ def cli_args(sets: tuple[str, ...]) -> list[str]:
 def run(recording: Path, out: Path, sets: tuple[str, ...]) -> dict[str, Any]:
     cmd = ["detect", str(recording), "-o", str(out), "--json", "--force", *cli_args(sets)]
     t0 = time.perf_counter()
-    res = slz(*cmd)
+    res = harness.slz(*cmd)
     wall = time.perf_counter() - t0
-    if res.returncode != 0:
-        raise SystemExit(f"detect failed ({' '.join(sets)}): {res.stderr.strip()}")
     summary = json.loads(res.stdout)
     timings = json.loads((out / "run.json").read_text())["timings"]
     landing = json.loads((out / "landing.json").read_text())
@@ -135,7 +111,7 @@ def run(recording: Path, out: Path, sets: tuple[str, ...]) -> dict[str, Any]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, "throughput")
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--seed-frames", type=int, default=100, help="frames rendered (then played ping-pong)")
     ap.add_argument("--repeats", type=int, default=2)
@@ -145,7 +121,6 @@ def main() -> None:
     ap.add_argument("--variants", default=";".join(VARIANTS), help="a subset of: " + "; ".join(VARIANTS)
                     + " (separated by ';')")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
-    ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="slz_throughput_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -178,12 +153,8 @@ def main() -> None:
               f"{stages.get('slam', nan):>6.1f} {stages.get('slam_wait', nan):>6.1f} "
               f"{stages.get('maps', nan):>6.1f} {stages.get('fuse', nan):>6.1f} {stages.get('write', nan):>6.1f} "
               f"{stages.get('write_wait', float('nan')):>6.1f}  {runs[0]['site']}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"frames": args.frames, "repeats": args.repeats, "base": list(base),
-                                    "size": args.size,
-                                    "cpus": os.cpu_count(), "python": platform.python_version(),
-                                    "load_avg_at_end": os.getloadavg(), "variants": table}, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    harness.write_results(args.out, {"frames": args.frames, "repeats": args.repeats, "base": list(base),
+                                     "size": args.size, "variants": table})
 
 
 if __name__ == "__main__":

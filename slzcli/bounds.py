@@ -176,7 +176,7 @@ def load_json(path: Path | str, what: str, limit: int = MAX_JSON_BYTES) -> Any:
     return doc
 
 
-def json_depth(doc: Any) -> int:
+def json_depth(doc: object) -> int:
     """Nesting depth of a parsed JSON value, without recursion (1 for a scalar)."""
     deepest, stack = 0, [(doc, 1)]
     while stack:

@@ -13,9 +13,9 @@ import math
 import sys
 import threading
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TextIO, TypeVar
 
 import click
 
@@ -35,6 +35,12 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("slzcli")
 
+# What a command returns to ``common_options``: the ``--json`` object (printed through ``json_text``) and the
+# text printed without ``--json``.
+CommandResult = tuple[Mapping[str, object], str]
+Command = Callable[..., CommandResult | None]  # a command body: the parsed options as keywords, ``config`` resolved
+CallbackT = TypeVar("CallbackT", bound=Callable[..., object])  # a click callback, returned as it was
+
 
 # ----------------------------------------------------------------------------- shared plumbing
 LAYERS = "slz.config_layers"  # click context meta key: (profile, config file, --set items) as given
@@ -45,7 +51,7 @@ def _layers() -> tuple[str | None, Path | None, tuple[str, ...]]:
     return layers
 
 
-def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+def common_options(fn: Command) -> Callable[..., None]:
     """--profile, --config, --set, --json and -v on every command; the resolved Config is passed as ``config``.
 
     The layers as given are kept in the click context (``LAYERS``) for commands that resolve more
@@ -63,7 +69,7 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
     @functools.wraps(fn)
     def wrapper(profile: str | None, config_file: Path | None, overrides: tuple[str, ...], as_json: bool,
-                verbose: int, **kwargs: Any) -> None:
+                verbose: int, **kwargs: object) -> None:
         warned = _setup_logging(verbose)
         click.get_current_context().meta[LAYERS] = (profile, config_file, overrides)
         try:
@@ -101,7 +107,7 @@ def common_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def camera_option(fn: Callable[..., Any]) -> Callable[..., Any]:
+def camera_option(fn: Callable[..., None]) -> Callable[..., None]:
     """``--camera NAME``: the camera preset (configs/camera/NAME.yaml, auto or none), as ``--set camera.preset=NAME``.
 
     Put it above ``@common_options``: it becomes the last override, so it wins over --set and --config.
@@ -114,7 +120,7 @@ def camera_option(fn: Callable[..., Any]) -> Callable[..., Any]:
                   help="Camera preset: topic layout, intrinsics without CameraInfo, noise prior "
                        "(default: camera.preset, auto = guessed; slz info says which).")
     @functools.wraps(fn)
-    def wrapper(camera: str | None, overrides: tuple[str, ...] = (), **kwargs: Any) -> Any:
+    def wrapper(camera: str | None, overrides: tuple[str, ...] = (), **kwargs: object) -> None:
         if camera is not None:
             overrides = (*overrides, f"camera.preset={camera}")
         return fn(overrides=overrides, **kwargs)
@@ -174,8 +180,8 @@ class _SlzGroup(click.Group):
     """The ``slz`` group: usage errors (exit 2) in slz's one error style, ``slz: error: ...`` after the
     usage line; under ``--json`` also the error object on stdout."""
 
-    def main(self, args: Any = None, prog_name: str | None = None, complete_var: str | None = None,
-             standalone_mode: bool = True, **extra: Any) -> Any:
+    def main(self, args: Sequence[str] | None = None, prog_name: str | None = None, complete_var: str | None = None,
+             standalone_mode: bool = True, **extra: Any) -> Any:  # click's own (overloaded on standalone_mode)
         argv = list(sys.argv[1:] if args is None else args)
         if not standalone_mode:
             return super().main(argv, prog_name, complete_var, standalone_mode, **extra)
@@ -213,7 +219,7 @@ class _WarningLines:
         self.seen: dict[tuple[str, str], int] = {}
 
     def __call__(self, message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                 file: Any = None, line: str | None = None) -> None:
+                 file: TextIO | None = None, line: str | None = None) -> None:
         key = (category.__name__, " ".join(str(message).split()))
         self.seen[key] = self.seen.get(key, 0) + 1
         if self.seen[key] == 1:
@@ -270,7 +276,7 @@ def _time_bound(ctx: click.Context, param: click.Parameter, value: str | None) -
     return kind, seconds
 
 
-def window_options(fn: Callable[..., Any]) -> Callable[..., Any]:
+def window_options(fn: CallbackT) -> CallbackT:
     """--start, --end, --stride, --max-frames: the part of a recording read (config sources.window)."""
     for option in reversed([
         click.option("--start", "win_start", callback=_time_bound, metavar="S|@STAMP",
@@ -287,23 +293,25 @@ def window_options(fn: Callable[..., Any]) -> Callable[..., Any]:
     return fn
 
 
+def _seconds(bound: WindowBound, kind: str) -> float | None:
+    """The bound's seconds when it is of ``kind`` ("offset" or "stamp"), else None."""
+    return bound[1] if bound[0] == kind else None
+
+
 def _windowed(config: Config, start: WindowBound | None, end: WindowBound | None, stride: int | None,
               max_frames: int | None) -> Config:
     """``config`` with the window options in sources.window (so they are in run.json and the rerun key)."""
-    w = config.sources.window
-    changes: dict[str, Any] = {}
-    for name, bound in (("start", start), ("end", end)):
-        if bound is not None:
-            kind, seconds = bound
-            changes[f"{name}_s"] = seconds if kind == "offset" else None
-            changes[f"{name}_stamp_s"] = seconds if kind == "stamp" else None
+    given = w = config.sources.window
+    if start is not None:
+        w = dataclasses.replace(w, start_s=_seconds(start, "offset"), start_stamp_s=_seconds(start, "stamp"))
+    if end is not None:
+        w = dataclasses.replace(w, end_s=_seconds(end, "offset"), end_stamp_s=_seconds(end, "stamp"))
     if stride is not None:
-        changes["stride"] = stride
+        w = dataclasses.replace(w, stride=stride)
     if max_frames is not None:
-        changes["max_frames"] = max_frames
-    if not changes:
+        w = dataclasses.replace(w, max_frames=max_frames)
+    if w is given:
         return config
-    w = dataclasses.replace(w, **changes)
     if start is not None and end is not None and start[0] == end[0] and end[1] <= start[1]:
         raise click.BadParameter(f"--end must be later than --start ({end[1]:g} <= {start[1]:g} s)",
                                  param_hint="'--end'")
@@ -360,7 +368,7 @@ def config_group() -> None:
 
 @config_group.command("dump", short_help="Print the resolved config with each key's source.")
 @common_options
-def config_dump(config: Config) -> tuple[dict[str, Any], str]:
+def config_dump(config: Config) -> CommandResult:
     """Print the resolved config (defaults + --profile + --config + --set), each key with its source.
 
     With --json: the config as one JSON object (no comments).
@@ -382,7 +390,7 @@ def config_dump(config: Config) -> tuple[dict[str, Any], str]:
 @camera_option
 @common_options
 def info_cmd(config: Config, bag: Path, win_start: WindowBound | None, win_end: WindowBound | None,
-             stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
+             stride: int | None, max_frames: int | None) -> CommandResult:
     """Show what slz reads from BAG: topics, rates, the streams it would use and why, intrinsics, frames.
 
     Pairable frames are counted within --start/--end/--stride/--max-frames when given.
@@ -417,7 +425,7 @@ def vocab_group() -> None:
               help="Vocabulary file to write (DBoW2 text format).")
 @click.option("--force", is_flag=True, help="Replace an existing vocabulary file (never any other file).")
 @common_options
-def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path, force: bool) -> tuple[dict[str, Any], str]:
+def vocab_build(config: Config, recordings: tuple[Path, ...], output: Path, force: bool) -> CommandResult:
     """Train a DBoW2 ORB vocabulary from RECORDINGS (slam.vocab.* sets k, levels, frames).
 
     \b
@@ -462,8 +470,8 @@ class FiniteFloatRange(click.FloatRange):
             return f"x{'>' if self.min_open else '>='}{self.min:g}"
         return super()._describe_range()
 
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        rv = super().convert(value, param, ctx)
+    def convert(self, value: float, param: click.Parameter | None, ctx: click.Context | None) -> float:
+        rv: float = super().convert(value, param, ctx)
         if not math.isfinite(rv):
             self.fail(f"{rv} is not a finite number", param, ctx)
         return rv
@@ -493,7 +501,7 @@ def land_group() -> None:
 @common_options
 def land_simulate(config: Config, run: Path, output: Path | None, scenario: int | None,
                   start: tuple[float, ...] | None, offset: tuple[float, ...] | None, runs: int,
-                  seed: int | None) -> tuple[dict[str, Any], str]:
+                  seed: int | None) -> CommandResult:
     """Simulate the image-moment IBVS descent onto the site of RUN/landing.json (docs/METHOD.md 2.6-2.9).
 
     \b
@@ -511,7 +519,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
     from slzcli import bounds
 
     bounds.check(bounds.simulation_sizes(config, runs))
-    target, _ = ibvs_out.read_target(run, config.uav.footprint_m)
+    target = ibvs_out.read_target(run, config.uav.footprint_m)
     target = check_target(ibvs_out.landing_path(run), target, config.uav.footprint_m,
                           config.control.sim.target_tolerance)
     out = output or ibvs_out.landing_path(run).parent / "ibvs"
@@ -567,7 +575,7 @@ def land_simulate(config: Config, run: Path, output: Path | None, scenario: int 
 def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scenes: bool, frames: int | None,
               scenario: int | None, start: tuple[float, ...] | None, seed: int | None, fmt: str,
               depth_encoding: str, color_encoding: str, rate_hz: float | None, path_kind: PathKind | None,
-              variants: tuple[str, ...], sheet: Path | None, force: bool) -> tuple[dict[str, Any], str]:
+              variants: tuple[str, ...], sheet: Path | None, force: bool) -> CommandResult:
     """Render a ground-truthed RGB-D recording of SCENE (datasets/scenes) with a .gt.npz sidecar.
 
     \b
@@ -603,7 +611,7 @@ def synth_cmd(config: Config, scene: str | None, output: Path | None, list_scene
     return summary, text
 
 
-def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+def timeout_option(help_text: str) -> Callable[[CallbackT], CallbackT]:
     """``--timeout SECONDS``: a bound on each stage of a run (slzcli/timeout.py)."""
     # The largest wait both SIGALRM's setitimer and threading.Timer accept (about 292 years).
     return click.option("--timeout", "timeout_s", type=FiniteFloatRange(0, threading.TIMEOUT_MAX, min_open=True),
@@ -637,7 +645,7 @@ def timeout_option(help_text: str) -> Callable[[Callable[..., Any]], Callable[..
 def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None, method: str | None,
                force: bool, workers: int | None, scheduler: str | None, outputs: OutputLevel | None,
                timeout_s: float | None, win_start: WindowBound | None, win_end: WindowBound | None,
-               stride: int | None, max_frames: int | None) -> tuple[dict[str, Any], str]:
+               stride: int | None, max_frames: int | None) -> CommandResult:
     """Find the landing site in each recording: terrain maps, fuzzy score, safety mask, SLAM points, site.
 
     RECORDINGS are paths or quoted glob patterns; each gets a run folder with report.html.
@@ -756,7 +764,7 @@ def _warn_untracked(s: RunSummary | None) -> None:
 def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | None, profiles: str | None,
                 output: Path | None, variants: bool, force: bool, timeout_s: float | None,
                 win_start: WindowBound | None, win_end: WindowBound | None, stride: int | None,
-                max_frames: int | None) -> tuple[dict[str, Any], str]:
+                max_frames: int | None) -> CommandResult:
     """Compare fusion methods (fuzzy, Bayes, px4slp) on the same frames and SLAM points.
 
     Time, agreement and, for slz synth recordings, accuracy against ground truth. With --profiles:
@@ -792,7 +800,7 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
 
 def _compare_profiles(recordings: tuple[Path, ...], profiles: str, methods: str | None, out: Path, variants: bool,
                       force: bool, timeout_s: float | None,
-                      window: Callable[[Config], Config]) -> tuple[dict[str, Any], str]:
+                      window: Callable[[Config], Config]) -> CommandResult:
     """``slz compare --profiles``: each profile's config with the command's --config and --set over it."""
     from slzcli.compare import compare_profiles, profile_table
     from slzcli.errors import ConfigError

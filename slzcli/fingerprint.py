@@ -23,7 +23,7 @@ import json
 from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Any, TypedDict, cast
+from typing import TypedDict, cast
 
 from slzcli.config import Config
 from slzcli.scoring.rules import resolve_rules_path
@@ -116,17 +116,29 @@ def run_key(config: Config, method: str, inputs: dict[str, list[Entry]], vers: d
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
-def cache_of(run: dict[str, Any] | None) -> dict[str, Entry]:
+class Binding(TypedDict):
+    """A file a ground-truth sidecar is bound to (the sidecar header's ``BINDING_KEY`` rows)."""
+
+    size: int
+    sha256: str
+
+
+def _section(value: object) -> Mapping[str, object]:
+    """A JSON object of a file read back, or an empty one when it is missing or not an object."""
+    return value if isinstance(value, dict) else {}
+
+
+def cache_of(run: Mapping[str, object] | None) -> dict[str, Entry]:
     """The digests a previous run.json recorded, by resolved path (empty when there are none). Rows as read:
     ``digest`` trusts one only when its identity fields equal the file's and its sha256 is a string."""
-    inputs = ((run or {}).get("key") or {}).get("inputs") or {}
+    inputs = _section(_section(run).get("key")).get("inputs")
     if not isinstance(inputs, dict):
         return {}
     return {e["path"]: cast(Entry, e) for entries in inputs.values() if isinstance(entries, list)
             for e in entries if isinstance(e, dict) and isinstance(e.get("path"), str)}
 
 
-def what_changed(run: dict[str, Any], config: Config, method: str, inputs: dict[str, list[Entry]],
+def what_changed(run: Mapping[str, object], config: Config, method: str, inputs: dict[str, list[Entry]],
                  vers: dict[str, str | None]) -> str:
     """Why a previous run's key differs from this one, in a few words (for the refusal message)."""
     key = run.get("key")
@@ -139,8 +151,9 @@ def what_changed(run: dict[str, Any], config: Config, method: str, inputs: dict[
         diff = _first_difference(old_cfg, json.loads(json.dumps(config.to_dict())))  # tuples as JSON lists
         if diff:
             return f"config {diff}"
-    if run.get("summary", {}).get("method") not in (None, method):
-        return f"method {run['summary']['method']} -> {method}"
+    old_method = _section(run.get("summary")).get("method")
+    if old_method not in (None, method):
+        return f"method {old_method} -> {method}"
     if key.get("versions") != vers:
         return f"versions {key.get('versions')} -> {vers}"
     old_inputs = key.get("inputs") or {}
@@ -170,12 +183,12 @@ def _first_difference(a: object, b: object, prefix: str = "") -> str:
 
 
 # ----------------------------------------------------------------------------- ground-truth sidecars
-def recording_binding(recording: Path, cache: dict[str, Entry] | None = None) -> list[dict[str, Any]]:
+def recording_binding(recording: Path, cache: dict[str, Entry] | None = None) -> list[Binding]:
     """What binds a sidecar to its recording: size and sha256 of every file the recording's reader reads
     (``fingerprint.recording_files``), sorted by digest (names are left out: renaming a recording and its
     sidecars together keeps them bound). ``cache``: digests already taken (``fingerprint.digest``)."""
     entries = [digest(q, cache or {}) for q in recording_files(Path(recording))]
-    return sorted(({"size": int(e["size"]), "sha256": str(e["sha256"])} for e in entries),
+    return sorted((Binding(size=int(e["size"]), sha256=str(e["sha256"])) for e in entries),
                   key=lambda e: (e["sha256"], e["size"]))
 
 
@@ -190,7 +203,9 @@ def binding_problem(header: Mapping[str, object], recording: Path, cache: dict[s
     now = recording_binding(recording, cache)
     if bound == now:
         return None
-    def short(entries: Any) -> str:
+    def short(entries: object) -> str:
+        if not isinstance(entries, list):
+            return "unreadable"
         try:
             return ", ".join(f"{e['sha256'][:12]} ({e['size']} B)" for e in entries) or "no file"
         except (TypeError, KeyError, IndexError):

@@ -26,11 +26,11 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
-from slzcli.types import MASK_STEPS, MaskFunnel
+from slzcli.types import MASK_STEPS, Detection, MaskFunnel, TerrainMaps
 
 STEP_TEXT = {"threshold": "the score threshold", "footprint": "the footprint clearance",
              "column": "the descent column", "noise": "the noise limits"}
@@ -55,6 +55,38 @@ def mask_funnel(pixels: int, counts: tuple[int, ...], threshold: float, best_sco
     return MaskFunnel(pixels, tuple(left), threshold, best_score, side_m, column_m, depth_m, view_m)
 
 
+class ClusterRow(TypedDict):
+    points: int
+    failed: str | None   # the first test it failed (None: it qualifies)
+
+
+class FrameRow(TypedDict, total=False):
+    """A frame's row in run.json ``funnel.frames`` (``mask_px`` ... ``emptied_by`` only with mask counts,
+    ``weakest_map`` only when the threshold emptied the mask, ``note`` only when no selection ran)."""
+
+    frame: int
+    mask_px: dict[str, int]
+    best_score: float | None
+    emptied_by: str | None
+    weakest_map: dict[str, object]
+    map_points: dict[str, int] | None
+    clusters: list[ClusterRow]
+    site: dict[str, object] | None
+    note: str
+
+
+class FunnelDoc(TypedDict):
+    """run.json ``funnel``."""
+
+    steps: tuple[str, ...]
+    mask_px: dict[str, int]
+    frames_emptied_by: dict[str, int]
+    map_points: dict[str, int]
+    clusters: int
+    clusters_failed: dict[str, int]
+    frames: list[FrameRow]
+
+
 @dataclass(frozen=True)
 class FrameFunnel:
     """One detection frame's funnel: the mask steps, then the map points, clusters and site."""
@@ -68,10 +100,10 @@ class FrameFunnel:
     note: str = ""                               # why no selection ran (no pose, no map points, not vouched)
     raised: str = ""                             # the largest cluster refused as raised: its reason
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> FrameRow:
         """The frame's row in run.json ``funnel.frames``."""
         m = self.mask
-        out: dict[str, Any] = {"frame": self.frame}
+        out: FrameRow = {"frame": self.frame}
         if m is not None:
             out["mask_px"] = dict(zip(MASK_STEPS, m.left, strict=True))
             out["best_score"] = None if m.best_score is None else round(m.best_score, 4)
@@ -88,7 +120,7 @@ class FrameFunnel:
         return out
 
 
-def frame_funnel(det: Any) -> FrameFunnel:
+def frame_funnel(det: Detection) -> FrameFunnel:
     """The funnel of a ``types.Detection`` (its ScoreMap's mask counts, its selection)."""
     mask: MaskFunnel | None = det.score.funnel
     weakest = None
@@ -109,7 +141,7 @@ def frame_funnel(det: Any) -> FrameFunnel:
     return FrameFunnel(det.frame.index, mask, (n, int(sel.in_view), on_mask), clusters, site, weakest, raised=lead)
 
 
-def weakest_map(maps: Any) -> tuple[str, float, float] | None:
+def weakest_map(maps: TerrainMaps) -> tuple[str, float, float] | None:
     """The terrain map with the lowest median over the pixels with depth (on a coarse grid), and the
     median slope (deg): which cue kept the score below the threshold."""
     valid = maps.valid[::_SAMPLE_PX, ::_SAMPLE_PX]
@@ -137,7 +169,7 @@ class FunnelLog:
         masks = [f.mask for f in self.rows if f.mask is not None]
         return bool(masks) and all(m.left[-1] == 0 for m in masks)
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> FunnelDoc:
         """run.json ``funnel``: the per-step sums over the detection frames, and every frame's row."""
         masks = [f.mask for f in self.rows if f.mask is not None]
         emptied = Counter(e for m in masks if (e := m.emptied_by()) is not None)

@@ -19,27 +19,30 @@ import contextlib
 import signal
 import threading
 from collections.abc import Callable, Iterator
-from typing import Any, TypeVar
+from types import FrameType
+from typing import ParamSpec, TypeVar
 
 T = TypeVar("T")
+P = ParamSpec("P")
 _running: set[threading.Event] = set()   # computations started and not yet finished
 
 
-def call_interruptibly(fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+def call_interruptibly(fn: Callable[P, T], *args: P.args, **kwargs: P.kwargs) -> T:
     """``fn(*args, **kwargs)``, waited for so that signals reach the main thread while it runs.
 
     Off the main thread (a Dask worker's task thread) signals cannot arrive anyway: a plain call.
     """
     if threading.current_thread() is not threading.main_thread():
         return fn(*args, **kwargs)
-    outcome: dict[str, Any] = {}
+    value: list[T] = []                 # what fn returned, once it has
+    error: list[BaseException] = []
     done = threading.Event()
 
     def work() -> None:
         try:
-            outcome["value"] = fn(*args, **kwargs)
+            value.append(fn(*args, **kwargs))
         except BaseException as err:  # handed to the caller's thread as it is
-            outcome["error"] = err
+            error.append(err)
         finally:
             done.set()
             _running.discard(done)
@@ -50,9 +53,9 @@ def call_interruptibly(fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
     # Event.wait, not Thread.join: an interrupted join marks a still-running thread as stopped
     # (CPython's bpo-45274 clean-up), which would hide it from ``abandoned``.
     done.wait()
-    if "error" in outcome:
-        raise outcome["error"]
-    return outcome["value"]
+    if error:
+        raise error[0]
+    return value[0]
 
 
 def abandoned() -> bool:
@@ -84,7 +87,7 @@ def sigterm_interrupts() -> Iterator[None]:
     """SIGTERM stops the work the way Ctrl-C does: the exception unwinds through the atomic writers
     (temporary files and folders are removed) and slz exits with 130. Off the main thread (slz called
     from a thread) signals cannot arrive there: nothing is changed."""
-    def stop(signum: int, frame: Any) -> None:
+    def stop(signum: int, frame: FrameType | None) -> None:
         raise KeyboardInterrupt
 
     try:

@@ -15,9 +15,11 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, TextIO
 
 if TYPE_CHECKING:
+    from rich.progress import Progress, TaskID
+
     from slzcli.batch import BatchProgress
 
 DEFAULT_EVERY_S = 5.0  # output.progress_every_s's default, for callers without a config
@@ -74,8 +76,8 @@ class Bar:
         self.shown_s: float | None = None
         self.pending: tuple[int, int | None, str] | None = None  # the last update not printed yet
         self.last_done = -1
-        self.rich: Any = None
-        self.task: Any = None
+        self.rich: Progress | None = None  # the bar on a terminal (rich), and its task
+        self.task: TaskID | None = None
         self.first: tuple[float, int] | None = None  # (elapsed, done) of the first update: start-up is not rate
 
     def __enter__(self) -> Bar:
@@ -103,7 +105,7 @@ class Bar:
     def update(self, done: int, total: int | None = None, note: str = "") -> None:
         """``done`` of ``total`` units (None: not known yet); ``note``: a short addition to the line."""
         elapsed = time.perf_counter() - self.t0
-        if self.rich is not None:
+        if self.rich is not None and self.task is not None:
             rate = f"{_rate(done / elapsed)} {self.unit}/s" if elapsed > 0 and done else ""
             self.rich.update(self.task, completed=done, total=total, rate=rate, note=note)
             return

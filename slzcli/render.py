@@ -28,11 +28,12 @@ def slam_maps(s: RunSummary | None) -> int:
     return 1 if s is None or s.slam is None else s.slam.maps
 
 
-def _num(v: float | None, fmt: str, unit: str = "") -> str:
+def _num(v: object, fmt: str, unit: str = "") -> str:
+    """``v`` formatted (a number of a summary or of JSON read back), "n/a" for None."""
     return "n/a" if v is None else f"{format(v, fmt)}{unit}"
 
 
-def _get(obj: JsonObject | None, key: str) -> Any:
+def _get(obj: JsonObject | None, key: str) -> object:
     """A value of a JSON object another module describes (None when the object or the key is missing)."""
     return None if obj is None else obj.get(key)
 
@@ -62,7 +63,8 @@ def detect_text(out: Path, s: RunSummary) -> str:
     gv = s.gravity
     if gv:
         disagreements = _get(gv, "disagreements")
-        apart = f" ({len(disagreements)} disagreement(s): see the warnings)" if disagreements else ""
+        apart = f" ({len(disagreements)} disagreement(s): see the warnings)" \
+            if isinstance(disagreements, list) and disagreements else ""
         lines.append(f"  gravity: {gv['source']}, camera tilted {_get(gv, 'tilt_deg'):.1f} deg from straight "
                      f"down{apart}")
     noise, lim = s.depth_noise, s.depth_limits
@@ -81,11 +83,12 @@ def detect_text(out: Path, s: RunSummary) -> str:
                  f"mask {t['mask']:.1f} ms, slam {t['slam']:.1f} ms, select {t['select']:.1f} ms{write} (medians)")
     gt = s.ground_truth
     m = _get(gt, "mask")
-    if m:
+    if isinstance(m, Mapping) and m:
         site = _get(gt, "site")
         lines.append(f"  vs ground truth: mask precision {_num(m['precision'], '.3f')}, recall "
                      f"{_num(m['recall'], '.3f')}, IoU {_num(m['iou'], '.3f')}"
-                     + (f"; site safe: {site['safe']}, clearance {site['clearance_m']:.2f} m" if site else ""))
+                     + (f"; site safe: {site['safe']}, clearance {site['clearance_m']:.2f} m"
+                        if isinstance(site, Mapping) and site else ""))
     frames = {"summary": "", "maps": ", frames/ (maps.npz, overlay.png)", "all": ", frames/"}.get(
         s.outputs, ", frames/")
     mcap = ", results.mcap" if (out / "results.mcap").exists() else ""
@@ -116,10 +119,10 @@ def batch_text(t: Mapping[str, Any], rows: Sequence[BatchRow]) -> str:
         f"  summary: {', '.join(t['summary_files'])}"])
 
 
-def simulate_text(m: dict[str, Any], out: Path) -> str:
-    """One simulated landing: the outcome, then its figures (s to 0.1, m to 0.01, px and deg to 0.1)."""
-    phases = m.get("phases_s") or {}
-    shown = [f"{name} {v:.1f} s" for name, v in phases.items() if v is not None]
+def simulate_text(m: Mapping[str, object], out: Path) -> str:
+    """One simulated landing (metrics.json): the outcome, then its figures (s to 0.1, m to 0.01, px and deg to 0.1)."""
+    phases = m.get("phases_s")
+    shown = [f"{name} {v:.1f} s" for name, v in phases.items() if v is not None] if isinstance(phases, Mapping) else []
     lines = [
         f"{'Landed' if m['success'] else 'Landing FAILED'} ({m['reason']}) after "
         f"{_num(m['landing_time_s'], '.1f', ' s')}.",

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -127,6 +127,34 @@ class StreamChoice:
     role: str
     topic: str | None
     reason: str
+
+
+class GravityEstimateDoc(TypedDict):
+    up_camera: list[float]
+    detail: str
+    spread_deg: float
+    angle_to_used_deg: float
+
+
+class GravityDisagreementDoc(TypedDict):
+    sources: list[str]
+    angle_deg: float
+
+
+class GravityDoc(TypedDict):
+    """Where world up came from, as JSON (``terrain.gravity.Gravity.as_dict``: ``slz info --json``, run.json)."""
+
+    source: str
+    detail: str
+    up_camera: list[float]
+    tilt_deg: float
+    pitch_deg: float
+    roll_deg: float
+    per_frame: str
+    estimates: dict[str, GravityEstimateDoc]
+    disagreements: list[GravityDisagreementDoc]
+    warnings: list[str]
+    notes: list[str]
 
 
 @dataclass(frozen=True)

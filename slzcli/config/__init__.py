@@ -96,3 +96,7 @@ from slzcli.config.yaml_safe import YamlLimitError as YamlLimitError
 from slzcli.config.yaml_safe import read_yaml_mapping as read_yaml_mapping
 from slzcli.config.yaml_safe import read_yaml_text as read_yaml_text
 from slzcli.config.yaml_safe import safe_yaml_load as safe_yaml_load
+from slzcli.config.yaml_safe import yaml_float as yaml_float
+from slzcli.config.yaml_safe import yaml_floats as yaml_floats
+from slzcli.config.yaml_safe import yaml_int as yaml_int
+from slzcli.config.yaml_safe import yaml_mapping as yaml_mapping

@@ -7,10 +7,9 @@ import dataclasses
 import difflib
 import types
 import typing
-from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Literal
 
-from slzcli.config.schema import _D, CONFIG_DIR, Config
+from slzcli.config.schema import _D, CONFIG_DIR, RULE, Config, Rule
 from slzcli.config.yaml_safe import MAX_FLOAT_MAGNITUDE, MAX_INT_MAGNITUDE
 from slzcli.errors import ConfigError, short_repr
 from slzcli.pinhole import intrinsics_problem
@@ -25,16 +24,17 @@ def build(cls: type[_D], data: object, path: str, source: str | None = None) -> 
     for key in data:
         if key not in fields:
             raise ConfigError(_join(path, str(key)), f"unknown key{_did_you_mean(str(key), fields)}", source)
-    kwargs = {}
+    kwargs: dict[str, object] = {}
     for name, f in fields.items():
         sub = _join(path, name)
         if name not in data:
             raise ConfigError(sub, "missing key", source)
-        kwargs[name] = _check(hints[name], data[name], sub, f.metadata, source)
+        kwargs[name] = _check(hints[name], data[name], sub, f.metadata.get(RULE, Rule()), source)
     return cls(**kwargs)
 
 
-def _check(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str | None) -> Any:
+def _check(tp: object, value: object, path: str, meta: Rule, source: str | None) -> object:
+    """``value`` (untrusted YAML) as the type ``tp`` of a schema field, whose ``meta`` says its range."""
     if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return build(tp, value, path, source)
     origin = typing.get_origin(tp)
@@ -72,7 +72,7 @@ def _check(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str 
     return _scalar(tp, value, path, meta, source)
 
 
-def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str | None) -> Any:
+def _scalar(tp: object, value: object, path: str, meta: Rule, source: str | None) -> object:
     if tp is bool:
         if not isinstance(value, bool):
             raise ConfigError(path, f"expected true or false, got {_kind(value)} {short_repr(value)}", source)
@@ -102,6 +102,12 @@ def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str
             raise ConfigError(path, f"must be one of {', '.join(choices)}; got {short_repr(value)}"
                                     f"{_did_you_mean(short_repr(value, 200), choices)}", source)
         return value
+    if isinstance(value, (int, float)):   # a number here: within its field's range
+        _in_range(value, path, meta, source)
+    return value
+
+
+def _in_range(value: float, path: str, meta: Rule, source: str | None) -> None:
     lo, hi = meta.get("lo"), meta.get("hi")
     if lo is not None and (value <= lo if meta.get("lo_open") else value < lo):
         raise ConfigError(path, f"must be {'>' if meta.get('lo_open') else '>='} {lo}, got {short_repr(value)}", source)
@@ -110,7 +116,6 @@ def _scalar(tp: Any, value: Any, path: str, meta: Mapping[str, Any], source: str
                           source)
     if meta.get("odd") and int(value) % 2 != 1:
         raise ConfigError(path, f"must be odd, got {short_repr(value)}", source)
-    return value
 
 
 def _alternatives(args: typing.Sequence[object]) -> str:
@@ -139,10 +144,13 @@ PAIRS: tuple[tuple[str, str, str, str], ...] = (
 )
 
 
-def _get(config: Config, key: str) -> Any:
-    node: Any = config
+def _get(config: Config, key: str) -> float:
+    """The number at the dotted ``key`` (the keys of ``PAIRS`` and the thrust limits)."""
+    node: object = config
     for part in key.split("."):
         node = getattr(node, part)
+    if isinstance(node, bool) or not isinstance(node, (int, float)):
+        raise TypeError(f"{key} is not a number in the schema")
     return node
 
 

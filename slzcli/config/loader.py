@@ -8,7 +8,6 @@ import typing
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import yaml
 
@@ -152,7 +151,7 @@ def split_override(item: str) -> tuple[str, str]:
     return key, text
 
 
-def parse_override(item: str) -> tuple[str, Any]:
+def parse_override(item: str) -> tuple[str, object]:
     """``a.b=v`` -> (``a.b``, YAML-parsed ``v``)."""
     key, text = split_override(item)
     try:
@@ -177,7 +176,7 @@ RENAMED_KEYS: dict[str, str] = {
 }
 
 
-def merge(base: dict[str, Any], over: dict[str, Any], source: str, prefix: str = "") -> dict[str, Any]:
+def merge(base: Mapping[str, object], over: Mapping[str, object], source: str, prefix: str = "") -> dict[str, object]:
     """Deep merge; a key unknown to ``base`` is an error (caught here so the source is named)."""
     out = dict(base)
     for key, value in over.items():
@@ -187,16 +186,20 @@ def merge(base: dict[str, Any], over: dict[str, Any], source: str, prefix: str =
                               source=source)
         if key not in base:
             raise ConfigError(path, f"unknown key{_did_you_mean(str(key), base)}", source=source)
-        if isinstance(base[key], dict):
+        section = base[key]
+        if isinstance(section, dict):
             if not isinstance(value, dict):
                 raise ConfigError(path, f"expected a section (mapping), got {_kind(value)}", source=source)
-            out[key] = merge(base[key], value, source, prefix=f"{path}.")
+            out[key] = merge(section, value, source, prefix=f"{path}.")
         else:
             out[key] = value
     return out
 
 
-def _nest(key: str, value: Any) -> dict[str, Any]:
-    for part in reversed(key.split(".")):
-        value = {part: value}
-    return value
+def _nest(key: str, value: object) -> dict[str, object]:
+    """``a.b``, v -> ``{"a": {"b": v}}``."""
+    *outer, last = key.split(".")
+    out: dict[str, object] = {last: value}
+    for part in reversed(outer):
+        out = {part: out}
+    return out

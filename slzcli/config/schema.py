@@ -33,15 +33,31 @@ Normalise = Literal["absolute", "frame"]
 OutputLevel = Literal["summary", "maps", "all"]  # output.level / slz detect --outputs
 
 
+RULE = "slz.rule"  # the metadata key of a schema field's Rule
+
+
+class Rule(typing.TypedDict, total=False):
+    """What a schema field's metadata may say about its values (``rng``, ``one_of``; read by ``config.check``)."""
+
+    lo: float | None
+    hi: float | None
+    lo_open: bool
+    odd: bool
+    n: int | None
+    one_of: typing.Callable[[], tuple[str, ...]]
+
+
 def rng(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
         odd: bool = False, n: int | None = None) -> Any:
-    """A schema field with a range: ``lo <= v <= hi`` (``lo < v`` when lo_open), odd ints, list length n."""
-    return field(metadata={"lo": lo, "hi": hi, "lo_open": lo_open, "odd": odd, "n": n})
+    """A schema field with a range: ``lo <= v <= hi`` (``lo < v`` when lo_open), odd ints, list length n.
+
+    Typed as ``dataclasses.field`` without a default is: the field's annotation gives its type."""
+    return field(metadata={RULE: Rule(lo=lo, hi=hi, lo_open=lo_open, odd=odd, n=n)})
 
 
 def one_of(names: typing.Callable[[], tuple[str, ...]]) -> Any:
     """A string field (or each string of a list) that must be one of ``names()``, a registry read at check time."""
-    return field(metadata={"one_of": names})
+    return field(metadata={RULE: Rule(one_of=names)})
 
 
 _C = typing.TypeVar("_C")
@@ -51,7 +67,7 @@ if typing.TYPE_CHECKING:
     from _typeshed import DataclassInstance
     from typing_extensions import dataclass_transform
 else:
-    def dataclass_transform(**_kwargs: Any) -> Any:
+    def dataclass_transform(**_kwargs: object) -> typing.Callable[[_C], _C]:
         """At run time a no-op: the marker only tells type checkers what ``schema`` does."""
         return lambda decorator: decorator
 

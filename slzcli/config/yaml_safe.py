@@ -4,8 +4,8 @@ and every refusal names the file."""
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import yaml
 
@@ -84,7 +84,7 @@ _FLOAT_WITH_EXPONENT = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]
 _BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_WITH_EXPONENT, list("-+0123456789."))
 
 
-def safe_yaml_load(text: str) -> Any:
+def safe_yaml_load(text: str) -> object:
     """``yaml.safe_load`` within the bounds above; ``YamlLimitError`` (a ``yaml.YAMLError``) past them."""
     if len(text) > MAX_YAML_BYTES:
         raise YamlLimitError(f"{len(text)} characters, more than {MAX_YAML_BYTES} (a config is a few KB)")
@@ -116,7 +116,7 @@ def read_yaml_text(path: Path) -> str:
                               f"{err.start}; save it as UTF-8", source=str(path)) from err
 
 
-def read_yaml_mapping(path: Path) -> dict[str, Any]:
+def read_yaml_mapping(path: Path) -> dict[str, object]:
     if not path.is_file():
         what = "not a regular file (a FIFO, device or folder)" if path.exists() else "config file not found"
         raise ConfigError("", what, source=str(path))
@@ -128,7 +128,7 @@ def read_yaml_mapping(path: Path) -> dict[str, Any]:
     return data
 
 
-def _load_yaml_file(path: Path) -> Any:
+def _load_yaml_file(path: Path) -> object:
     """A YAML file's content within the loader's bounds; ConfigError naming the file otherwise."""
     text = read_yaml_text(path)
     try:
@@ -151,3 +151,34 @@ def _load_yaml_file(path: Path) -> Any:
 def _yaml_where(err: yaml.YAMLError) -> str:
     mark = getattr(err, "problem_mark", None)
     return f"line {mark.line + 1}, column {mark.column + 1}" if mark else str(err).splitlines()[0]
+
+
+# ----------------------------------------------------------------------------- reading values of a YAML file
+# What float()/int() accept from a YAML document (numbers, numeric strings); TypeError for anything else, as
+# float(None) or float([1]) would raise: callers turn it into an error naming their file.
+def yaml_mapping(value: object) -> Mapping[str, object]:
+    """``value`` when it is a YAML mapping; TypeError otherwise."""
+    if not isinstance(value, dict):
+        raise TypeError(f"expected a mapping, got {type(value).__name__}")
+    return value
+
+
+def yaml_float(value: object) -> float:
+    if isinstance(value, (int, float, str)):
+        return float(value)
+    raise TypeError(f"expected a number, got {type(value).__name__}")
+
+
+def yaml_int(value: object) -> int:
+    if isinstance(value, (int, float, str)):
+        return int(value)
+    raise TypeError(f"expected an integer, got {type(value).__name__}")
+
+
+def yaml_floats(value: object) -> tuple[float, ...]:
+    """A list of numbers; nothing (null, an empty list) is ``()``."""
+    if not value:
+        return ()
+    if not isinstance(value, list):
+        raise TypeError(f"expected a list of numbers, got {type(value).__name__}")
+    return tuple(yaml_float(v) for v in value)

@@ -22,7 +22,7 @@ without it).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -56,7 +56,37 @@ def _rotorpy() -> tuple[Any, Any, Any]:
     return Multirotor, ConstantWind, NoWind
 
 
-def quad_params(u: UavCfg) -> dict[str, Any]:
+class QuadParams(TypedDict):
+    """RotorPy's ``quad_params`` (``rotorpy/vehicles/hummingbird_params.py``): SI units, FLU body."""
+
+    mass: float
+    Ixx: float
+    Iyy: float
+    Izz: float
+    Ixy: float
+    Iyz: float
+    Ixz: float
+    num_rotors: int
+    rotor_radius: float
+    rotor_pos: dict[str, np.ndarray]
+    rotor_directions: np.ndarray
+    rI: np.ndarray
+    c_Dx: float
+    c_Dy: float
+    c_Dz: float
+    k_eta: float
+    k_m: float
+    k_d: float
+    k_z: float
+    k_h: float
+    k_flap: float
+    tau_m: float
+    rotor_speed_min: float
+    rotor_speed_max: float
+    motor_noise_std: float
+
+
+def quad_params(u: UavCfg) -> QuadParams:
     """RotorPy's ``quad_params`` for slz's UAV (``uav``) with RotorPy's own motor and aero coefficients."""
     k_eta = u.thrust_max_n / (4.0 * ROTOR_SPEED_MAX_RAD_S ** 2)
     h = u.size_m[0] / 2.0 / math.sqrt(2.0)        # hub x, y: arm of half the body size along the diagonals
@@ -76,7 +106,7 @@ def quad_params(u: UavCfg) -> dict[str, Any]:
     }
 
 
-def equivalent_drag_kg_s(params: dict[str, Any], mass_kg: float, gravity: float, airspeed_m_s: float) -> float:
+def equivalent_drag_kg_s(params: QuadParams, mass_kg: float, gravity: float, airspeed_m_s: float) -> float:
     """RotorPy's horizontal drag near the hover as slz's linear ``control.wind.drag_kg_s``.
 
     Rotor drag ``H = -w k_d v`` on each of the four rotors at the hover speed w, plus the parasitic

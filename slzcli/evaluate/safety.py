@@ -10,11 +10,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from slzcli.geometry import transform_points
+from slzcli.synth.groundtruth import SafetyRaster
 
 
 @dataclass(frozen=True)
@@ -93,12 +93,12 @@ class SiteTruth:
     to_best_centre_m: float          # distance to the centre of the largest truly safe area in view
     true_xy: tuple[float, float]     # the site in the ground-truth world
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> dict[str, object]:
         return {"safe": self.safe, "clearance_m": self.clearance_m, "to_best_centre_m": self.to_best_centre_m,
                 "true_xy": list(self.true_xy)}
 
 
-def site_truth(raster: Any, xy: tuple[float, float], visible: np.ndarray | None = None) -> SiteTruth:
+def site_truth(raster: SafetyRaster, xy: tuple[float, float], visible: np.ndarray | None = None) -> SiteTruth:
     """Check a world-XY site against a SafetyRaster (``slzcli.synth.groundtruth``).
 
     The "centre" of the largest safe area is its point farthest from the area's boundary
@@ -128,7 +128,8 @@ def site_truth(raster: Any, xy: tuple[float, float], visible: np.ndarray | None 
     return SiteTruth(safe, clearance, best, (x, y))
 
 
-def visible_cells(raster: Any, T_world_camera: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+def visible_cells(raster: SafetyRaster, T_world_camera: np.ndarray, K: np.ndarray,
+                  shape: tuple[int, int]) -> np.ndarray:
     """Raster cells whose surface point projects into the image of a camera at ``T_world_camera``."""
     rows, cols = raster.safe.shape
     res = raster.resolution_m

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import logging
 from array import array
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -28,7 +28,8 @@ from slzcli.types import Frame, FrameRef, ScoreMap
 log = logging.getLogger(__name__)
 
 
-def ground_truth_of(path: Path, cfg: GroundTruthCfg, cache: dict[str, Any] | None = None) -> GroundTruth | None:
+def ground_truth_of(path: Path, cfg: GroundTruthCfg,
+                    cache: dict[str, fingerprint.Entry] | None = None) -> GroundTruth | None:
     """The `slz synth` ground truth beside a recording, or None when it has no sidecar.
 
     Its frames are looked up by stamp within ``cfg.stamp_tolerance_ms`` (``synth.ground_truth``). A sidecar bound to
@@ -57,12 +58,12 @@ def site_truth_of(truth: GroundTruth, frame: Frame | FrameRef, center_camera: tu
 
 def truth_summary(masks: Sequence[MaskCounts], estimated: Sequence[np.ndarray | None],
                   true: Sequence[np.ndarray | None], segments: Sequence[int],
-                  site: dict[str, Any] | None) -> dict[str, Any]:
+                  site: Mapping[str, object] | None) -> dict[str, object]:
     """run.json ``summary.ground_truth``: mask counts, ATE per map segment and RPE, the site's truth.
 
     ``site``: landing.json ``site`` (None: no site), whose ``ground_truth`` is reported.
     """
-    out: dict[str, Any] = {"mask": total(masks).as_dict() if masks else None}
+    out: dict[str, object] = {"mask": total(masks).as_dict() if masks else None}
     try:
         res = ate_by_segment(estimated, true, segments)  # each map segment aligned on its own
     except ValueError:  # fewer than 3 frames with both poses in every segment
@@ -121,6 +122,6 @@ class TruthEvaluator:
         return [None if i < 0 else np.asarray(T[i], dtype=np.float64) for i in self._pose_index]
 
     def summary(self, estimated: Sequence[np.ndarray | None], segments: Sequence[int],
-                site: dict[str, Any] | None) -> dict[str, Any]:
+                site: Mapping[str, object] | None) -> dict[str, object]:
         """run.json ``summary.ground_truth`` (``truth_summary``) of the frames and detections handed in."""
         return truth_summary(self.masks, estimated, self.true_poses(), segments, site)

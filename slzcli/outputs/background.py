@@ -26,11 +26,10 @@ import queue
 import threading
 from collections.abc import Callable
 from types import TracebackType
-from typing import Any
 
 # Housekeeping, not tuning: how long abort() waits for the task being written before it gives up.
 ABORT_GRACE_S = 10.0
-_STOP = object()
+Task = tuple[str, Callable[..., object], tuple[object, ...]]  # (label, fn, args): fn(*args) in the thread
 
 
 class BackgroundWriter:
@@ -40,7 +39,7 @@ class BackgroundWriter:
         """``depth`` 0: no thread, every task is written in ``submit`` (the reference for benchmarks/writes.py)."""
         if depth < 0:
             raise ValueError("depth must be >= 0")
-        self._queue: queue.Queue[Any] = queue.Queue(maxsize=max(depth, 1))
+        self._queue: queue.Queue[Task | None] = queue.Queue(maxsize=max(depth, 1))  # None: stop
         self._error: BaseException | None = None
         self._cancel = threading.Event()
         self._busy: str | None = None
@@ -51,7 +50,7 @@ class BackgroundWriter:
             self._thread.start()
 
     # ------------------------------------------------------------------ main thread
-    def submit(self, label: str, fn: Callable[..., object], *args: Any) -> None:
+    def submit(self, label: str, fn: Callable[..., object], *args: object) -> None:
         """Queue ``fn(*args)``; waits while the queue is full; raises the writer's first error, if any."""
         if self._inline:
             fn(*args)
@@ -67,7 +66,7 @@ class BackgroundWriter:
     def close(self) -> None:
         """Write everything queued, stop the thread, raise the writer's first error, if any."""
         if self._thread.is_alive():
-            self._queue.put(_STOP)
+            self._queue.put(None)
             self._thread.join()
         self._raise()
 
@@ -81,7 +80,7 @@ class BackgroundWriter:
                 break
         if self._thread.is_alive():
             with contextlib.suppress(queue.Full):  # emptied just above; the thread only takes from it
-                self._queue.put_nowait(_STOP)
+                self._queue.put_nowait(None)
             self._thread.join(self._grace_s)
 
     def __enter__(self) -> BackgroundWriter:
@@ -105,7 +104,7 @@ class BackgroundWriter:
     def _run(self) -> None:
         while True:
             task = self._queue.get()
-            if task is _STOP:
+            if task is None:
                 return
             if self._cancel.is_set() or self._error is not None:
                 continue  # after an error or an abort: drain without writing

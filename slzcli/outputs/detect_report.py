@@ -19,7 +19,7 @@ import base64
 import html
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -33,6 +33,9 @@ from slzcli.outputs.trajectory import PoseLog
 from slzcli.records import DecideAdvice, LandingRecord, RunSummary
 from slzcli.render import height_text
 from slzcli.types import CommittedSite, RunResult
+
+if TYPE_CHECKING:
+    import jinja2
 
 # Display only (no result depends on these): the Figure 5 tiles' width and title band, tiles per row, the
 # trajectory drawing's size and margin (px). Drawn with OpenCV and SVG, not matplotlib: a matplotlib panel of
@@ -75,7 +78,7 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
     page = _template().render(
         name=Path(s.source).name, css=Markup(CSS),
         # the picture sections are drawn here (image panel, SVG); the rest is the template's
-        result=Markup(_result(s, landing)), funnel=Markup(funnel_section(dict(result.run.funnel))),
+        result=Markup(_result(s, landing)), funnel=Markup(funnel_section(result.run.funnel)),
         landing_map=Markup(_landing_map(run_dir, committed, _advice_text(landing.advice))),
         figure5=Markup(_figure5(run_dir, panel_frame, committed is not None and
                                 committed.frame.index == panel_frame, level, reverse)),
@@ -88,7 +91,7 @@ def write_detect_report(run_dir: Path, result: RunResult, sites: SiteLog, trajec
     return path
 
 
-def _template() -> Any:
+def _template() -> jinja2.Template:
     """templates/detect_report.html (jinja2, HTML-escaped by default; the package carries it)."""
     import jinja2
 
@@ -293,7 +296,7 @@ SITE_COLUMNS = ("frame", "map", "x m", "y m", "z m", "score", "accepted", "reaso
                 "normal var", "extent m", "points")
 
 
-def _site_rows(sites: SiteLog, committed: CommittedSite | None) -> list[dict[str, Any]]:
+def _site_rows(sites: SiteLog, committed: CommittedSite | None) -> list[dict[str, object]]:
     """The site table's rows (``SITE_COLUMNS``), the committed site marked."""
     chosen = None if committed is None else committed.found.id
     rows = []
@@ -308,7 +311,7 @@ def _site_rows(sites: SiteLog, committed: CommittedSite | None) -> list[dict[str
     return rows
 
 
-def _detection_figures(frames: list[int], sites: SiteLog, committed: CommittedSite | None) -> list[dict[str, Any]]:
+def _detection_figures(frames: list[int], sites: SiteLog, committed: CommittedSite | None) -> list[dict[str, object]]:
     """One figure per detection frame folder: its overlay, whether it gave a site, whether that was committed."""
     by_frame = {e.frame.index: e.site for e in sites.sites}
     site_frame = None if committed is None else committed.frame.index

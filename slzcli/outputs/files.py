@@ -17,7 +17,6 @@ import zipfile
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -28,7 +27,7 @@ UMASK = os.umask(0)
 os.umask(UMASK)  # read once: mkstemp makes 0600 files, outputs get the user's usual mode
 
 
-def _json_default(obj: Any) -> Any:
+def _json_default(obj: object) -> object:
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, np.ndarray):
@@ -83,7 +82,7 @@ def write_text(path: Path, text: str) -> None:
     write_bytes(path, text.encode())
 
 
-def finite_json(obj: Any) -> Any:
+def finite_json(obj: object) -> object:
     """``obj`` with every NaN or infinite float replaced by None: in slz's JSON, null means "no value"
     (not computed, or not a number). Bare ``NaN`` / ``Infinity`` are not JSON and break other readers."""
     if isinstance(obj, dict):
@@ -97,12 +96,12 @@ def finite_json(obj: Any) -> Any:
     return obj
 
 
-def json_text(obj: Any, indent: int | None = 2, **kw: Any) -> str:
+def json_text(obj: object, indent: int | None = 2, sort_keys: bool = False) -> str:
     """Strict JSON (``allow_nan=False``) of ``obj`` after ``finite_json``: every JSON slz writes goes through here."""
-    return json.dumps(finite_json(obj), indent=indent, default=_json_default, allow_nan=False, **kw)
+    return json.dumps(finite_json(obj), indent=indent, default=_json_default, allow_nan=False, sort_keys=sort_keys)
 
 
-def write_json(path: Path, obj: Any) -> None:
+def write_json(path: Path, obj: object) -> None:
     write_text(path, json_text(obj) + "\n")
 
 
@@ -177,7 +176,7 @@ class ArraySpool:
     ``write_npz_streamed`` or ``np.load(mmap_mode="r")``. The folder is the caller's to remove.
     """
 
-    def __init__(self, folder: Path, spec: dict[str, tuple[Any, tuple[int, ...]]]) -> None:
+    def __init__(self, folder: Path, spec: Mapping[str, tuple[npt.DTypeLike, tuple[int, ...]]]) -> None:
         self.folder = Path(folder)
         self.spec = {k: (np.dtype(d), tuple(shape)) for k, (d, shape) in spec.items()}
         self.rows = dict.fromkeys(spec, 0)

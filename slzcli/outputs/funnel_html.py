@@ -7,25 +7,35 @@ Read from run.json's ``funnel`` (``slzcli.funnel.FunnelLog.as_dict``): one row p
 from __future__ import annotations
 
 import html
-from typing import Any
+from collections.abc import Mapping
 
 MAX_ROWS = 200  # display only: a long recording's rows stay in run.json
 COLUMNS = ("frame", "px with depth", "above threshold", "footprint clear", "column in view", "noise limits (mask)",
            "emptied by", "map points: keyframe / in view / on mask", "clusters (failed test)", "site")
 
 
-def funnel_section(funnel: dict[str, Any] | None) -> str:
+def _obj(value: object) -> Mapping[str, object]:
+    """A JSON object of the funnel ({} for a missing one)."""
+    return value if isinstance(value, Mapping) else {}
+
+
+def _objs(value: object) -> list[Mapping[str, object]]:
+    """The JSON objects of a list of the funnel ([] for a missing one)."""
+    return [v for v in value if isinstance(v, Mapping)] if isinstance(value, list) else []
+
+
+def funnel_section(funnel: Mapping[str, object] | None) -> str:
     """The section's HTML ("" without a funnel: a run folder of an older slz)."""
     if not funnel:
         return ""
-    frames = funnel.get("frames") or []
+    frames = _objs(funnel.get("frames"))
     head = "<h2 id=funnel>Funnel: what each filter left</h2>"
     if not frames:
         return head + "<p class=note>No detection frame.</p>"
-    mp = funnel.get("map_points") or {}
-    failed = funnel.get("clusters_failed") or {}
-    total = ["all", *(str(v) for v in (funnel.get("mask_px") or {}).values()),
-             ", ".join(f"{k} {v}" for k, v in (funnel.get("frames_emptied_by") or {}).items() if v) or "-",
+    mp = _obj(funnel.get("map_points"))
+    failed = _obj(funnel.get("clusters_failed"))
+    total = ["all", *(str(v) for v in _obj(funnel.get("mask_px")).values()),
+             ", ".join(f"{k} {v}" for k, v in _obj(funnel.get("frames_emptied_by")).items() if v) or "-",
              f"{mp.get('keyframe', 0)} / {mp.get('in_view', 0)} / {mp.get('on_mask', 0)}",
              f"{funnel.get('clusters', 0)}" + (f" ({', '.join(f'{k} {v}' for k, v in failed.items())})" if failed
                                                 else ""), ""]
@@ -40,17 +50,19 @@ def funnel_section(funnel: dict[str, Any] | None) -> str:
             f"sums the run.{more}</p><table><tr>{th}</tr>{''.join(rows)}</table>")
 
 
-def _cells(f: dict[str, Any]) -> list[str]:
-    px = f.get("mask_px")
+def _cells(f: Mapping[str, object]) -> list[str]:
+    px = _obj(f.get("mask_px"))
     mask = [str(v) for v in px.values()] if px else ["-"] * 5
     mp = f.get("map_points")
-    points = f.get("note", "-") if mp is None else f"{mp['keyframe']} / {mp['in_view']} / {mp['on_mask']}"
-    clusters = f.get("clusters") or []
-    tests = [c["failed"] for c in clusters if c["failed"]]
+    points = str(f.get("note", "-")) if not isinstance(mp, Mapping) else \
+        f"{mp['keyframe']} / {mp['in_view']} / {mp['on_mask']}"
+    clusters = _objs(f.get("clusters"))
+    tests = [str(c["failed"]) for c in clusters if c["failed"]]
     cl = f"{len(clusters)}" + (f" ({', '.join(tests)})" if tests else "")
     site = f.get("site")
-    what = "-" if site is None else ("accepted" if site["accepted"] else f"not accepted: {site['reason']}")
-    return [str(f["frame"]), *mask, f.get("emptied_by") or "-", points, cl, what]
+    what = "-" if not isinstance(site, Mapping) else \
+        ("accepted" if site["accepted"] else f"not accepted: {site['reason']}")
+    return [str(f["frame"]), *mask, str(f.get("emptied_by") or "-"), points, cl, what]
 
 
 def _row(cells: list[str], cls: str = "") -> str:

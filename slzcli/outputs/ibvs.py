@@ -12,13 +12,13 @@ slz did not write, never over a file it did not write.
 from __future__ import annotations
 
 import io
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from slzcli.config import CameraCfg
 from slzcli.errors import DatasetError, NoSiteFound
 from slzcli.outputs.files import atomic_path, write_json, write_text
 from slzcli.types import SimResult, Target
@@ -41,8 +41,8 @@ def landing_path(path: Path) -> Path:
     raise DatasetError(path, "not found")
 
 
-def read_target(path: Path, footprint_m: tuple[float, ...]) -> tuple[Target, dict[str, Any]]:
-    """The landing square of a landing.json, and the parsed document; no site -> NoSiteFound.
+def read_target(path: Path, footprint_m: tuple[float, ...]) -> Target:
+    """The landing square of a landing.json; no site -> NoSiteFound.
 
     Parsed only: whether the corners are this UAV's Eq. 10 square is ``control.simulate.check_target``.
     """
@@ -76,7 +76,7 @@ def read_target(path: Path, footprint_m: tuple[float, ...]) -> tuple[Target, dic
             raise DatasetError(file, "site.corners_world: expected four [x, y, z] points") from err
     if not (np.isfinite(center).all() and np.isfinite(corners_arr).all()):
         raise DatasetError(file, "site: centre or corners are not finite numbers")
-    return Target(center, corners_arr), doc
+    return Target(center, corners_arr)
 
 
 @contextmanager
@@ -94,7 +94,8 @@ def output_folder(out: Path, landing: Path, runs: int) -> Iterator[Path]:
         yield tmp
 
 
-def write_single(out_dir: Path, result: SimResult, metrics: dict[str, Any], target: Target, cam: Any) -> None:
+def write_single(out_dir: Path, result: SimResult, metrics: Mapping[str, object], target: Target,
+                 cam: CameraCfg) -> None:
     """The files of one logged landing: the tables, metrics.json and the three figures."""
     from slzcli.outputs import ibvs_plots
 
@@ -111,7 +112,7 @@ def _csv(header: list[str], columns: list[np.ndarray]) -> str:
     return buf.getvalue()
 
 
-def write_run(out_dir: Path, result: SimResult, metrics: dict[str, Any], cx: float, cy: float,
+def write_run(out_dir: Path, result: SimResult, metrics: Mapping[str, object], cx: float, cy: float,
               i: int = 0) -> list[Path]:
     """trajectory.csv, features.csv and metrics.json of run i of a logged simulation."""
     log = result.log
@@ -173,7 +174,7 @@ def montecarlo_rows(out_dir: Path) -> Iterator[Callable[[SimResult, int], None]]
         yield add
 
 
-def write_montecarlo(out_dir: Path, result: SimResult, summary: dict[str, Any],
+def write_montecarlo(out_dir: Path, result: SimResult, summary: Mapping[str, object],
                      rows_written: bool = False) -> list[Path]:
     """montecarlo.json (the aggregate) and montecarlo_runs.csv (one row per run, unless already streamed)."""
     paths = [out_dir / "montecarlo.json", out_dir / "montecarlo_runs.csv"]

@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +44,7 @@ class Kind:
     marker: str                              # run.json, compare.json
     names: tuple[str, ...]                   # top-level names a run of this kind always may write
     legacy_keys: tuple[str, ...]             # a marker without slz_output but with these keys: an older slz's
-    legacy_names: Callable[[dict[str, Any]], tuple[str, ...]]  # what that older slz wrote, from its marker
+    legacy_names: Callable[[Mapping[str, object]], tuple[str, ...]]  # what that older slz wrote, from its marker
     cohabits: tuple[str, ...] = ()           # kinds whose folder this kind may share (disjoint names)
 
 
@@ -55,14 +55,14 @@ class Existing:
     path: Path
     names: tuple[str, ...] = ()
     finished: bool = False
-    marker: dict[str, Any] | None = None
+    marker: dict[str, Any] | None = None  # as read (JSON); pipeline.run and fingerprint read a run.json's keys
 
     @property
     def empty(self) -> bool:
         return not self.names and self.marker is None
 
 
-def read_marker(path: Path, kind: Kind) -> dict[str, Any] | None:
+def read_marker(path: Path, kind: Kind) -> dict[str, object] | None:
     """The marker document of ``path`` when it is a folder of ``kind`` (any state), else None."""
     from slzcli.bounds import load_json
 
@@ -153,7 +153,7 @@ def build(path: Path, kind: Kind, *, replace: bool) -> Iterator[Path]:
         raise
 
 
-def _mark(marker: Path, kind: Kind, state: str, names: Sequence[str], doc: dict[str, Any] | None = None) -> None:
+def _mark(marker: Path, kind: Kind, state: str, names: Sequence[str], doc: dict[str, object] | None = None) -> None:
     """Write the marker with slz_output first: the kind, the state and the manifest."""
     if doc is None:
         doc = json.loads(marker.read_text()) if marker.is_file() else {}
@@ -191,10 +191,15 @@ DETECT_NAMES = ("run.json", "landing.json", "sites.csv", "points.ply", "trajecto
 COMPARE_NAMES = ("compare.json", "compare.csv", "report.html")
 
 
-def _compare_legacy(doc: dict[str, Any]) -> tuple[str, ...]:
+def _objects(value: object) -> list[dict[str, object]]:
+    """The JSON objects in a list read from a marker (none when it is not a list)."""
+    return [r for r in value if isinstance(r, dict)] if isinstance(value, list) else []
+
+
+def _compare_legacy(doc: Mapping[str, object]) -> tuple[str, ...]:
     """A compare folder of an older slz: its fixed files, one figure folder per recording, the variants."""
-    recs = [r.get("name") for r in doc.get("recordings", []) if isinstance(r, dict)]
-    bases = {r.get("recording") for r in doc.get("variant_table", []) or [] if isinstance(r, dict)}
+    recs = [r.get("name") for r in _objects(doc.get("recordings"))]
+    bases = {r.get("recording") for r in _objects(doc.get("variant_table"))}
     return (*COMPARE_NAMES, "variants", *(str(n) for n in recs if n), *(f"variants_{b}.png" for b in bases if b))
 
 

@@ -6,15 +6,14 @@ Its own module so that both writers share it without one importing the other.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from slzcli.geometry import project
 from slzcli.outputs import images
+from slzcli.types import Detection
 
 
-def detection_overlay_bgr(det: Any) -> np.ndarray:
+def detection_overlay_bgr(det: Detection) -> np.ndarray:
     """The Figure 6 overlay of one detection: mask tint, SLAM points, chosen cluster, Eq. 10 square."""
     sel = det.selection
     chosen = corners_px = None
@@ -22,6 +21,7 @@ def detection_overlay_bgr(det: Any) -> np.ndarray:
         centre = np.asarray(sel.site.center_world)
         nearest = min(sel.candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre)))
         chosen = sel.labels == nearest.cluster
+        assert det.T_world_camera is not None  # a site is chosen among map points, which only a posed frame has
         corners_px, _ = project(np.asarray(sel.site.corners_world), det.T_world_camera, det.frame.K,
                                 det.score.mask.shape)
     valid = det.maps.valid

@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal, Protocol
 
 import cv2
 import numpy as np
@@ -34,6 +34,11 @@ from slzcli.outputs import safe_output
 from slzcli.sources.decode import COMPRESSED_DEPTH_HEADER
 from slzcli.sources.ros_types import Message
 from slzcli.types import Frame, Intrinsics
+
+if TYPE_CHECKING:
+    from rosbags.interfaces import Connection
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import Writer as Writer2
 
 FORMATS = ("mcap", "mcap-ros1", "ros1", "ros2-sqlite", "ros2-mcap")
 COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8", "jpeg", "png")
@@ -66,6 +71,13 @@ class TopicLayout:
 
 
 REALSENSE = TopicLayout()
+
+
+class RosMessage(Protocol):
+    """A message object this writer builds: an instance of a class its rosbags typestore made at run time from the
+    message definition (``typestore.types[msgtype]``), named by its type; serialised by the typestore."""
+
+    __msgtype__: ClassVar[str]
 
 
 class RecordingWriter:
@@ -335,8 +347,9 @@ class RecordingWriter:
         D = np.asarray(k.distortion if k.distortion else (0.0,) * 5, dtype=np.float64)
         R = np.eye(3).reshape(-1)
         roi = t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-        fields = dict(header=self._header(stamp, self.layout.frame_id), height=k.height, width=k.width,
-                      distortion_model=k.distortion_model or "plumb_bob", binning_x=0, binning_y=0, roi=roi)
+        fields: dict[str, RosMessage | int | str | np.ndarray] = dict(
+            header=self._header(stamp, self.layout.frame_id), height=k.height, width=k.width,
+            distortion_model=k.distortion_model or "plumb_bob", binning_x=0, binning_y=0, roi=roi)
         keys = ("D", "K", "R", "P") if self.ros1 else ("d", "k", "r", "p")
         fields.update(dict(zip(keys, (D, K, R, P), strict=True)))
         return t[CAMERA_INFO](**fields)
@@ -358,10 +371,10 @@ class _McapBackend(_Backend):
         self.w = w
         self.f = tmp.open("wb")
         compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-        kw: dict[str, Any] = {"compression": compression[w.compression]}
         if w.chunk_bytes:
-            kw["chunk_size"] = w.chunk_bytes
-        self.mcap = Writer(self.f, **kw)
+            self.mcap = Writer(self.f, compression=compression[w.compression], chunk_size=w.chunk_bytes)
+        else:  # mcap's own default chunk size
+            self.mcap = Writer(self.f, compression=compression[w.compression])
         self.mcap.start(profile="ros1" if w.ros1 else "ros2", library="slz")
         self.schemas: dict[str, int] = {}
         self.channels: dict[str, int] = {}
@@ -393,7 +406,7 @@ class _RosbagBackend(_Backend):
         if w.fmt == "ros1":
             from rosbags.rosbag1 import Writer as Writer1
 
-            self.bag: Any = Writer1(tmp)
+            self.bag: Writer1 | Writer2 = Writer1(tmp)
         else:
             from rosbags.rosbag2 import StoragePlugin
             from rosbags.rosbag2 import Writer as Writer2
@@ -401,7 +414,7 @@ class _RosbagBackend(_Backend):
             plugin = StoragePlugin.MCAP if w.fmt == "ros2-mcap" else StoragePlugin.SQLITE3
             self.bag = Writer2(tmp, version=8, storage_plugin=plugin)
         self.bag.open()
-        self.conns: dict[str, Any] = {}
+        self.conns: dict[str, Connection] = {}
 
     def write(self, topic: str, msgtype: str, data: bytes | memoryview, stamp_ns: int) -> None:
         if topic not in self.conns:

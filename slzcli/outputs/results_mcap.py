@@ -75,11 +75,12 @@ import json
 import logging
 from pathlib import Path
 from types import TracebackType
-from typing import Any
 
 import cv2
 import numpy as np
+from rosbags.interfaces.typing import Typesdict
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError, OutputError
@@ -88,8 +89,16 @@ from slzcli.geometry import Pose, back_project_every, invert_pose
 from slzcli.outputs import palette
 from slzcli.outputs.landing_map import verdict_lut
 from slzcli.outputs.overlay import detection_overlay_bgr
-from slzcli.outputs.recording import CAMERA_INFO, COMPRESSED, IMAGE, POSE_TYPES, RecordingWriter, TopicLayout
-from slzcli.types import CommittedSite, LandingGrid, RecordedFrames
+from slzcli.outputs.recording import (
+    CAMERA_INFO,
+    COMPRESSED,
+    IMAGE,
+    POSE_TYPES,
+    RecordingWriter,
+    RosMessage,
+    TopicLayout,
+)
+from slzcli.types import CommittedSite, Detection, Intrinsics, LandingGrid, RecordedFrames, Site
 
 log = logging.getLogger(__name__)
 MAP_FRAME = "map"  # REP 105; output.map_frame
@@ -201,7 +210,7 @@ class ResultsMcap:
         self.writer.__exit__(exc_type, exc, tb)
 
     # ------------------------------------------------------------------ per detection
-    def write_detection(self, det: Any, overlay: np.ndarray | None = None) -> None:
+    def write_detection(self, det: Detection, overlay: np.ndarray | None = None) -> None:
         """The images, clouds and site markers of one detection (a ``pipeline.Detection``); ``overlay``: its
         overlay when the caller drew it already (overlay.png is the same picture)."""
         frame, stamp = det.frame, det.frame.stamp_ns
@@ -288,7 +297,7 @@ class ResultsMcap:
                           self.frame_ids(committed.segment)[0])
 
     # ------------------------------------------------------------------ messages
-    def _raw(self, name: str, msgtype: str, msg: Any, stamp: int) -> None:
+    def _raw(self, name: str, msgtype: str, msg: RosMessage, stamp: int) -> None:
         self.writer.write_raw(f"{TOPIC}/{name}", msgtype, msg, stamp)
 
     def _image(self, name: str, pixels: np.ndarray, encoding: str, stamp: int, camera: str) -> None:
@@ -307,7 +316,7 @@ class ResultsMcap:
                                   format="bgr8; jpeg compressed bgr8", data=buf.reshape(-1))
         self._raw(f"{name}/compressed", COMPRESSED, msg, stamp)
 
-    def _camera_info(self, k: Any, stamp: int, camera: str) -> Any:
+    def _camera_info(self, k: Intrinsics, stamp: int, camera: str) -> RosMessage:
         t = self.writer.typestore.types
         roi = t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         p = np.array([[k.fx, 0, k.cx, 0], [0, k.fy, k.cy, 0], [0, 0, 1, 0]], dtype=np.float64).reshape(-1)
@@ -319,7 +328,7 @@ class ResultsMcap:
         msg = point_cloud(self.writer, np.asarray(xyz), frame_id, stamp, **extra)
         self._raw(name, POINT_CLOUD, msg, stamp)
 
-    def _markers(self, name: str, site: Any, rgba: tuple[float, ...], label: str, stamp: int, world: str) -> None:
+    def _markers(self, name: str, site: Site, rgba: tuple[float, ...], label: str, stamp: int, world: str) -> None:
         self._raw(name, MARKER_ARRAY, site_markers(self.writer, site, rgba, label, stamp, name, world), stamp)
 
 
@@ -332,7 +341,7 @@ class NoResults:
     def __exit__(self, *exc: object) -> None:
         return None
 
-    def write_detection(self, det: Any, overlay: np.ndarray | None = None) -> None:
+    def write_detection(self, det: Detection, overlay: np.ndarray | None = None) -> None:
         return None
 
     def write_pose(self, stamp: int, T: np.ndarray | None, segment: int = 0,
@@ -352,16 +361,16 @@ def open_results(run_dir: Path, config: Config, frames: RecordedFrames | None = 
 
 
 # ----------------------------------------------------------------------------- message builders
-def register_foxglove(typestore: Any) -> None:
+def register_foxglove(typestore: Typestore) -> None:
     """The foxglove_msgs this file writes, in a rosbags typestore (to write results.mcap or to read it)."""
     if GRID not in typestore.fielddefs:
-        types: dict[str, Any] = {}
+        types: Typesdict = {}
         for name, text in FOXGLOVE_MSGS.items():
             types.update(get_types_from_msg(text, name))
         typestore.register(types)
 
 
-def results_typestore() -> Any:
+def results_typestore() -> Typestore:
     """A typestore that reads every message of a results.mcap (ROS 2 Humble and the foxglove_msgs above)."""
     store = get_typestore(Stores.ROS2_HUMBLE)
     register_foxglove(store)
@@ -389,7 +398,7 @@ def grid_cells(grid: LandingGrid) -> np.ndarray:
     return words.view(GRID_FIELDS)[..., 0]
 
 
-def grid_message(writer: RecordingWriter, grid: LandingGrid, frame_id: str) -> Any:
+def grid_message(writer: RecordingWriter, grid: LandingGrid, frame_id: str) -> RosMessage:
     """A foxglove_msgs/Grid of the landing map: pose at the south-west corner of cell (0, 0), z the median
     fused height (display only, so that the grid lies on the ground: the heights are in ``height_m``)."""
     t = writer.typestore.types
@@ -425,7 +434,7 @@ def mono8(values: np.ndarray) -> np.ndarray:
     return v.astype(np.uint8)
 
 
-def point_cloud(writer: RecordingWriter, xyz: np.ndarray, frame_id: str, stamp: int, **extra: np.ndarray) -> Any:
+def point_cloud(writer: RecordingWriter, xyz: np.ndarray, frame_id: str, stamp: int, **extra: np.ndarray) -> RosMessage:
     """An unorganised little-endian float32 PointCloud2 with x, y, z and one float32 field per ``extra``."""
     names = ("x", "y", "z", *extra)
     columns = [xyz.reshape(-1, 3).astype("<f4"), *(np.asarray(v, dtype="<f4").reshape(-1, 1) for v in extra.values())]
@@ -439,8 +448,8 @@ def point_cloud(writer: RecordingWriter, xyz: np.ndarray, frame_id: str, stamp: 
                           data=data.reshape(-1).view(np.uint8), is_dense=True)
 
 
-def site_markers(writer: RecordingWriter, site: Any, rgba: tuple[float, ...], label: str, stamp: int,
-                 ns: str, world: str = MAP_FRAME) -> Any:
+def site_markers(writer: RecordingWriter, site: Site, rgba: tuple[float, ...], label: str, stamp: int,
+                 ns: str, world: str = MAP_FRAME) -> RosMessage:
     """The site as three markers in ``world`` (a map segment's frame): the Eq. 10 square, a centre sphere, a label."""
     t = writer.typestore.types
     gm = "geometry_msgs/msg/"
@@ -450,7 +459,7 @@ def site_markers(writer: RecordingWriter, site: Any, rgba: tuple[float, ...], la
     header = writer.header(stamp, world)
 
     def marker(mid: int, kind: str, position: np.ndarray, scale: tuple[float, float, float],
-               points: np.ndarray | None = None, text: str = "") -> Any:
+               points: np.ndarray | None = None, text: str = "") -> RosMessage:
         pose = t[gm + "Pose"](position=t[gm + "Point"](*map(float, position)),
                               orientation=t[gm + "Quaternion"](0.0, 0.0, 0.0, 1.0))
         return t["visualization_msgs/msg/Marker"](

@@ -30,7 +30,7 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from types import ModuleType
 
 from slzcli.errors import OutputError
 from slzcli.outputs.safe_output import is_temp_dir
@@ -130,7 +130,7 @@ def _open_marked(path: Path) -> int:
     return fd
 
 
-def _acquire(path: Path, run_dir: Path, fcntl: Any, wait: bool) -> int:
+def _acquire(path: Path, run_dir: Path, fcntl: ModuleType, wait: bool) -> int:
     while True:
         fd = _open_marked(path)
         if fd < 0:

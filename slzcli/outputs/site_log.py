@@ -11,8 +11,8 @@ from __future__ import annotations
 import csv
 import io
 import shutil
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -34,7 +34,7 @@ class SiteLog:
         self.folder = Path(folder) if folder is not None else None
         self.rows = 0
         self.sites: list[FoundSite] = []
-        self._rows: list[dict[str, Any]] = []
+        self._rows: list[Mapping[str, object]] = []  # SITE_COLUMNS -> value, as csv writes it (str)
         self._points: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._clusters: dict[int, np.ndarray] = {}
         self._spool = ArraySpool(self.folder / "site_points", POINT_SPEC) if self.folder is not None else None
@@ -43,7 +43,7 @@ class SiteLog:
             with naming_write_errors(self._csv):
                 self._csv.write_text(",".join(SITE_COLUMNS) + "\n")
 
-    def add_rows(self, rows: list[dict[str, Any]]) -> None:
+    def add_rows(self, rows: Sequence[Mapping[str, object]]) -> None:
         self.rows += len(rows)
         if self._csv is None:
             self._rows.extend(rows)

@@ -7,8 +7,8 @@ ORB-SLAM3 when the optional pyorbslam3 wheel is installed, else the built-in odo
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
 
 from slzcli.errors import ConfigError
 from slzcli.slam.base import Keyframe, MapPoints, SlamBackend, TrackingState, TrackResult
@@ -21,19 +21,25 @@ if TYPE_CHECKING:
     from slzcli.sources.recording import RecordingInfo
 
 
-def _recorded(slam: SlamCfg, **kw: Any) -> SlamBackend:
-    return RecordedBackend(slam, bool(kw.get("clouds", False)))
+class BackendFactory(Protocol):
+    """Makes a backend; each takes what it needs of the keywords (``get_backend``) and ignores the rest."""
+
+    def __call__(self, slam: SlamCfg, *, clouds: bool, vocabulary: str | Path | None) -> SlamBackend: ...
 
 
-def _orbslam3(slam: SlamCfg, **kw: Any) -> SlamBackend:
-    return OrbSlam3Backend(slam, kw.get("vocabulary"))
+def _recorded(slam: SlamCfg, *, clouds: bool, vocabulary: str | Path | None) -> SlamBackend:
+    return RecordedBackend(slam, clouds)
 
 
-def _odometry(slam: SlamCfg, **kw: Any) -> SlamBackend:
+def _orbslam3(slam: SlamCfg, *, clouds: bool, vocabulary: str | Path | None) -> SlamBackend:
+    return OrbSlam3Backend(slam, vocabulary)
+
+
+def _odometry(slam: SlamCfg, *, clouds: bool, vocabulary: str | Path | None) -> SlamBackend:
     return OdometryBackend(slam)
 
 
-BACKENDS: dict[str, Callable[..., SlamBackend]] = {
+BACKENDS: dict[str, BackendFactory] = {
     "recorded": _recorded,
     "orbslam3": _orbslam3,
     "odometry": _odometry,
@@ -68,15 +74,17 @@ def with_frame_period(slam: SlamCfg, info: RecordingInfo) -> SlamCfg:
     return dataclasses.replace(slam, orbslam3=dataclasses.replace(orb, nominal_period_s=period))
 
 
-def get_backend(slam: SlamCfg, has_recorded_poses: bool = False, **kw: Any) -> SlamBackend:
+def get_backend(slam: SlamCfg, has_recorded_poses: bool = False, *, clouds: bool = False,
+                vocabulary: str | Path | None = None) -> SlamBackend:
     """A backend instance (a context manager).
 
-    ``kw``: clouds= (bool: the frames carry recorded map clouds) for recorded, vocabulary= for orbslam3.
+    ``clouds``: the frames carry recorded map clouds (recorded); ``vocabulary``: overrides ``slam.vocabulary``
+    (orbslam3).
     """
     name = choose_backend(slam, has_recorded_poses)
     if name not in BACKENDS:
         raise ConfigError("slam.backend", f"unknown backend {name!r}")
-    return BACKENDS[name](slam, **kw)
+    return BACKENDS[name](slam, clouds=clouds, vocabulary=vocabulary)
 
 
 __all__ = ["BACKENDS", "Keyframe", "MapPoints", "SlamBackend", "TrackResult", "TrackingState",

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -84,16 +84,18 @@ class OdometryBackend(BackendBase):
              guess: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray]:
         if len(q) < self.cfg.min_inliers:
             return None, np.zeros(0, int)
-        kw: dict[str, Any] = {}
-        if guess is not None:
+        obj, img, cfg = self.xyz[ids].astype(np.float64), px[q].astype(np.float64), self.cfg
+        if guess is None:
+            ok, rvec, tvec, inl = cv2.solvePnPRansac(
+                obj, img, frame.K, None, iterationsCount=cfg.pnp_iterations, reprojectionError=cfg.pnp_reprojection_px,
+                confidence=cfg.pnp_confidence, flags=cv2.SOLVEPNP_EPNP)
+        else:
             T_cw = invert_pose(guess)
             rvec, _ = cv2.Rodrigues(T_cw[:3, :3])
-            kw = {"rvec": rvec.copy(), "tvec": T_cw[:3, 3].reshape(3, 1).copy(), "useExtrinsicGuess": True}
-        ok, rvec, tvec, inl = cv2.solvePnPRansac(
-            self.xyz[ids].astype(np.float64), px[q].astype(np.float64), frame.K, None,
-            iterationsCount=self.cfg.pnp_iterations, reprojectionError=self.cfg.pnp_reprojection_px,
-            confidence=self.cfg.pnp_confidence,
-            flags=cv2.SOLVEPNP_ITERATIVE if guess is not None else cv2.SOLVEPNP_EPNP, **kw)
+            ok, rvec, tvec, inl = cv2.solvePnPRansac(
+                obj, img, frame.K, None, rvec=rvec.copy(), tvec=T_cw[:3, 3].reshape(3, 1).copy(),
+                useExtrinsicGuess=True, iterationsCount=cfg.pnp_iterations,
+                reprojectionError=cfg.pnp_reprojection_px, confidence=cfg.pnp_confidence, flags=cv2.SOLVEPNP_ITERATIVE)
         if not ok or inl is None or len(inl) < self.cfg.min_inliers:
             return None, np.zeros(0, int)
         inl = inl[:, 0]

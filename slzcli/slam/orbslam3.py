@@ -36,7 +36,7 @@ import sys
 import tempfile
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -48,7 +48,7 @@ from slzcli.slam.vocabulary import DEFAULT_VOCABULARY, read_vocabulary
 from slzcli.types import Frame, Intrinsics
 
 if TYPE_CHECKING:
-    from slzcli.config import SlamCfg
+    from slzcli.config import OrbCfg, SlamCfg
 
 log = logging.getLogger(__name__)
 _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
@@ -65,6 +65,12 @@ _STATES = {-1: TrackingState.INITIALISING, 0: TrackingState.INITIALISING, 1: Tra
            2: TrackingState.OK, 3: TrackingState.LOST, 4: TrackingState.LOST, 5: TrackingState.OK}
 
 
+# What the worker sends back: started, a tracked frame (state, pose or None, tracked points, map points,
+# its own ms), the native code's error text, or closed.
+Reply = (tuple[Literal["ready"], None] | tuple[Literal["closed"], None] | tuple[Literal["error"], str]
+         | tuple[Literal["ok"], int, np.ndarray | None, int, np.ndarray, float])
+
+
 class SlamWorkerError(SlzError):
     """The ORB-SLAM3 worker failed or died."""
 
@@ -74,7 +80,7 @@ def available() -> bool:
     return importlib.util.find_spec("pyorbslam3") is not None
 
 
-def settings_yaml(K: Intrinsics, orb: Any, close_depth_m: float, baseline_m: float, fps: float) -> str:
+def settings_yaml(K: Intrinsics, orb: OrbCfg, close_depth_m: float, baseline_m: float, fps: float) -> str:
     """An ORB-SLAM3 v1.0 settings file for an undistorted RGB-D camera with metric float depth.
 
     Every ``Viewer.*`` key must be present even without a viewer, or the native code exits; their
@@ -100,7 +106,7 @@ def settings_yaml(K: Intrinsics, orb: Any, close_depth_m: float, baseline_m: flo
     ])
 
 
-def _worker(conn: Any, vocab_path: str, settings_text: str, sensor: str = "rgbd") -> None:
+def _worker(conn: Connection, vocab_path: str, settings_text: str, sensor: str = "rgbd") -> None:
     """Runs in the worker process: owns the native ORB-SLAM3 system, answers track requests."""
     import os
     import tempfile
@@ -168,7 +174,7 @@ class OrbSlam3Backend(BackendBase):
         self.cfg = cfg
         self._proc: subprocess.Popen[bytes] | None = None
         self._conn: Connection | None = None
-        self._log: Any = None
+        self._log: IO[bytes] | None = None
         self._intrinsics: Intrinsics | None = None
         self._last_kf_pose: np.ndarray | None = None
         self._last_kf_tracked = 0
@@ -213,12 +219,12 @@ class OrbSlam3Backend(BackendBase):
             raise SlamWorkerError(f"{self.vocab_path}: ORB-SLAM3 failed to start on {frame.source or 'the recording'}: "
                                   f"{detail}")
 
-    def _recv(self, doing: str, timeout_s: float) -> tuple[Any, ...]:
+    def _recv(self, doing: str, timeout_s: float) -> Reply:
         conn, proc = self._conn, self._proc
         assert conn is not None and proc is not None  # _start opened both
         try:
             if conn.poll(timeout_s):
-                reply: tuple[Any, ...] = conn.recv()
+                reply: Reply = conn.recv()
                 return reply
         except (EOFError, OSError):
             pass
@@ -300,7 +306,7 @@ class OrbSlam3Backend(BackendBase):
             raise RuntimeError("orbslam3: collect() without a submitted frame")
         reply = self._recv(f"tracking frame {frame.index} of {frame.source or 'the recording'}",
                            self.cfg.orbslam3.frame_timeout_s)
-        if reply[0] == "error":  # the native tracker threw: the worker is alive, the frame is not usable
+        if reply[0] != "ok":  # the native tracker threw: the worker is alive, the frame is not usable
             h, w = frame.rgb.shape[:2]
             raise SlamWorkerError(f"{frame.source or 'recording'}: ORB-SLAM3 cannot track frame {frame.index} "
                                   f"({w}x{h} px): {reply[1]}; try --set slam.backend=odometry")

@@ -25,11 +25,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Iterable, Iterator, Sequence
-from contextlib import closing
+from collections.abc import Generator, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Protocol
 
 import cv2
 import numpy as np
@@ -354,7 +353,17 @@ def seen_frames(frames: Iterable[Frame], slam: SlamCfg) -> list[Seen]:
     return out
 
 
-def vet_recorded_poses(path: Path, rec: Any, info: RecordingInfo, slam: SlamCfg,
+class PosedRecording(Protocol):
+    """What the check reads of an opened recording (``sources.Recording``)."""
+
+    quiet_frames: bool
+
+    def frames(self) -> Iterator[Frame]: ...
+
+    def pose_stamps(self, limit: int) -> list[int]: ...
+
+
+def vet_recorded_poses(path: Path, rec: PosedRecording, info: RecordingInfo, slam: SlamCfg,
                        tol_ms: float) -> tuple[SlamCfg, RecordingInfo]:
     """The ``slam`` section and ``info`` for a run whose recorded poses have been checked (``tol_ms``:
     ``sources.pose_tolerance_ms``).
@@ -368,10 +377,12 @@ def vet_recorded_poses(path: Path, rec: Any, info: RecordingInfo, slam: SlamCfg,
     if topic is None or choose_backend(slam, True) != "recorded" or not slam.pose_check.frames:
         return slam, info
     rec.quiet_frames = True  # the run's own pass gives the per-frame warnings
+    frames = rec.frames()
     try:
-        with closing(rec.frames()) as frames:
-            kept = seen_frames(frames, slam)
+        kept = seen_frames(frames, slam)
     finally:
+        if isinstance(frames, Generator):  # ends the reader's pass (closes what it opened)
+            frames.close()
         rec.quiet_frames = False
     verdict = check(kept, rec.pose_stamps(slam.pose_check.max_pose_stamps), slam, tol_ms, topic)
     notes: list[str] = [f"recorded poses not checked for {what}" for what in verdict.unchecked]

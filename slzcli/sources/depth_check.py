@@ -16,7 +16,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -43,7 +42,7 @@ class DepthRange:
     warning: str = ""
     unread: str = ""                   # why no frame could be read (the check is then empty; info still answers)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, object]:
         return {"stream": self.stream, "frames": self.frames, "valid_share": round(self.valid_share, 4),
                 "percentiles_m": {f"p{p}": None if not np.isfinite(v) else round(v, 4)
                                   for p, v in zip(PERCENTILES, self.percentiles_m, strict=True)},

@@ -22,7 +22,7 @@ from slzcli.sources.clouds import CloudBuffer
 from slzcli.sources.color_camera import to_color_camera
 from slzcli.sources.image_limits import FrameTooLarge
 from slzcli.sources.message_log import MessageLog, RawMessage
-from slzcli.sources.sync import Pair, PoseTrack, StreamPairer
+from slzcli.sources.sync import P, Pair, PoseTrack, StreamPairer
 from slzcli.sources.topics import ODOMETRY, POSE_STAMPED, TF, Choices
 from slzcli.sources.undistort import distortion_problem
 from slzcli.sources.validate import StampCounts, depth_shape_problem, size_problem, stamp_problem
@@ -53,7 +53,7 @@ def stamp_of(msglog: MessageLog, msg: RawMessage, counts: StampCounts | None = N
     return stamp, frame
 
 
-def stamp_report(ch: Choices, counts: dict[str, StampCounts], pairer: StreamPairer) -> list[str]:
+def stamp_report(ch: Choices, counts: dict[str, StampCounts], pairer: StreamPairer[P]) -> list[str]:
     """One line per stream and kind of stamp problem, with its count."""
     lines = []
     for role, topic in (("color", ch.color.topic), ("depth", ch.depth.topic)):
@@ -67,7 +67,7 @@ def stamp_report(ch: Choices, counts: dict[str, StampCounts], pairer: StreamPair
 
 
 
-def pairing_report(msglog: MessageLog, pairer: StreamPairer, without_pose: int, undecodable: int,
+def pairing_report(msglog: MessageLog, pairer: StreamPairer[P], without_pose: int, undecodable: int,
             notes: tuple[str, ...], win: WindowFilter) -> PairingReport:
     extra: tuple[str, ...] = ()
     if pairer.duplicates:
@@ -101,13 +101,13 @@ class FrameStream:
         cfg = self.cfg
         tol_pose = int(cfg.pose_tolerance_ms * NS_PER_MS)
         window = int(cfg.reorder_window_ms * NS_PER_MS)
-        pairer = StreamPairer(int(cfg.sync_tolerance_ms * NS_PER_MS), window)
+        pairer = StreamPairer[RawMessage](int(cfg.sync_tolerance_ms * NS_PER_MS), window)
         state = _FrameState(CloudBuffer(tol_pose) if points_topic else None, self.quiet)
         poses = _PoseSource(self, ch, PoseTrack(tol_pose), state)
         topics = {t for t in (ch.color.topic, ch.depth.topic, ch.camera_info.topic, ch.pose.topic, points_topic) if t}
         if ch.pose_type in (TF, ODOMETRY) and TF_STATIC in self.setup.topics:
             topics.add(TF_STATIC)
-        pending: deque[Pair] = deque()
+        pending: deque[Pair[RawMessage]] = deque()
         newest: int | None = None
         # A frame waits until no pose (nor cloud) within the pose tolerance of its stamp can still arrive.
         has_pose = ch.pose.topic is not None or state.clouds is not None
@@ -183,7 +183,7 @@ class FrameStream:
         except DecodeError as err:
             raise DatasetError(self.path, f"{msg.topic}: {err}") from err
 
-    def _decode(self, pair: Pair, state: _FrameState, poses: _PoseSource) -> Frame | None:
+    def _decode(self, pair: Pair[RawMessage], state: _FrameState, poses: _PoseSource) -> Frame | None:
         ch = self.setup.choices
         try:
             max_px = self.cfg.max_image_px

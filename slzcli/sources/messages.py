@@ -64,7 +64,8 @@ class MessageRecording(Recording):
         setup = self.camera_setup()
         ch = setup.choices
         counts: dict[str, list[int]] = {t: [0, 0, 0] for t in setup.topics}  # count, first, last
-        pairer = StreamPairer(int(self.cfg.sync_tolerance_ms * NS_PER_MS), int(self.cfg.reorder_window_ms * NS_PER_MS))
+        pairer = StreamPairer[bytes | memoryview](int(self.cfg.sync_tolerance_ms * NS_PER_MS),
+                                                  int(self.cfg.reorder_window_ms * NS_PER_MS))
         intrinsics: Intrinsics | None = None
         undecodable = 0
         info_failed = False

@@ -15,11 +15,19 @@ import re
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import yaml
 
-from slzcli.config import CONFIG_DIR, Config, read_yaml_text, safe_yaml_load
+from slzcli.config import (
+    CONFIG_DIR,
+    Config,
+    read_yaml_text,
+    safe_yaml_load,
+    yaml_float,
+    yaml_floats,
+    yaml_int,
+    yaml_mapping,
+)
 from slzcli.errors import ConfigError
 from slzcli.types import Intrinsics
 
@@ -62,25 +70,29 @@ class PresetChoice:
     def name(self) -> str | None:
         return None if self.preset is None else self.preset.name
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, object]:
         return {"name": self.name, "reason": self.reason,
                 "noise_prior_a_per_m": None if self.preset is None else self.preset.noise_prior_a_per_m}
 
 
 def _load(path: Path) -> CameraPreset:
     try:
-        d = safe_yaml_load(read_yaml_text(path))
+        d = yaml_mapping(safe_yaml_load(read_yaml_text(path)))
         k = d.get("intrinsics")
-        intr = None if not k else Intrinsics(float(k["fx"]), float(k["fy"]), float(k["cx"]), float(k["cy"]),
-                                             int(k["width"]), int(k["height"]), str(k.get("distortion_model") or ""),
-                                             tuple(float(v) for v in k.get("distortion") or ()))
-        topics = {r: str(d["topics"].get(r) or "") for r in ROLES}
+        intr = None
+        if k:
+            k = yaml_mapping(k)
+            intr = Intrinsics(yaml_float(k["fx"]), yaml_float(k["fy"]), yaml_float(k["cx"]), yaml_float(k["cy"]),
+                              yaml_int(k["width"]), yaml_int(k["height"]), str(k.get("distortion_model") or ""),
+                              yaml_floats(k.get("distortion")))
+        roles = yaml_mapping(d["topics"])
+        topics = {r: str(roles.get(r) or "") for r in ROLES}
         for pattern in [*topics.values(), str(d.get("hint") or ""), str(d.get("folder") or "")]:
             re.compile(pattern)
-        return CameraPreset(str(d["name"]), str(d["description"]), int(d["order"]), str(d.get("hint") or ""),
+        return CameraPreset(str(d["name"]), str(d["description"]), yaml_int(d["order"]), str(d.get("hint") or ""),
                             topics, bool(d["depth_aligned"]), str(d.get("folder") or ""), intr,
-                            float(d["noise_prior_a_per_m"]),
-                            None if d["min_range_m"] is None else float(d["min_range_m"]))
+                            yaml_float(d["noise_prior_a_per_m"]),
+                            None if d["min_range_m"] is None else yaml_float(d["min_range_m"]))
     except (yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError, re.error) as err:
         raise ConfigError("", f"{path}: not a camera preset ({type(err).__name__}: {err})") from err
 

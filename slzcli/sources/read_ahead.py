@@ -20,7 +20,7 @@ from __future__ import annotations
 import queue
 import threading
 from collections.abc import Generator, Iterable
-from typing import Any, TypeVar
+from typing import Literal, TypeVar
 
 T = TypeVar("T")
 # Housekeeping, not tuning: the slice the caller waits in (so signals and async exceptions land between
@@ -29,15 +29,19 @@ WAIT_SLICE_S = 0.05
 STOP_GRACE_S = 5.0
 
 
+# What the reader thread hands over: an item, the end, or what it raised.
+_Slot = tuple[Literal["item"], T] | tuple[Literal["end"], None] | tuple[Literal["error"], BaseException]
+
+
 def read_ahead(items: Iterable[T], depth: int, name: str = "slz-reader") -> Generator[T, None, None]:
     """``items`` in order, produced by a thread up to ``depth`` ahead of the caller (0: no thread)."""
     if depth <= 0:
         yield from items
         return
-    slots: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=depth)
+    slots: queue.Queue[_Slot[T]] = queue.Queue(maxsize=depth)
     stop = threading.Event()
 
-    def put(entry: tuple[str, Any]) -> bool:
+    def put(entry: _Slot[T]) -> bool:
         while not stop.is_set():
             try:
                 slots.put(entry, timeout=WAIT_SLICE_S)
@@ -60,14 +64,14 @@ def read_ahead(items: Iterable[T], depth: int, name: str = "slz-reader") -> Gene
     try:
         while True:
             try:
-                kind, value = slots.get(timeout=WAIT_SLICE_S)
+                entry = slots.get(timeout=WAIT_SLICE_S)
             except queue.Empty:
                 continue
-            if kind == "end":
+            if entry[0] == "end":
                 return
-            if kind == "error":
-                raise value
-            yield value
+            if entry[0] == "error":
+                raise entry[1]
+            yield entry[1]
     finally:
         stop.set()
         thread.join(STOP_GRACE_S)

@@ -7,9 +7,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any
 
-from slzcli.types import Frame, Intrinsics, PairingReport, RecordedFrames, StreamChoice, StreamInfo
+from slzcli.types import Frame, GravityDoc, Intrinsics, PairingReport, RecordedFrames, StreamChoice, StreamInfo
 
 
 @dataclass(frozen=True)
@@ -28,7 +27,7 @@ class RecordingInfo:
     camera_preset: str | None = None     # configs/camera/NAME.yaml in use, None: none
     camera_preset_reason: str = ""
     depth_to_color: str = ""             # how depth reaches the colour pixel grid (aligned, registered, resized)
-    gravity: dict[str, Any] | None = None  # where world up came from (slzcli/gravity.py), None: not resolved
+    gravity: GravityDoc | None = None  # where world up came from (slzcli/gravity.py), None: not resolved
 
     @property
     def expected_frames(self) -> int:
@@ -41,7 +40,7 @@ class RecordingInfo:
         rate = next((s.rate_hz for s in self.streams if s.topic == topic), None)
         return None if rate is None else 1.0 / rate
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, object]:
         """Plain JSON-ready form (the ``--json`` summary of ``slz info``)."""
         k = self.intrinsics
         return {

@@ -25,7 +25,7 @@ import bisect
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Generic, Literal, TypeVar
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -83,31 +83,34 @@ def stamp_offset_ns(frames_ns: np.ndarray, poses_ns: np.ndarray, tolerance_ns: i
     return float(np.median(d[b == pick]))
 
 
+P = TypeVar("P")  # what the caller keeps of each message (the raw message, its bytes, or nothing)
+
+
 @dataclass(frozen=True)
-class Pair:
+class Pair(Generic[P]):
     """A colour and a depth message paired; the frame takes the colour stamp."""
 
     stamp_ns: int
     depth_stamp_ns: int
-    color: Any
-    depth: Any
+    color: P
+    depth: P
 
 
 @dataclass(order=True)
-class _Item:
+class _Item(Generic[P]):
     stamp_ns: int
     seq: int
     stream: Stream = field(compare=False)
-    payload: Any = field(compare=False)
+    payload: P = field(compare=False)
 
 
-class StreamPairer:
+class StreamPairer(Generic[P]):
     """Incremental ``pair_stamps`` with bounded memory; counts what it cannot pair."""
 
     def __init__(self, tolerance_ns: int, window_ns: int) -> None:
         self.tolerance_ns = int(tolerance_ns)
         self.window_ns = int(window_ns)
-        self._buf: list[_Item] = []
+        self._buf: list[_Item[P]] = []
         self._seq = itertools.count()
         self._newest: int | None = None
         self._settled_until: int | None = None
@@ -129,7 +132,7 @@ class StreamPairer:
                 "which most colour frames would find a depth); fix the recording's clocks, or raise "
                 "sources.sync_tolerance_ms if the two streams are stamped that far apart")
 
-    def push(self, stream: Stream, stamp_ns: int, payload: Any = None) -> list[Pair]:
+    def push(self, stream: Stream, stamp_ns: int, payload: P) -> list[Pair[P]]:
         """Add one message; returns the pairs that can no longer change, in stamp order."""
         if len(self.first[stream]) < FIRST_KEPT:
             self.first[stream].append(int(stamp_ns))
@@ -150,7 +153,7 @@ class StreamPairer:
         self._newest = stamp_ns if self._newest is None else max(self._newest, stamp_ns)
         return self._drain(final=False)
 
-    def flush(self) -> list[Pair]:
+    def flush(self) -> list[Pair[P]]:
         """Settle everything still held (end of the recording)."""
         return self._drain(final=True)
 
@@ -189,7 +192,7 @@ class StreamPairer:
                 return i
         return n - 1
 
-    def _drain(self, final: bool) -> list[Pair]:
+    def _drain(self, final: bool) -> list[Pair[P]]:
         out: list[Pair] = []
         while self._buf:
             end = self._first_group_end()
@@ -206,7 +209,7 @@ class StreamPairer:
                 self._settled_until, group[-1].stamp_ns)
         return out
 
-    def _settle(self, group: list[_Item]) -> list[Pair]:
+    def _settle(self, group: list[_Item]) -> list[Pair[P]]:
         colors = [it for it in group if it.stream == "color"]
         depths = [it for it in group if it.stream == "depth"]
         idx = pair_stamps([it.stamp_ns for it in colors], [it.stamp_ns for it in depths], self.tolerance_ns)
@@ -216,7 +219,10 @@ class StreamPairer:
         return [Pair(colors[i].stamp_ns, depths[j].stamp_ns, colors[i].payload, depths[j].payload) for i, j in idx]
 
 
-def _same(a: Any, b: Any) -> bool:
+_BUFFERS = (bytes, bytearray, memoryview, np.ndarray)
+
+
+def _same(a: object, b: object) -> bool:
     """Whether two payloads hold the same bytes (None, when no payload is kept, counts as the same).
 
     A payload with a ``data`` attribute (a raw message) is compared by that.
@@ -224,10 +230,13 @@ def _same(a: Any, b: Any) -> bool:
     a, b = getattr(a, "data", a), getattr(b, "data", b)
     if a is None or b is None or a is b:
         return True
-    try:
-        return bool(memoryview(a) == memoryview(b))
-    except TypeError:
-        return bool(a == b)
+    if isinstance(a, _BUFFERS) and isinstance(b, _BUFFERS):
+        return bool(_view(a) == _view(b))
+    return bool(a == b)
+
+
+def _view(data: bytes | bytearray | memoryview | np.ndarray) -> memoryview:
+    return data.data if isinstance(data, np.ndarray) else memoryview(data)  # an array's own buffer
 
 
 class PoseTrack:

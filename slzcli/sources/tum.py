@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 import yaml
 
-from slzcli.config import Config, read_yaml_text, safe_yaml_load
+from slzcli.config import Config, read_yaml_text, safe_yaml_load, yaml_float, yaml_floats, yaml_int, yaml_mapping
 from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources import decode
 from slzcli.sources.color_camera import ALIGNED, to_color_camera
@@ -101,7 +101,7 @@ def read_list(path: Path, min_fields: int) -> list[list[str]]:
 def _depth_scale(cam_file: Path, value: object) -> float:
     """camera.yaml's ``depth_scale``: a finite number of counts per metre above 0, else DatasetError naming it."""
     try:
-        scale = float(value)  # type: ignore[arg-type]
+        scale = yaml_float(value)
     except (TypeError, ValueError) as err:
         raise DatasetError(cam_file, f"depth_scale {value!r} is not a number (counts per metre: 1000 for "
                                      "millimetre PNGs, 5000 for the TUM benchmark)") from err
@@ -194,13 +194,13 @@ class TumRecording(Recording):
         cam_file = self.path / "camera.yaml"
         if cam_file.is_file():
             try:
-                c = safe_yaml_load(read_yaml_text(cam_file))
-                unknown = sorted(str(key) for key in c if key not in CAMERA_YAML_KEYS) if isinstance(c, dict) else []
+                c = yaml_mapping(safe_yaml_load(read_yaml_text(cam_file)))
+                unknown = sorted(str(key) for key in c if key not in CAMERA_YAML_KEYS)
                 if unknown:
                     raise DatasetError(cam_file, f"unknown key {unknown[0]!r} (keys: {', '.join(CAMERA_YAML_KEYS)})")
-                k = Intrinsics(float(c["fx"]), float(c["fy"]), float(c["cx"]), float(c["cy"]), int(c["width"]),
-                               int(c["height"]), str(c.get("distortion_model", "")),
-                               tuple(float(v) for v in c.get("distortion", ())))
+                k = Intrinsics(yaml_float(c["fx"]), yaml_float(c["fy"]), yaml_float(c["cx"]), yaml_float(c["cy"]),
+                               yaml_int(c["width"]), yaml_int(c["height"]), str(c.get("distortion_model", "")),
+                               yaml_floats(c.get("distortion", ())))
             except (yaml.YAMLError, KeyError, TypeError, ValueError, OverflowError, RecursionError) as err:
                 raise DatasetError(cam_file, f"needs fx, fy, cx, cy, width, height ({err})") from err
             lim = self.cfg.intrinsics

@@ -11,10 +11,10 @@ recording's own clock (``--start @1712345678.25``). The window is half-open: ``[
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from slzcli.config import WindowCfg
 from slzcli.errors import ConfigError
+from slzcli.types import PairingReport
 
 NS_PER_S = 1_000_000_000
 # A stamp this close to a bound counts as on it: seconds in a float resolve 0.24 us at today's epoch
@@ -128,7 +128,7 @@ class WindowFilter:
                 + ("" if self.first_ns is None else f"; offsets from the first pair's stamp "
                    f"{self.first_ns // NS_PER_S}.{self.first_ns % NS_PER_S:09d} s"))
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> dict[str, object]:
         """run.json / slz info ``window``: the keys as set and what they left out."""
         w = self.window
         return {"start_s": w.start_s, "end_s": w.end_s, "start_stamp_s": w.start_stamp_s,
@@ -137,10 +137,10 @@ class WindowFilter:
                 "after_end": self.after, "between_strides": self.strided, "over_max_frames": self.over_max}
 
 
-def no_frames_reason(report: Any) -> str:
+def no_frames_reason(report: PairingReport) -> str:
     """Why a recording gave no frame: the pairing report's window note when the window left every pair out."""
-    notes = [n for n in getattr(report, "notes", ()) if n.startswith("window ")]
-    if getattr(report, "outside_window", 0) and notes:
+    notes = [n for n in report.notes if n.startswith("window ")]
+    if report.outside_window and notes:
         return f"no RGB-D frame in the window ({notes[-1]})"
-    apart = [n for n in getattr(report, "notes", ()) if n.startswith("colour and depth never pair")]
+    apart = [n for n in report.notes if n.startswith("colour and depth never pair")]
     return f"no RGB-D frame could be read: {apart[0]}" if apart else "no RGB-D frame could be read"

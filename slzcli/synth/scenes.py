@@ -19,7 +19,7 @@ import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Literal, TypeVar
 
 import numpy as np
 import yaml
@@ -214,13 +214,13 @@ def load_scene(spec: str | Path, variants: typing.Sequence[str] = (), scenes_dir
             raise SceneError(key, "missing key", source=str(path))
 
     materials = {k: _build(Material, v, f"materials.{k}", str(common_path))
-                 for k, v in (common.get("materials") or {}).items()}
+                 for k, v in _mapping(common.get("materials"), "materials", str(common_path)).items()}
     materials.update({k: _build(Material, v, f"materials.{k}", str(path))
-                      for k, v in (data.get("materials") or {}).items()})
+                      for k, v in _mapping(data.get("materials"), "materials", str(path)).items()})
     variant_defs = {k: _build(Variant, v, f"variants.{k}", str(common_path))
-                    for k, v in (common.get("variants") or {}).items()}
+                    for k, v in _mapping(common.get("variants"), "variants", str(common_path)).items()}
     variant_defs.update({k: _build(Variant, v, f"variants.{k}", str(path))
-                         for k, v in (data.get("variants") or {}).items()})
+                         for k, v in _mapping(data.get("variants"), "variants", str(path)).items()})
 
     ground = _build(Ground, data["ground"], "ground", str(path))
     illum = _build(Illumination, data.get("illumination") or {}, "illumination", str(path))
@@ -276,7 +276,7 @@ def _check_primitive(p: Primitive, where: str, materials: dict[str, Material], s
         raise SceneError(f"{where}.angle_deg", "a ramp angle must be in (0, 80) degrees", source)
 
 
-def _read(path: Path) -> dict[str, Any]:
+def _read(path: Path) -> dict[str, object]:
     try:
         data = safe_yaml_load(read_yaml_text(path))
     except yaml.YAMLError as err:
@@ -284,6 +284,15 @@ def _read(path: Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise SceneError("", "a scene file must be a mapping", source=str(path))
     return data
+
+
+def _mapping(value: object, where: str, source: str) -> Mapping[str, object]:
+    """A section of names (``materials``, ``variants``); nothing is an empty one."""
+    if not value:
+        return {}
+    if not isinstance(value, dict):
+        raise SceneError(where, f"expected a mapping of names, got {type(value).__name__}", source=source)
+    return value
 
 
 def _only_keys(data: Mapping[str, object], allowed: set[str], where: str, source: str) -> None:
@@ -301,7 +310,7 @@ def _build(cls: type[_D], data: object, where: str, source: str) -> _D:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     _only_keys(data, set(fields), f"{where}.", source)
     hints = typing.get_type_hints(cls)
-    kwargs = {}
+    kwargs: dict[str, object] = {}
     for name, f in fields.items():
         if name not in data:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
@@ -311,7 +320,8 @@ def _build(cls: type[_D], data: object, where: str, source: str) -> _D:
     return cls(**kwargs)
 
 
-def _value(tp: Any, value: Any, where: str, source: str) -> Any:
+def _value(tp: object, value: object, where: str, source: str) -> object:
+    """``value`` (untrusted YAML) as the type ``tp`` of a scene field."""
     if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return _build(tp, value, where, source)
     origin = typing.get_origin(tp)

@@ -21,14 +21,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from slzcli.config import GravityCfg, ImuGravityCfg, Mount, SceneGravityCfg
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.maps import gravity_up_in_camera, mount_from_up
-from slzcli.types import Intrinsics
+from slzcli.types import GravityDoc, Intrinsics
 
 STANDARD_GRAVITY_M_S2 = 9.80665  # CGPM 1901: what an accelerometer at rest reads (magnitude)
 SOURCES = ("imu", "poses", "scene", "mount")
@@ -285,7 +284,7 @@ class Gravity:
         pitch, roll = mount_from_up(self.up)
         return Mount(round(pitch, 3), round(roll, 3))
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> GravityDoc:
         """JSON form (``slz info --json``, run.json)."""
         m = self.mount()
         return {"source": self.source, "detail": self.used.detail, "up_camera": [round(v, 6) for v in self.used.up],

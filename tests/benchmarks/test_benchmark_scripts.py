@@ -14,8 +14,6 @@ import pytest
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 SCRIPTS = sorted(BENCHMARKS.glob("*.py"))
-# scripts another change is converting to the harness at the same time; each leaves this set when it imports it
-NOT_YET = frozenset({"fusion_render.py", "long_run.py", "throughput.py"})
 # what the harness does for a script: its own copies of it are what the rule is for
 BOILERPLATE = {("argparse", "ArgumentParser"): "its own argument parser (harness.parser)",
                ("sys.path", "insert"): "its own sys.path entries (harness.use_test_helpers)",
@@ -40,11 +38,6 @@ def _calls(tree: ast.Module) -> set[tuple[str, str]]:
             if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute)}
 
 
-def _marks(path: Path) -> list[pytest.MarkDecorator]:
-    return [pytest.mark.xfail(reason="being converted by another change", strict=False)] \
-        if path.name in NOT_YET else []
-
-
 def test_the_benchmarks_are_found() -> None:
     assert len(SCRIPTS) > 20 and BENCHMARKS / "harness.py" in SCRIPTS
 
@@ -55,8 +48,7 @@ def test_every_benchmark_file_says_what_it_is(path: Path) -> None:
     assert doc and len(doc.split()) >= 5, f"{path.name}: a docstring that says what it measures and how to run it"
 
 
-@pytest.mark.parametrize("path", [pytest.param(p, marks=_marks(p)) for p in SCRIPTS if p.name != "harness.py"],
-                         ids=lambda p: p.name)
+@pytest.mark.parametrize("path", [p for p in SCRIPTS if p.name != "harness.py"], ids=lambda p: p.name)
 def test_every_benchmark_script_runs_on_the_harness(path: Path) -> None:
     tree = _tree(path)
     if _is_script(tree):

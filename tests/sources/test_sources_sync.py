@@ -14,10 +14,11 @@ from slzcli.sources.sync import PoseTrack, Stream, StreamPairer, pair_stamps
 MS = 1_000_000
 TOL = 20 * MS
 WINDOW = 500 * MS
-Items = list[tuple[Stream, int]]  # (stream, stamp) in arrival order
+Tag = tuple[Stream, int]  # (stream, stamp): the payload the tests pair
+Items = list[Tag]  # in arrival order
 
 
-def stream(pairer: StreamPairer, items: Items) -> list[tuple[int, int]]:
+def stream(pairer: StreamPairer[Tag], items: Items) -> list[tuple[int, int]]:
     out: list[tuple[int, int]] = []
     for s, t in items:
         out += [(p.stamp_ns, p.depth_stamp_ns) for p in pairer.push(s, t, (s, t))]
@@ -54,7 +55,7 @@ def test_stream_pairer_counts_missing_and_unpaired() -> None:
             items.append(("color", t))
         if k % 7 != 2:
             items.append(("depth", t + 4 * MS))
-    p = StreamPairer(TOL, WINDOW)
+    p = StreamPairer[Tag](TOL, WINDOW)
     out = stream(p, items)
     n_color = sum(1 for s, _ in items if s == "color")
     n_depth = len(items) - n_color
@@ -75,14 +76,14 @@ def test_stream_pairer_shuffled_within_window_equals_sorted() -> None:
         block = items[i:i + 8]
         rng.shuffle(block)
         shuffled += block
-    a = stream(StreamPairer(TOL, WINDOW), items)
-    p = StreamPairer(TOL, WINDOW)
+    a = stream(StreamPairer[Tag](TOL, WINDOW), items)
+    p = StreamPairer[Tag](TOL, WINDOW)
     b = stream(p, shuffled)
     assert a == b and len(a) == 60 and p.late == 0
 
 
 def test_message_later_than_window_is_counted_late_not_lost() -> None:
-    p = StreamPairer(TOL, 100 * MS)
+    p = StreamPairer[Tag](TOL, 100 * MS)
     items: Items = [("color", k * 33 * MS) for k in range(30)] + [("depth", k * 33 * MS) for k in range(30)]
     items.sort(key=lambda it: it[1])
     items.remove(("depth", 0))
@@ -94,14 +95,14 @@ def test_message_later_than_window_is_counted_late_not_lost() -> None:
 
 def test_buffer_stays_bounded_for_long_overlapping_chains() -> None:
     # 60 Hz depth against 30 Hz colour with a 20 ms tolerance: every message overlaps its neighbours.
-    p = StreamPairer(TOL, WINDOW)
+    p = StreamPairer[Tag](TOL, WINDOW)
     peak = 0
     n = 0
     for k in range(3000):
         t = k * 16_666_667
         if k % 2 == 0:
-            n += len(p.push("color", t))
-        n += len(p.push("depth", t + MS))
+            n += len(p.push("color", t, ("color", t)))
+        n += len(p.push("depth", t + MS, ("depth", t + MS)))
         peak = max(peak, p.pending)
     n += len(p.flush())
     assert peak < 200  # about 2 windows of messages, not 4500
@@ -118,7 +119,7 @@ def test_incremental_equals_batch_for_any_stamps_and_order(c_ms, d_ms, rnd) -> N
         [c * MS for c in color], [d * MS for d in depth], TOL))
     items: Items = [("color", c * MS) for c in color] + [("depth", d * MS) for d in depth]
     rnd.shuffle(items)
-    p = StreamPairer(TOL, 10_000 * MS)  # window longer than the data: any order is in time
+    p = StreamPairer[Tag](TOL, 10_000 * MS)  # window longer than the data: any order is in time
     got = sorted(stream(p, items))
     assert got == want
     assert p.paired + p.unpaired["color"] == len(color) and p.paired + p.unpaired["depth"] == len(depth)

@@ -97,6 +97,14 @@ def test_unknown_variant_and_material_rejected(tmp_path):
         load_scene(path)
 
 
+
+def test_materials_that_are_not_a_mapping_are_refused_by_name(tmp_path):
+    path = write_scene(tmp_path, "listmat", BOX_SCENE + "materials: [crate]\n")
+    with pytest.raises(SceneError, match="materials: expected a mapping of names, got list") as err:
+        load_scene(path)
+    assert "listmat.yaml" in str(err.value)
+
+
 # ----------------------------------------------------------------------------- geometry
 def test_depth_under_a_box_is_camera_height_minus_box_height(tmp_path, small_config):
     world = record.build_world(load_scene(write_scene(tmp_path, "box", BOX_SCENE)), small_config)
