@@ -2,29 +2,27 @@
 
 A flat box top or a car roof passes every test of the maps (flat, level, clear of edges by more than the
 edge clearance) and yet is no place to land: a UAV that misses it by its landing error drops off an
-edge, and the ground truth counts only the ground as landable. The rule, on points with heights along
-gravity (``up``):
+edge, and the ground truth counts only the ground as landable. The rule, with heights along gravity (``up``):
 
-1. the site's own surface: the plane through the site's centre with its normal; the site's points'
-   scatter about it (1.4826 MAD, at its one-sided 95 % upper bound for the number of points: five points
-   may under-read it by half) is the points' noise ``sigma``, measured at this range on this sensor;
+1. the site's own surface: its points' scatter about the plane through its centre with its normal
+   (1.4826 MAD, at its one-sided 95 % upper bound for the number of points: five points may under-read it
+   by half) is the points' noise ``sigma``, measured at this range on this sensor; its level: the points'
+   median height;
 2. the ground around it: the frame's depth on a pixel grid (``surroundings``; the SLAM map points crowd on
-   texture), the points whose plan distance from the centre lies in the annulus from the
-   landing square's corner radius (the site's own square left out) to ``ground_radius_m``; per point its depth
-   ``d`` below the site's plane, averaged per plan cell of ``ground_cell_m`` (the annulus weighed by area, not by
-   how many samples each surface gives), so a site on a uniform slope sees the slope's ground at d ~ 0 and a
-   level box top on sloping ground sees the ground's mean depth;
-3. the lowest large surface: the ``1 - ground_share`` quantile of ``d`` (the level that at least
-   ``ground_share`` of the annulus lies at or below: a lower surface covering that share of it, not a
-   ditch or a strip beside the site, which are the edge clearance's and the flatness map's business),
-   with the quantile's noise share removed (``z_q sigma``, a point's noise: a cell mean's is smaller, so this
-   errs low; level ground's own noise lifts a high quantile);
-4. raised: that height exceeds the UAV's step tolerance (``uav.max_step_m``) by ``confidence_sigma``
-   standard errors of the quantile (and of the site's mean level). A terrace or a kerb within the
-   tolerance is ground.
+   texture), the samples whose plan distance from the centre lies in the annulus from the landing
+   square's corner radius (the site's own square left out) to ``ground_radius_m``, averaged per plan cell
+   of ``ground_cell_m`` (the annulus weighed by area, not by how many samples each surface gives);
+3. the lowest large surface: the lowest ``ground_share`` of the cells (a lower surface covering that share
+   of the annulus, not a ditch or a strip beside the site, which are the edge clearance's and the flatness
+   map's business), a plane fitted through them (free slope: a gentle slope's own ground is its plane, and
+   the site's noisy normal is not extrapolated 3 m), its height at the site, with the noise share that
+   choosing the lowest cells picks removed (``phi(z) / share`` sigma, a point's sigma: it errs low);
+4. raised: the site's level above that exceeds the UAV's step tolerance (``uav.max_step_m``) by
+   ``margin_sigma`` standard errors (the plane's at the site, which grows when the low cells lie to one
+   side, and the site level's). A terrace or a kerb within the tolerance is ground.
 
-Fewer than ``min_cells`` plan cells with a point in the annulus (the view or the map holds too little around the site):
-not measured, the site is not refused by this rule (``Raised.measured`` False says so).
+Fewer than ``min_cells`` plan cells with a point in the annulus (the view holds too little around the
+site): not measured, the site is not refused by this rule (``Raised.measured`` False says so).
 Where a site is selected at all, the depth noise at the footprint's scale is already within the step
 tolerance (the frame vouches, or the fused cells are decided), so the margin covers the points' own
 scatter only.
@@ -107,54 +105,64 @@ class Raised:
                 f"step tolerance, uav.max_step_m, by the noise margin: {self.threshold_m:.2f} m)")
 
 
-def _cell_means(rel: np.ndarray, d: np.ndarray, up: np.ndarray, cell_m: float) -> np.ndarray:
-    """The mean of ``d`` per plan cell of ``cell_m`` (cells with a point): the annulus weighed by area, not by
-    point count (a near box top holds more depth samples per square metre than the ground beyond it, and SLAM
-    points crowd on texture)."""
-    if d.size == 0:
-        return d
+def _cell_means(rel: np.ndarray, up: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per plan cell of ``cell_m`` with a point: the mean plan position (n, 2) and the mean height along ``up``
+    of the points ``rel`` (relative to the site): the annulus weighed by area, not by point count (a near box
+    top holds more depth samples per square metre than the ground beyond it, and SLAM points crowd on
+    texture)."""
+    if rel.shape[0] == 0:
+        return np.zeros((0, 2)), np.zeros(0)
     e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(up, e1)
-    ij = np.floor(np.stack([rel @ e1, rel @ e2], axis=1) / cell_m).astype(np.int64)
-    _, inv = np.unique(ij, axis=0, return_inverse=True)
+    xy = np.stack([rel @ e1, rel @ e2], axis=1)
+    _, inv = np.unique(np.floor(xy / cell_m).astype(np.int64), axis=0, return_inverse=True)
     inv = inv.ravel()
-    return np.bincount(inv, weights=d) / np.bincount(inv)
+    count = np.bincount(inv)
+    mean_xy = np.stack([np.bincount(inv, weights=xy[:, k]) / count for k in (0, 1)], axis=1)
+    return mean_xy, np.bincount(inv, weights=rel @ up) / count
 
 
 def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, around_xyz: np.ndarray,
                  params: RaisedParams, up: np.ndarray) -> Raised:
     """The rule (module docstring) for a site at ``centre`` with surface ``normal``; ``site_xyz``: the site's
-    own points (their scatter is the noise), ``around_xyz``: every point that may be its surroundings."""
+    own points (their scatter about its plane is the noise), ``around_xyz``: every point that may be its
+    surroundings."""
     up = up / np.linalg.norm(up)
     n = normal / np.linalg.norm(normal)
     if float(n @ up) < 0:
         n = -n
-
-    def depth_below(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        rel = p - centre
-        h = rel @ up
-        plan = rel - h[:, None] * up[None, :]
-        plane_h = -(plan @ n) / max(float(n @ up), 1e-6)   # the site plane's height above each point's plan position
-        return plane_h - h, np.linalg.norm(plan, axis=1)
-
-    d_site, _ = depth_below(site_xyz)
-    d_all, r = depth_below(around_xyz)
-    ring = (r >= params.inner_radius_m) & (r <= params.radius_m) & np.isfinite(d_all)
-    d = _cell_means(around_xyz[ring] - centre, d_all[ring], up, params.cell_m)
-    n_ring, n_site = int(d.size), int(np.count_nonzero(np.isfinite(d_site)))
+    rel_site = site_xyz - centre
+    d_site = rel_site @ n                                    # the site's points about its own plane
+    d_site = d_site[np.isfinite(d_site)]
+    rel = around_xyz - centre
+    h_all = rel @ up
+    r = np.linalg.norm(rel - h_all[:, None] * up[None, :], axis=1)
+    ring = (r >= params.inner_radius_m) & (r <= params.radius_m) & np.isfinite(h_all)
+    xy, h = _cell_means(rel[ring], up, params.cell_m)
+    n_ring, n_site = int(h.size), int(d_site.size)
     tol = params.max_height_m
     if n_ring < params.min_points or n_site < 3:
         return Raised(None, tol, n_ring, False)
-    d_site = d_site[np.isfinite(d_site)]
-    level = float(np.median(d_site))
     dof = max(1.0, _MAD_EFFICIENCY * (n_site - 1))
     bound = math.sqrt(dof / float(chi2.ppf(_SIGMA_BOUND, dof)))
-    sigma = _MAD_TO_SIGMA * float(np.median(np.abs(d_site - level))) * bound
-    q = 1.0 - params.ground_share
-    z_q = float(norm.ppf(q))
-    ground = float(np.quantile(d, q)) - z_q * sigma - level
-    # standard error of a sample quantile of normal noise, and of the site's median level
-    se = sigma * math.sqrt(q * (1 - q) / n_ring) / float(norm.pdf(z_q)) + sigma * math.sqrt(math.pi / 2 / n_site)
+    sigma = _MAD_TO_SIGMA * float(np.median(np.abs(d_site - np.median(d_site)))) * bound
+    level = float(np.median(rel_site @ up))                  # the site's surface height at its centre
+    # the lowest large surface: the lowest ground_share of the cells, a plane through them (gravity-aligned
+    # heights, free slope: the ground of a gentle slope is its own plane), its height at the site
+    share = params.ground_share
+    low = h <= np.quantile(h, share)
+    a = np.column_stack([np.ones(int(low.sum())), xy[low]])
+    gram = a.T @ a
+    if low.sum() >= 3 and np.linalg.cond(gram) < 1e12:
+        coef = np.linalg.solve(gram, a.T @ h[low])
+        ground_h, se_ground = float(coef[0]), sigma * math.sqrt(float(np.linalg.inv(gram)[0, 0]))
+    else:
+        ground_h, se_ground = float(np.median(h[low])), sigma * math.sqrt(math.pi / 2 / max(int(low.sum()), 1))
+    # choosing the lowest cells picks their noise too: level ground's lowest share lies phi(z)/share sigma low
+    z_s = float(norm.ppf(share))
+    ground_h += float(norm.pdf(z_s)) / share * sigma
+    height = level - ground_h
+    se = se_ground + sigma * math.sqrt(math.pi / 2 / n_site)
     threshold = tol + params.confidence_sigma * se
-    return Raised(ground, threshold, n_ring, ground > threshold)
+    return Raised(height, threshold, n_ring, height > threshold)
