@@ -118,6 +118,7 @@ def run_variants(path: Path, decisions: list[str], base: list[str], leave_one_ou
     the cell)."""
     from slzcli.compare import compare_recording, profile_row
     from slzcli.config import load_config
+    from slzcli.outputs.records_json import to_json_object
 
     rows = []
     for name, (profile, items) in variants(decisions, leave_one_out).items():
@@ -125,9 +126,10 @@ def run_variants(path: Path, decisions: list[str], base: list[str], leave_one_ou
             continue
         cfg = load_config(None, base + items, profile)
         t0 = time.perf_counter()
+        row: dict[str, object]
         try:
-            r = compare_recording(path, cfg, (cfg.scoring.method,))
-            row = profile_row(r, name, cfg.scoring.method)
+            r = compare_recording(path, cfg, (cfg.scoring.method,)).record
+            row = to_json_object(profile_row(r, name, cfg.scoring.method))
         except Exception as err:  # one variant's failure is a row
             row = {"recording": path.name, "profile": name, "error": f"{type(err).__name__}: {err}"}
         row["wall_s"] = round(time.perf_counter() - t0, 1)

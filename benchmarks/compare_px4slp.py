@@ -36,6 +36,7 @@ COLUMNS = ("scene", "altitude_m", "sensor", "seed", "method", "detections", "sta
 def run_cell(scene: str, altitude: float, sensor: str, frames: int, seed: int, tmp: str) -> list[dict[str, Any]]:
     from slzcli.compare import compare_recording
     from slzcli.config import load_config
+    from slzcli.outputs.records_json import to_json_object
     from slzcli.synth.record import SynthOptions, scenario_start, synthesize
     from slzcli.synth.scenes import load_scene
 
@@ -44,7 +45,7 @@ def run_cell(scene: str, altitude: float, sensor: str, frames: int, seed: int, t
     path = Path(tmp) / f"{scene}_{altitude:g}_{sensor}_{seed}.mcap"
     synthesize(path, SynthOptions(scene, frames, cfg.synth.rate_hz, "hover", seed, (x, y, altitude)), cfg)
     t0 = time.perf_counter()
-    res = compare_recording(path, cfg, METHODS)
+    res: dict[str, Any] = to_json_object(compare_recording(path, cfg, METHODS).record)  # as compare.json has it
     wall = time.perf_counter() - t0
     path.unlink(missing_ok=True)
     rows = []

@@ -220,11 +220,13 @@ def measure_frame_path(fl: Flight) -> dict[str, Any]:
 
 def measure_fused_path(fl: Flight) -> dict[str, Any]:
     """The fused path: every frame fused, the verdict on the frames due."""
+    from slzcli.fusion.advice import GroundTrack
     from slzcli.fusion.grid import region, seen_bounds
     from slzcli.fusion.session import FusedTerrain, verdict_in_frame
     from slzcli.fusion.verdict import SAFE, UNDECIDED, UNSAFE
 
     ft = FusedTerrain(fl.cfg, fl.scorer)
+    track = GroundTrack()          # hover or flight, as the fused method tells them (methods/fused.py)
     c = {"tp": 0, "fp": 0, "fn": 0}
     with_safe = 0
     sites_unsafe = sites = 0
@@ -237,6 +239,7 @@ def measure_fused_path(fl: Flight) -> dict[str, Any]:
         depth, T = fl.depth[i], fl.T[i]
         t0 = time.process_time()
         ft.add(depth, fl.intr, T, fl.noise[i], 0, i)
+        track.add(0, int(fl.d["stamps"][i]), T)
         cpu.append((time.process_time() - t0) * 1e3)
         if i not in fl.due:
             continue
@@ -258,7 +261,7 @@ def measure_fused_path(fl: Flight) -> dict[str, Any]:
         curve.append({"frame": i, **_step_stats(fm, i + 1)})
     assert fm is not None
     site = ft.site(fm)
-    adv = ft.advice(fm)
+    adv = ft.advice(fm, track.hovering(fl.cfg.terrain.fusion.hover_speed_m_s))
     reg = fm.region
     n_safe, n_safe_ok = _cells_truly_safe(fl.d, fm, SAFE)
     _, n_unsafe_ok = _cells_truly_safe(fl.d, fm, UNSAFE)

@@ -4,7 +4,8 @@
 
 1. In a run: `slz detect --method fused` on a small `slz synth` recording (clear_field, gaussian sensor,
    odometry), with the two steps timed where they run (CPU time of their thread, so a busy machine
-   changes little): ``landing_grid`` (the detection's cells cropped and converted, on the compute path)
+   changes little): ``landing_grid`` (the detection's cells cropped and converted, in the background writer
+   when it writes them)
    and ``write_landing_grid`` (the Grid message built, serialised and handed to the MCAP writer, in the
    background writer), per detection; and the message's bytes.
 2. Sizes: a synthetic grid of the square a detection judges at 10 m (347 x 347 cells of 8.2 cm) and of

@@ -87,6 +87,7 @@ def true_noise_and_slope(scene: str, start: tuple[float, float, float], sensor: 
 def run_cell(scene: str, altitude: float, sensor: str, frames: int, seed: int, tmp: str) -> dict[str, Any]:
     from slzcli.compare import compare_recording
     from slzcli.config import load_config
+    from slzcli.outputs.records_json import to_json_object
     from slzcli.synth.record import SynthOptions, scenario_start, synthesize
     from slzcli.synth.scenes import load_scene
 
@@ -97,7 +98,7 @@ def run_cell(scene: str, altitude: float, sensor: str, frames: int, seed: int, t
     start = (x, y, altitude)
     path = Path(tmp) / f"{scene}_{altitude:g}_{sensor}_{seed}.mcap"
     synthesize(path, SynthOptions(scene, frames, cfg.synth.rate_hz, "hover", seed, start), cfg)
-    res = compare_recording(path, cfg, ("fuzzy",))
+    res: dict[str, Any] = to_json_object(compare_recording(path, cfg, ("fuzzy",)).record)  # as compare.json has it
     m = res["methods"]["fuzzy"]
     gt = m.get("ground_truth") or {}
     mask, site = gt.get("mask") or {}, gt.get("site")

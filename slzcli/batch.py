@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import ctypes
 import functools
 import glob
 import logging
@@ -41,14 +42,19 @@ import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError, SlzError
 from slzcli.interrupt import sigterm_interrupts
 from slzcli.pipeline import RunOptions
-from slzcli.records import BatchRow
+from slzcli.records import BatchRow, BatchSettings, BatchTotals
 from slzcli.sources.formats import run_suffixes
+
+if TYPE_CHECKING:
+    from multiprocessing.sharedctypes import SynchronizedArray
+
+    from distributed import Client, Future
 
 log = logging.getLogger(__name__)
 
@@ -257,18 +263,22 @@ class BatchResult:
     interrupted: bool = False
     summary_files: tuple[Path, ...] = field(default_factory=tuple)
 
-    def totals(self) -> dict[str, object]:
+    def totals(self) -> BatchTotals:
         """Batch-level numbers for summary.json and the CLI."""
         ran = [r for r in self.rows if r.finished and not r.skipped]
         frames = sum(r.frames or 0 for r in ran)
-        count = {s: sum(r.status == s for r in self.rows)
-                 for s in ("site", "no_safe_site", "failed", "interrupted")}
-        return {"engine": self.engine, "workers": self.workers, "recordings": len(self.rows), **count,
-                "skipped": sum(r.skipped for r in self.rows), "processed": len(ran),
-                "frames": frames, "wall_s": round(self.wall_s, 3),
-                "frames_per_s": round(frames / self.wall_s, 3) if self.wall_s > 0 else None,
-                "recordings_per_min": round(60.0 * len(ran) / self.wall_s, 3) if self.wall_s > 0 else None,
-                "batch_interrupted": self.interrupted}
+
+        def count(status: str) -> int:
+            return sum(r.status == status for r in self.rows)
+
+        return BatchTotals(
+            engine=self.engine, workers=self.workers, recordings=len(self.rows), site=count("site"),
+            no_safe_site=count("no_safe_site"), failed=count("failed"), interrupted=count("interrupted"),
+            skipped=sum(r.skipped for r in self.rows), processed=len(ran), frames=frames,
+            wall_s=round(self.wall_s, 3),
+            frames_per_s=round(frames / self.wall_s, 3) if self.wall_s > 0 else None,
+            recordings_per_min=round(60.0 * len(ran) / self.wall_s, 3) if self.wall_s > 0 else None,
+            batch_interrupted=self.interrupted)
 
 
 DEFAULT_OPTIONS = RunOptions()  # frozen: one instance serves every call
@@ -309,9 +319,8 @@ def run_batch(tasks: Sequence[Task], config: Config, *, workers: int = 1, schedu
     if summary_dir is not None:
         from slzcli.outputs.batch_summary import write_summary
 
-        written = write_summary(summary_dir, {**result.totals(), "scheduler": scheduler,
-                                              "config_hash": config.hash(), "force": options.force,
-                                              "timeout_s": options.timeout_s}, filled)
+        settings = BatchSettings(scheduler, config.hash(), options.force, options.timeout_s)
+        written = write_summary(summary_dir, result.totals(), settings, filled)
         result = replace(result, summary_files=written)
     if interrupted:
         raise KeyboardInterrupt
@@ -434,12 +443,12 @@ class _InlineEngine(_Engine):
         return self._expected
 
 
-_FRAMES: Any = None  # in a pool worker: the shared counters, frames done and expected (set by _init_worker)
+_FRAMES: SynchronizedArray[int] | None = None  # in a pool worker: frames done and expected (set by _init_worker)
 _RUNNING = False     # in a pool worker: a task is running
 _STOPPING = False    # in a pool worker: told to stop once; later signals must not break the clean-up
 
 
-def _init_worker(counter: Any, parent_pid: int) -> None:
+def _init_worker(counter: SynchronizedArray[int], parent_pid: int) -> None:
     """Pool worker start: the frame counter, what Ctrl-C and SIGTERM do, and the parent watch."""
     global _FRAMES
     _FRAMES = counter
@@ -471,6 +480,8 @@ def _watch_parent(parent_pid: int) -> None:
 
 
 def _count_frames(n: int, more: int) -> None:
+    if _FRAMES is None:  # not in a pool worker: nobody counts
+        return
     with _FRAMES.get_lock():
         _FRAMES[0] += n
         _FRAMES[1] += more
@@ -495,7 +506,7 @@ class _LocalEngine(_Engine):
     def __init__(self, workers: int) -> None:
         self.workers = workers
         ctx = mp.get_context("spawn")
-        self._counter = ctx.Array("q", 2)  # frames done, frames expected
+        self._counter = ctx.Array(ctypes.c_longlong, 2)  # frames done, frames expected ("q")
         self._pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                             initargs=(self._counter, os.getpid()))
 
@@ -545,8 +556,8 @@ class _DaskEngine(_Engine):
 
     def __init__(self, address: str) -> None:
         self.address = address
-        self.client: Any = None
-        self.futures: list[Any] = []
+        self.client: Client | None = None
+        self.futures: list[Future[BatchRow]] = []
         self.topic = f"slz-frames-{uuid.uuid4().hex[:12]}"
         self._frames = 0
         self._expected = 0
@@ -573,6 +584,8 @@ class _DaskEngine(_Engine):
 
     def submit_all(self, tasks: Sequence[Task], config: Config, options: RunOptions, done: Done,
                    tick: Callable[[], None]) -> None:
+        if self.client is None:
+            raise RuntimeError("the Dask engine was not started")
         token = uuid.uuid4().hex[:8]
         for i, task in enumerate(tasks):
             fut = self.client.submit(_dask_task, task, config, options, self.topic, pure=False,

@@ -656,6 +656,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
       slz detect 'flights/*.bag' -o runs/ --workers 2
     """
     from slzcli import batch
+    from slzcli.outputs.records_json import to_json_object
     from slzcli.pipeline import RunOptions
 
     config = _windowed(config, win_start, win_end, stride, max_frames)
@@ -694,7 +695,7 @@ def detect_cmd(config: Config, recordings: tuple[Path, ...], output: Path | None
     if failed:
         raise SlzError(f"{len(failed)} of {len(rows)} recordings failed (first: {failed[0].error}); "
                        f"status of each in {batch_dir / 'summary.csv'}")
-    totals = {**result.totals(), "summary_files": [str(p) for p in result.summary_files]}
+    totals = {**to_json_object(result.totals()), "summary_files": [str(p) for p in result.summary_files]}
     runs = [_batch_row(r, given, given_run) for r in rows]
     return envelope("batch", {"batch": totals, "runs": runs}), render.batch_text(totals, rows)
 
@@ -776,6 +777,7 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
     """
     from slzcli.compare import compare, recording_name
     from slzcli.outputs.report import text_table
+    from slzcli.outputs.summary_json import compare_summary
 
     config = _windowed(config, win_start, win_end, stride, max_frames)
 
@@ -788,22 +790,23 @@ def compare_cmd(config: Config, recordings: tuple[Path, ...], methods: str | Non
     with Bar("compare", "frames", config.output.progress_every_s) as bar:
         summary = compare(list(recordings), config, out, chosen, variants=variants, force=force, progress=bar.tick,
                           timeout_s=timeout_s)
-    for r in summary.get("recordings", []):
-        slam = r.get("slam") or {}
-        if slam.get("maps", 1) > 1:
+    for r in summary.recordings:
+        if r.slam.maps > 1:
             log.warning("%s: SLAM lost tracking and started %d maps, each in its own frame; each method's site is "
-                        "committed within one map", r["source"], slam["maps"])
-        if slam.get("warning"):  # more than slam.max_untracked_share of the frames without a pose
-            log.warning("%s: %s", r["source"], slam["warning"])
-    return envelope("compare", summary), text_table(summary, str(out))
+                        "committed within one map", r.source, r.slam.maps)
+        if r.slam.untracked.warning:  # more than slam.max_untracked_share of the frames without a pose
+            log.warning("%s: %s", r.source, r.slam.untracked.warning)
+    return envelope("compare", compare_summary(summary, str(out))), text_table(summary, str(out))
 
 
 def _compare_profiles(recordings: tuple[Path, ...], profiles: str, methods: str | None, out: Path, variants: bool,
                       force: bool, timeout_s: float | None,
                       window: Callable[[Config], Config]) -> CommandResult:
     """``slz compare --profiles``: each profile's config with the command's --config and --set over it."""
-    from slzcli.compare import compare_profiles, profile_table
+    from slzcli.compare import compare_profiles
     from slzcli.errors import ConfigError
+    from slzcli.outputs.report import profile_table
+    from slzcli.outputs.summary_json import compare_summary
 
     if variants:
         raise ConfigError("--variants", "not available with --profiles (compare profiles on the variant recordings)")
@@ -820,7 +823,8 @@ def _compare_profiles(recordings: tuple[Path, ...], profiles: str, methods: str 
     with Bar("compare", "frames", every_s) as bar:
         summary = compare_profiles(list(recordings), configs, out, method, force=force, progress=bar.tick,
                                    timeout_s=timeout_s)
-    return summary, profile_table(summary["rows"]) + f"\n  results: {out}/ (compare.json, compare.csv)"
+    return compare_summary(summary, str(out)), profile_table(summary.rows) + \
+        f"\n  results: {out}/ (compare.json, compare.csv)"
 
 
 # --- commands end (new commands go above this line) ---

@@ -37,13 +37,35 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from slzcli.bounds import load_json
+from slzcli.compare_records import (
+    Compared,
+    CompareSite,
+    CompareSlam,
+    Comparison,
+    ComparisonFigures,
+    Curve,
+    FigureFrame,
+    FrameDistances,
+    InputDigest,
+    MapTruth,
+    MaskTruth,
+    MethodComparison,
+    MethodTruth,
+    MethodView,
+    PairComparison,
+    ProfileComparison,
+    ProfileRow,
+    RecordingComparison,
+    SceneRecord,
+    StageTimes,
+)
 from slzcli.config import Config
 from slzcli.errors import ConfigError, DatasetError
 from slzcli.evaluate.safety import MaskCounts, mask_counts, total
@@ -52,8 +74,7 @@ from slzcli.evaluate.truth import ground_truth_of
 from slzcli.geometry import project
 from slzcli.methods.base import build
 from slzcli.methods.registry import names as method_names
-from slzcli.outputs import files, output_dir, run_lock
-from slzcli.outputs.records_json import to_json_object
+from slzcli.outputs import output_dir, report, run_lock
 from slzcli.pipeline.commit import commit
 from slzcli.pipeline.run import MethodRun as PipelineRun
 from slzcli.pipeline.run import Sink
@@ -64,10 +85,10 @@ from slzcli.slam import get_backend
 from slzcli.slam.segments import segment_table
 from slzcli.sources.formats import run_suffixes
 from slzcli.summary import RunState, no_site_reason, site_record, site_truth, untracked_frames
-from slzcli.synth.groundtruth import sidecar_paths
+from slzcli.synth.groundtruth import GroundTruth, sidecar_paths
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.timeout import StageLimit
-from slzcli.types import CommittedSite, Detection, FigureFrame, TerrainMaps, TrackedFrame
+from slzcli.types import CommittedSite, Detection, TerrainMaps, TrackedFrame
 
 log = logging.getLogger(__name__)
 Progress = Callable[[int, int | None], None]
@@ -79,9 +100,9 @@ STAGES = ("slam", "maps", "score", "mask", "select")
 class CurveCounts:
     """True and false positives of ``value > tau`` for fixed thresholds, summed over frames."""
 
-    thresholds: np.ndarray
-    tp: np.ndarray
-    fp: np.ndarray
+    thresholds: NDArray[np.float64]
+    tp: NDArray[np.int64]
+    fp: NDArray[np.int64]
     positives: int = 0
 
     @classmethod
@@ -99,7 +120,7 @@ class CurveCounts:
             acc += np.cumsum(hist[::-1])[::-1][1:]  # count(value > thresholds[j]) = sum of hist[j + 1:]
         self.positives += int(t.sum())
 
-    def curve(self) -> tuple[np.ndarray, np.ndarray]:
+    def curve(self) -> Curve:
         """(precision, recall) per threshold; precision is 1 where nothing is predicted."""
         pred = self.tp + self.fp
         precision = np.where(pred > 0, self.tp / np.maximum(pred, 1), 1.0)
@@ -134,7 +155,7 @@ class MethodRun:
     frame_ms: list[float] = field(default_factory=list)
     pr: CurveCounts | None = None
     mask_fractions: list[float] = field(default_factory=list)
-    views: dict[int, dict[str, Any]] = field(default_factory=dict)
+    views: dict[int, tuple[NDArray[np.uint8], MethodView]] = field(default_factory=dict)  # frame: (rgb, view)
 
     @property
     def state(self) -> RunState:
@@ -178,7 +199,7 @@ def resolve_methods(methods: tuple[str, ...] | list[str], key: str = "--methods"
 
 # ----------------------------------------------------------------------------- one recording
 def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
-                      progress: Progress | None = None, timeout_s: float | None = None) -> dict[str, Any]:
+                      progress: Progress | None = None, timeout_s: float | None = None) -> Compared:
     """Run every method over one recording, sharing SLAM and maps; returns the numbers and the figure arrays.
 
     ``timeout_s`` bounds each stage as ``slz detect --timeout`` does (slzcli/timeout.py).
@@ -207,7 +228,7 @@ class CompareSink(Sink):
     """What the comparison adds up over the shared frames: each method's inputs, times, masks against the
     truth and the other methods, the single maps' curves, the Figure 6 arrays."""
 
-    def __init__(self, runs: dict[str, MethodRun], truth: Any | None, levels: int, tracker: Tracker,
+    def __init__(self, runs: dict[str, MethodRun], truth: GroundTruth | None, levels: int, tracker: Tracker,
                  expected: int | None, progress: Progress | None) -> None:
         self.runs, self.truth, self.tracker, self.expected, self.progress = runs, truth, tracker, expected, progress
         self.map_curves = {n: CurveCounts.empty(levels) for n in TerrainMaps.NAMES}
@@ -244,7 +265,7 @@ def _account(run: MethodRun, t: TrackedFrame, maps: TerrainMaps, d: Detection, g
     if run.pr is not None and gt_mask is not None:
         run.pr.add(d.score.score, gt_mask)
     run.mask_fractions.append(float(d.score.mask.mean()))
-    run.views[frame.index] = _view(d)
+    run.views[frame.index] = (d.frame.rgb, _view(d))
 
 
 def _forget_views(runs: dict[str, MethodRun], first: str, current: int) -> None:
@@ -259,15 +280,14 @@ def _forget_views(runs: dict[str, MethodRun], first: str, current: int) -> None:
             del run.views[k]
 
 
-def _view(d: Detection) -> dict[str, Any]:
+def _view(d: Detection) -> MethodView:
     """What the Figure 6 panel draws for one method and frame (kept small: float16 score)."""
     sel = d.selection
     corners = None
     if sel is not None and sel.site is not None and d.T_world_camera is not None:
         corners, _ = project(np.asarray(sel.site.corners_world), d.T_world_camera, d.frame.K, d.score.mask.shape)
-    return {"rgb": d.frame.rgb, "score": d.score.score.astype(np.float16), "mask": d.score.mask,
-            "projected": None if sel is None else sel.projected, "kept": None if sel is None else sel.kept,
-            "labels": None if sel is None else sel.labels, "corners_px": corners}
+    return MethodView(d.score.score.astype(np.float16), d.score.mask, None if sel is None else sel.projected,
+                      None if sel is None else sel.kept, None if sel is None else sel.labels, corners)
 
 
 def _agree(dets: dict[str, Detection], agreement: dict[str, list[MaskCounts]]) -> None:
@@ -288,82 +308,72 @@ def _map_truth(maps: TerrainMaps, gt_mask: np.ndarray, curves: dict[str, CurveCo
                 means[f"{n}_{cls}"].append(float(values[sel].mean()))
 
 
-def _stats(values: Sequence[float]) -> dict[str, float | None]:
+def _stats(values: Sequence[float]) -> StageTimes:
     if not values:
-        return {"median_ms": None, "p90_ms": None}
+        return StageTimes(None, None)
     a = np.asarray(values)
-    return {"median_ms": round(float(np.median(a)), 3), "p90_ms": round(float(np.percentile(a, 90)), 3)}
+    return StageTimes(round(float(np.median(a)), 3), round(float(np.percentile(a, 90)), 3))
+
+
+def _method(m: str, run: MethodRun, committed: CommittedSite | None, config: Config, tracker: Tracker,
+            truth: GroundTruth | None) -> MethodComparison:
+    """One method's entry of a recording: its detections, committed site (or why none), times, inputs, truth."""
+    st = run.state
+    timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
+    timing["frame"] = _stats(run.frame_ms)
+    reason = no_site_reason(st, tracker.slam_name, len(tracker.keyframes))
+    site = None if committed is None else site_record(committed, site_truth(truth, committed))
+    ground_truth = None
+    if truth is not None:
+        counts = total(run.truth)
+        mask = MaskTruth(counts.precision, counts.recall, counts.iou, counts.tp, counts.fp, counts.fn, counts.tn)
+        ground_truth = MethodTruth(mask=mask, site=None if site is None else site.ground_truth,
+                                   pr_auc=run.pr.auc() if run.pr is not None else None,
+                                   false_safe_rate=counts.fp / (counts.fp + counts.tn) if counts.fp + counts.tn
+                                   else None)
+    return MethodComparison(
+        method=m, detections=st.detections, sites_found=len(st.sites.sites),
+        status="no_safe_site" if committed is None else "site",
+        reason=reason if committed is None else None, timings_ms=timing,
+        site_world=None if site is None else site.center_world,
+        site=None if committed is None or site is None else CompareSite(
+            frame=committed.frame.index, stamp_ns=committed.frame.stamp_ns, center_world=site.center_world,
+            center_camera=site.center_camera, score=site.score, cluster_points=site.cluster.points,
+            acceptance=site.acceptance, support=site.support, map_segment=committed.segment),
+        mask_fraction=_mask_fraction(run), detections_not_vouched=st.unvouched,
+        inputs=tuple(InputDigest(i, t, p, q) for i, t, p, q in run.inputs), ground_truth=ground_truth)
 
 
 def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[str, MethodRun], tracker: Tracker,
-               noise: NoiseTracker, truth: Any | None, map_curves: dict[str, CurveCounts],
+               noise: NoiseTracker, truth: GroundTruth | None, map_curves: dict[str, CurveCounts],
                map_means: dict[str, list[float]], agreement: dict[str, list[MaskCounts]],
-               wall_s: float) -> dict[str, Any]:
-    per: dict[str, Any] = {}
-    committed_of: dict[str, CommittedSite | None] = {}
-    for m, run in runs.items():
-        st = run.state
-        committed = commit(st.sites.sites, config.landing, config.uav)
-        committed_of[m] = committed
-        timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
-        timing["frame"] = _stats(run.frame_ms)
-        reason = no_site_reason(st, tracker.slam_name, len(tracker.keyframes))
-        site = None if committed is None else site_record(committed, site_truth(truth, committed))
-        entry: dict[str, Any] = {
-            "method": m, "detections": st.detections, "sites_found": len(st.sites.sites),
-            "status": "no_safe_site" if committed is None else "site",
-            "reason": reason if committed is None else None, "timings_ms": timing,
-            "site_world": None if site is None else list(site.center_world),  # as slz detect names it
-            "site": None if committed is None or site is None else {
-                "frame": committed.frame.index, "stamp_ns": committed.frame.stamp_ns,
-                "center_world": list(site.center_world), "center_camera": list(site.center_camera),
-                "score": site.score, "cluster_points": site.cluster.points,
-                "acceptance": to_json_object(site.acceptance), "support": to_json_object(site.support),
-                "map_segment": committed.segment},
-            "mask_fraction": _mask_fraction(run),
-            "detections_not_vouched": st.unvouched,
-            "inputs": [{"frame": i, "stamp_ns": t, "points": p, "maps": q} for i, t, p, q in run.inputs],
-        }
-        if truth is not None:
-            counts = total(run.truth)
-            entry["ground_truth"] = {
-                "mask": counts.as_dict(),
-                "site": None if site is None else site.ground_truth,
-                "pr_auc": run.pr.auc() if run.pr is not None else None,
-                "false_safe_rate": counts.fp / (counts.fp + counts.tn) if counts.fp + counts.tn else None,
-            }
-        per[m] = entry
-    pairs = []
-    for i, a in enumerate(methods):
-        for b in methods[i + 1:]:
-            pairs.append(_pair(a, b, runs, committed_of, agreement.get(f"{a}|{b}", [])))
-    out: dict[str, Any] = {
-        "source": str(path), "name": recording_name(path), "frames": tracker.frames,
-        "detections": runs[methods[0]].state.detections,
-        "slam_backend": tracker.slam_name, "tracking": tracker.tracking,
-        "keyframes": len(tracker.keyframes),
-        "slam": {"maps": len(segment_table(tracker.trajectory.segments(), tracker.trajectory.has_pose(),
-                                           tracker.keyframes.per_segment)),
-                 "ate_rmse_m": _ate_rmse(tracker, truth),
-                 "frames_digest": digest(np.asarray(tracker.trajectory.stamps)),
-                 **to_json_object(untracked_frames(tracker.trajectory.has_pose(), tracker.tracking,
-                                                   tracker.slam_name, config.slam.max_untracked_share))},
-        "inputs_identical": True,
-        "methods": per, "pairs": pairs, "wall_s": round(wall_s, 3), "ground_truth": truth is not None,
-        "depth_noise": noise.summary(),
-    }
+               wall_s: float) -> Compared:
+    committed_of = {m: commit(run.state.sites.sites, config.landing, config.uav) for m, run in runs.items()}
+    per = {m: _method(m, run, committed_of[m], config, tracker, truth) for m, run in runs.items()}
+    pairs = tuple(_pair(a, b, runs, committed_of, agreement.get(f"{a}|{b}", []))
+                  for i, a in enumerate(methods) for b in methods[i + 1:])
+    scene = maps = None
     if truth is not None:
         header = truth.header
-        out["scene"] = {"name": header.get("scene"), "variants": list(header.get("variants", [])),
-                        "seed": header.get("seed")}
-        out["maps"] = {n: {"pr_auc": map_curves[n].auc(),
-                           "mean_safe": _mean(map_means[f"{n}_safe"]),
-                           "mean_unsafe": _mean(map_means[f"{n}_unsafe"])} for n in TerrainMaps.NAMES}
-    out["_arrays"] = _arrays(runs, committed_of, map_curves, truth is not None)
-    return out
+        scene = SceneRecord(header.get("scene"), tuple(header.get("variants", [])), header.get("seed"))
+        maps = {n: MapTruth(map_curves[n].auc(), _mean(map_means[f"{n}_safe"]), _mean(map_means[f"{n}_unsafe"]))
+                for n in TerrainMaps.NAMES}
+    record = RecordingComparison(
+        source=str(path), name=recording_name(path), frames=tracker.frames,
+        detections=runs[methods[0]].state.detections, slam_backend=tracker.slam_name, tracking=tracker.tracking,
+        keyframes=len(tracker.keyframes),
+        slam=CompareSlam(maps=len(segment_table(tracker.trajectory.segments(), tracker.trajectory.has_pose(),
+                                                tracker.keyframes.per_segment)),
+                         ate_rmse_m=_ate_rmse(tracker, truth),
+                         frames_digest=digest(np.asarray(tracker.trajectory.stamps)),
+                         untracked=untracked_frames(tracker.trajectory.has_pose(), tracker.tracking,
+                                                    tracker.slam_name, config.slam.max_untracked_share)),
+        inputs_identical=True, methods=per, pairs=pairs, wall_s=round(wall_s, 3), ground_truth=truth is not None,
+        depth_noise=noise.summary(), scene=scene, maps=maps)
+    return Compared(record, _figures(runs, committed_of, map_curves, truth is not None))
 
 
-def _ate_rmse(tracker: Tracker, truth: Any | None) -> float | None:
+def _ate_rmse(tracker: Tracker, truth: GroundTruth | None) -> float | None:
     """SLAM's ATE (m, each map segment aligned on its own) against the true poses; None without truth or poses."""
     if truth is None:
         return None
@@ -388,7 +398,7 @@ def _mask_fraction(run: MethodRun) -> float | None:
 
 
 def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, CommittedSite | None],
-          counts: list[MaskCounts]) -> dict[str, Any]:
+          counts: list[MaskCounts]) -> PairComparison:
     ca, cb = committed[a], committed[b]
     dist = None
     if ca is not None and cb is not None and ca.segment == cb.segment:  # else: two unrelated SLAM maps
@@ -400,17 +410,17 @@ def _pair(a: str, b: str, runs: dict[str, MethodRun], committed: dict[str, Commi
         gap = np.asarray(sites_a[k].center_world) - np.asarray(sites_b[k].center_world)
         per_frame.append(float(np.linalg.norm(gap)))
     agree = total(counts)
-    return {"methods": [a, b], "site_distance_m": dist,
-            "per_frame_site_distance_m": {"mean": float(np.mean(per_frame)) if per_frame else None,
-                                          "frames": len(per_frame)},
-            "mask_iou": agree.iou,
-            # both masks empty in every frame: agreement says nothing (it would be 1 on any input)
-            "masks_empty": agree.tp + agree.fp + agree.fn == 0,
-            "mask_agreement": (agree.tp + agree.tn) / max(agree.tp + agree.fp + agree.fn + agree.tn, 1)}
+    return PairComparison(
+        methods=(a, b), site_distance_m=dist,
+        per_frame_site_distance_m=FrameDistances(float(np.mean(per_frame)) if per_frame else None, len(per_frame)),
+        mask_iou=agree.iou,
+        # both masks empty in every frame: agreement says nothing (it would be 1 on any input)
+        masks_empty=agree.tp + agree.fp + agree.fn == 0,
+        mask_agreement=(agree.tp + agree.tn) / max(agree.tp + agree.fp + agree.fn + agree.tn, 1))
 
 
-def _arrays(runs: dict[str, MethodRun], committed: dict[str, CommittedSite | None],
-            map_curves: dict[str, CurveCounts], has_truth: bool) -> dict[str, Any]:
+def _figures(runs: dict[str, MethodRun], committed: dict[str, CommittedSite | None],
+             map_curves: dict[str, CurveCounts], has_truth: bool) -> ComparisonFigures:
     """Arrays for the figures (not JSON): the Figure 6 frame, PR curves, timing samples."""
     first = next(iter(runs))
     frames = list(runs[first].views)
@@ -418,15 +428,14 @@ def _arrays(runs: dict[str, MethodRun], committed: dict[str, CommittedSite | Non
     if frames:
         c = committed[first]
         index = c.frame.index if c is not None else frames[-1]
-        fig_frame = FigureFrame(index, runs[first].views[index]["rgb"],
-                                {m: r.views[index] for m, r in runs.items()})
-    curves = {}
+        fig_frame = FigureFrame(index, runs[first].views[index][0], {m: r.views[index][1] for m, r in runs.items()})
+    curves: dict[str, Curve] = {}
     if has_truth:
         curves = {m: r.pr.curve() for m, r in runs.items() if r.pr is not None}
         curves.update({f"map:{n}": c.curve() for n, c in map_curves.items()})
     timings = {m: {**{k: list(r.state.timer.samples_ms.get(k, [])) for k in STAGES}, "frame": list(r.frame_ms)}
                for m, r in runs.items()}
-    return {"figure_frame": fig_frame, "curves": curves, "timings": timings}
+    return ComparisonFigures(fig_frame, curves, timings)
 
 
 def recording_name(path: Path) -> str:
@@ -466,24 +475,23 @@ def render_variants(path: Path, config: Config, out_dir: Path, variants: tuple[s
 
 
 # ----------------------------------------------------------------------------- the command
-def _unique_names(results: list[dict[str, Any]]) -> None:
+def _unique_names(results: list[Compared]) -> list[Compared]:
     """Recordings with the same file name in different folders get _2, _3, ... (their figure folders)."""
     seen: dict[str, int] = {}
+    out = []
     for r in results:
-        n = seen[r["name"]] = seen.get(r["name"], 0) + 1
-        if n > 1:
-            r["name"] = f"{r['name']}_{n}"
+        n = seen[r.record.name] = seen.get(r.record.name, 0) + 1
+        out.append(r if n == 1 else replace(r, record=replace(r.record, name=f"{r.record.name}_{n}")))
+    return out
 
 
 def compare(paths: list[Path], config: Config, out_dir: Path, methods: tuple[str, ...] | None = None, *,
             variants: bool = False, force: bool = False, progress: Progress | None = None,
-            timeout_s: float | None = None) -> dict[str, Any]:
+            timeout_s: float | None = None) -> Comparison:
     """Compare the methods over each recording (and, with ``variants``, its scene's variants) into ``out_dir``.
 
     ``timeout_s`` bounds each stage of each recording and the final write (not the rendering of variants).
     """
-    from slzcli.outputs import report
-
     methods = resolve_methods(methods) if methods else resolve_methods(config.compare.methods, "compare.methods")
     for p in paths:
         if not Path(p).exists():
@@ -494,42 +502,41 @@ def compare(paths: list[Path], config: Config, out_dir: Path, methods: tuple[str
     existing = output_dir.inspect(out_dir, output_dir.COMPARE)  # refuses a path that is not a compare folder
     output_dir.check_names(existing, [recording_name(Path(p)) for p in paths])  # before the long work
     with run_lock.claim(out_dir), output_dir.build(out_dir, output_dir.COMPARE, replace=force) as tmp:
-        results = [compare_recording(Path(p), config, methods, progress, timeout_s) for p in paths]
-        _unique_names(results)
-        variant_results: list[dict[str, Any]] = []
+        results = _unique_names([compare_recording(Path(p), config, methods, progress, timeout_s) for p in paths])
+        variant_results: list[Compared] = []
         if variants:
             for p, base in zip(paths, results, strict=True):
-                folder = tmp / "variants" / base["name"]
+                folder = tmp / "variants" / base.record.name
                 for rec_path in render_variants(Path(p), config, folder, config.compare.variants):
                     r = compare_recording(rec_path, config, methods, progress, timeout_s)
-                    r["variant_of"] = base["name"]
-                    variant_results.append(r)
+                    variant_results.append(replace(r, record=replace(r.record, variant_of=base.record.name)))
         with StageLimit(timeout_s, str(out_dir)).stage("writing the comparison"):
             summary = report.write_comparison(tmp, config, methods, results, variant_results)
-    return {**summary, "output": str(out_dir)}
+    return summary
 
 
 # ----------------------------------------------------------------------------- profiles
-def profile_row(result: dict[str, Any], profile: str, method: str) -> dict[str, Any]:
+def profile_row(result: RecordingComparison, profile: str, method: str) -> ProfileRow:
     """One recording under one profile: what ``slz compare --profiles`` and benchmarks/ablation.py report."""
-    m = result["methods"][method]
-    gt = m.get("ground_truth") or {}
-    mask, site = gt.get("mask") or {}, gt.get("site")
-    return {"recording": result["name"], "profile": profile, "method": method, "frames": result["frames"],
-            "detections": m["detections"], "slam_backend": result["slam_backend"], "tracking": result["tracking"],
-            "slam_maps": result["slam"]["maps"], "ate_rmse_m": result["slam"].get("ate_rmse_m"),
-            "precision": mask.get("precision"), "recall": mask.get("recall"), "iou": mask.get("iou"),
-            "pr_auc": gt.get("pr_auc"), "status": m["status"], "reason": m.get("reason"),
-            "site_safe": None if site is None else site.get("safe"),
-            "clearance_m": None if site is None else site.get("clearance_m"),
-            "frame_ms_median": m["timings_ms"]["frame"]["median_ms"],
-            "maps_ms_median": m["timings_ms"]["maps"]["median_ms"],
-            "slam_ms_median": m["timings_ms"]["slam"]["median_ms"]}
+    m = result.methods[method]
+    gt = m.ground_truth
+    mask = None if gt is None else gt.mask
+    site = None if gt is None else gt.site
+    t = m.timings_ms
+    return ProfileRow(
+        recording=result.name, profile=profile, method=method, frames=result.frames, detections=m.detections,
+        slam_backend=result.slam_backend, tracking=result.tracking, slam_maps=result.slam.maps,
+        ate_rmse_m=result.slam.ate_rmse_m, precision=None if mask is None else mask.precision,
+        recall=None if mask is None else mask.recall, iou=None if mask is None else mask.iou,
+        pr_auc=None if gt is None else gt.pr_auc, status=m.status, reason=m.reason,
+        site_safe=None if site is None else site.get("safe"),
+        clearance_m=None if site is None else site.get("clearance_m"),
+        frame_ms_median=t["frame"].median_ms, maps_ms_median=t["maps"].median_ms, slam_ms_median=t["slam"].median_ms)
 
 
 def compare_profiles(paths: list[Path], configs: dict[str, Config], out_dir: Path, method: str | None = None, *,
                      force: bool = False, progress: Progress | None = None,
-                     timeout_s: float | None = None) -> dict[str, Any]:
+                     timeout_s: float | None = None) -> ProfileComparison:
     """Each recording under each profile (a whole config: SLAM, maps, fusion, commit), into ``out_dir``.
 
     Profiles may change SLAM, so keyframes and detection frames may differ; every profile reads the
@@ -545,45 +552,18 @@ def compare_profiles(paths: list[Path], configs: dict[str, Config], out_dir: Pat
             raise DatasetError(p, "no such file or folder")
     output_dir.refuse_inputs(out_dir, [Path(p) for p in paths])
     output_dir.inspect(out_dir, output_dir.COMPARE)
-    rows: list[dict[str, Any]] = []
+    rows: list[ProfileRow] = []
     with run_lock.claim(out_dir), output_dir.build(out_dir, output_dir.COMPARE, replace=force) as tmp:
         for p in paths:
             stamps: dict[str, str] = {}
             for name, cfg in configs.items():
                 m = method or cfg.scoring.method
-                r = compare_recording(Path(p), cfg, (m,), progress, timeout_s)
-                stamps[name] = r["slam"]["frames_digest"]
+                r = compare_recording(Path(p), cfg, (m,), progress, timeout_s).record
+                stamps[name] = r.slam.frames_digest
                 rows.append(profile_row(r, name, m))
             if len(set(stamps.values())) > 1:
                 raise RuntimeError(f"compare: profiles {', '.join(stamps)} read different frames of {p}")
-        summary = {"profiles": list(configs), "config_hashes": {n: c.hash() for n, c in configs.items()},
-                   "recordings": [str(p) for p in paths], "rows": rows}
-        files.write_json(tmp / "compare.json", {**summary, "configs": {n: c.to_dict() for n, c in configs.items()}})
-        files.write_text(tmp / "compare.csv", _profile_csv(rows))
-    return {**summary, "output": str(out_dir)}
-
-
-def _profile_csv(rows: list[dict[str, Any]]) -> str:
-    import csv
-    import io
-    import json
-
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]) if rows else ["recording", "profile"], lineterminator="\n")
-    writer.writeheader()
-    for r in rows:
-        writer.writerow({k: json.dumps(v) if isinstance(v, dict) else v for k, v in r.items()})
-    return buf.getvalue()
-
-
-def profile_table(rows: list[dict[str, Any]]) -> str:
-    """The rows of ``compare_profiles`` as a text table (one line per recording and profile)."""
-    f = lambda v, p=3: "-" if v is None else f"{v:.{p}f}"  # noqa: E731
-    lines = [f"{'recording':<20} {'profile':<10} {'det':>4} {'prec':>6} {'recall':>6} {'site':<13} {'safe':>5} "
-             f"{'ATE m':>6} {'ms/frame':>8}"]
-    for r in rows:
-        safe = "-" if r["site_safe"] is None else str(r["site_safe"])
-        lines.append(f"{r['recording'][:20]:<20} {r['profile'][:10]:<10} {r['detections']:>4} {f(r['precision']):>6} "
-                     f"{f(r['recall']):>6} {r['status']:<13} {safe:>5} {f(r['ate_rmse_m']):>6} "
-                     f"{f(r['frame_ms_median'], 1):>8}")
-    return "\n".join(lines)
+        summary = ProfileComparison(tuple(configs), {n: c.hash() for n, c in configs.items()},
+                                    tuple(str(p) for p in paths), tuple(rows))
+        report.write_profiles(tmp, summary, configs)
+    return summary

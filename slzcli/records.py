@@ -272,3 +272,37 @@ class BatchRow:
     @property
     def site_world(self) -> tuple[float, float, float] | None:
         return None if self.summary is None else self.summary.site_world
+
+
+@dataclass(frozen=True)
+class BatchTotals:
+    """What a batch of ``slz detect`` adds up to: ``summary.json`` ``batch`` and ``--json`` ``batch``.
+
+    ``processed``: the recordings run now (not skipped as done before), whose frames ``frames`` counts;
+    the rates are over the batch's wall time (None for a batch that took no time).
+    """
+
+    engine: str
+    workers: int
+    recordings: int
+    site: int
+    no_safe_site: int
+    failed: int
+    interrupted: int
+    skipped: int
+    processed: int
+    frames: int
+    wall_s: float
+    frames_per_s: float | None
+    recordings_per_min: float | None
+    batch_interrupted: bool
+
+
+@dataclass(frozen=True)
+class BatchSettings:
+    """How a batch ran, beside its totals in ``summary.json`` ``batch``."""
+
+    scheduler: str | None
+    config_hash: str
+    force: bool
+    timeout_s: float | None

@@ -47,12 +47,12 @@ from slzcli.records import (
 from slzcli.slam.segments import Segment, primary_segment, segment_table
 from slzcli.sources.recording import RecordingInfo
 from slzcli.synth.groundtruth import GroundTruth
-from slzcli.terrain.limits import vouchable_altitude_m
+from slzcli.terrain.limits import WouldVouch
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.types import CommittedSite, PairingReport, RunResult, Working
 from slzcli.version import __version__
 
-PER_FRAME_STAGES = ("maps", "score", "mask", "slam", "select")  # the per-frame total; "write" is apart
+PER_FRAME_STAGES = ("maps", "score", "mask", "slam", "select", "fuse")  # the per-frame total; "write" is apart
 _COLUMN_CUT_NOTED = 0.5  # the column rule is named in a no-site reason when it removed at least this share
 
 
@@ -71,12 +71,17 @@ class RunState:
     noise: NoiseTracker | None = None  # the depth noise of the detection frames, smoothed over the run
     unvouched: int = 0                 # detection frames whose noise hides what the UAV cannot tolerate
     worst_unvouched: Working | None = None  # the highest of them, for the no-site reason
-    unvouched_reason: str = ""         # limits.limit_reason of that frame
+    would_vouch: WouldVouch | None = None   # what that frame hides and below which altitude it would vouch
     highest: Working | None = None     # the highest detection frame's working scale (depth_limits without a site)
     column_cut: float | None = None    # least fraction of the safe ground a detection lost to the descent column
     advice: DecideAdvice | None = None  # the method's own advice of the latest detection frame (fused)
     method_reason: str = ""            # a method the maps do not gate (px4slp): why its latest frame gave no site
     funnel: FunnelLog = field(default_factory=FunnelLog)  # what each filter left in each detection frame
+
+    @property
+    def unvouched_reason(self) -> str:
+        """The no-site reason of the highest frame that could not vouch ("" without one)."""
+        return "" if self.would_vouch is None else self.would_vouch.reason()
 
 
 def versions() -> dict[str, str]:
@@ -93,8 +98,11 @@ def versions() -> dict[str, str]:
 def stage_timings(timing: dict[str, dict[str, float]], method: str) -> dict[str, float]:
     """landing.json / run.json ``timings_ms``: the median of each stage (ms), ``total`` of the per-frame ones."""
     med = {k: round(v["median_ms"], 3) for k, v in timing.items()}
+    # a method that keeps state fuses every frame (``fuse``, its CPU time): a detection frame pays it too, so
+    # it is in the total; methods without that stage have no key
+    fuse = {"fuse": med["fuse"]} if "fuse" in med else {}
     return {"maps": med.get("maps", 0.0), method: med.get("score", 0.0), "mask": med.get("mask", 0.0),
-            "slam": med.get("slam", 0.0), "select": med.get("select", 0.0),
+            "slam": med.get("slam", 0.0), "select": med.get("select", 0.0), **fuse,
             "total": round(sum(med.get(k, 0.0) for k in PER_FRAME_STAGES), 3),
             "write": med.get("write", 0.0),  # a detection frame's files (output.level) + results.mcap; not in total
             "write_wait": med.get("write_wait", 0.0)}  # of which the main loop waited (the writer runs beside it)
@@ -171,20 +179,19 @@ def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
     return reason
 
 
-def decide_advice(st: RunState, config: Config) -> DecideAdvice | None:
+def decide_advice(st: RunState) -> DecideAdvice | None:
     """What would decide the ground of a run without a site: the method's own advice of its latest detection
     frame (fused), else, when depth noise kept detection frames from vouching, the altitude below which the
-    highest of them would have vouched (the per-frame limits, ``limits.limit_reason``); else None."""
+    highest of them would have vouched (the per-frame limits, ``limits.would_vouch``); else None."""
     if st.advice is not None:
         return st.advice
-    work = st.worst_unvouched
-    if work is None:
+    v = st.would_vouch
+    if v is None:
         return None
-    below = vouchable_altitude_m(work.noise, work.focal_px, config.terrain, config.uav, work.altitude_m)
-    hides = f"at {work.altitude_m:.1f} m the depth noise hides {work.hidden()}"
-    if below is None:
+    hides = v.hides(with_sigma=False)
+    if v.below_m is None:
         return DecideAdvice("depth_limits", f"{hides}, and at no altitude would it not with this sensor")
-    return DecideAdvice("depth_limits", f"descend below {below:.1f} m ({hides})", descend_to_m=round(below, 2))
+    return DecideAdvice("depth_limits", f"descend below {v.below_m:.1f} m ({hides})", descend_to_m=round(v.below_m, 2))
 
 
 def noise_summary(st: RunState) -> dict[str, object]:
@@ -280,7 +287,7 @@ def summarise(facts: RunFacts, config: Config, st: RunState, committed: Committe
     reason = no_site_reason(st, facts.slam_name, len(st.keyframes))
     site: SiteRecord | None = None
     spread: SpreadRecord | None = None
-    advice = decide_advice(st, config) if committed is None else None
+    advice = decide_advice(st) if committed is None else None
     if committed is not None:
         site = site_record(committed, site_truth(None if truth is None else truth.truth, committed),
                            _height(committed.site.center_world, st, table, primary, config))

@@ -8,6 +8,7 @@ the OpenCV/ROS optical frame (x right, y down, z forward); world frame z up.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, TypedDict
 
@@ -529,16 +530,8 @@ class Detection:
     timings_ms: dict[str, float]
     segment: int = 0  # SLAM map segment of the pose and points
     advice: DecideAdvice | None = None  # a method that can tell: what would decide the ground it could not
-    landing_grid: LandingGrid | None = None  # a method's landing map as of this frame (fused: the cells in view)
-
-
-@dataclass(frozen=True, eq=False)
-class FigureFrame:
-    """The arrays of one detection frame for the Figure 6 panel."""
-
-    index: int
-    rgb: np.ndarray
-    per_method: dict[str, dict[str, Any]]
+    landing_grid: Callable[[], LandingGrid] | None = None  # a method's landing map as of this frame (fused: the
+    # cells in view), built when a sink writes it
 
 
 # ----------------------------------------------------------------------------- slz land simulate

@@ -248,6 +248,7 @@ class FusionCfg:
     white_fraction: float = rng(0, 1)
     fixed_fraction: float = rng(0, 1)
     decorrelation_px: float = rng(0, lo_open=True)
+    hover_speed_m_s: float = rng(0)
     gate_sigma: float = rng(0, lo_open=True)
     two_heights_fraction: float = rng(0, 1, lo_open=True)
     pose_sigma_m: float = rng(0)

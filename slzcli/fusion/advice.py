@@ -7,8 +7,12 @@ safe when the fitted step plus its limit stays within the UAV's tolerance, and o
 largest fitted step of level ground is about the limit itself (estimate + limit ~ 2 limits). The cell's
 own Kalman filter (``grid``'s model: a shared error that decorrelates as exp(-shift / decorrelation_px)
 with the cell's shift in the image, and a white part) is then run forward:
-- frames: at the image shift per frame the flight has now; when the variance cannot get below the target
-  that way (a hover: the shared error never decorrelates), the answer is to move;
+- frames: at the image shift per frame the flight has now; holding position (a hover: its net ground speed
+  over the recent frames below ``terrain.fusion.hover_speed_m_s``, ``GroundTrack``) at no shift at all: a
+  hover's drift and attitude wobble go back and forth over the same views, so what they shift a cell by
+  between frames is not a motion that keeps decorrelating the shared error (the issue's stereo renderer:
+  20 hovering frames 0.055 -> 0.049 m), and when the variance cannot get below the target without it, the
+  answer is to move;
 - sideways: one look every ``decorrelation_px`` of image shift (metres at the altitude: px x z / f);
 - descend: the per-frame limits grow as z^2 (sigma_z = a z^2 over metric windows), so one frame decides
   from ``z / sqrt(r1)``, r1 the factor of a single frame at the current altitude.
@@ -18,17 +22,19 @@ A loop over future frames of a handful of cells, never over pixels.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from slzcli.fusion.grid import Region
 from slzcli.fusion.measure import FusionParams
 from slzcli.fusion.verdict import UNDECIDED, FusedMaps
+from slzcli.records import DecideAdvice
 
 _MAX_FRAMES = 1800      # frames; beyond a minute at 30 Hz "N more frames" is not an answer (fly instead)
 _STILL_PX = 0.05        # px; image shifts below this are the estimate's own jitter, not motion
 _LEVEL_FIT = 2.0        # x the limit; level ground's largest fitted step over a square ~ its limit: estimate + limit
+RECENT_FRAMES = 15      # frames the net ground speed is taken over (as the fused terrain's recent image shift)
 
 
 @dataclass(frozen=True)
@@ -44,25 +50,64 @@ class Advice:
     hover: bool                    # the current motion is (nearly) a hover
 
     def text(self) -> str:
+        where = f"the ground at ({self.x_m:.1f}, {self.y_m:.1f}) m"
+        if self.hover and self.frames is None:
+            moves = [f"fly {self.sideways_m:.1f} m sideways"] if self.sideways_m is not None else []
+            if self.descend_to_m is not None:
+                moves.append(f"descend to {self.descend_to_m:.1f} m")
+            if not moves:
+                return f"hovering: more frames will not decide {where}, and no flight would with this sensor"
+            return f"hovering: more frames will not decide {where}; move: " + " or ".join(moves)
         parts = []
         if self.frames is not None:
-            parts.append(f"{self.frames} more frames")
+            parts.append(f"{self.frames} more frame{'' if self.frames == 1 else 's'}")
         if self.sideways_m is not None:
             parts.append(f"{self.sideways_m:.1f} m of sideways flight")
         if self.descend_to_m is not None:
             parts.append(f"descend to {self.descend_to_m:.1f} m")
-        where = f"the ground at ({self.x_m:.1f}, {self.y_m:.1f}) m"
         if not parts:
             return f"{where} cannot be decided with this sensor"
-        lead = "hovering cannot decide " + where + ": move" if self.hover and self.frames is None else \
-            "to decide " + where
-        return f"{lead}: " + " or ".join(parts)
+        return f"to decide {where}: " + " or ".join(parts)
+
+    def record(self) -> DecideAdvice:
+        """As landing.json and the summary carry it, the figures rounded as the text gives them or finer."""
+        return DecideAdvice("fused", self.text(), self.frames,
+                            None if self.sideways_m is None else round(self.sideways_m, 2),
+                            None if self.descend_to_m is None else round(self.descend_to_m, 2), self.hover,
+                            round(self.x_m, 3), round(self.y_m, 3))
 
     def as_dict(self) -> dict[str, object]:
-        return {"x_m": round(self.x_m, 3), "y_m": round(self.y_m, 3), "factor": round(self.factor, 3),
-                "frames": self.frames, "sideways_m": None if self.sideways_m is None else round(self.sideways_m, 2),
-                "descend_to_m": None if self.descend_to_m is None else round(self.descend_to_m, 2),
-                "hover": self.hover, "text": self.text()}
+        """The record's fields and the factor (benchmarks)."""
+        r = self.record()
+        return {"x_m": r.x_m, "y_m": r.y_m, "factor": round(self.factor, 3), "frames": r.frames,
+                "sideways_m": r.sideways_m, "descend_to_m": r.descend_to_m, "hover": r.hover, "text": r.text}
+
+
+@dataclass
+class GroundTrack:
+    """The camera's recent positions in the current map segment (mutable: part of a stateful method's state):
+    its net horizontal speed over them, first to last, tells a hover from a flight. Net, not summed frame to
+    frame: a position hold's drift and wobble go back and forth and add little displacement."""
+
+    segment: int | None = None
+    stamps_ns: list[int] = field(default_factory=list)
+    xy_m: list[tuple[float, float]] = field(default_factory=list)
+
+    def add(self, segment: int, stamp_ns: int, T_world_camera: np.ndarray) -> None:
+        if segment != self.segment:
+            self.segment, self.stamps_ns, self.xy_m = segment, [], []
+        self.stamps_ns = [*self.stamps_ns, int(stamp_ns)][-RECENT_FRAMES:]
+        self.xy_m = [*self.xy_m, (float(T_world_camera[0, 3]), float(T_world_camera[1, 3]))][-RECENT_FRAMES:]
+
+    def speed_m_s(self) -> float:
+        """Net horizontal speed over the recent frames (0 before two frames with time between them)."""
+        if len(self.stamps_ns) < 2 or self.stamps_ns[-1] <= self.stamps_ns[0]:
+            return 0.0
+        (x0, y0), (x1, y1) = self.xy_m[0], self.xy_m[-1]
+        return math.hypot(x1 - x0, y1 - y0) / ((self.stamps_ns[-1] - self.stamps_ns[0]) * 1e-9)
+
+    def hovering(self, hover_speed_m_s: float) -> bool:
+        return self.speed_m_s() < hover_speed_m_s
 
 
 def frames_to_variance(p_hh: float, p_hc: float, p_cc: float, sigma_c: float, sigma_w: float, shift_px: float,
@@ -94,11 +139,13 @@ def frames_to_variance(p_hh: float, p_hc: float, p_cc: float, sigma_c: float, si
 
 
 def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth_m: float, focal_px: float,
-           single_step_m: float, single_tan: float) -> Advice | None:
+           single_step_m: float, single_tan: float, hover: bool | None = None) -> Advice | None:
     """Advice for the undecided square with the best cleared score (None: nothing undecided is a candidate).
 
     ``shift_px_per_frame``: the current motion (median image shift of cells between frames);
-    ``single_step_m`` / ``single_tan``: one frame's limits at ``depth_m`` (``limits.working_scale``).
+    ``single_step_m`` / ``single_tan``: one frame's limits at ``depth_m`` (``limits.working_scale``);
+    ``hover``: the UAV holds position (``GroundTrack.hovering``): more frames are projected without any shift;
+    None: judged by the shift alone (a tenth of the decorrelation length a frame).
     """
     reg: Region = fm.region
     cand = (fm.verdict == UNDECIDED) & (fm.clear_score > 0)
@@ -117,7 +164,10 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
     r = float(r_cells[jj, ii])
     x0, y0 = reg.origin_m
     x, y = x0 + (i + 0.5) * reg.cell_m, y0 + (j + 0.5) * reg.cell_m
-    hover = shift_px_per_frame < 0.1 * params.decorrelation_px
+    if hover is None:
+        hover = shift_px_per_frame < 0.1 * params.decorrelation_px
+    elif hover:
+        shift_px_per_frame = 0.0
     if not math.isfinite(r):
         return Advice(x, y, r, None, None, None, hover)
     var = float(reg.var[sl][jj, ii])

@@ -104,7 +104,8 @@ class FusedTerrain:
     def site(self, fm: FusedMaps) -> FusedSite | None:
         return best_site(fm, raised_params(self.config))
 
-    def advice(self, fm: FusedMaps) -> Advice | None:
+    def advice(self, fm: FusedMaps, hover: bool | None = None) -> Advice | None:
+        """What would decide the best undecided ground (``advise``; ``hover``: the UAV holds position)."""
         if self.noise is None or not math.isfinite(self.depth_m):
             return None
         from slzcli.terrain.limits import working_scale
@@ -113,7 +114,7 @@ class FusedTerrain:
         step_ratio, _ = frame_limit_ratios(self.noise, self.depth_m, self.focal_px, self.config, self.params)
         del step_ratio
         return advise(fm, self.params, self.shift_per_frame_px(), self.depth_m, self.focal_px, work.step_min_m,
-                      math.tan(math.radians(work.slope_min_deg)))
+                      math.tan(math.radians(work.slope_min_deg)), hover)
 
 
 def pixel_cells(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray) -> np.ndarray:

@@ -13,22 +13,22 @@ The depth noise of a frame that is not due is the last one the run measured on a
 
 from __future__ import annotations
 
+import functools
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from slzcli.config import Config
-from slzcli.fusion.advice import Advice
+from slzcli.fusion.advice import Advice, GroundTrack
 from slzcli.fusion.grid import region, seen_bounds
-from slzcli.fusion.output import landing_grid, write_landing_map
+from slzcli.fusion.output import Judged, landing_grid, write_landing_map
 from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
 from slzcli.fusion.verdict import SAFE, fused_maps
 from slzcli.landing.raised import surroundings
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
-from slzcli.records import DecideAdvice
 from slzcli.scoring import SCORERS
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
 from slzcli.types import Detection, LandingGrid, ScoreMap, TerrainMaps, TrackedFrame
@@ -50,6 +50,7 @@ class FusedMethod:
     selects: str = ("the cluster of the least normal variance among the map points on cells the fused map calls "
                     "safe (METHOD 2.3.6)")
     last_fused: tuple[int, int] = (-1, 0)   # (index, stamp_ns) of the last frame fused: the landing map's time
+    track: GroundTrack = field(default_factory=GroundTrack)   # the camera's recent positions: hover or flight
 
     def observe(self, tracked: TrackedFrame) -> dict[str, float]:
         """Fuse the frame; its ``fuse`` stage is the CPU time of this thread (``time.thread_time``: one core's
@@ -61,6 +62,7 @@ class FusedMethod:
                          frame.index)
         if tracked.T_world_camera is not None:
             self.last_fused = (frame.index, frame.stamp_ns)
+            self.track.add(tracked.segment, frame.stamp_ns, tracked.T_world_camera)
         return {"fuse": (time.thread_time() - t0) * 1e3}
 
     def detect(self, tracked: TrackedFrame, maps: TerrainMaps, maps_ms: float) -> Detection:
@@ -88,15 +90,16 @@ class FusedMethod:
                                     edge_distance_m=maps.edge_distance_m, around_world=surroundings(
                                         frame.depth_m, frame.intrinsics, T, self.config.landing.depth_points_stride_px))
             if selection.site is None and fm is not None and not score.mask.any():
-                advice = self.terrain.advice(fm)
+                advice = self.terrain.advice(fm, self.track.hovering(self.config.terrain.fusion.hover_speed_m_s))
                 why = "nothing in view is decided safe by the fused terrain"
                 selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)
+        # the cells judged, built when a sink writes them (results.mcap, in its writer), not on the compute path
         grid = None if fm is None or not fm.region.seen.any() else \
-            landing_grid(fm, tracked.segment, *self.last_fused, crop=True)   # the cells judged, for results.mcap
+            functools.partial(landing_grid, Judged.of(fm), tracked.segment, *self.last_fused, crop=True)
         return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment,
-                         None if advice is None else advice_record(advice), grid)
+                         None if advice is None else advice.record(), grid)
 
 
     def write_outputs(self, folder: Path) -> LandingGrid | None:
@@ -119,14 +122,6 @@ def fused(config: Config) -> FusedMethod:
                        select_params(config.landing, config.uav, "min_normal_variance",
                                      config.landing.min_extent_factor),
                        NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
-
-
-def advice_record(a: Advice) -> DecideAdvice:
-    """The fused map's advice as landing.json and the summary carry it (``records.DecideAdvice``), rounded as
-    ``Advice.as_dict`` rounds it."""
-    return DecideAdvice("fused", a.text(), a.frames, None if a.sideways_m is None else round(a.sideways_m, 2),
-                        None if a.descend_to_m is None else round(a.descend_to_m, 2), a.hover, round(a.x_m, 3),
-                        round(a.y_m, 3))
 
 
 def _lap(t0: float) -> float:

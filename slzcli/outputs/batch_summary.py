@@ -20,8 +20,8 @@ from pathlib import Path
 from slzcli.errors import OutputError, SlzError
 from slzcli.outputs import files
 from slzcli.outputs.output_dir import MARKER_KEY
-from slzcli.outputs.records_json import to_json
-from slzcli.records import BatchRow
+from slzcli.outputs.records_json import to_json, to_json_object
+from slzcli.records import BatchRow, BatchSettings, BatchTotals
 
 KIND = "batch"
 
@@ -110,8 +110,9 @@ def earlier_rows(json_path: Path, new: Sequence[Mapping[str, object]]) -> list[M
     return [r for r in rows if isinstance(r, dict) and r.get("run") not in now]
 
 
-def write_summary(out_dir: Path, batch: Mapping[str, object], rows: Sequence[BatchRow]) -> tuple[Path, Path]:
-    """Write ``summary.json`` (batch totals + rows) and ``summary.csv`` (rows) into ``out_dir``."""
+def write_summary(out_dir: Path, totals: BatchTotals, settings: BatchSettings,
+                  rows: Sequence[BatchRow]) -> tuple[Path, Path]:
+    """Write ``summary.json`` (batch totals, settings + rows) and ``summary.csv`` (rows) into ``out_dir``."""
     out_dir = Path(out_dir)
     json_path, csv_path = out_dir / "summary.json", out_dir / "summary.csv"
     plain = [row_json(r) for r in rows]
@@ -121,7 +122,9 @@ def write_summary(out_dir: Path, batch: Mapping[str, object], rows: Sequence[Bat
         check_folder(out_dir)  # again: the batch ran for a while
         earlier = earlier_rows(json_path, plain)
         files.write_json(json_path, {MARKER_KEY: {"kind": KIND, "files": ["summary.json", "summary.csv"]},
-                                     "batch": {**batch, "earlier_rows": len(earlier)}, "recordings": earlier + plain})
+                                     "batch": {**to_json_object(totals), **to_json_object(settings),
+                                               "earlier_rows": len(earlier)},
+                                     "recordings": earlier + plain})
         buf = io.StringIO()
         writer = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
         writer.writeheader()

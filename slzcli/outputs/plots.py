@@ -8,18 +8,19 @@ unsafe). Every function writes one PNG atomically and returns its path.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.axes import Axes
 
+from slzcli.compare_records import Curve, FigureFrame, MethodView, VariantMethod, VariantRow
 from slzcli.outputs import palette
 from slzcli.outputs.files import atomic_path
-from slzcli.types import FigureFrame
 
 METHOD_COLOURS = {"fuzzy": "tab:red", "bayes": "tab:blue", "px4slp": "tab:green"}
 MAP_COLOURS = {"depth_variance": "tab:olive", "flatness": "tab:green", "inclination": "tab:purple",
@@ -49,11 +50,11 @@ def figure6(path: Path, frame: FigureFrame, title: str) -> Path:
     fig, axes = plt.subplots(len(methods), 3, figsize=(12, 3.4 * len(methods)), squeeze=False)
     for row, m in zip(axes, methods, strict=True):
         v = frame.per_method[m]
-        mask = v["mask"]
+        mask = v.mask
         tint = np.where(mask[..., None], np.array(palette.SAFE), np.array(palette.UNSAFE))
         row[0].imshow((0.55 * frame.rgb + 0.45 * tint).astype(np.uint8))
         row[0].set_title(f"{m}: mask over the image ({100 * mask.mean():.0f} % safe)", fontsize=9)
-        im = row[1].imshow(v["score"].astype(np.float32), cmap=palette.COLORMAP, vmin=0.0, vmax=1.0)
+        im = row[1].imshow(v.score.astype(np.float32), cmap=palette.COLORMAP, vmin=0.0, vmax=1.0)
         row[1].set_title(f"{m}: score map", fontsize=9)
         fig.colorbar(im, ax=row[1], fraction=0.035, pad=0.02)
         row[2].imshow(np.where(mask[..., None], MASK_SAFE_RGB, MASK_UNSAFE_RGB))
@@ -68,16 +69,16 @@ def figure6(path: Path, frame: FigureFrame, title: str) -> Path:
     return _save(fig, path)
 
 
-def _points(ax: Any, v: dict[str, Any], shape: tuple[int, int]) -> None:
-    px = v.get("projected")
-    if px is not None and len(px):
+def _points(ax: Axes, v: MethodView, shape: tuple[int, int]) -> None:
+    px = v.projected
+    if px is not None and v.kept is not None and len(px):
         h, w = shape
         inside = np.isfinite(px).all(axis=1) & (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
-        kept = v["kept"] & inside
+        kept = v.kept & inside
         ax.scatter(px[inside & ~kept, 0], px[inside & ~kept, 1], s=3, c=palette.hex_of(palette.POINT),
                    edgecolors="0.3", linewidths=0.2)
         ax.scatter(px[kept, 0], px[kept, 1], s=5, c=KEPT_COLOUR, linewidths=0)
-    corners = v.get("corners_px")
+    corners = v.corners_px
     if corners is not None:
         c = np.asarray(corners)[[0, 1, 3, 2, 0]]  # corners are (+,+), (+,-), (-,+), (-,-): walk the square
         ax.plot(c[:, 0], c[:, 1], "-", color="black", lw=3.2)
@@ -86,8 +87,7 @@ def _points(ax: Any, v: dict[str, Any], shape: tuple[int, int]) -> None:
     ax.set_ylim(shape[0], 0)
 
 
-def pr_curves(path: Path, curves: dict[str, tuple[np.ndarray, np.ndarray]], aucs: dict[str, float | None],
-              title: str) -> Path:
+def pr_curves(path: Path, curves: Mapping[str, Curve], aucs: Mapping[str, float | None], title: str) -> Path:
     """Precision against recall of ``score > tau`` (steps, as the area is computed): fused scores bold, maps dashed."""
     fig, ax = plt.subplots(figsize=(6.0, 4.6))
     for name, (precision, recall) in curves.items():
@@ -109,7 +109,7 @@ def pr_curves(path: Path, curves: dict[str, tuple[np.ndarray, np.ndarray]], aucs
     return _save(fig, path)
 
 
-def timing_bars(path: Path, timings: dict[str, dict[str, list[float]]], title: str) -> Path:
+def timing_bars(path: Path, timings: Mapping[str, Mapping[str, list[float]]], title: str) -> Path:
     """Median time per stage and method, p90 as a whisker, ms per detection frame ("frame" = all stages)."""
     methods = list(timings)
     stages = [s for s in STAGE_COLOURS if any(timings[m].get(s) for m in methods)]
@@ -130,10 +130,10 @@ def timing_bars(path: Path, timings: dict[str, dict[str, list[float]]], title: s
     return _save(fig, path)
 
 
-def variants_chart(path: Path, rows: list[dict[str, Any]], title: str) -> Path:
+def variants_chart(path: Path, rows: Sequence[VariantRow], title: str) -> Path:
     """Per variant: each method's mask precision, recall and PR AUC, and each terrain map's PR AUC."""
-    labels = [r["variant"] for r in rows]
-    methods = list(rows[0]["methods"]) if rows else []
+    labels = [r.variant for r in rows]
+    methods = list(rows[0].methods) if rows else []
     fig, axes = plt.subplots(1, 2, figsize=(12, 3.8))
     x = np.arange(len(labels))
     metrics = ("precision", "recall", "pr_auc")
@@ -141,7 +141,7 @@ def variants_chart(path: Path, rows: list[dict[str, Any]], title: str) -> Path:
     k = 0
     for m in methods:
         for j, metric in enumerate(metrics):
-            vals = [np.nan if r["methods"][m].get(metric) is None else r["methods"][m][metric] for r in rows]
+            vals = [np.nan if (v := _metric(r.methods[m], metric)) is None else v for r in rows]
             axes[0].bar(x + (k - (len(methods) * len(metrics) - 1) / 2) * width, vals, width,
                         color=_colour(m), alpha=(1.0, 0.65, 0.35)[j], label=f"{m} {metric}")
             k += 1
@@ -149,10 +149,10 @@ def variants_chart(path: Path, rows: list[dict[str, Any]], title: str) -> Path:
     axes[0].set_ylim(0, 1.05)
     axes[0].set_title("methods: mask precision / recall, score PR AUC", fontsize=10)
     axes[0].legend(fontsize=7, ncol=2)
-    maps = list(rows[0]["maps"]) if rows else []
+    maps = list(rows[0].maps) if rows else []
     width = 0.8 / max(len(maps), 1)
     for i, n in enumerate(maps):
-        vals = [np.nan if r["maps"][n] is None else r["maps"][n] for r in rows]
+        vals = [np.nan if (v := r.maps[n]) is None else v for r in rows]
         axes[1].bar(x + (i - (len(maps) - 1) / 2) * width, vals, width, color=MAP_COLOURS.get(n, "0.5"), label=n)
     axes[1].set_xticks(x, labels, rotation=20)
     axes[1].set_ylim(0, 1.05)
@@ -163,3 +163,7 @@ def variants_chart(path: Path, rows: list[dict[str, Any]], title: str) -> Path:
     fig.suptitle(title, fontsize=11)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def _metric(m: VariantMethod, name: str) -> float | None:
+    return {"precision": m.precision, "recall": m.recall, "pr_auc": m.pr_auc}[name]

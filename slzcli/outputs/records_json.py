@@ -85,6 +85,8 @@ def _value(hint: object, v: object) -> object:
     hint = _optional(hint)
     if isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(v, Mapping):
         return from_json(hint, v)
+    if typing.get_origin(hint) is Mapping and isinstance(v, Mapping):  # Mapping[str, X]: its values as X
+        return {k: _value(typing.get_args(hint)[1], x) for k, x in v.items()}
     if typing.get_origin(hint) is tuple and isinstance(v, list):
         args = typing.get_args(hint)
         if len(args) == 2 and args[1] is Ellipsis:

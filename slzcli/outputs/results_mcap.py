@@ -65,8 +65,9 @@ grid's pose (the south-west corner of cell (0, 0): landing_map.npz's ``origin_xy
 height, display only), columns x, cell size the map's resolution. Per detection the grid is the square
 the fused method judged around the camera (cropped to its seen cells); the run's last message is the
 whole map of the last map segment, stamped with the last frame fused, and equals landing_map.npz.
-Cost (benchmarks/landing_grid.py): the cells cropped on the compute path ~0.4 ms a detection, the message
-built and written in the background writer ~5 ms CPU (most of it LZ4 over its bytes, 24 a cell).
+Cost (benchmarks/landing_grid.py): the cells cropped ~0.4 ms a detection (in the background writer, when
+results.mcap is written: the detection carries how to build them), the message built and written there ~5 ms
+CPU (most of it LZ4 over its bytes, 24 a cell).
 """
 
 from __future__ import annotations
@@ -241,7 +242,7 @@ class ResultsMcap:
         row = json.dumps(frame_funnel(det).as_dict(), separators=(",", ":"))
         self._raw("funnel", STRING, self.writer.message(STRING, data=row), stamp)
         if det.landing_grid is not None:
-            self.write_landing_grid(det.landing_grid)
+            self.write_landing_grid(det.landing_grid())
 
     def write_landing_grid(self, grid: LandingGrid) -> None:
         """A landing map on ``/slz/landing_map`` at its own stamp, in its map segment's frame."""

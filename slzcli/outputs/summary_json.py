@@ -14,10 +14,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, overload
 
 from slzcli.outputs.records_json import from_json, to_json_object
 from slzcli.records import RunSummary
+
+if TYPE_CHECKING:  # the compare records hold numpy arrays; the command line imports this module without numpy
+    from slzcli.compare_records import Comparison, ProfileComparison
 
 SCHEMA_VERSION = "1.2"
 DECIMALS = 6       # digits after the point for |x| >= 1; project decision (1 um, 1 us)
@@ -40,11 +43,17 @@ def round_float(x: float) -> float:
     return float(f"{x:.{SIGNIFICANT}g}")
 
 
-class Exact(dict[str, Any]):
+class Exact(dict[str, object]):
     """A JSON object printed unrounded: values a user feeds back (``slz config dump --json``) must round-trip."""
 
 
-def rounded(obj: Any) -> Any:
+@overload
+def rounded(obj: dict[str, object]) -> dict[str, object]: ...
+@overload
+def rounded(obj: object) -> object: ...
+
+
+def rounded(obj: object) -> object:
     """``obj`` with every float (in dicts, lists, tuples) rounded by ``round_float``; ints and bools kept."""
     if isinstance(obj, Exact):
         return obj
@@ -67,18 +76,23 @@ def read_summary(data: Mapping[str, object]) -> RunSummary:
     return from_json(RunSummary, data)
 
 
-def envelope(command: str, summary: dict[str, Any]) -> dict[str, Any]:
+def compare_summary(comparison: Comparison | ProfileComparison, output: str) -> dict[str, object]:
+    """``slz compare --json`` (before ``envelope``): the comparison as compare.json has it, then the output folder."""
+    return {**to_json_object(comparison), "output": output}
+
+
+def envelope(command: str, summary: Mapping[str, object]) -> dict[str, object]:
     """The summary with ``schema_version`` and ``command`` first, floats rounded."""
     return rounded({"schema_version": SCHEMA_VERSION, "command": command, **summary})
 
 
-def error_object(message: str, exit_code: int, err: BaseException | None = None) -> dict[str, Any]:
+def error_object(message: str, exit_code: int, err: BaseException | None = None) -> dict[str, object]:
     """A failure under ``--json``: ``{"schema_version", "error": {"message", "exit_code", "kind", "file", "key"}}``.
 
     ``err`` None: a usage error. An error may carry ``detail`` ({"kind", "file", "key"}) when it was
     raised elsewhere (a batch worker) and only its text and detail came back.
     """
-    body: dict[str, Any] = {"message": message, "exit_code": exit_code,
+    body: dict[str, object] = {"message": message, "exit_code": exit_code,
                             "kind": "usage" if err is None else type(err).__name__}
     path, key = getattr(err, "path", None), getattr(err, "key", None)
     if isinstance(path, str):

@@ -18,7 +18,7 @@ from slzcli.funnel import frame_funnel
 from slzcli.methods.base import Method
 from slzcli.outputs.site_log import SiteLog
 from slzcli.summary import RunState
-from slzcli.terrain.limits import limit_reason
+from slzcli.terrain.limits import would_vouch
 from slzcli.terrain.maps import MapParams, frame_maps
 from slzcli.terrain.noise import NoiseTracker
 from slzcli.types import Candidate, DepthNoise, Detection, Frame, Site, TerrainMaps, TrackedFrame
@@ -65,7 +65,7 @@ def tally(state: RunState, det: Detection, method: Method, terrain: TerrainCfg, 
         worst = state.worst_unvouched
         if worst is None or work.altitude_m > worst.altitude_m:
             state.worst_unvouched = work
-            state.unvouched_reason = limit_reason(work, terrain, uav)
+            state.would_vouch = would_vouch(work, terrain, uav)
     if method.reads_maps and work is not None and (state.highest is None or work.altitude_m > state.highest.altitude_m):
         state.highest = work
     state.advice = det.advice  # the latest detection frame's (None: it had nothing to advise)

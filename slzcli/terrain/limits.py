@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -161,10 +162,35 @@ def vouchable_altitude_m(noise: DepthNoise, focal_px: float, cfg: TerrainCfg, ua
     return lo
 
 
+@dataclass(frozen=True)
+class WouldVouch:
+    """What a frame that cannot vouch hides at its altitude, and the altitude below which its noise would let
+    it vouch: one bisection serves the run's no-site reason and its advice."""
+
+    altitude_m: float
+    sigma_m: float
+    hidden: str                 # ``Working.hidden``: "steps below 0.30 m (the UAV tolerates 0.09 m)" ...
+    below_m: float | None       # ``vouchable_altitude_m`` (None: at no altitude with this sensor)
+
+    def hides(self, with_sigma: bool) -> str:
+        """"at 9.8 m the depth noise [(sigma ~ 0.37 m)] hides steps below 0.30 m ..."."""
+        noise = f"the depth noise (sigma ~ {self.sigma_m:.2f} m)" if with_sigma else "the depth noise"
+        return f"at {self.altitude_m:.1f} m {noise} hides {self.hidden}"
+
+    def reason(self) -> str:
+        """The one-line "why not", e.g. "at 9.8 m the depth noise (sigma ~ 0.37 m) hides steps below 0.30 m ...;
+        below 6.1 m it would not"."""
+        tail = f"; below {self.below_m:.1f} m it would not" if self.below_m is not None else \
+            "; at no altitude with this sensor"
+        return self.hides(with_sigma=True) + tail
+
+
+def would_vouch(work: Working, cfg: TerrainCfg, uav: UavCfg) -> WouldVouch:
+    """What the frame of ``work`` hides and below which altitude it would not."""
+    return WouldVouch(work.altitude_m, work.sigma_m, work.hidden(),
+                      vouchable_altitude_m(work.noise, work.focal_px, cfg, uav, work.altitude_m))
+
+
 def limit_reason(work: Working, cfg: TerrainCfg, uav: UavCfg) -> str:
-    """The one-line "why not" of a frame that cannot vouch, e.g.
-    "at 9.8 m the depth noise (sigma ~ 0.37 m) hides steps below 0.30 m ...; below 6.1 m it would not"."""
-    below = vouchable_altitude_m(work.noise, work.focal_px, cfg, uav, work.altitude_m)
-    tail = f"; below {below:.1f} m it would not" if below is not None else "; at no altitude with this sensor"
-    return (f"at {work.altitude_m:.1f} m the depth noise (sigma ~ {work.sigma_m:.2f} m) hides "
-            f"{work.hidden()}{tail}")
+    """The one-line "why not" of a frame that cannot vouch (``WouldVouch.reason``)."""
+    return would_vouch(work, cfg, uav).reason()

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from slzcli import batch
 from slzcli.cli import main
 from slzcli.errors import ConfigError, OutputError
 from slzcli.outputs import run_lock
+from slzcli.records import BatchSettings, BatchTotals
 
 FRAMES = 4
 SCENES = ("clear_field", "no_site", "parking_lot")  # sorted: the order a glob gives them
@@ -76,6 +78,10 @@ def test_local_pool_batch_writes_a_run_per_recording_and_the_summary(local_run) 
     assert rows[0]["site_x"] and not rows[1]["site_x"]
     batch_json = json.loads((out / "summary.json").read_text())
     assert batch_json["batch"]["config_hash"] and len(batch_json["recordings"]) == 3
+    # the batch object is the records' fields in their order (the file's contract), then the earlier rows
+    names = [f.name for f in fields(BatchTotals)]
+    assert list(batch_json["batch"]) == [*names, *(f.name for f in fields(BatchSettings)), "earlier_rows"]
+    assert list(totals) == [*names, "summary_files"]  # --json
     progress = [ln for ln in stderr.splitlines() if ln.startswith("slz: [")]
     assert len(progress) == 3 and progress[-1].startswith("slz: [3/3]") and "frames/s" in progress[-1]
     assert leftovers(out) == []

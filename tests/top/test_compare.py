@@ -9,6 +9,7 @@ aggregation code (``total``, ``precision_recall_curve`` and ``site_truth`` from 
 from __future__ import annotations
 
 import json
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,11 @@ from conftest import GAUSSIAN, fusion_spy, synth_recording
 
 from slzcli.cli import main
 from slzcli.compare import CurveCounts, check_same_inputs, resolve_methods
+from slzcli.compare_records import Comparison, MethodComparison, PairComparison, VariantRow
 from slzcli.errors import ConfigError
+from slzcli.evaluate.safety import mask_counts
+from slzcli.outputs import report
+from slzcli.outputs.records_json import from_json, to_json_object
 from slzcli.outputs.summary_json import rounded
 from slzcli.types import Detection
 
@@ -138,6 +143,26 @@ def test_outputs_table_figures_and_report(compared) -> None:
     assert t["frame"]["p90_ms"] >= t["frame"]["median_ms"] > 0
 
 
+def test_compare_json_round_trips_through_the_records(compared) -> None:
+    """compare.json is the records' JSON: read back into them and written again it is the same text, key order
+    included, and compare.csv made from the records read back is the file's text."""
+    summary, out, _ = compared
+    doc = json.loads((out / "compare.json").read_text())
+    back = from_json(Comparison, doc)
+    rec = back.recordings[0]
+    assert isinstance(rec.methods["fuzzy"], MethodComparison) and isinstance(rec.pairs[0], PairComparison)
+    assert rec.methods["bayes"].ground_truth is not None and rec.slam.frames_digest
+    again = {"slz_output": doc["slz_output"], **to_json_object(back), "config": doc["config"]}
+    assert json.dumps(again) == json.dumps(doc)
+    assert report.csv_text(back.recordings) == (out / "compare.csv").read_text()
+    # the --json summary: the same record, rounded, then the output folder
+    assert list(summary) == ["schema_version", "command", *to_json_object(back), "output"]
+    # the mask figures keep the key order of the pixel counts they come from
+    counts = mask_counts(np.ones((2, 2), bool), np.eye(2, dtype=bool))
+    gt = rec.methods["fuzzy"].ground_truth
+    assert gt is not None and [f.name for f in fields(gt.mask)] == list(counts.as_dict())
+
+
 def test_stdout_table(runner, clear_field, tmp_path) -> None:
     res = runner.invoke(main, ["compare", str(clear_field), "-o", str(tmp_path / "c"), "--methods", "bayes,fuzzy",
                                *SMALL])
@@ -165,6 +190,12 @@ def test_variants_rerender_the_scene_and_report_the_change(runner, tmp_path) -> 
         assert change == pytest.approx(row["methods"][m]["precision"] - base["methods"][m]["precision"])
     assert set(row["maps"]) == {"depth_variance", "flatness", "inclination", "steepness"}
     assert (tmp_path / "c" / "variants_cf.png").is_file()
+    # the variants and their table round-trip through the records, key order included
+    plain = {k: v for k, v in summary.items() if k not in ("schema_version", "command", "output")}
+    back = from_json(Comparison, plain)
+    assert isinstance(back.variant_table[1], VariantRow) and back.variant_table[1].change is not None
+    assert back.variants[0].variant_of == "cf" and back.variants[0].scene is not None
+    assert json.dumps(to_json_object(back)) == json.dumps(plain)
 
 
 # ----------------------------------------------------------------------------- bad input

@@ -74,27 +74,31 @@ def test_the_fused_advice_is_its_own_record_rounded_as_it_says() -> None:
     """The fused map's advice becomes landing.json's and the summary's ``advice`` (records.DecideAdvice), with the
     figures rounded as its text gives them, and reads back from the JSON unchanged."""
     from slzcli.fusion.advice import Advice
-    from slzcli.methods.fused import advice_record
     from slzcli.outputs.records_json import from_json, to_json_object
     from slzcli.records import DecideAdvice
 
     a = Advice(x_m=1.23456, y_m=-2.0, factor=3.0, frames=12, sideways_m=1.2345, descend_to_m=None, hover=False)
-    rec = advice_record(a)
+    rec = a.record()
     assert rec == DecideAdvice("fused", a.text(), 12, 1.23, None, False, 1.235, -2.0)
     assert "12 more frames or 1.2 m of sideways flight" in rec.text
     assert from_json(DecideAdvice, to_json_object(rec)) == rec
-    hover = advice_record(Advice(0.0, 0.0, 5.0, None, 2.0, 4.5, True))
-    assert hover.hover and hover.frames is None and hover.descend_to_m == 4.5 and "move" in hover.text
+    hover = Advice(0.0, 0.0, 5.0, None, 2.0, 4.5, True).record()
+    assert hover.hover and hover.frames is None and hover.descend_to_m == 4.5
+    assert hover.text == ("hovering: more frames will not decide the ground at (0.0, 0.0) m; move: fly 2.0 m sideways "
+                          "or descend to 4.5 m")
+    assert Advice(0.0, 0.0, 5.0, 1, None, None, False).text() == "to decide the ground at (0.0, 0.0) m: 1 more frame"
 
 
 def test_a_run_whose_frames_could_not_vouch_is_told_the_altitude_that_would() -> None:
     """Per-frame methods: without a site, when depth noise kept the detection frames from vouching, the advice is
     the altitude below which the highest of them would have vouched (``limits.vouchable_altitude_m``), and it does
-    vouch there and not above; without unvouched frames there is no advice; the method's own advice wins."""
+    vouch there and not above; the no-site reason names the same altitude and what the noise hides (one
+    ``limits.would_vouch`` for both, texts as before); without unvouched frames there is no advice; the method's
+    own advice wins."""
     from slzcli.config import load_config
     from slzcli.records import DecideAdvice
     from slzcli.summary import RunState, decide_advice
-    from slzcli.terrain.limits import working_scale
+    from slzcli.terrain.limits import limit_reason, working_scale, would_vouch
     from slzcli.types import DepthNoise
 
     cfg = load_config()
@@ -102,11 +106,16 @@ def test_a_run_whose_frames_could_not_vouch_is_told_the_altitude_that_would() ->
     noise = DepthNoise((0.003,) * 5, "known", 0, 0.0)
     work = working_scale(noise, 7.5, 600.0, cfg.terrain, cfg.uav)
     assert not work.vouched
-    assert decide_advice(RunState(), cfg) is None
-    adv = decide_advice(RunState(unvouched=1, worst_unvouched=work), cfg)
+    assert decide_advice(RunState()) is None
+    st = RunState(unvouched=1, worst_unvouched=work, would_vouch=would_vouch(work, cfg.terrain, cfg.uav))
+    adv = decide_advice(st)
     assert adv is not None and adv.source == "depth_limits" and adv.descend_to_m is not None
-    assert 0.3 < adv.descend_to_m < 7.5 and f"descend below {adv.descend_to_m:.1f} m" in adv.text
+    assert 0.3 < adv.descend_to_m < 7.5
+    assert adv.text == f"descend below {adv.descend_to_m:.1f} m (at 7.5 m the depth noise hides {work.hidden()})"
+    assert st.unvouched_reason == limit_reason(work, cfg.terrain, cfg.uav) == (
+        f"at 7.5 m the depth noise (sigma ~ {work.sigma_m:.2f} m) hides {work.hidden()}; "
+        f"below {adv.descend_to_m:.1f} m it would not")
     assert working_scale(noise, adv.descend_to_m - 0.05, 600.0, cfg.terrain, cfg.uav).vouched
     assert not working_scale(noise, adv.descend_to_m + 0.05, 600.0, cfg.terrain, cfg.uav).vouched
     own = DecideAdvice("fused", "to decide the ground at (1.0, 2.0) m: 3 more frames", frames=3)
-    assert decide_advice(RunState(unvouched=1, worst_unvouched=work, advice=own), cfg) is own
+    assert decide_advice(RunState(unvouched=1, worst_unvouched=work, advice=own)) is own

@@ -1,0 +1,129 @@
+"""What would decide undecided ground (``fusion/advice.py``): a hover that wobbles as a real one does is told to
+move, a flight is told how many more frames, and the distance it gives is the noise model's."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from fusion_scene import INTR, Stereo, cell_noise, exact_depth
+
+from slzcli.config import load_config
+from slzcli.fusion.advice import GroundTrack, frames_to_variance
+from slzcli.fusion.session import FusedTerrain
+from slzcli.fusion.verdict import SAFE, UNDECIDED
+from slzcli.scoring import get_scorer
+from slzcli.synth.flight import poses_at
+from slzcli.terrain.noise import DepthNoise
+
+RATE_HZ = 15.0
+ALTITUDE_M = 8.0
+
+
+def _fly(path: str, seed: int, frames: int, a_per_m: float, speed_m_s: float = 0.0,
+         white: float = 0.2, corr_px: float = 2.0) -> Iterator[tuple[int, FusedTerrain, GroundTrack, Any]]:
+    """slz synth's camera path (``synth.flight``: the hover's drift of 0.3 m over 12 s, its 1.5 deg attitude
+    wobble over 4 s and 5 cm of altitude, or a transect at ``speed_m_s``) over level ground, depth with
+    ``fusion_scene``'s stereo-like noise; per frame the fused terrain, the camera's ground track and the
+    fused maps around the start."""
+    cfg = load_config(None, [f"terrain.fusion.white_fraction={white}", "terrain.fusion.fixed_fraction=0",
+                             f"terrain.fusion.decorrelation_px={2.0 * corr_px}",
+                             f"synth.flight.speed_m_s={speed_m_s}"])
+    ft = FusedTerrain(cfg, get_scorer(cfg.scoring, cfg.mask, "fuzzy"))
+    track = GroundTrack()
+    stereo = Stereo(a_per_m, white, corr_px, seed)
+    noise = DepthNoise.flat(cell_noise(stereo, ft.params.cell_m * INTR.fx / ALTITUDE_M), "known")
+    t = np.arange(frames) / RATE_HZ
+    poses = poses_at(t, (0.0, 0.0, ALTITUDE_M), path, cfg.synth.flight, seed)  # type: ignore[arg-type]
+    for i, T in enumerate(poses):
+        ft.add(stereo.measure(exact_depth(T, None)), INTR, T, noise, 0, i)
+        track.add(0, int(t[i] * 1e9), T)
+        yield i, ft, track, ft.maps_around(float(T[0, 3]), float(T[1, 3]), 8.0)
+
+
+def _hover_speed() -> float:
+    return load_config().terrain.fusion.hover_speed_m_s
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_wobbling_hover_that_cannot_decide_says_to_move(seed: int) -> None:
+    """slz synth's hover (drift, attitude and altitude wobble) shifts each cell 0.4-0.9 px a frame in the image,
+    which the shift alone took for motion ("75-188 more frames" on these seeds); its net ground speed over the
+    last 15 frames, 0.08-0.18 m/s (hover_speed_m_s 0.5: a margin of 2.8x), makes it a hover: more frames will
+    not decide the ground, fly sideways instead, and nothing is called safe. Measured, seeds 0-4 (a = 0.001 at
+    8 m): nothing safe, every seen cell undecided, sideways 2.6-3.4 m (allowed: under 10 m)."""
+    *_, (_, ft, track, fm) = _fly("hover", seed, 40, a_per_m=0.001)
+    assert ft.shift_per_frame_px() > 0.1 * ft.params.decorrelation_px    # the shift alone says "moving"
+    old = ft.advice(fm)
+    assert old is not None and old.frames is not None                   # ... and "N more frames"
+    assert track.speed_m_s() < _hover_speed() / 2
+    assert not np.any(fm.verdict == SAFE) and np.mean(fm.verdict[fm.region.seen] == UNDECIDED) > 0.5
+    adv = ft.advice(fm, track.hovering(_hover_speed()))
+    assert adv is not None and adv.hover and adv.frames is None
+    assert adv.sideways_m is not None and 0 < adv.sideways_m < 10
+    assert adv.text().startswith("hovering: more frames will not decide the ground at")
+    assert f"move: fly {adv.sideways_m:.1f} m sideways" in adv.text()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_flight_at_one_metre_a_second_is_told_how_many_more_frames(seed: int) -> None:
+    """The same wobble and noise on a transect at 1 m/s (1.3-1.9 px a frame): not a hover (net 0.87-0.96 m/s,
+    seeds 0-2), and the ground it has not yet decided after 20 frames gets "N more frames" (measured 33-56)."""
+    *_, (_, ft, track, fm) = _fly("transect", seed, 20, a_per_m=0.001, speed_m_s=1.0)
+    assert track.speed_m_s() > 1.5 * _hover_speed()
+    adv = ft.advice(fm, track.hovering(_hover_speed()))
+    assert adv is not None and not adv.hover and adv.frames is not None and 0 < adv.frames < 1800
+    assert f"{adv.frames} more frames" in adv.text() and not adv.text().startswith("hovering")
+
+
+def _looks_needed(p: np.ndarray, sigma_c: float, sigma_w: float, rho: float, target: float) -> int | None:
+    """The cell's filter as matrices (state (h, c), c' = rho c + e, y = h + c + w), run until var(h) <= target:
+    an implementation of the model independent of ``frames_to_variance``'s scalar one."""
+    F = np.diag([1.0, rho])
+    Q = np.diag([0.0, (1.0 - rho * rho) * sigma_c * sigma_c])
+    H = np.array([[1.0, 1.0]])
+    for n in range(1, 1801):
+        p = F @ p @ F.T + Q
+        s = float((H @ p @ H.T)[0, 0]) + sigma_w * sigma_w
+        k = p @ H.T / s
+        p = p - k @ H @ p
+        if p[0, 0] <= target:
+            return n
+    return None
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_sideways_distance_is_the_noise_models(seed: int) -> None:
+    """The advice's "fly X m sideways" is the looks the worst cell of the square still needs, one every
+    decorrelation length of image shift, by the cell's own filter (here run as matrices), times that length on
+    the ground (px x z / f); with twice the noise the distance grows (it is no constant)."""
+    xs = []
+    for a in (0.002, 0.004):
+        *_, (_, ft, track, fm) = _fly("hover", seed, 30, a_per_m=a)
+        adv = ft.advice(fm, track.hovering(_hover_speed()))
+        assert adv is not None and adv.sideways_m is not None
+        p, reg = ft.params, fm.region
+        cand = (fm.verdict == UNDECIDED) & (fm.clear_score > 0)
+        j, i = np.unravel_index(int(np.argmax(np.where(cand, fm.clear_score, -1.0))), cand.shape)
+        n = 2 * math.ceil((p.square_m / reg.cell_m - 1) / 2) + 1
+        sl = (slice(max(0, j - n // 2), j + n // 2 + 1), slice(max(0, i - n // 2), i + n // 2 + 1))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = max(p.decided_margin, 2.0) * np.maximum(
+                fm.step_min_m[sl] / p.max_step_m,
+                np.tan(np.radians(fm.slope_min_deg[sl])) / math.tan(math.radians(p.max_slope_deg)))
+        r = np.where(reg.seen[sl], r, -np.inf)
+        jj, ii = np.unravel_index(int(np.argmax(r)), r.shape)
+        assert adv.factor == pytest.approx(float(r[jj, ii]))
+        var, s1, sc = (float(x[sl][jj, ii]) for x in (reg.var, reg.sigma_1, reg.sigma_c))
+        P = np.array([[var, reg.p_hc[sl][jj, ii]], [reg.p_hc[sl][jj, ii], reg.p_cc[sl][jj, ii]]], dtype=float)
+        sw = math.sqrt(max(s1 * s1 - sc * sc, 0.0))                     # fixed_fraction 0 here
+        looks = _looks_needed(P, sc, sw, math.exp(-1.0), var / float(r[jj, ii]) ** 2)
+        assert looks is not None
+        assert adv.sideways_m == pytest.approx(looks * p.decorrelation_px * ft.depth_m / ft.focal_px, rel=1e-9)
+        assert looks == frames_to_variance(var, P[0, 1], P[1, 1], sc, sw, p.decorrelation_px,
+                                           var / float(r[jj, ii]) ** 2, p)
+        xs.append(adv.sideways_m)
+    assert xs[1] > 1.5 * xs[0]

@@ -1,0 +1,75 @@
+"""The fused method through ``slz detect``: a hover's advice in landing.json, the fusion's time in its timings,
+and the landing grid of a detection built only when results.mcap is written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+from conftest import HALF_SIZE, synth_recording
+
+from slzcli.cli import main
+from slzcli.methods import fused
+
+RECORDED = ("--set", "slam.backend=recorded", "--set", "sources.use_ground_truth_pose=true")
+
+
+@pytest.fixture(scope="module")
+def hover(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """slz synth's default flight (a hover with drift and wobble) over clear_field with its default stereo
+    sensor, half size: from its altitude one D4xx frame cannot vouch and a hover does not decorrelate."""
+    return synth_recording(tmp_path_factory.mktemp("hover") / "hover.mcap", "clear_field", 9, *HALF_SIZE)
+
+
+def _count_grids(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Counts the fused method's landing grids as they are built (one entry each)."""
+    built: list[int] = []
+    orig = fused.landing_grid
+
+    def counted(*a: Any, **k: Any) -> Any:
+        built.append(1)
+        return orig(*a, **k)
+
+    monkeypatch.setattr(fused, "landing_grid", counted)
+    return built
+
+
+def _detect(rec: Path, out: Path, *sets: str) -> dict[str, Any]:
+    res = CliRunner().invoke(main, ["detect", str(rec), "-o", str(out), "--method", "fused", *RECORDED,
+                                    "--set", "landing.detect_on=every_nth", "--set", "landing.every_nth_frame=3",
+                                    *sets])
+    assert res.exit_code == 0, res.output
+    return json.loads((out / "landing.json").read_text())
+
+
+def test_a_hover_without_a_site_is_told_to_move_and_its_fusion_is_timed(hover: Path, tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """landing.json of a hover with no site: its advice says more frames will not decide and to move (no
+    frames); ``timings_ms.fuse`` is run.json's median of the fusion of every frame, inside ``total``; the
+    detections' landing grids reach results.mcap, built as it writes them."""
+    built = _count_grids(monkeypatch)
+    landing = _detect(hover, tmp_path / "run")
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert landing["status"] == "no_safe_site"
+    adv = landing["advice"]
+    assert adv["source"] == "fused" and adv["hover"] and adv["frames"] is None
+    assert adv["text"].startswith("hovering: more frames will not decide the ground at") and "move: " in adv["text"]
+    t = landing["timings_ms"]
+    assert t["fuse"] == round(run["timings"]["fuse"]["median_ms"], 3) > 0
+    assert t["total"] == pytest.approx(sum(t[k] for k in ("maps", "fused", "mask", "slam", "select", "fuse")),
+                                       abs=1e-3)
+    assert list(t)[:7] == ["maps", "fused", "mask", "slam", "select", "fuse", "total"]
+    assert len(built) == run["summary"]["detections"] == 3
+    assert (tmp_path / "run" / "results.mcap").stat().st_size > 0
+
+
+def test_without_results_mcap_no_landing_grid_is_built(hover: Path, tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """No sink writes the detections' landing grids: none is built (the method hands over how to build it)."""
+    built = _count_grids(monkeypatch)
+    _detect(hover, tmp_path / "run", "--set", "output.results_mcap=false")
+    assert not (tmp_path / "run" / "results.mcap").exists()
+    assert built == []
