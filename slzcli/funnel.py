@@ -38,7 +38,8 @@ STEP_TEXT = {"threshold": "the score threshold", "footprint": "the footprint cle
 CLUSTER_TESTS = {"points": "too few points (landing.min_cluster_points)",
                  "normals": "too few points with a normal (landing.normal_radius_m)",
                  "extent": "extent below the footprint (uav.footprint_m x landing.min_extent_factor)",
-                 "centroid": "centroid on a pixel the mask rejects"}
+                 "centroid": "centroid on a pixel the mask rejects",
+                 "raised": "on a surface raised above the ground around it (landing.raised)"}
 BENCH_COLUMN_M = 0.5  # control.desired_depth_m of configs/profiles/bench.yaml (tests check they agree)
 _SAMPLE_PX = 8  # grid step (px) of the sample the weakest map's median is taken on: display only
 
@@ -97,6 +98,7 @@ class FrameFunnel:
     site: tuple[bool, str] | None = None         # the site's acceptance test: passed, reason
     weakest: tuple[str, float, float] | None = None  # the lowest map's name and median, the median slope (deg)
     note: str = ""                               # why no selection ran (no pose, no map points, not vouched)
+    raised: str = ""                             # the largest cluster refused as raised: its reason
 
     def as_dict(self) -> FrameRow:
         """The frame's row in run.json ``funnel.frames``."""
@@ -134,7 +136,9 @@ def frame_funnel(det: Detection) -> FrameFunnel:
     on_mask = int(np.count_nonzero(sel.kept))
     clusters = tuple((c.points, c.test) for c in sel.candidates)
     site = None if sel.site is None else (sel.site.accepted, sel.site.acceptance_reason)
-    return FrameFunnel(det.frame.index, mask, (n, int(sel.in_view), on_mask), clusters, site, weakest)
+    raised = [c for c in sel.candidates if c.test == "raised"]
+    lead = max(raised, key=lambda c: c.points).reason if raised else ""
+    return FrameFunnel(det.frame.index, mask, (n, int(sel.in_view), on_mask), clusters, site, weakest, raised=lead)
 
 
 def weakest_map(maps: TerrainMaps) -> tuple[str, float, float] | None:
@@ -210,11 +214,14 @@ class FunnelLog:
             need = f"{on_mask} map points on the mask, too few to cluster (landing.min_cluster_points)"
             return f"{head}: {need}; more flight over the safe ground gives more map points"
         tests = ", ".join(f"{v} {CLUSTER_TESTS.get(k, k)}" for k, v in failed.most_common())
+        raised = [f.raised for f in selected if f.raised]
+        lead = (f"the best site is {raised[-1]}: a UAV that misses it by its landing error drops off an edge; "
+                if raised else "")
         tail = ""
         if failed and failed.most_common(1)[0][0] in ("extent", "points", "normals"):
             tail = ("; the safe patches are smaller than the footprint or hold too few map points: more flight "
                     "over them adds points, a smaller uav.footprint_m needs less")
-        return (f"no cluster of mask-filtered map points met the footprint in any detection frame ({head}; "
+        return (f"{lead}no cluster of mask-filtered map points met the footprint in any detection frame ({head}; "
                 f"{on_mask} map points on it; of {clusters} clusters: {tests}){tail}")
 
     def _empty_mask_reason(self, masks: list[MaskFunnel], unvouched_reason: str) -> str:

@@ -402,7 +402,7 @@ class Candidate:
     extent_m: tuple[float, float]
     qualifies: bool
     reason: str
-    test: str = ""  # the first test it failed: points | normals | extent | centroid ("" = qualifies)
+    test: str = ""  # the first test it failed: points | normals | extent | centroid | raised ("" = qualifies)
 
 
 @dataclass(frozen=True)

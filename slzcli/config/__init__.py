@@ -60,6 +60,7 @@ from slzcli.config.schema import OrbSlam3Cfg as OrbSlam3Cfg
 from slzcli.config.schema import OutputCfg as OutputCfg
 from slzcli.config.schema import OutputLevel as OutputLevel
 from slzcli.config.schema import Px4SlpCfg as Px4SlpCfg
+from slzcli.config.schema import RaisedCfg as RaisedCfg
 from slzcli.config.schema import ScenariosCfg as ScenariosCfg
 from slzcli.config.schema import SceneGravityCfg as SceneGravityCfg
 from slzcli.config.schema import ScoringCfg as ScoringCfg

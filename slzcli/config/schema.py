@@ -341,6 +341,15 @@ class UavCfg:
 
 
 @schema
+class RaisedCfg:
+    ground_radius_m: float = rng(0, lo_open=True)
+    ground_share: float = rng(0, 1, lo_open=True)
+    margin_sigma: float = rng(0)
+    min_cells: int = rng(1)
+    ground_cell_m: float = rng(0, lo_open=True)
+
+
+@schema
 class LandingCfg:
     every_nth_frame: int = rng(1)
     kmeans_k: int = rng(1, 100)
@@ -355,6 +364,7 @@ class LandingCfg:
     commit_radius_factor: float = rng(0)
     commit_score_band: float = rng(0, 1)
     max_normal_pairs: int = rng(1)
+    raised: RaisedCfg
     commit: Literal["agree", "latest"] = "agree"
 
 

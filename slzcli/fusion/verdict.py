@@ -39,6 +39,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.fusion.grid import Region
 from slzcli.fusion.measure import FusionParams
+from slzcli.landing.raised import Raised, RaisedParams, above_ground
 from slzcli.terrain.geometry import eigvalsh3
 
 UNSEEN, UNSAFE, UNDECIDED, SAFE = 0, 1, 2, 3
@@ -326,16 +327,54 @@ class FusedSite:
     step_min_m: float
 
 
-def best_site(fm: FusedMaps) -> FusedSite | None:
-    """The safe cell farthest from any cell that is not safe (ties: the higher cleared score); None: none."""
+def best_site(fm: FusedMaps, raised: RaisedParams | None = None) -> FusedSite | None:
+    """The safe cell farthest from any cell that is not safe (ties: the higher cleared score); None: none.
+
+    With ``raised``, a site on a surface raised above the ground around it (``landing/raised.py``) is refused
+    and the best cell of the next patch of safe cells is tried (one test per connected patch: the patches are
+    few, and a patch is one surface: the fused verdict's steps separate a box top from the ground)."""
     safe = fm.verdict == SAFE
     if not safe.any():
         return None
     reg = fm.region
     dist = cv2.distanceTransform(safe.astype(np.uint8), cv2.DIST_L2, 5).astype(np.float64)
-    rank = dist + 1e-3 * fm.clear_score
-    j, i = np.unravel_index(int(np.argmax(np.where(safe, rank, -1.0))), safe.shape)
-    x0, y0 = reg.origin_m
-    return FusedSite(x0 + (i + 0.5) * reg.cell_m, y0 + (j + 0.5) * reg.cell_m, float(reg.h[j, i]),
-                     float(dist[j, i] * reg.cell_m), float(fm.score[j, i]), float(reg.looks[j, i]),
-                     float(fm.step_min_m[j, i]))
+    rank = np.where(safe, dist + 1e-3 * fm.clear_score, -1.0)
+    if raised is None:
+        order = [int(np.argmax(rank))]
+    else:
+        n_lab, labels = cv2.connectedComponents(safe.astype(np.uint8), connectivity=8)
+        flat_rank, flat_lab = rank.ravel(), labels.ravel()
+        best = np.full(n_lab, -1)
+        idx = np.flatnonzero(flat_lab > 0)
+        by = idx[np.lexsort((-flat_rank[idx], flat_lab[idx]))]   # per patch, its cells best first
+        first = np.r_[True, flat_lab[by][1:] != flat_lab[by][:-1]]
+        best[flat_lab[by][first]] = by[first]
+        order = sorted((int(i) for i in best[1:] if i >= 0), key=lambda i: -flat_rank[i])
+    for flat in order:
+        j, i = np.unravel_index(flat, safe.shape)
+        if raised is not None and raised_cell(fm, int(j), int(i), raised).refused:
+            continue
+        x0, y0 = reg.origin_m
+        return FusedSite(x0 + (i + 0.5) * reg.cell_m, y0 + (j + 0.5) * reg.cell_m, float(reg.h[j, i]),
+                         float(dist[j, i] * reg.cell_m), float(fm.score[j, i]), float(reg.looks[j, i]),
+                         float(fm.step_min_m[j, i]))
+    return None
+
+
+def raised_cell(fm: FusedMaps, j: int, i: int, params: RaisedParams) -> Raised:
+    """The raised-surface rule for the cell (j, i): the cells of its landing square are the site's points (their
+    plane its surface), every other seen cell of the region its surroundings."""
+    reg = fm.region
+    ok = reg.seen & ~fm.refused & np.isfinite(reg.h)
+    jj, ii = np.nonzero(ok)
+    c = reg.cell_m
+    xyz = np.stack([(ii + 0.5) * c, (jj + 0.5) * c, reg.h[jj, ii].astype(np.float64)], axis=1)
+    centre = np.array([(i + 0.5) * c, (j + 0.5) * c, float(reg.h[j, i])])
+    half = params.inner_radius_m
+    own = (np.abs(xyz[:, 0] - centre[0]) <= half) & (np.abs(xyz[:, 1] - centre[1]) <= half)
+    pts = xyz[own]
+    a = np.c_[np.ones(len(pts)), pts[:, 0] - centre[0], pts[:, 1] - centre[1]]
+    coef = np.linalg.lstsq(a, pts[:, 2], rcond=None)[0] if len(pts) >= 3 else np.array([centre[2], 0.0, 0.0])
+    centre[2] = coef[0]
+    normal = np.array([-coef[1], -coef[2], 1.0])
+    return above_ground(centre, normal, pts, xyz, params, np.array([0.0, 0.0, 1.0]))

@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 from slzcli.errors import ConfigError
 from slzcli.geometry import project, transform_points
 from slzcli.landing.corners import square_corners
+from slzcli.landing.raised import Raised, RaisedParams, above_ground
 from slzcli.types import Candidate, Selection, Site
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])  # world up when the caller names none: +z
@@ -44,6 +45,7 @@ class SelectParams:
     edge_clearance_m: float  # acceptance test: clearance to the nearest depth edge must exceed this
     max_tilt_deg: float      # acceptance test: surface tilt at most this (uav.max_slope_deg)
     max_normal_pairs: int = 0  # neighbour pairs point_normals may build (0 = no bound; landing.max_normal_pairs)
+    raised: RaisedParams | None = None  # the raised-surface rule (landing/raised.py; None: not applied)
 
 
 def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray, max_pairs: int = 0) -> np.ndarray:
@@ -87,8 +89,10 @@ def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray, max_pairs: i
 
 def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray, mask: np.ndarray,
                 score: np.ndarray, params: SelectParams, *, up_world: np.ndarray = WORLD_UP,
-                edge_distance_m: np.ndarray | None = None) -> Selection:
-    """Choose the landing site among the map points of one keyframe (METHOD 2.5)."""
+                edge_distance_m: np.ndarray | None = None, around_world: np.ndarray | None = None) -> Selection:
+    """Choose the landing site among the map points of one keyframe (METHOD 2.5); ``around_world``: the points
+    the raised-surface rule reads the ground around a cluster from (``raised.surroundings``; None: the map
+    points)."""
     n = xyz_world.shape[0]
     pixels, inside = project(xyz_world, T_world_camera, K, mask.shape)
     kept = np.zeros(n, bool)
@@ -113,11 +117,13 @@ def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray
     candidates = []
     for c in range(k):  # k is a handful of clusters: not a per-point loop
         member = lab == c
-        candidates.append(_candidate(c, pts[member], normals[member], min_extent, params, T_world_camera, K, mask))
+        candidates.append(_candidate(c, pts[member], normals[member], min_extent, params, T_world_camera, K, mask,
+                                     xyz_world if around_world is None else around_world, up))
     good = [c for c in candidates if c.qualifies]
     if not good:
         reasons = "; ".join(f"cluster {c.cluster}: {c.reason}" for c in candidates)
-        return replace(empty, reason=f"no cluster qualifies ({reasons})", candidates=tuple(candidates))
+        return replace(empty, reason=raised_lead(candidates, params) + f"no cluster qualifies ({reasons})",
+                       candidates=tuple(candidates))
     if params.rule == "largest":
         best = max(good, key=lambda c: (c.points, -c.normal_variance))
     else:
@@ -127,8 +133,20 @@ def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray
     return replace(empty, site=site, candidates=tuple(candidates))
 
 
+def raised_lead(candidates: list[Candidate], params: SelectParams) -> str:
+    """The no-site reason's lead when the cluster the rule would have chosen was refused as raised only: what
+    the user must hear first (the rest of the reason lists every cluster)."""
+    raised = [c for c in candidates if c.test == "raised"]
+    if not raised:
+        return ""
+    best = max(raised, key=lambda c: (c.points, -c.normal_variance)) if params.rule == "largest" else \
+        min(raised, key=lambda c: (c.normal_variance, -c.points))
+    return f"the best site is {best.reason}; "
+
+
 def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndarray, params: SelectParams,
-               T_world_camera: np.ndarray, K: np.ndarray, mask: np.ndarray) -> Candidate:
+               T_world_camera: np.ndarray, K: np.ndarray, mask: np.ndarray, around: np.ndarray,
+               up: np.ndarray) -> Candidate:
     centroid = pts.mean(axis=0) if len(pts) else np.full(3, np.nan)
     extent = np.ptp(pts[:, :2], axis=0) if len(pts) else np.zeros(2)
     good_n = normals[np.all(np.isfinite(normals), axis=1)]
@@ -145,8 +163,20 @@ def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndar
         (uv,), (inside,) = project(centroid[None], T_world_camera, K, mask.shape)
         if not inside or not mask[round(float(uv[1])), round(float(uv[0]))]:
             reason, test = "centroid falls on a pixel the mask rejects", "centroid"
+        elif params.raised is not None:
+            found = raised_site(centroid, good_n, pts, around, params.raised, up)
+            if found.refused:
+                reason, test = found.reason(), "raised"
     return Candidate(c, len(pts), _vec3(centroid), variance, (float(extent[0]), float(extent[1])),
                      reason == "", reason or "qualifies", test)
+
+
+def raised_site(centroid: np.ndarray, normals: np.ndarray, pts: np.ndarray, around: np.ndarray,
+                params: RaisedParams, up: np.ndarray) -> Raised:
+    """The raised-surface rule for a cluster: its centroid, its points' mean normal, the keyframe's map points
+    around it."""
+    normal = normals.mean(axis=0)
+    return above_ground(centroid, normal, pts, around, params, up)
 
 
 def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray,

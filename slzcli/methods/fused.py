@@ -26,6 +26,7 @@ from slzcli.fusion.grid import region, seen_bounds
 from slzcli.fusion.output import Judged, landing_grid, write_landing_map
 from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
 from slzcli.fusion.verdict import SAFE, fused_maps
+from slzcli.landing.raised import surroundings
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
 from slzcli.scoring import SCORERS
@@ -86,7 +87,8 @@ class FusedMethod:
         advice: Advice | None = None
         if T is not None and points is not None:
             selection = select_site(points.xyz_world, T, frame.K, score.mask, score.score, self.params,
-                                    edge_distance_m=maps.edge_distance_m)
+                                    edge_distance_m=maps.edge_distance_m, around_world=surroundings(
+                                        frame.depth_m, frame.intrinsics, T, self.config.landing.depth_points_stride_px))
             if selection.site is None and fm is not None and not score.mask.any():
                 advice = self.terrain.advice(fm, self.track.hovering(self.config.terrain.fusion.hover_speed_m_s))
                 why = "nothing in view is decided safe by the fused terrain"

@@ -1,0 +1,168 @@
+"""Is a site on a raised surface? Its surface height against the ground around it (METHOD 2.5.1).
+
+A flat box top or a car roof passes every test of the maps (flat, level, clear of edges by more than the
+edge clearance) and yet is no place to land: a UAV that misses it by its landing error drops off an
+edge, and the ground truth counts only the ground as landable. The rule, with heights along gravity (``up``):
+
+1. the site's own surface: its points' scatter about the plane through its centre with its normal
+   (1.4826 MAD, at its one-sided 95 % upper bound for the number of points: five points may under-read it
+   by half) is the points' noise ``sigma``, measured at this range on this sensor; its level: the points'
+   median height;
+2. the ground around it: the frame's depth on a pixel grid (``surroundings``; the SLAM map points crowd on
+   texture), the samples whose plan distance from the centre lies in the annulus from the landing
+   square's corner radius (the site's own square left out) to ``ground_radius_m``, averaged per plan cell
+   of ``ground_cell_m`` (the annulus weighed by area, not by how many samples each surface gives);
+3. the lowest large surface: the lowest ``ground_share`` of the cells (a lower surface covering that share
+   of the annulus, not a ditch or a strip beside the site, which are the edge clearance's and the flatness
+   map's business), a plane fitted through them (free slope: a gentle slope's own ground is its plane, and
+   the site's noisy normal is not extrapolated 3 m), its height at the site, with the noise share that
+   choosing the lowest cells picks removed (``phi(z) / share`` sigma, a point's sigma: it errs low);
+4. raised: the site's level above that exceeds the UAV's step tolerance (``uav.max_step_m``) by
+   ``margin_sigma`` standard errors (the plane's at the site, which grows when the low cells lie to one
+   side, and the site level's). A terrace or a kerb within the tolerance is ground.
+
+Fewer than ``min_cells`` plan cells with a point in the annulus (the view holds too little around the
+site): not measured, the site is not refused by this rule (``Raised.measured`` False says so).
+Where a site is selected at all, the depth noise at the footprint's scale is already within the step
+tolerance (the frame vouches, or the fused cells are decided), so the margin covers the points' own
+scatter only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.stats import chi2, norm
+
+from slzcli.geometry import back_project, transform_points
+
+if TYPE_CHECKING:
+    from slzcli.config import Config, RaisedCfg
+    from slzcli.types import Intrinsics
+
+_MAD_TO_SIGMA = 1.4826  # a normal's std over its median absolute deviation
+_MAD_EFFICIENCY = 0.37  # the MAD's variance efficiency against the std for normal noise: its effective dof share
+_SIGMA_BOUND = 0.05     # the noise is taken at its one-sided 95 % upper bound: a few points under-read it
+
+
+@dataclass(frozen=True)
+class RaisedParams:
+    """The rule's parameters (``landing.raised`` and the UAV's tolerances)."""
+
+    max_height_m: float       # uav.max_step_m: the highest surface the UAV may land beside
+    inner_radius_m: float     # the landing square's corner radius: the site's own ground is not its surroundings
+    radius_m: float           # landing.raised.ground_radius_m
+    ground_share: float       # landing.raised.ground_share
+    confidence_sigma: float   # landing.raised.margin_sigma
+    min_points: int           # landing.raised.min_cells (plan cells of the annulus with a point)
+    cell_m: float = 0.25      # landing.raised.ground_cell_m
+
+    @classmethod
+    def of(cls, raised: RaisedCfg, footprint_m: tuple[float, float], margin_m: float,
+           max_step_m: float) -> RaisedParams:
+        """From ``landing.raised`` and the UAV's footprint, margin and step tolerance."""
+        inner = 0.5 * math.hypot(footprint_m[0] + 2 * margin_m, footprint_m[1] + 2 * margin_m)
+        return cls(max_step_m, inner, raised.ground_radius_m, raised.ground_share, raised.margin_sigma,
+                   raised.min_cells, raised.ground_cell_m)
+
+
+def raised_params(config: Config) -> RaisedParams:
+    """The rule's parameters of a run's config."""
+    uav = config.uav
+    return RaisedParams.of(config.landing.raised, (uav.footprint_m[0], uav.footprint_m[1]), uav.margin_m,
+                           uav.max_step_m)
+
+
+def surroundings(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray, stride_px: int) -> np.ndarray:
+    """The frame's depth on a pixel grid, in the world: what surrounds a site. Not the SLAM map points, which
+    crowd on texture (ORB-SLAM3 put 722 of 801 points on a concrete box top and 79 on the rocky ground
+    around it): the depth samples every surface in view alike."""
+    sub = depth_m[::stride_px, ::stride_px]
+    xyz = back_project(sub, intrinsics.scaled(sub.shape[1], sub.shape[0]))
+    pts = xyz[np.all(np.isfinite(xyz), axis=2)]
+    return transform_points(T_world_camera, pts)
+
+
+@dataclass(frozen=True)
+class Raised:
+    """What the rule found for one site."""
+
+    height_m: float | None   # the site's surface above the ground around it (None: not measured)
+    threshold_m: float       # the height it had to exceed to be refused (tolerance + margin)
+    points: int              # plan cells of the annulus with a point
+    refused: bool
+
+    @property
+    def measured(self) -> bool:
+        return self.height_m is not None
+
+    def reason(self) -> str:
+        """The words of a refusal (a Candidate's reason)."""
+        return (f"on a surface {self.height_m or 0.0:.1f} m above the ground around it (more than the UAV's "
+                f"step tolerance, uav.max_step_m, by the noise margin: {self.threshold_m:.2f} m)")
+
+
+def _cell_means(rel: np.ndarray, up: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per plan cell of ``cell_m`` with a point: the mean plan position (n, 2) and the mean height along ``up``
+    of the points ``rel`` (relative to the site): the annulus weighed by area, not by point count (a near box
+    top holds more depth samples per square metre than the ground beyond it, and SLAM points crowd on
+    texture)."""
+    if rel.shape[0] == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    xy = np.stack([rel @ e1, rel @ e2], axis=1)
+    _, inv = np.unique(np.floor(xy / cell_m).astype(np.int64), axis=0, return_inverse=True)
+    inv = inv.ravel()
+    count = np.bincount(inv)
+    mean_xy = np.stack([np.bincount(inv, weights=xy[:, k]) / count for k in (0, 1)], axis=1)
+    return mean_xy, np.bincount(inv, weights=rel @ up) / count
+
+
+def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, around_xyz: np.ndarray,
+                 params: RaisedParams, up: np.ndarray) -> Raised:
+    """The rule (module docstring) for a site at ``centre`` with surface ``normal``; ``site_xyz``: the site's
+    own points (their scatter about its plane is the noise), ``around_xyz``: every point that may be its
+    surroundings."""
+    up = up / np.linalg.norm(up)
+    n = normal / np.linalg.norm(normal)
+    if float(n @ up) < 0:
+        n = -n
+    rel_site = site_xyz - centre
+    d_site = rel_site @ n                                    # the site's points about its own plane
+    d_site = d_site[np.isfinite(d_site)]
+    rel = around_xyz - centre
+    h_all = rel @ up
+    r = np.linalg.norm(rel - h_all[:, None] * up[None, :], axis=1)
+    ring = (r >= params.inner_radius_m) & (r <= params.radius_m) & np.isfinite(h_all)
+    xy, h = _cell_means(rel[ring], up, params.cell_m)
+    n_ring, n_site = int(h.size), int(d_site.size)
+    tol = params.max_height_m
+    if n_ring < params.min_points or n_site < 3:
+        return Raised(None, tol, n_ring, False)
+    dof = max(1.0, _MAD_EFFICIENCY * (n_site - 1))
+    bound = math.sqrt(dof / float(chi2.ppf(_SIGMA_BOUND, dof)))
+    sigma = _MAD_TO_SIGMA * float(np.median(np.abs(d_site - np.median(d_site)))) * bound
+    level = float(np.median(rel_site @ up))                  # the site's surface height at its centre
+    # the lowest large surface: the lowest ground_share of the cells, a plane through them (gravity-aligned
+    # heights, free slope: the ground of a gentle slope is its own plane), its height at the site
+    share = params.ground_share
+    low = h <= np.quantile(h, share)
+    a = np.column_stack([np.ones(int(low.sum())), xy[low]])
+    gram = a.T @ a
+    if low.sum() >= 3 and np.linalg.cond(gram) < 1e12:
+        coef = np.linalg.solve(gram, a.T @ h[low])
+        ground_h, se_ground = float(coef[0]), sigma * math.sqrt(float(np.linalg.inv(gram)[0, 0]))
+    else:
+        ground_h, se_ground = float(np.median(h[low])), sigma * math.sqrt(math.pi / 2 / max(int(low.sum()), 1))
+    # choosing the lowest cells picks their noise too: level ground's lowest share lies phi(z)/share sigma low
+    z_s = float(norm.ppf(share))
+    ground_h += float(norm.pdf(z_s)) / share * sigma
+    height = level - ground_h
+    se = se_ground + sigma * math.sqrt(math.pi / 2 / n_site)
+    threshold = tol + params.confidence_sigma * se
+    return Raised(height, threshold, n_ring, height > threshold)
