@@ -22,6 +22,11 @@ start-up, vocabulary load and the final write included) in variants interleaved 
 Against ORB-SLAM3 alone: per run, the rate its tracking allows (1000 / the median ms per frame of the SLAM
 worker's own time, run.json ``timings.slam``, measured in that very run) and the run's end-to-end rate
 divided by it (``of_slam_bound``: 1 = slz is as fast as its tracker; the target for ``fused`` is >= 0.7).
+That bound counts the tracking thread alone; ORB-SLAM3's LocalMapping and LoopClosing threads share the same
+cores. So the same frames are also tracked by ORB-SLAM3 alone (``--slam-alone``, the default: decoded once into
+memory, handed to a fresh worker back to back, wall time of the tracking loop, ``--repeats`` times): the rate
+the tracker really allows on this machine, and each variant's rate over it (``of_slam_alone``), from the
+process's wall time (start-up included) and from the run's own ``wall_s`` (the frame loop and final writes).
 The fusion's own cost is run.json ``timings.fuse`` (CPU time of the main thread per tracked frame).
 
 Per variant: median frames/s over the process's wall time, median ms per stage from run.json
@@ -101,13 +106,35 @@ def run(recording: Path, out: Path, sets: tuple[str, ...]) -> dict[str, Any]:
     bound = 1000.0 / slam_ms if slam_ms else None
     fuse = timings.get("fuse")
     return {"frames": summary["frames"], "detections": summary["detections"], "wall_s": round(wall, 3),
-            "fps": round(fps, 3), "status": summary["status"],
+            "fps": round(fps, 3), "loop_fps": round(summary["frames"] / summary["wall_s"], 3),
+            "status": summary["status"],
             "site": None if site is None else [round(v, 3) for v in site],
             "slam_bound_fps": None if bound is None else round(bound, 2),
             "of_slam_bound": None if bound is None else round(fps / bound, 3),
             "fuse_cpu_ms": None if fuse is None else {k: round(fuse[k], 2) for k in ("median_ms", "mean_ms", "count")},
             "load_1min": round(os.getloadavg()[0], 2),
             "stage_ms": {k: round(v["median_ms"], 2) for k, v in timings.items()}}
+
+
+def slam_alone(recording: Path, sets: tuple[str, ...], repeats: int) -> dict[str, Any]:
+    """Frames/s of ORB-SLAM3 alone on the recording's frames (decoded first, outside the timing)."""
+    from slzcli.config import load_config
+    from slzcli.slam.orbslam3 import OrbSlam3Backend
+    from slzcli.sources import open_recording
+
+    cfg = load_config(None, [s for s in sets if not s.startswith("--") and "=" in s])
+    with open_recording(str(recording), cfg) as rec:
+        frames = list(rec.frames())
+    rates = []
+    for _ in range(repeats):
+        backend = OrbSlam3Backend(cfg.slam)
+        t0 = time.perf_counter()
+        for f in frames:
+            backend.track(f)
+        rates.append(len(frames) / (time.perf_counter() - t0))
+        backend.close()
+    return {"frames": len(frames), "fps": [round(r, 2) for r in rates],
+            "fps_median": round(statistics.median(rates), 2)}
 
 
 def main() -> None:
@@ -121,6 +148,8 @@ def main() -> None:
     ap.add_argument("--variants", default=";".join(VARIANTS), help="a subset of: " + "; ".join(VARIANTS)
                     + " (separated by ';')")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
+    ap.add_argument("--no-slam-alone", dest="slam_alone", action="store_false",
+                    help="skip the ORB-SLAM3-alone reference (only with --backend orbslam3)")
     args = ap.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="slz_throughput_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -128,20 +157,30 @@ def main() -> None:
     variants = {k.strip(): VARIANTS[k.strip()] for k in args.variants.split(";")}
     base = (f"slam.backend={args.backend}", *args.overrides)
     rows: dict[str, list[dict[str, Any]]] = {k: [] for k in variants}
+    alone: list[float] = []
     for _ in range(args.repeats):
+        if args.slam_alone and args.backend == "orbslam3":   # interleaved with the variants, like them
+            alone += slam_alone(recording, base, 1)["fps"]
         for name, sets in variants.items():
             rows[name].append(run(recording, work / f"run_{name.replace(', ', '_').replace(' ', '_')}",
                                   (*base, *sets)))
     table: dict[str, Any] = {}
-    print(f"{'variant':<26} {'frames':>6} {'det':>4} {'frames/s':>8} {'x ref':>6} {'x slam':>6} {'slam':>6} "
-          f"{'wait':>6} {'maps':>6} {'fuse':>6} {'write':>6} {'waited':>6}  site")
+    alone_fps = statistics.median(alone) if alone else None
+    if alone_fps:
+        print(f"ORB-SLAM3 alone: {alone_fps:.2f} frames/s (median of {', '.join(f'{a:.2f}' for a in alone)})")
+    print(f"{'variant':<26} {'frames':>6} {'det':>4} {'frames/s':>8} {'x ref':>6} {'x slam':>6} {'x alone':>7} "
+          f"{'loop':>6} {'slam':>6} {'wait':>6} {'maps':>6} {'fuse':>6} {'write':>6} {'waited':>6}  site")
     for name, runs in rows.items():
         fps = statistics.median(r["fps"] for r in runs)
         stages = {k: statistics.median(r["stage_ms"].get(k, float("nan")) for r in runs)
                   for k in runs[0]["stage_ms"]}
         sites = {json.dumps(r["site"]) for r in runs}
         of_slam = [r["of_slam_bound"] for r in runs if r["of_slam_bound"] is not None]
-        table[name] = {"fps_median": round(fps, 3), "stage_ms_median": stages, "runs": runs,
+        loop = statistics.median(r["loop_fps"] for r in runs)
+        table[name] = {"fps_median": round(fps, 3), "loop_fps_median": round(loop, 3),
+                       "of_slam_alone": round(fps / alone_fps, 3) if alone_fps else None,
+                       "loop_of_slam_alone": round(loop / alone_fps, 3) if alone_fps else None,
+                       "stage_ms_median": stages, "runs": runs,
                        "of_slam_bound_median": round(statistics.median(of_slam), 3) if of_slam else None,
                        "same_site_every_run": len(sites) == 1}
         ref = REFERENCE.get(name)
@@ -149,12 +188,14 @@ def main() -> None:
         table[name]["ratio_to_reference"] = round(ratio, 3)
         nan = float("nan")
         print(f"{name:<26} {runs[0]['frames']:>6} {runs[0]['detections']:>4} {fps:>8.2f} {ratio:>6.2f} "
-              f"{table[name]['of_slam_bound_median'] or nan:>6.2f} "
+              f"{table[name]['of_slam_bound_median'] or nan:>6.2f} {table[name]['of_slam_alone'] or nan:>7.2f} "
+              f"{loop:>6.2f} "
               f"{stages.get('slam', nan):>6.1f} {stages.get('slam_wait', nan):>6.1f} "
               f"{stages.get('maps', nan):>6.1f} {stages.get('fuse', nan):>6.1f} {stages.get('write', nan):>6.1f} "
               f"{stages.get('write_wait', float('nan')):>6.1f}  {runs[0]['site']}")
     harness.write_results(args.out, {"frames": args.frames, "repeats": args.repeats, "base": list(base),
-                                     "size": args.size, "variants": table})
+                                     "size": args.size, "slam_alone_fps": alone, "slam_alone_fps_median": alone_fps,
+                                     "variants": table})
 
 
 if __name__ == "__main__":
