@@ -11,6 +11,8 @@ from typing import Any
 import pytest
 from click.testing import CliRunner
 
+from slzcli import interrupt
+
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared"
 # the real frames: beside the checkout, or wherever SLZ_REALSENSE_DIR says (a clone elsewhere)
@@ -54,6 +56,15 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if item.path.name in SLOW_FILES:
             item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture(autouse=True)
+def _own_computations(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test sees only the computations it started. A stage an earlier test left running in its daemon
+    thread (a timed-out or interrupted one) would make ``interrupt.abandoned()`` true for a later test in the same
+    worker, and the CLI would then leave through ``os._exit`` (right for a real slz process, which has nothing
+    else to do), ending the pytest worker instead of returning exit code 130."""
+    monkeypatch.setattr(interrupt, "_running", set())
 
 
 @pytest.fixture
