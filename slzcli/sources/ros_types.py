@@ -34,6 +34,13 @@ class Header(Protocol):
     def frame_id(self) -> str: ...
 
 
+class Stamped(Protocol):
+    """A message with a std_msgs/Header."""
+
+    @property
+    def header(self) -> Header: ...
+
+
 class Image(Protocol):
     """sensor_msgs/Image."""
 
@@ -71,13 +78,7 @@ class Vector3(Protocol):
     def z(self) -> float: ...
 
 
-class Quaternion(Protocol):
-    @property
-    def x(self) -> float: ...
-    @property
-    def y(self) -> float: ...
-    @property
-    def z(self) -> float: ...
+class Quaternion(Vector3, Protocol):
     @property
     def w(self) -> float: ...
 
@@ -91,9 +92,7 @@ class Transform(Protocol):
     def rotation(self) -> Quaternion: ...
 
 
-class TransformStamped(Protocol):
-    @property
-    def header(self) -> Header: ...
+class TransformStamped(Stamped, Protocol):
     @property
     def child_frame_id(self) -> str: ...
     @property
@@ -116,11 +115,9 @@ class PointField(Protocol):
     def datatype(self) -> int: ...
 
 
-class PointCloud2(Protocol):
+class PointCloud2(Stamped, Protocol):
     """sensor_msgs/PointCloud2."""
 
-    @property
-    def header(self) -> Header: ...
     @property
     def fields(self) -> Sequence[PointField]: ...
     @property
@@ -137,11 +134,9 @@ class PointCloud2(Protocol):
     def data(self) -> Bytes: ...
 
 
-class Imu(Protocol):
+class Imu(Stamped, Protocol):
     """sensor_msgs/Imu."""
 
-    @property
-    def header(self) -> Header: ...
     @property
     def linear_acceleration(self) -> Vector3: ...
     @property
@@ -166,9 +161,7 @@ class Pose(Protocol):
     def orientation(self) -> Quaternion: ...
 
 
-class PoseStamped(Protocol):
-    @property
-    def header(self) -> Header: ...
+class PoseStamped(Stamped, Protocol):
     @property
     def pose(self) -> Pose: ...
 
@@ -178,9 +171,7 @@ class PoseWithCovariance(Protocol):
     def pose(self) -> Pose: ...
 
 
-class Odometry(Protocol):
-    @property
-    def header(self) -> Header: ...
+class Odometry(Stamped, Protocol):
     @property
     def child_frame_id(self) -> str: ...
     @property
