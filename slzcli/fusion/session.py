@@ -19,7 +19,6 @@ from slzcli.fusion.grid import FusedGrid, FuseStats, fuse, region_around
 from slzcli.fusion.measure import FusionParams, frame_limit_ratios, measure_frame
 from slzcli.fusion.verdict import SAFE, FusedMaps, FusedSite, best_site, fused_maps
 from slzcli.geometry import fit_intrinsics, pixel_rays, valid_depth
-from slzcli.landing.raised import raised_params
 from slzcli.terrain.geometry import median_depth_m
 from slzcli.terrain.noise import DepthNoise
 from slzcli.types import Intrinsics
@@ -104,7 +103,7 @@ class FusedTerrain:
         return self.maps_around(float(self.camera_m[0]), float(self.camera_m[1]), side)
 
     def site(self, fm: FusedMaps) -> FusedSite | None:
-        return best_site(fm, raised_params(self.config))
+        return best_site(fm)
 
     def advice(self, fm: FusedMaps, hover: bool | None = None) -> Advice | None:
         """What would decide the best undecided ground (``advise``; ``hover``: the UAV holds position)."""

@@ -19,12 +19,21 @@ Verdict per cell:
              the step fitted across every cell of the square (and in the windows centred up to half a
              window beyond it along the step, which read a step ending in the square whole) and the slope
              of its plane stay within the tolerances by those limits (estimate + limit <= tolerance) and
-             its descent column was seen;
+             its descent column was seen, and its connected patch of such cells is not on a raised surface
+             (below);
   UNSAFE     a defect is known in its square (a step or slope beyond the tolerance by more than (k + 1) / k
              times its limit, a refused cell), or the mask fails on a square whose limits are
-             ``terrain.fusion.unsafe_margin`` times within the tolerances;
+             ``terrain.fusion.unsafe_margin`` times within the tolerances, or its patch is raised;
   UNDECIDED  seen, neither of the above: the noise still hides what the UAV cannot take;
   UNSEEN     no frame measured it.
+
+Raised surfaces (``landing/raised.py``, METHOD 2.5.1): a flat, level box top or car roof passes every test
+above. The rule runs once per connected patch of the cells that pass them, at the patch's best cell (the one
+``best_site`` takes: deepest inside it); a patch the rule refuses is UNSAFE whole. One test per patch: a patch
+is one surface (a raised top's edge is a step, whose defect square keeps its cells from the ground's patch),
+and the rule reads the ground within ``landing.raised.ground_radius_m`` of the cell, which the fused heights
+of the region hold. A patch whose surroundings hold fewer than ``min_cells`` plan cells is not measured and
+stays SAFE; ``FusedMaps.patch_tests`` and the site's ``raised`` say so.
 """
 
 from __future__ import annotations
@@ -39,7 +48,7 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.fusion.grid import Region
 from slzcli.fusion.measure import FusionParams
-from slzcli.landing.raised import Raised, RaisedParams, above_ground
+from slzcli.landing.raised import Raised, RaisedParams, above_ground, raised_params
 from slzcli.terrain.geometry import eigvalsh3
 
 UNSEEN, UNSAFE, UNDECIDED, SAFE = 0, 1, 2, 3
@@ -66,9 +75,22 @@ class FusedMaps:
     defect: np.ndarray        # a known defect in the landing square
     refused: np.ndarray       # two heights
     verdict: np.ndarray       # uint8 UNSEEN / UNSAFE / UNDECIDED / SAFE
+    patch: np.ndarray         # int32: the patch of cells the raised-surface rule tested (1, 2, ...; 0: none)
+    patch_tests: tuple[Raised, ...] = ()   # the rule's finding per patch (patch k: [k - 1]), best patch first
 
     def counts(self) -> dict[str, int]:
         return {name: int(np.count_nonzero(self.verdict == code)) for code, name in VERDICT_NAMES.items()}
+
+    @property
+    def raised(self) -> np.ndarray:
+        """The cells of the patches the raised-surface rule refused (UNSAFE for it, SAFE but for it)."""
+        return np.array([False, *(t.refused for t in self.patch_tests)])[self.patch]
+
+    def raised_lead(self) -> str:
+        """A no-site reason's lead when the best patch the rule refused is raised: what the user must hear first
+        (as the per-frame path's ``select.raised_lead``); "" when the rule refused none."""
+        best = next((t for t in self.patch_tests if t.refused), None)
+        return "" if best is None else f"the best site is {best.reason()}; "
 
 
 def _box(a: np.ndarray, n: int) -> np.ndarray:
@@ -304,14 +326,47 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
 
     verdict = np.full(hc.shape, UNSEEN, np.uint8)
     safe = ok & mask & decided & fine & reg.column
-    unsafe = seen & ~safe & (defect | (~mask & mask_conclusive) | refused)
+    patch, tests = raised_patches(reg, ok, safe, clear_score, raised_params(config))
+    raised = np.array([False, *(t.refused for t in tests)])[patch]
+    safe &= ~raised
+    unsafe = seen & ~safe & (defect | (~mask & mask_conclusive) | refused | raised)
     verdict[seen] = UNDECIDED
     verdict[unsafe] = UNSAFE
     verdict[safe] = SAFE
     f32 = {n: m.astype(np.float32) for n, m in maps.items()}
     return FusedMaps(reg, f32["depth_variance"], f32["flatness"], f32["inclination"], f32["steepness"],
                      slope_deg.astype(np.float32), score.astype(np.float32), mask, clear_score,
-                     step_min.astype(np.float32), slope_min.astype(np.float32), decided, defect, refused, verdict)
+                     step_min.astype(np.float32), slope_min.astype(np.float32), decided, defect, refused, verdict,
+                     patch, tests)
+
+
+def _site_rank(safe: np.ndarray, clear_score: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell: its distance (cells) to the nearest cell that is not ``safe``, and the site's rank (that
+    distance, ties: the higher cleared score; -1 where not safe)."""
+    dist = cv2.distanceTransform(safe.astype(np.uint8), cv2.DIST_L2, 5).astype(np.float64)
+    return dist, np.where(safe, dist + 1e-3 * clear_score, -1.0)
+
+
+def raised_patches(reg: Region, ok: np.ndarray, safe: np.ndarray, clear_score: np.ndarray,
+                   params: RaisedParams) -> tuple[np.ndarray, tuple[Raised, ...]]:
+    """The raised-surface rule once per connected patch (8-neighbours) of ``safe`` cells, at its best cell (the
+    site ``best_site`` would take in it), ``ok`` cells (seen, one height) its surroundings: the patch of every
+    cell (int32, 0: none; patches numbered best first) and the rule's finding per patch."""
+    n_lab, labels = cv2.connectedComponents(safe.astype(np.uint8), connectivity=8, ltype=cv2.CV_32S)
+    if n_lab <= 1:
+        return labels, ()
+    _, rank = _site_rank(safe, clear_score)
+    flat_rank, flat_lab = rank.ravel(), labels.ravel()
+    idx = np.flatnonzero(flat_lab > 0)
+    by = idx[np.lexsort((-flat_rank[idx], flat_lab[idx]))]       # per patch, its cells best first
+    best = by[np.r_[True, flat_lab[by][1:] != flat_lab[by][:-1]]]  # each patch's best cell, in label order
+    order = np.argsort(-flat_rank[best], kind="stable")           # the patches, best first
+    renumber = np.zeros(n_lab, np.int32)
+    renumber[1 + order] = np.arange(1, n_lab, dtype=np.int32)
+    usable = ok & np.isfinite(reg.h)
+    nx = safe.shape[1]
+    tests = tuple(_raised_at(reg, usable, int(f) // nx, int(f) % nx, params) for f in best[order])
+    return renumber[labels], tests
 
 
 @dataclass(frozen=True)
@@ -325,49 +380,41 @@ class FusedSite:
     score: float
     looks: float
     step_min_m: float
+    raised: Raised | None = None   # the raised-surface rule on its patch (``measured`` False: too little around)
 
 
-def best_site(fm: FusedMaps, raised: RaisedParams | None = None) -> FusedSite | None:
-    """The safe cell farthest from any cell that is not safe (ties: the higher cleared score); None: none.
-
-    With ``raised``, a site on a surface raised above the ground around it (``landing/raised.py``) is refused
-    and the best cell of the next patch of safe cells is tried (one test per connected patch: the patches are
-    few, and a patch is one surface: the fused verdict's steps separate a box top from the ground)."""
+def best_site(fm: FusedMaps) -> FusedSite | None:
+    """The safe cell farthest from any cell that is not safe (ties: the higher cleared score); None: none. The
+    raised-surface rule has already made the raised patches UNSAFE (``fused_maps``); the site carries its
+    patch's finding."""
     safe = fm.verdict == SAFE
     if not safe.any():
         return None
     reg = fm.region
-    dist = cv2.distanceTransform(safe.astype(np.uint8), cv2.DIST_L2, 5).astype(np.float64)
-    rank = np.where(safe, dist + 1e-3 * fm.clear_score, -1.0)
-    if raised is None:
-        order = [int(np.argmax(rank))]
-    else:
-        n_lab, labels = cv2.connectedComponents(safe.astype(np.uint8), connectivity=8)
-        flat_rank, flat_lab = rank.ravel(), labels.ravel()
-        best = np.full(n_lab, -1)
-        idx = np.flatnonzero(flat_lab > 0)
-        by = idx[np.lexsort((-flat_rank[idx], flat_lab[idx]))]   # per patch, its cells best first
-        first = np.r_[True, flat_lab[by][1:] != flat_lab[by][:-1]]
-        best[flat_lab[by][first]] = by[first]
-        order = sorted((int(i) for i in best[1:] if i >= 0), key=lambda i: -flat_rank[i])
-    for flat in order:
-        j, i = np.unravel_index(flat, safe.shape)
-        if raised is not None and raised_cell(fm, int(j), int(i), raised).refused:
-            continue
-        x0, y0 = reg.origin_m
-        return FusedSite(x0 + (i + 0.5) * reg.cell_m, y0 + (j + 0.5) * reg.cell_m, float(reg.h[j, i]),
-                         float(dist[j, i] * reg.cell_m), float(fm.score[j, i]), float(reg.looks[j, i]),
-                         float(fm.step_min_m[j, i]))
-    return None
+    dist, rank = _site_rank(safe, fm.clear_score)
+    j, i = np.unravel_index(int(np.argmax(rank)), safe.shape)
+    k = int(fm.patch[j, i])
+    x0, y0 = reg.origin_m
+    return FusedSite(x0 + (i + 0.5) * reg.cell_m, y0 + (j + 0.5) * reg.cell_m, float(reg.h[j, i]),
+                     float(dist[j, i] * reg.cell_m), float(fm.score[j, i]), float(reg.looks[j, i]),
+                     float(fm.step_min_m[j, i]), fm.patch_tests[k - 1] if k > 0 else None)
 
 
 def raised_cell(fm: FusedMaps, j: int, i: int, params: RaisedParams) -> Raised:
-    """The raised-surface rule for the cell (j, i): the cells of its landing square are the site's points (their
-    plane its surface), every other seen cell of the region its surroundings."""
-    reg = fm.region
-    ok = reg.seen & ~fm.refused & np.isfinite(reg.h)
-    jj, ii = np.nonzero(ok)
+    """The raised-surface rule for the cell (j, i) of fused maps (``_raised_at``)."""
+    return _raised_at(fm.region, fm.region.seen & ~fm.refused & np.isfinite(fm.region.h), j, i, params)
+
+
+def _raised_at(reg: Region, usable: np.ndarray, j: int, i: int, params: RaisedParams) -> Raised:
+    """The raised-surface rule for the cell (j, i): the ``usable`` cells of its landing square are the site's
+    points (their plane its surface), the other usable cells within ``params.radius_m`` its surroundings (a
+    window of the region: the rule's cost does not grow with the region)."""
     c = reg.cell_m
+    r = math.ceil(params.radius_m / c) + 1
+    ny, nx = usable.shape
+    ja, jb, ia, ib = max(0, j - r), min(ny, j + r + 1), max(0, i - r), min(nx, i + r + 1)
+    jj, ii = np.nonzero(usable[ja:jb, ia:ib])
+    jj, ii = jj + ja, ii + ia
     xyz = np.stack([(ii + 0.5) * c, (jj + 0.5) * c, reg.h[jj, ii].astype(np.float64)], axis=1)
     centre = np.array([(i + 0.5) * c, (j + 0.5) * c, float(reg.h[j, i])])
     half = params.inner_radius_m

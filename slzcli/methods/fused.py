@@ -91,7 +91,7 @@ class FusedMethod:
                                         frame.depth_m, frame.intrinsics, T, self.config.landing.depth_points_stride_px))
             if selection.site is None and fm is not None and not score.mask.any():
                 advice = self.terrain.advice(fm, self.track.hovering(self.config.terrain.fusion.hover_speed_m_s))
-                why = "nothing in view is decided safe by the fused terrain"
+                why = fm.raised_lead() + "nothing in view is decided safe by the fused terrain"
                 selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)

@@ -158,52 +158,69 @@ def test_select_site_keeps_a_site_on_a_terrace_within_the_tolerance() -> None:
         assert sel.site is not None, sel.reason
 
 
-# ---------------------------------------------------------------- the fused path: the fused map's site
+# ---------------------------------------------------------------- the fused path: the fused verdict
 
-def _fused(block: Block | None, slope_deg: float = 0.0, seed: int = 0) -> FusedMaps:
-    *_, (_, _, fm) = fly([], a_per_m=0.0005, white=0.5, corr_px=2.0, seed=seed, frames=20, step_m=0.2,
+def _fused(block: Block | None, slope_deg: float = 0.0, seed: int = 0, sets: tuple[str, ...] = ()) -> FusedMaps:
+    *_, (_, _, fm) = fly(list(sets), a_per_m=0.0005, white=0.5, corr_px=2.0, seed=seed, frames=20, step_m=0.2,
                          altitude_m=8.0, block=block, slope_deg=slope_deg, region_m=9.0)
     return fm
 
 
-def _safe_on_top(fm: FusedMaps) -> np.ndarray:
-    """The safe cells whose centre lies on the box."""
+def _on_top(fm: FusedMaps) -> np.ndarray:
+    """The cells whose centre lies on the box."""
     X, Y = cell_centres(fm.region)
-    inside = (np.abs(X - 0.5 * (BOX[0] + BOX[1])) < 0.5 * (BOX[1] - BOX[0])) & \
+    return (np.abs(X - 0.5 * (BOX[0] + BOX[1])) < 0.5 * (BOX[1] - BOX[0])) & \
         (np.abs(Y - 0.5 * (BOX[2] + BOX[3])) < 0.5 * (BOX[3] - BOX[2]))
-    return inside & (fm.verdict == SAFE)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_fused_site_is_not_on_a_box_top_the_verdict_calls_safe(seed: int) -> None:
-    """The fused verdict calls the middle of the box top safe (every other rule passes: 22-23 of its 1080 cells,
-    seeds 0-2) and the rule refuses every one of them, measured at 1.797-1.802 m (threshold 0.092 m); allowed
-    1.8 +- 0.1. With the ground made unsafe, the fused map's site is on the box without the rule and none with it."""
+def test_the_fused_verdict_calls_a_box_top_unsafe(seed: int) -> None:
+    """Every other rule passes the middle of the box top (22-23 of its 1080 cells, seeds 0-2, one patch beside
+    the ground's): the raised-surface rule refuses that patch at its best cell, measured at 1.798-1.802 m
+    (threshold 0.092 m; allowed 1.8 +- 0.1), the ground's at -0.004 to -0.001 m (threshold 0.093-0.095),
+    and the verdict calls all of it UNSAFE: no cell on the box is SAFE, no cell off it is refused,
+    and the fused map's site is not on the box. Every one of the patch's cells, tested alone, is refused too (one
+    test per patch stands for all of them)."""
     fm = _fused(Block(*BOX, 1.8), seed=seed)
-    top = _safe_on_top(fm)
-    assert top.sum() >= 5
-    for j, i in zip(*np.nonzero(top), strict=True):
-        r = raised_cell(fm, int(j), int(i), PARAMS)
-        assert r.refused and abs((r.height_m or 0.0) - 1.8) <= 0.1
-    site = best_site(fm, PARAMS)
+    top = _on_top(fm)
+    raised = fm.raised
+    assert raised.sum() >= 5 and not (raised & ~top).any()
+    assert np.all(fm.verdict[raised] == UNSAFE) and not np.any(top & (fm.verdict == SAFE))
+    refused = [t for t in fm.patch_tests if t.refused]
+    assert refused and all(t.measured and abs((t.height_m or 0.0) - 1.8) <= 0.1 for t in refused)
+    for j, i in zip(*np.nonzero(raised), strict=True):
+        assert raised_cell(fm, int(j), int(i), PARAMS).refused
+    site = best_site(fm)
     assert site is None or not (BOX[0] - 0.1 <= site.x_m <= BOX[1] + 0.1 and BOX[2] - 0.1 <= site.y_m <= BOX[3] + 0.1)
-    only_top = dataclasses.replace(fm, verdict=np.where(top, SAFE, UNSAFE).astype(np.uint8))
-    alone = best_site(only_top)
-    assert alone is not None and BOX[0] < alone.x_m < BOX[1] and BOX[2] < alone.y_m < BOX[3]
-    assert best_site(only_top, PARAMS) is None
+    assert site is None or (site.raised is not None and site.raised.measured and not site.raised.refused)
+    assert fm.raised_lead().startswith("the best site is on a surface 1.8 m above the ground around it")
 
 
 @pytest.mark.parametrize(("block", "slope_deg"), [(None, 5.0), (Block(*BOX, 0.05), 0.0)])
-def test_the_fused_site_on_a_slope_or_a_low_terrace_stays(block: Block | None, slope_deg: float) -> None:
-    """A 5-degree slope, a 0.05 m terrace: the fused map's site is the same with the rule as without it, and no
-    safe cell of the terrace's top (649, seed 0) is refused: measured heights 0.000-0.046 m against a threshold of
-    0.093 (terrace; margin 0.047), -0.019-0.000 on the slope (1080 safe cells)."""
+def test_the_fused_verdict_keeps_a_slope_and_a_low_terrace(block: Block | None, slope_deg: float) -> None:
+    """A 5-degree slope, a 0.05 m terrace: no patch refused, and no safe cell of the terrace's top (649, seed 0)
+    is refused tested alone either: measured heights 0.000-0.046 m against a threshold of 0.093 (terrace;
+    margin 0.047), -0.019-0.000 on the slope (1080 safe cells)."""
     fm = _fused(block, slope_deg)
     site = best_site(fm)
-    assert site is not None
-    assert best_site(fm, PARAMS) == site
+    assert site is not None and site.raised is not None and site.raised.measured and not site.raised.refused
+    assert fm.patch_tests and not any(t.refused for t in fm.patch_tests) and not fm.raised.any()
+    assert fm.raised_lead() == ""
     if block is not None:
-        top = _safe_on_top(fm)
+        top = _on_top(fm) & (fm.verdict == SAFE)
         assert top.sum() >= 5
         for j, i in zip(*np.nonzero(top), strict=True):
             assert not raised_cell(fm, int(j), int(i), PARAMS).refused
+
+
+def test_a_fused_patch_with_too_little_around_stays_safe_and_its_site_says_not_measured() -> None:
+    """With more plan cells asked of the annulus than it holds (0.61-3 m: at most ~470 cells of 0.25 m; 372 and
+    452 here), no patch is
+    measured: the box top stays SAFE (the rule refuses nothing it did not measure) and the site on it carries
+    ``raised.measured`` False with the cells it had, which the user is told (the rule's silent case)."""
+    fm = _fused(Block(*BOX, 1.8), sets=("landing.raised.min_cells=1000",))
+    assert fm.patch_tests and not any(t.measured or t.refused for t in fm.patch_tests)
+    assert not fm.raised.any() and np.any(_on_top(fm) & (fm.verdict == SAFE))
+    site = best_site(fm)
+    assert site is not None and site.raised is not None and not site.raised.measured
+    assert 20 <= site.raised.points < 1000
