@@ -30,6 +30,7 @@ scatter only.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -116,11 +117,27 @@ def _cell_means(rel: np.ndarray, up: np.ndarray, cell_m: float) -> tuple[np.ndar
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(up, e1)
     xy = np.stack([rel @ e1, rel @ e2], axis=1)
-    _, inv = np.unique(np.floor(xy / cell_m).astype(np.int64), axis=0, return_inverse=True)
-    inv = inv.ravel()
+    ij = np.floor(xy / cell_m).astype(np.int64)
+    ij -= ij.min(axis=0)
+    # one key per cell, in the order of its (column, row) pair: a 1-d sort, not a sort of rows (~10x faster)
+    _, inv = np.unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1], return_inverse=True)
     count = np.bincount(inv)
     mean_xy = np.stack([np.bincount(inv, weights=xy[:, k]) / count for k in (0, 1)], axis=1)
     return mean_xy, np.bincount(inv, weights=rel @ up) / count
+
+
+@functools.lru_cache(maxsize=256)
+def _sigma_bound(n_site: int) -> float:
+    """The MAD's one-sided 95 % upper bound factor for ``n_site`` points (scipy's quantiles cost ~0.2 ms a call,
+    and the fused verdict asks once per patch per frame)."""
+    dof = max(1.0, _MAD_EFFICIENCY * (n_site - 1))
+    return math.sqrt(dof / float(chi2.ppf(_SIGMA_BOUND, dof)))
+
+
+@functools.lru_cache(maxsize=8)
+def _lowest_share_bias(share: float) -> float:
+    """How far below the mean the lowest ``share`` of normal noise lies on average, in sigmas: phi(z) / share."""
+    return float(norm.pdf(float(norm.ppf(share)))) / share
 
 
 def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, around_xyz: np.ndarray,
@@ -144,9 +161,7 @@ def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, a
     tol = params.max_height_m
     if n_ring < params.min_points or n_site < 3:
         return Raised(None, tol, n_ring, False)
-    dof = max(1.0, _MAD_EFFICIENCY * (n_site - 1))
-    bound = math.sqrt(dof / float(chi2.ppf(_SIGMA_BOUND, dof)))
-    sigma = _MAD_TO_SIGMA * float(np.median(np.abs(d_site - np.median(d_site)))) * bound
+    sigma = _MAD_TO_SIGMA * float(np.median(np.abs(d_site - np.median(d_site)))) * _sigma_bound(n_site)
     level = float(np.median(rel_site @ up))                  # the site's surface height at its centre
     # the lowest large surface: the lowest ground_share of the cells, a plane through them (gravity-aligned
     # heights, free slope: the ground of a gentle slope is its own plane), its height at the site
@@ -160,8 +175,7 @@ def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, a
     else:
         ground_h, se_ground = float(np.median(h[low])), sigma * math.sqrt(math.pi / 2 / max(int(low.sum()), 1))
     # choosing the lowest cells picks their noise too: level ground's lowest share lies phi(z)/share sigma low
-    z_s = float(norm.ppf(share))
-    ground_h += float(norm.pdf(z_s)) / share * sigma
+    ground_h += _lowest_share_bias(share) * sigma
     height = level - ground_h
     se = se_ground + sigma * math.sqrt(math.pi / 2 / n_site)
     threshold = tol + params.confidence_sigma * se
