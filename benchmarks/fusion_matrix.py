@@ -275,7 +275,9 @@ def measure_fused_path(fl: Flight) -> dict[str, Any]:
         "fused_site": None if site is None else {
             "x_m": round(site.x_m, 3), "y_m": round(site.y_m, 3), "clearance_m": round(site.clearance_m, 3),
             "looks": round(site.looks, 1), "step_min_m": round(site.step_min_m, 4),
-            "truly_safe": _truth_cell_safe(fl.d, site.x_m, site.y_m)},
+            "truly_safe": _truth_cell_safe(fl.d, site.x_m, site.y_m),
+            "raised_m": None if site.raised is None or site.raised.height_m is None else round(site.raised.height_m, 3),
+            "raised_cells": None if site.raised is None else site.raised.points},
         "undecided_share_last": und_last, **_step_stats(fm, fl.n), "step_curve": curve,
         "safe_cells": n_safe, "safe_cells_truly_unsafe": n_safe - n_safe_ok, "unsafe_cells_truly_safe": n_unsafe_ok,
         "looks_median": float(np.median(reg.looks[reg.seen])) if reg.seen.any() else None,

@@ -403,6 +403,8 @@ class Candidate:
     qualifies: bool
     reason: str
     test: str = ""  # the first test it failed: points | normals | extent | centroid | raised ("" = qualifies)
+    raised_cells: int | None = None  # plan cells around it with depth the raised-surface rule read (None: not run)
+    raised_m: float | None = None    # its surface's height above the ground around it (None: not measured or run)
 
 
 @dataclass(frozen=True)

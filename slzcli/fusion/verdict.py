@@ -407,8 +407,8 @@ def raised_cell(fm: FusedMaps, j: int, i: int, params: RaisedParams) -> Raised:
 
 def _raised_at(reg: Region, usable: np.ndarray, j: int, i: int, params: RaisedParams) -> Raised:
     """The raised-surface rule for the cell (j, i): the ``usable`` cells of its landing square are the site's
-    points (their plane its surface), the other usable cells within ``params.radius_m`` its surroundings (a
-    window of the region: the rule's cost does not grow with the region)."""
+    points (their plane its surface), the other usable cells within ``params.radius_m`` its surroundings, with
+    their fused variance (a window of the region: the rule's cost does not grow with the region)."""
     c = reg.cell_m
     r = math.ceil(params.radius_m / c) + 1
     ny, nx = usable.shape
@@ -424,4 +424,5 @@ def _raised_at(reg: Region, usable: np.ndarray, j: int, i: int, params: RaisedPa
     coef = np.linalg.lstsq(a, pts[:, 2], rcond=None)[0] if len(pts) >= 3 else np.array([centre[2], 0.0, 0.0])
     centre[2] = coef[0]
     normal = np.array([-coef[1], -coef[2], 1.0])
-    return above_ground(centre, normal, pts, xyz, params, np.array([0.0, 0.0, 1.0]))
+    return above_ground(centre, normal, pts, xyz, params, np.array([0.0, 0.0, 1.0]),
+                        reg.var[jj, ii].astype(np.float64))

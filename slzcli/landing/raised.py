@@ -106,13 +106,14 @@ class Raised:
                 f"step tolerance, uav.max_step_m, by the noise margin: {self.threshold_m:.2f} m)")
 
 
-def _cell_means(rel: np.ndarray, up: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _cell_means(rel: np.ndarray, up: np.ndarray, cell_m: float,
+                var: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Per plan cell of ``cell_m`` with a point: the mean plan position (n, 2) and the mean height along ``up``
     of the points ``rel`` (relative to the site): the annulus weighed by area, not by point count (a near box
     top holds more depth samples per square metre than the ground beyond it, and SLAM points crowd on
-    texture)."""
+    texture); with ``var`` (each point's height variance), its mean per cell."""
     if rel.shape[0] == 0:
-        return np.zeros((0, 2)), np.zeros(0)
+        return np.zeros((0, 2)), np.zeros(0), None if var is None else np.zeros(0)
     e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(up, e1)
@@ -123,7 +124,8 @@ def _cell_means(rel: np.ndarray, up: np.ndarray, cell_m: float) -> tuple[np.ndar
     _, inv = np.unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1], return_inverse=True)
     count = np.bincount(inv)
     mean_xy = np.stack([np.bincount(inv, weights=xy[:, k]) / count for k in (0, 1)], axis=1)
-    return mean_xy, np.bincount(inv, weights=rel @ up) / count
+    return (mean_xy, np.bincount(inv, weights=rel @ up) / count,
+            None if var is None else np.bincount(inv, weights=var) / count)
 
 
 @functools.lru_cache(maxsize=256)
@@ -141,10 +143,12 @@ def _lowest_share_bias(share: float) -> float:
 
 
 def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, around_xyz: np.ndarray,
-                 params: RaisedParams, up: np.ndarray) -> Raised:
+                 params: RaisedParams, up: np.ndarray, around_var: np.ndarray | None = None) -> Raised:
     """The rule (module docstring) for a site at ``centre`` with surface ``normal``; ``site_xyz``: the site's
     own points (their scatter about its plane is the noise), ``around_xyz``: every point that may be its
-    surroundings."""
+    surroundings; ``around_var``: their stated height variance where known (fused cells: the ground around a
+    site may be noisier than the site, seen by fewer or farther looks, and smoothed cells scatter less about
+    their plane than they err), which the ground's noise then takes when larger."""
     up = up / np.linalg.norm(up)
     n = normal / np.linalg.norm(normal)
     if float(n @ up) < 0:
@@ -156,7 +160,7 @@ def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, a
     h_all = rel @ up
     r = np.linalg.norm(rel - h_all[:, None] * up[None, :], axis=1)
     ring = (r >= params.inner_radius_m) & (r <= params.radius_m) & np.isfinite(h_all)
-    xy, h = _cell_means(rel[ring], up, params.cell_m)
+    xy, h, var_h = _cell_means(rel[ring], up, params.cell_m, None if around_var is None else around_var[ring])
     n_ring, n_site = int(h.size), int(d_site.size)
     tol = params.max_height_m
     if n_ring < params.min_points or n_site < 3:
@@ -167,15 +171,18 @@ def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, a
     # heights, free slope: the ground of a gentle slope is its own plane), its height at the site
     share = params.ground_share
     low = h <= np.quantile(h, share)
+    # the ground cells' noise: the site's, or their own stated noise where larger (a cell mean's variance taken
+    # as its points' mean variance: correlated within a cell, as depth noise is over many pixels)
+    sigma_g = sigma if var_h is None else max(sigma, math.sqrt(float(np.mean(var_h[low]))))
     a = np.column_stack([np.ones(int(low.sum())), xy[low]])
     gram = a.T @ a
     if low.sum() >= 3 and np.linalg.cond(gram) < 1e12:
         coef = np.linalg.solve(gram, a.T @ h[low])
-        ground_h, se_ground = float(coef[0]), sigma * math.sqrt(float(np.linalg.inv(gram)[0, 0]))
+        ground_h, se_ground = float(coef[0]), sigma_g * math.sqrt(float(np.linalg.inv(gram)[0, 0]))
     else:
-        ground_h, se_ground = float(np.median(h[low])), sigma * math.sqrt(math.pi / 2 / max(int(low.sum()), 1))
+        ground_h, se_ground = float(np.median(h[low])), sigma_g * math.sqrt(math.pi / 2 / max(int(low.sum()), 1))
     # choosing the lowest cells picks their noise too: level ground's lowest share lies phi(z)/share sigma low
-    ground_h += _lowest_share_bias(share) * sigma
+    ground_h += _lowest_share_bias(share) * sigma_g
     height = level - ground_h
     se = se_ground + sigma * math.sqrt(math.pi / 2 / n_site)
     threshold = tol + params.confidence_sigma * se

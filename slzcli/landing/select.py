@@ -152,6 +152,7 @@ def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndar
     good_n = normals[np.all(np.isfinite(normals), axis=1)]
     variance = float(1.0 - np.sum(good_n.mean(axis=0) ** 2)) if len(good_n) >= 3 else float("nan")
     reason = test = ""
+    found: Raised | None = None
     if len(pts) < params.min_cluster_points:
         reason, test = f"{len(pts)} points (< {params.min_cluster_points})", "points"
     elif not np.isfinite(variance):
@@ -168,7 +169,8 @@ def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndar
             if found.refused:
                 reason, test = found.reason(), "raised"
     return Candidate(c, len(pts), _vec3(centroid), variance, (float(extent[0]), float(extent[1])),
-                     reason == "", reason or "qualifies", test)
+                     reason == "", reason or "qualifies", test, None if found is None else found.points,
+                     None if found is None else found.height_m)
 
 
 def raised_site(centroid: np.ndarray, normals: np.ndarray, pts: np.ndarray, around: np.ndarray,
@@ -195,6 +197,9 @@ def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera:
         failures.append(f"edge clearance {clearance:.2f} m <= {params.edge_clearance_m:.2f} m")
     if tilt > params.max_tilt_deg:
         failures.append(f"tilt {tilt:.1f} deg > {params.max_tilt_deg:.1f} deg")
+    notes = [] if failures or clearance is not None else ["tilt only: edge clearance not measured"]
+    if params.raised is not None and best.raised_cells is not None and best.raised_m is None:
+        notes.append(unmeasured_note(best.raised_cells, params.raised))
     corners = square_corners(centroid, params.footprint_m)
     px_pts, inside = project(pts, T_world_camera, K, score.shape)
     ip = np.round(px_pts[inside]).astype(int)
@@ -205,8 +210,14 @@ def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera:
         normal_world=_vec3(normal), cluster_points=best.points, normal_variance=best.normal_variance,
         extent_m=best.extent_m, score=site_score, tilt_deg=tilt, edge_clearance_m=clearance,
         accepted=not failures,
-        acceptance_reason="; ".join(failures)
-        or ("passed" if clearance is not None else "passed (tilt only: edge clearance not measured)"))
+        acceptance_reason=("; ".join(failures) or "passed") + (f" ({'; '.join(notes)})" if notes else ""))
+
+
+def unmeasured_note(cells: int, params: RaisedParams) -> str:
+    """What an accepted site's reason says when the raised-surface rule could not read the ground around it: the
+    site was not tested for standing on a box top or a roof."""
+    return (f"raised-surface rule not measured: {cells} cells around it with depth, fewer than "
+            f"landing.raised.min_cells {params.min_points}")
 
 
 def _vec3(v: np.ndarray) -> tuple[float, float, float]:

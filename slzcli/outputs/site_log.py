@@ -20,7 +20,7 @@ from slzcli.outputs.files import ArraySpool, atomic_path, naming_write_errors
 from slzcli.types import FoundSite, FrameRef, Site
 
 SITE_COLUMNS = ("frame", "stamp_ns", "cluster", "points", "x", "y", "z", "normal_variance", "extent_x_m",
-                "extent_y_m", "qualifies", "reason", "chosen", "segment")
+                "extent_y_m", "qualifies", "reason", "chosen", "segment", "raised_m", "raised_cells")
 POINT_SPEC = {"xyz": (np.float64, (3,)), "site": (np.int64, ()), "chosen": (np.bool_, ()), "cluster": (np.int64, ())}
 
 

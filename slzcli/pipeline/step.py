@@ -87,7 +87,8 @@ def record(sites: SiteLog, det: Detection) -> None:
         "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
         "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
         "normal_variance": c.normal_variance, "extent_x_m": c.extent_m[0], "extent_y_m": c.extent_m[1],
-        "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment}
+        "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment,
+        "raised_m": c.raised_m, "raised_cells": c.raised_cells}
         for c in sel.candidates])
     if sel.site is not None:
         assert det.points is not None  # a site is chosen among the map points

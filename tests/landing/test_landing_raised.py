@@ -158,6 +158,33 @@ def test_select_site_keeps_a_site_on_a_terrace_within_the_tolerance() -> None:
         assert sel.site is not None, sel.reason
 
 
+@pytest.mark.parametrize("seed", SEEDS)
+def test_select_site_says_when_the_raised_rule_could_not_read_the_ground_around_it(seed: int) -> None:
+    """Depth only within 0.7 m of the site (holes around it: glass, water, beyond the sensor's range): 13-19 plan
+    cells of the annulus (seeds 0-4) against landing.raised.min_cells 20. The site is accepted, as before, but its
+    acceptance reason says the rule was not measured and on how many cells, and its candidate carries them (sites.csv);
+    with the ground around it in view, the rule is measured (455-463 cells) and the reason says only "passed"."""
+    base = select_params(CFG.landing, CFG.uav, "min_normal_variance", 1.0)
+    xyz = scene(np.random.default_rng(seed), sigma=0.02, n=6000)
+    mask = box_top_mask(0.0)
+    edge = np.full(mask.shape, 5.0)                      # the edge clearance measured and passed
+    full = select_site(xyz, T_WC, K, mask, mask.astype(np.float32), base, edge_distance_m=edge)
+    assert full.site is not None and full.site.acceptance_reason == "passed"
+    chosen = min((c for c in full.candidates if c.qualifies), key=lambda c: (c.normal_variance, -c.points))
+    assert chosen.raised_cells is not None and chosen.raised_cells >= PARAMS.min_points and chosen.raised_m is not None
+    near = xyz[np.linalg.norm(xyz[:, :2] - np.array(full.site.center_world[:2]), axis=1) < 0.7]
+    sel = select_site(xyz, T_WC, K, mask, mask.astype(np.float32), base, edge_distance_m=edge, around_world=near)
+    assert sel.site is not None and sel.site.accepted
+    chosen = min((c for c in sel.candidates if c.qualifies), key=lambda c: (c.normal_variance, -c.points))
+    assert chosen.raised_m is None and chosen.raised_cells is not None and chosen.raised_cells < PARAMS.min_points
+    assert sel.site.acceptance_reason == (f"passed (raised-surface rule not measured: {chosen.raised_cells} cells "
+                                          "around it with depth, fewer than landing.raised.min_cells 20)")
+    without_edge = select_site(xyz, T_WC, K, mask, mask.astype(np.float32), base, around_world=near)
+    assert without_edge.site is not None
+    assert without_edge.site.acceptance_reason.startswith(
+        "passed (tilt only: edge clearance not measured; raised-surface rule not measured: ")
+
+
 # ---------------------------------------------------------------- the fused path: the fused verdict
 
 def _fused(block: Block | None, slope_deg: float = 0.0, seed: int = 0, sets: tuple[str, ...] = ()) -> FusedMaps:

@@ -1,10 +1,12 @@
 """Through the CLI: a synth recording whose only flat ground is the top of a 1.8 m box (the ground around it
-strewn with rocks): `slz detect` finds no site and says the best one is on a raised surface; with the ground
-looked for only on the box itself (``landing.raised.ground_radius_m`` within its top) it lands there, on ground the
-truth calls unsafe: the rule is what refuses it."""
+strewn with rocks): `slz detect` finds no site and says the best one is on a raised surface (sites.csv: the
+height it measured); with the ground looked for only within 0.65 m (``landing.raised.ground_radius_m``: too few cells
+around the site to measure) it lands there, on ground the truth calls unsafe, and the site's acceptance reason and
+sites.csv say the rule was not measured: the rule is what refuses it, and an unmeasured rule is never silent."""
 
 from __future__ import annotations
 
+import csv
 import json
 import re
 import shutil
@@ -42,10 +44,20 @@ def test_detect_refuses_a_raised_box_top_and_says_so(tmp_path: Path, runner) -> 
     assert re.match(r"the best site is on a surface 1\.[4-9] m above the ground around it", s["reason"]), s["reason"]
     run = json.loads((tmp_path / "a" / "run.json").read_text())
     assert run["funnel"]["clusters_failed"].get("raised", 0) >= 1
-    # the annulus within the box top: nothing lower around, the same top becomes the site, truly unsafe
+    with open(tmp_path / "a" / "sites.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    refused = [r for r in rows if r["reason"].startswith("on a surface")]
+    assert refused and all(1.4 <= float(r["raised_m"]) <= 1.9 and int(r["raised_cells"]) >= 20 for r in refused)
+    # the annulus 0.61-0.65 m: too few cells to measure, the same top becomes the site, truly unsafe, with a note
     res = runner.invoke(main, ["detect", str(rec), "-o", str(tmp_path / "b"), *common,
-                               "--set", "landing.raised.ground_radius_m=0.7"])
+                               "--set", "landing.raised.ground_radius_m=0.65"])
     assert res.exit_code == 0, res.output
     b = json.loads(res.stdout)
     assert b["status"] == "site", b["reason"]
     assert b["ground_truth"]["site"]["safe"] is False
+    reason = json.loads((tmp_path / "b" / "landing.json").read_text())["site"]["acceptance"]["reason"]
+    assert re.search(r"raised-surface rule not measured: \d+ cells around it with depth, fewer than "
+                     r"landing\.raised\.min_cells 20", reason), reason
+    with open(tmp_path / "b" / "sites.csv", newline="") as fh:
+        chosen = [r for r in csv.DictReader(fh) if r["chosen"] == "True"]
+    assert chosen and all(r["raised_m"] == "" and int(r["raised_cells"]) < 20 for r in chosen), chosen
