@@ -142,6 +142,15 @@ def _lowest_share_bias(share: float) -> float:
     return float(norm.pdf(float(norm.ppf(share)))) / share
 
 
+@functools.lru_cache(maxsize=8)
+def _lowest_share_std(share: float) -> float:
+    """The std of the lowest ``share`` of normal noise, in sigmas (a normal truncated above at its ``share``
+    quantile): the scatter the lowest cells of level ground show."""
+    z = float(norm.ppf(share))
+    m = float(norm.pdf(z)) / share
+    return math.sqrt(1.0 - z * m - m * m)
+
+
 def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, around_xyz: np.ndarray,
                  params: RaisedParams, up: np.ndarray, around_var: np.ndarray | None = None) -> Raised:
     """The rule (module docstring) for a site at ``centre`` with surface ``normal``; ``site_xyz``: the site's
@@ -171,13 +180,16 @@ def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, a
     # heights, free slope: the ground of a gentle slope is its own plane), its height at the site
     share = params.ground_share
     low = h <= np.quantile(h, share)
-    # the ground cells' noise: the site's, or their own stated noise where larger (a cell mean's variance taken
-    # as its points' mean variance: correlated within a cell, as depth noise is over many pixels)
+    # the ground cells' noise: the site's, their own stated noise (a cell mean's variance taken as its points'
+    # mean variance: correlated within a cell, as depth noise is over many pixels) and their scatter about their
+    # plane over a share's truncated-normal std, whichever is largest
     sigma_g = sigma if var_h is None else max(sigma, math.sqrt(float(np.mean(var_h[low]))))
     a = np.column_stack([np.ones(int(low.sum())), xy[low]])
     gram = a.T @ a
-    if low.sum() >= 3 and np.linalg.cond(gram) < 1e12:
+    if low.sum() >= 4 and np.linalg.cond(gram) < 1e12:
         coef = np.linalg.solve(gram, a.T @ h[low])
+        resid = h[low] - a @ coef
+        sigma_g = max(sigma_g, float(np.sqrt(np.sum(resid * resid) / (low.sum() - 3))) / _lowest_share_std(share))
         ground_h, se_ground = float(coef[0]), sigma_g * math.sqrt(float(np.linalg.inv(gram)[0, 0]))
     else:
         ground_h, se_ground = float(np.median(h[low])), sigma_g * math.sqrt(math.pi / 2 / max(int(low.sum()), 1))
