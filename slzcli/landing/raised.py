@@ -16,7 +16,10 @@ edge, and the ground truth counts only the ground as landable. The rule, with he
    of the annulus, not a ditch or a strip beside the site, which are the edge clearance's and the flatness
    map's business), a plane fitted through them (free slope: a gentle slope's own ground is its plane, and
    the site's noisy normal is not extrapolated 3 m), its height at the site, with the noise share that
-   choosing the lowest cells picks removed (``phi(z) / share`` sigma, a point's sigma: it errs low);
+   choosing the lowest cells picks removed (``phi(z) / share`` sigma, a point's sigma: it errs low). The
+   ground's sigma is the largest of the site's, the cells' stated one (``around_var``: fused cells) and their
+   scatter about that plane over the lowest share's own std (0.53 sigma at a third): ground noisier than the
+   site, or errors correlated into stripes, must not read as a lower surface;
 4. raised: the site's level above that exceeds the UAV's step tolerance (``uav.max_step_m``) by
    ``margin_sigma`` standard errors (the plane's at the site, which grows when the low cells lie to one
    side, and the site level's). A terrace or a kerb within the tolerance is ground.
