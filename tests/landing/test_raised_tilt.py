@@ -20,7 +20,7 @@ from fusion_scene import INTR, Block, exact_depth, pose
 from slzcli.config import load_config
 from slzcli.geometry import back_project, transform_points
 from slzcli.landing.raised import Raised, above_ground, raised_params, surroundings
-from slzcli.landing.select import select_site
+from slzcli.landing.select import Selection, select_site
 from slzcli.methods.maps import select_params
 from slzcli.terrain.gravity import mount_rotation
 
@@ -58,25 +58,21 @@ def frame(pitch_deg: float, block: Block | None, seed: int, sigma_a: float = 0.0
     return (depth + rng.normal(0.0, 1.0, depth.shape) * sigma_a * depth ** 2).astype(np.float32), T
 
 
-def points(depth: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(world points on the STRIDE_PX grid, their pixels (u, v))."""
+def points(depth: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """The frame's points on the STRIDE_PX grid in the world of ``T`` (the map points select_site clusters)."""
     sub = depth[::STRIDE_PX, ::STRIDE_PX]
     xyz = back_project(sub, INTR.scaled(sub.shape[1], sub.shape[0]))
-    v, u = np.mgrid[0:depth.shape[0]:STRIDE_PX, 0:depth.shape[1]:STRIDE_PX]
-    ok = np.all(np.isfinite(xyz), axis=2)
-    return transform_points(T, xyz[ok]), np.stack([u[ok], v[ok]], axis=1)
+    return transform_points(T, xyz[np.all(np.isfinite(xyz), axis=2)])
 
 
-def select(pitch_deg: float, block: Block | None, seed: int, on: str, error_deg: float = 0.0):
+def select(pitch_deg: float, block: Block | None, seed: int, on: str, error_deg: float = 0.0) -> Selection:
     """select_site on the frame's points with the mask on the box top (``on="top"``) or on the level ground
     beside the box (``"ground"``, 0.45 m clear of it), the poses in a world ``error_deg`` off gravity."""
     depth, T_true = frame(pitch_deg, block, seed)
     T = wrong_world(T_true, error_deg)
-    xyz_true, _ = points(depth, T_true)
-    xyz, _ = points(depth, T)
+    xyz = points(depth, T)
     # the mask from the truth: pixels whose true point is on the top / on the ground
-    sub = depth[::1, ::1]
-    allpts = transform_points(T_true, back_project(sub, INTR).reshape(-1, 3)).reshape(*sub.shape, 3)
+    allpts = transform_points(T_true, back_project(depth, INTR).reshape(-1, 3)).reshape(*depth.shape, 3)
     x, y, z = allpts[..., 0], allpts[..., 1], allpts[..., 2]
     in_box = (x > BOX.x0 - 0.45) & (x < BOX.x1 + 0.45) & (y > BOX.y0 - 0.45) & (y < BOX.y1 + 0.45)
     if on == "top":
@@ -85,7 +81,7 @@ def select(pitch_deg: float, block: Block | None, seed: int, on: str, error_deg:
         mask = (z < 1.0) & ~in_box & (np.abs(x) < 3.0) if block is not None else (z < 1.0) & (np.abs(x) < 3.0)
     mask &= np.isfinite(depth)
     around = surroundings(depth, INTR, T, 8)
-    return select_site(xyz, T, K, mask, mask.astype(np.float32), SELECT, around_world=around), xyz_true
+    return select_site(xyz, T, K, mask, mask.astype(np.float32), SELECT, around_world=around)
 
 
 def rule_on_ground(pitch_deg: float, seed: int, error_deg: float = 0.0) -> Raised:
@@ -93,8 +89,7 @@ def rule_on_ground(pitch_deg: float, seed: int, error_deg: float = 0.0) -> Raise
     square's half side, the frame's surroundings around it."""
     depth, T_true = frame(pitch_deg, None, seed)
     T = wrong_world(T_true, error_deg)
-    xyz_true, _ = points(depth, T_true)
-    xyz, _ = points(depth, T)
+    xyz_true, xyz = points(depth, T_true), points(depth, T)
     own = np.all(np.abs(xyz_true[:, :2] - [1.0, 0.0]) <= 0.33, axis=1)
     centre = xyz[own].mean(axis=0)
     normal = np.linalg.svd(xyz[own] - centre)[2][2]          # the site's own plane, as select_site's normals
@@ -107,7 +102,7 @@ def test_level_ground_seen_obliquely_is_not_refused_as_raised(pitch_deg: float) 
     height for a site 1 m from the view's centre: -0.018..-0.005 m (pitch 0), -0.019..-0.004 (15), -0.025..-0.000
     (30) against thresholds of 0.103-0.120 m; allowed |h| <= 0.05 (margin 0.025)."""
     for seed in SEEDS:
-        sel, _ = select(pitch_deg, None, seed, "ground")
+        sel = select(pitch_deg, None, seed, "ground")
         assert sel.site is not None and sel.site.accepted, sel.reason
         assert not any(c.test == "raised" for c in sel.candidates), [c.reason for c in sel.candidates]
         r = rule_on_ground(pitch_deg, seed)
@@ -119,7 +114,7 @@ def test_a_box_top_seen_obliquely_is_refused(pitch_deg: float) -> None:
     """The mask on the box top alone (what maps calling it safe give): select_site finds no site and leads with the
     rule's words, over seeds 0-4 at every pitch ("1.8 m" in every reason, thresholds 0.09-0.10 m)."""
     for seed in SEEDS:
-        sel, _ = select(pitch_deg, BOX, seed, "top")
+        sel = select(pitch_deg, BOX, seed, "top")
         assert sel.site is None
         assert sel.reason.startswith("the best site is on a surface 1.8 m above the ground around it"), sel.reason
 
@@ -135,10 +130,10 @@ def test_a_wrong_gravity_still_refuses_a_box_top_and_keeps_level_ground(pitch_de
     them reads a little low); whether it is a site is the slope test's business (at 15 and 30 deg
     off it fails it: "tilt 15.1 deg > 15.0 deg")."""
     for seed in SEEDS:
-        sel, _ = select(pitch_deg, BOX, seed, "top", error_deg)
+        sel = select(pitch_deg, BOX, seed, "top", error_deg)
         assert sel.site is None
         assert re.match(r"the best site is on a surface (1\.[89]|2\.[01]) m above", sel.reason), sel.reason
-        ground, _ = select(pitch_deg, None, seed, "ground", error_deg)
+        ground = select(pitch_deg, None, seed, "ground", error_deg)
         assert not any(c.test == "raised" for c in ground.candidates)
         r = rule_on_ground(pitch_deg, seed, error_deg)
         assert r.measured and not r.refused and abs(r.height_m or 0.0) <= 0.06
