@@ -4,7 +4,7 @@ A camera pitched 15 or 30 degrees sees level ground with a depth that grows from
 its top; the fused grid is gravity-aligned, so its cells' heights must stay level, the raised-surface rule
 must not refuse level ground seen obliquely, and a 1.8 m box top seen obliquely must never be the site.
 With the world's z off gravity (a wrong gravity: the straight-down ``camera.mount`` on a pitched camera) the
-verdict calls level ground unsafe rather than safe, and the box top is never the site either.
+box top is never the site either, and off by more than the slope tolerance level ground is never called safe.
 """
 
 from __future__ import annotations
@@ -109,19 +109,18 @@ def test_a_box_top_seen_obliquely_is_never_the_fused_site(pitch_deg: float) -> N
 
 
 @pytest.mark.parametrize(("pitch_deg", "error_deg"), [(15.0, 10.0), (30.0, 10.0), (30.0, 30.0)])
-def test_a_wrong_gravity_calls_level_ground_unsafe_and_never_lands_on_the_box(pitch_deg: float,
-                                                                              error_deg: float) -> None:
-    """The world's z off gravity by 10 deg (within uav.max_slope_deg 15: the slope test alone would pass it) or
-    30: level ground reads as a slope of the error and the verdict calls almost none of it safe (measured, seed 0:
-    178 of 11220 cells at pitch 15 / error 10, 49 of 11770 at 30 / 10, 0 at 30 / 30, against 0.54-0.55 of them
-    with the true gravity; allowed 5 %). Over the box, no cell of its top is called safe (measured 0 in the three
-    cases) and the site, if any, is off it; with the box top made the only safe ground, the rule still refuses it
-    along the wrong "up" (its ground plane has a free slope), so the fused map has no site: measured heights
-    1.800-1.835 m (error 10) and 1.878-2.110 m (30; the plan distances shrink along the tilted plane), against
-    thresholds of ~0.1 m."""
-    fm_level = flight(pitch_deg, None, 0, error_deg)
-    seen = int(fm_level.region.seen.sum())
-    assert (fm_level.verdict == SAFE).sum() <= 0.05 * seen
+def test_a_wrong_gravity_never_lands_on_the_box(pitch_deg: float, error_deg: float) -> None:
+    """The world's z off gravity by 10 deg (within uav.max_slope_deg 15) or 30: level ground reads as a slope of
+    the error. Off by 30 the verdict calls none of it safe (measured 0 of 11110 cells; allowed 5 %); off by 10 it
+    is the noise that decides (measured here, 8 m: 178 of 11220 cells at pitch 15, 49 of 11770 at 30, the cells'
+    slope limit plus 10 deg beyond the tolerance; from 5.5 m with less noise `slz detect` calls 35-43 % of it safe,
+    MEASUREMENTS "Tilted cameras": level ground, truly safe). Over the box, the site, if any, is off it; with the box
+    top made the only safe ground, the rule still refuses it along the wrong "up" (its ground plane has a free
+    slope), so the fused map has no site: measured heights 1.800-1.835 m (error 10) and 1.878-2.110 m (30; the plan
+    distances shrink along the tilted plane), against thresholds of ~0.1 m."""
+    if error_deg > 15.0:      # beyond the slope tolerance: level ground is never called safe
+        fm_level = flight(pitch_deg, None, 0, error_deg)
+        assert (fm_level.verdict == SAFE).sum() <= 0.05 * int(fm_level.region.seen.sum())
     fm = flight(pitch_deg, BOX, 0, error_deg)
     top = on_box(fm, 0.3)
     site = best_site(fm, PARAMS)
