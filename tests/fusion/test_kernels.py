@@ -16,6 +16,7 @@ import pytest
 from fusion_scene import INTR, Block, exact_depth, pose
 
 from slzcli.config import load_config
+from slzcli.errors import ConfigError
 from slzcli.fusion import kernels
 from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, cell_key, fuse
 from slzcli.fusion.kernels import PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, C, H, U, V
@@ -368,15 +369,25 @@ def test_median_inplace_is_numpys_median() -> None:
 
 
 def test_block_means_are_block_depths() -> None:
-    """``block_means`` then ``bin_samples``' sample rule give ``terrain.geometry.block_depth``'s depth and validity."""
+    """``block_means`` then ``depth_of_blocks`` give ``terrain.geometry.block_depth``'s depth, 0 where it has none."""
     rng = np.random.default_rng(1)
     depth = _frame(rng, pose(0.0, 0.0, 5.0))
     for block in (2, 3, 5):
         num, den = kernels.block_means(depth, block)
+        got = kernels.depth_of_blocks(num, den)
         want, ok = block_depth(depth, valid_depth(depth), block)
-        good = (den >= 0.5) & (num > 0)
-        assert np.array_equal(good, ok)
-        assert np.array_equal(den[good] / num[good], want[ok])
+        assert np.array_equal(got > 0, ok) and 0 < np.count_nonzero(ok) < ok.size
+        assert np.array_equal(got[ok], want[ok])
+
+
+def test_a_window_wider_than_the_binning_holds_is_refused() -> None:
+    """The samples' cells are int16: a window of more cells is a config error naming its key, never a wrap."""
+    one = np.ones((2, 2), np.float32)
+    args = (np.zeros(2), np.zeros(2), np.eye(3), 0.0, 0.0, 1.0)
+    rest = (2, np.zeros(3), 1.0, (0, 0), 0.0, 0.0)
+    assert kernels.bin_frame(one, None, *args, kernels.MAX_HALF, *rest)[0] == 1
+    with pytest.raises(ConfigError, match="terrain.fusion.window_m"):
+        kernels.bin_frame(one, None, *args, kernels.MAX_HALF + 1, *rest)
 
 
 def test_the_sweep_forgets_what_numpy_forgot() -> None:
