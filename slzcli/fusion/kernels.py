@@ -288,6 +288,32 @@ def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned
 
 
 @_jit
+def pixel_cells(depth, rx, ry, r, off_x, off_y, inv, nx, ny):
+    """Per pixel: the flat index j nx + i of its cell in an ny x nx region (its point on the ground by its depth:
+    column floor((w + off) inv), all in float32), ny nx where it has no depth or falls outside
+    (``session.pixel_cells``'s arithmetic, in one pass instead of a dozen over the frame)."""
+    out = np.empty(depth.shape, np.intp)
+    big = np.float32(np.inf)
+    zero = np.float32(0.0)
+    fnx = np.float32(nx)
+    fny = np.float32(ny)
+    outside = ny * nx
+    for j in range(depth.shape[0]):
+        y = ry[j]
+        for i in range(depth.shape[1]):
+            z = depth[j, i]
+            if not (z > 0 and z < big):
+                out[j, i] = outside
+                continue
+            x = rx[i]
+            ci = np.floor(((r[0, 0] * x + r[0, 1] * y + r[0, 2]) * z + off_x) * inv)
+            cj = np.floor(((r[1, 0] * x + r[1, 1] * y + r[1, 2]) * z + off_y) * inv)
+            inside = ci >= zero and ci < fnx and cj >= zero and cj < fny
+            out[j, i] = int(cj) * nx + int(ci) if inside else outside
+    return out
+
+
+@_jit
 def _select(a, k):
     """The k-th smallest of ``a`` (no NaN), in place (quickselect, median-of-three pivot): after it,
     a[:k] <= a[k] <= a[k + 1:]."""
@@ -373,7 +399,8 @@ def bin_frame(a: np.ndarray, b: np.ndarray | None, rx: np.ndarray, ry: np.ndarra
     ``b`` None: ``a`` is the depth, else the block means (inverse depth, validity)."""
     if half > MAX_HALF:
         raise ConfigError("terrain.fusion.window_m", f"{2 * half + 2} cells wide; the fusion takes at most "
-                          f"{2 * MAX_HALF + 2}: make it smaller, or the cells larger (terrain.fusion.cells_per_footprint)")
+                          f"{2 * MAX_HALF + 2}: make it smaller, or the cells larger "
+                          "(terrain.fusion.cells_per_footprint)")
     f32 = np.float32
     a = readonly(a, f32) if b is None else depth_of_blocks(readonly(a, f32), readonly(b, f32))
     return bin_samples(a, readonly(rx.reshape(-1), f32),
@@ -410,6 +437,9 @@ def warm_up() -> None:
     for b in (None, one):
         bin_frame(one, b, np.zeros(2), np.zeros(2), r, 0.0, 0.0, 1.0, 4, 2, t, 1.0, (0, 0), 0.0, 0.0)
     block_means(one, 1)
+    f32 = np.float32
+    ray = readonly(np.zeros(2), f32)
+    pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)
     median_depth(readonly(one, np.float32), 4)
     median_inplace(np.zeros(2))
     sweep(np.zeros(1, np.int64), 0, 0, 1, -1)

@@ -18,7 +18,7 @@ from slzcli.fusion.advice import Advice, advise
 from slzcli.fusion.grid import FusedGrid, FuseStats, fuse, region, region_around
 from slzcli.fusion.measure import FusionParams, frame_limit_ratios, measure_frame
 from slzcli.fusion.verdict import SAFE, FusedMaps, FusedSite, best_site, fused_maps
-from slzcli.geometry import fit_intrinsics, pixel_rays, valid_depth
+from slzcli.geometry import fit_intrinsics, pixel_rays
 from slzcli.landing.raised import raised_params
 from slzcli.terrain.geometry import median_depth_m
 from slzcli.terrain.noise import DepthNoise
@@ -135,27 +135,18 @@ class FusedTerrain:
 def pixel_cells(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray) -> np.ndarray:
     """Per pixel of a frame: the flat index (row j, column i: j nx + i) of its cell in the region (its point on
     the ground, by its depth); the region's size where it has no depth or falls outside (``cells_in_frame``)."""
-    depth = np.asarray(depth_m, dtype=np.float32)
+    depth = kernels.readonly(np.asarray(depth_m), np.float32)
     intr = fit_intrinsics(intrinsics, depth.shape)
     rx, ry = pixel_rays(intr)
-    valid = valid_depth(depth)
     T = np.asarray(T_world_camera, dtype=np.float64)
-    R, t = T[:3, :3].astype(np.float32), T[:3, 3]
-    z = np.where(valid, depth, np.float32(0))
+    t = T[:3, 3]
     reg = fm.region
     ox, oy = reg.origin_m
-    wx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * z + np.float32(t[0] - ox)
-    wy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * z + np.float32(t[1] - oy)
-    inv = np.float32(1.0 / reg.cell_m)
-    # the cell's column and row in float32 (whole numbers, exact below 2^24), one conversion to integers
-    i = np.floor(wx * inv, out=wx)
-    j = np.floor(wy * inv, out=wy)
     ny, nx = reg.shape
-    inside = valid & (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
-    j *= np.float32(nx)
-    j += i
-    np.copyto(j, np.float32(ny * nx), where=~inside)
-    return j.astype(np.intp)
+    # the cell's column and row in float32 (whole numbers, exact below 2^24), one compiled pass
+    f32 = np.float32
+    return kernels.pixel_cells(depth, kernels.readonly(rx.reshape(-1), f32), kernels.readonly(ry.reshape(-1), f32),
+                               np.array(T[:3, :3], f32), f32(t[0] - ox), f32(t[1] - oy), f32(1.0 / reg.cell_m), nx, ny)
 
 
 def cells_in_frame(values: np.ndarray, index: np.ndarray) -> np.ndarray:
