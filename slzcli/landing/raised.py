@@ -16,8 +16,8 @@ edge, and the ground truth counts only the ground as landable. The rule, with he
    of the annulus, not a ditch or a strip beside the site, which are the edge clearance's and the flatness
    map's business), a plane fitted through them (free slope: a gentle slope's own ground is its plane, and
    the site's noisy normal is not extrapolated 3 m), its height at the site, with the noise share that
-   choosing the lowest cells picks removed (``phi(z) / share`` sigma, a point's sigma: it errs low). The
-   ground's sigma is the largest of the site's, the cells' stated one (``around_var``: fused cells) and their
+   choosing the lowest cells picks removed (``phi(z) / share`` sigma, a point's sigma: it errs low). On fused
+   cells (``around_var`` given) the ground's sigma is the largest of the site's, the cells' stated one and their
    scatter about that plane over the lowest share's own std (0.53 sigma at a third): ground noisier than the
    site, or errors correlated into stripes, must not read as a lower surface;
 4. raised: the site's level above that exceeds the UAV's step tolerance (``uav.max_step_m``) by
@@ -183,16 +183,17 @@ def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, a
     # heights, free slope: the ground of a gentle slope is its own plane), its height at the site
     share = params.ground_share
     low = h <= np.quantile(h, share)
-    # the ground cells' noise: the site's, their own stated noise (a cell mean's variance taken as its points'
-    # mean variance: correlated within a cell, as depth noise is over many pixels) and their scatter about their
-    # plane over a share's truncated-normal std, whichever is largest
+    # the ground cells' noise: the site's; with their stated noise (fused cells), also that (a cell mean's
+    # variance taken as its points' mean variance: correlated within a cell, as depth noise is over many pixels)
+    # and their scatter about their plane over a share's truncated-normal std, whichever is largest
     sigma_g = sigma if var_h is None else max(sigma, math.sqrt(float(np.mean(var_h[low]))))
     a = np.column_stack([np.ones(int(low.sum())), xy[low]])
     gram = a.T @ a
     if low.sum() >= 4 and np.linalg.cond(gram) < 1e12:
         coef = np.linalg.solve(gram, a.T @ h[low])
-        resid = h[low] - a @ coef
-        sigma_g = max(sigma_g, float(np.sqrt(np.sum(resid * resid) / (low.sum() - 3))) / _lowest_share_std(share))
+        if var_h is not None:
+            resid = h[low] - a @ coef
+            sigma_g = max(sigma_g, float(np.sqrt(np.sum(resid * resid) / (low.sum() - 3))) / _lowest_share_std(share))
         ground_h, se_ground = float(coef[0]), sigma_g * math.sqrt(float(np.linalg.inv(gram)[0, 0]))
     else:
         ground_h, se_ground = float(np.median(h[low])), sigma_g * math.sqrt(math.pi / 2 / max(int(low.sum()), 1))
