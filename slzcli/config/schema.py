@@ -247,7 +247,6 @@ class FusionCfg:
     samples_per_cell: float = rng(1)
     white_fraction: float = rng(0, 1)
     fixed_fraction: float = rng(0, 1)
-    scatter_floor: bool
     decorrelation_px: float = rng(0, lo_open=True)
     hover_speed_m_s: float = rng(0)
     gate_sigma: float = rng(0, lo_open=True)

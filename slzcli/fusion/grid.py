@@ -53,9 +53,6 @@ class FusedGrid:
     the shared error; PHH, PHC, PCC: their covariance; SIGC, SIG1: the shared error's std and one frame's
     std at the last look; U, V: the cell's image position then; SPREAD: the largest within-cell height
     std of an accepted frame; POSEV: the smallest pose variance; STEPR, TANR: the last look's limit ratios).
-    ``scatter[k]`` holds the accepted measurements' running mean, their sum of squared deviations from it
-    and the sum of their one-frame variances: how much the cell's looks scattered against what they stated
-    (``region``'s scatter floor).
     """
 
     params: FusionParams
@@ -66,14 +63,13 @@ class FusedGrid:
     column: np.ndarray      # bool: some frame saw the column ``column_m`` above the cell
     last_frame: np.ndarray  # int64 index of the last frame that measured it
     swept_at: np.ndarray    # int64 (2,): the camera's cell at the last sweep of cells left behind
-    scatter: np.ndarray     # float64 (side^2, 3): accepted looks' mean, sum of squared deviations, sum of variances
 
     @classmethod
     def empty(cls, params: FusionParams) -> FusedGrid:
         n = params.side_cells * params.side_cells
         return cls(params, np.full(n, _EMPTY, np.int64), np.zeros((n, _FIELDS), np.float64), np.zeros(n, np.int32),
                    np.zeros(n, np.int32), np.zeros(n, bool), np.full(n, -1, np.int64),
-                   np.array([_EMPTY, _EMPTY], np.int64), np.zeros((n, 3), np.float64))
+                   np.array([_EMPTY, _EMPTY], np.int64))
 
     def nbytes(self) -> int:
         return sum(getattr(self, f).nbytes for f in self.__dataclass_fields__ if f != "params")
@@ -122,34 +118,15 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     def f64(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, np.float64)
 
-    rejected_before = grid.rejected[k]
     new, rejected, nis = kernels.update_cells(
         grid.owner, grid.state, grid.frames, grid.rejected, grid.column, grid.last_frame, k, owned, u_px, v_px, rho,
         ix, iy, y, f64(m.sigma_w_m), f64(m.sigma_c_m), f64(m.spread_m), f64(m.pose_var_m2), p.gate_sigma ** 2,
         max(1.0 - p.fixed_fraction, 1e-9), float(m.step_per_sigma), float(m.tan_slope_per_sigma), int(frame_index),
         float(p.column_m), float(p.cell_m), r, t, cam, int(intr.width), int(intr.height))
-    _scatter(grid, k, owned, rejected_before, y, m.sigma_w_m, m.sigma_c_m)
     _sweep(grid, m)
     med = float(kernels.median_inplace(shift[owned]))
     nis_med = float(kernels.median_inplace(nis))
     return FuseStats(len(m), int(new), int(rejected), med, nis_med)
-
-
-def _scatter(grid: FusedGrid, k: np.ndarray, owned: np.ndarray, rejected_before: np.ndarray, y: np.ndarray,
-             sigma_w: np.ndarray, sigma_c: np.ndarray) -> None:
-    """Add the frame's accepted measurements to their cells' scatter (Welford's running mean and sum of squared
-    deviations, and the sum of one frame's variances); a new cell starts its own."""
-    acc = ~owned | (grid.rejected[k] == rejected_before)
-    ka = k[acc]
-    sc = grid.scatter
-    sc[k[~owned]] = 0.0
-    n = (grid.frames[ka] - grid.rejected[ka]).astype(np.float64)     # accepted looks, this one included
-    ya = y[acc]
-    delta = ya - sc[ka, 0]
-    mean = sc[ka, 0] + delta / n
-    sc[ka, 0] = mean
-    sc[ka, 1] += delta * (ya - mean)
-    sc[ka, 2] += (sigma_w[acc] ** 2 + sigma_c[acc] ** 2) / max(1.0 - grid.params.fixed_fraction, 1e-9)
 
 
 def _sweep(grid: FusedGrid, m: FrameCells) -> None:
@@ -212,8 +189,6 @@ def region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
 
     sig1 = f(SIG1)
     var = f(PHH) + grid.params.fixed_fraction * sig1 * sig1     # the part fixed to the ground never averages
-    if grid.params.scatter_floor:
-        var = np.fmax(var, scatter_floor(grid.scatter[k], np.where(seen, grid.frames[k] - grid.rejected[k], 0)))
     with np.errstate(invalid="ignore", divide="ignore"):
         looks = np.where(seen, sig1 * sig1 / var, 0.0).astype(np.float32)
     zero = np.zeros(seen.shape)
@@ -223,27 +198,6 @@ def region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
                   np.where(seen, st[..., STEPR], zero).astype(np.float32),
                   np.where(seen, st[..., TANR], zero).astype(np.float32), seen & grid.column[k],
                   f(PHC), f(PCC), f(SIGC), sig1)
-
-
-def scatter_floor(scatter: np.ndarray, looks: np.ndarray) -> np.ndarray:
-    """The variance of each cell's height that its looks' scatter across frames leaves unexplained (NaN: no look).
-
-    For n looks of one frame's variance s1^2 and any correlation between them, the mean of the looks has error
-    variance ``s1^2 - (n - 1) / n E[s^2]``, s^2 their sample variance: what the frames share, however they share
-    it (a pattern on the camera, a pattern that moves slowly with the view, the ground's own matching error,
-    as far as the noise estimate holds it), is what does not scatter. One cell's s^2 is too noisy to use (30
-    looks: +-26 %), so the ratio s^2 / s1^2 is the median over the given cells with two looks or more (mostly
-    level ground, as the noise scale's innovations; a cell on an edge scatters more and the median leaves it
-    out), then scaled back by each cell's own s1^2 and n. The filter's model of how the error decorrelates
-    stays in its own variance; this floor holds wherever the data say the frames were less independent."""
-    n = looks.astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s1 = scatter[..., 2] / n
-        ratio = scatter[..., 1] / (n - 1.0) / s1
-    use = (n >= 2) & np.isfinite(ratio)
-    r = float(np.median(ratio[use])) if use.any() else 1.0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n >= 1, s1 * np.maximum(1.0 - (n - 1.0) / n * r, 0.0), np.nan)
 
 
 def region_around(grid: FusedGrid, x_m: float, y_m: float, side_m: float) -> Region:

@@ -43,7 +43,6 @@ class FusionParams:
     samples_per_cell: float
     white_fraction: float
     fixed_fraction: float
-    scatter_floor: bool         # the reported variance is at least what the looks' scatter leaves unexplained
     decorrelation_px: float
     gate_sigma: float
     two_heights_fraction: float
@@ -64,7 +63,6 @@ class FusionParams:
         cell = max(uav.footprint_m) / f.cells_per_footprint
         return cls(cell_m=cell, side_cells=max(8, math.ceil(f.window_m / cell)), samples_per_cell=f.samples_per_cell,
                    white_fraction=f.white_fraction, fixed_fraction=f.fixed_fraction,
-                   scatter_floor=f.scatter_floor,
                    decorrelation_px=f.decorrelation_px, gate_sigma=f.gate_sigma,
                    two_heights_fraction=f.two_heights_fraction, pose_sigma_m=f.pose_sigma_m,
                    pose_sigma_rad=math.radians(f.pose_sigma_deg),

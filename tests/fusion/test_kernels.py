@@ -307,7 +307,7 @@ def test_frame_cells_without_depth_or_beyond_the_window_are_none_in_both() -> No
 
 def _copy(g: FusedGrid) -> FusedGrid:
     return FusedGrid(g.params, g.owner.copy(), g.state.copy(), g.frames.copy(), g.rejected.copy(), g.column.copy(),
-                     g.last_frame.copy(), g.swept_at.copy(), g.scatter.copy())
+                     g.last_frame.copy(), g.swept_at.copy())
 
 
 @pytest.mark.parametrize("seed", range(4))
