@@ -21,10 +21,14 @@ import cv2
 import numpy as np
 from numba import njit
 
+from slzcli.errors import ConfigError
+
 # the float fields of a grid slot (grid.FusedGrid.state's columns; grid.py names them)
 H, C, PHH, PHC, PCC, SIGC, SIG1, U, V, SPREAD, POSEV, STEPR, TANR = range(13)
 
 _jit = njit(cache=True, nogil=True, error_model="numpy")   # numpy's float errors: inf / nan, no exception
+_NONE = np.iinfo(np.int16).min     # a sample's cell in ``bin_samples`` when the sample is not kept
+MAX_HALF = np.iinfo(np.int16).max - 1   # the window's half side in cells that ``bin_samples``' int16 cells hold
 
 
 @_jit
@@ -47,80 +51,80 @@ def inverse_depth(depth):
 
 
 @_jit
-def bin_samples(a, b, blocks, rx, ry, r, off_x, off_y, inv, half, min_samples, t, cell, cxy, pose_var2, rad2):
+def depth_of_blocks(inv, valid):
+    """The depth of block means of inverse depth ``inv`` and of validity ``valid`` (``terrain.geometry.block_depth``:
+    a block needs half its pixels with depth; its depth is valid / inv), 0 where it has none."""
+    out = np.empty(inv.shape, np.float32)
+    zero = np.float32(0.0)
+    for j in range(inv.shape[0]):
+        for i in range(inv.shape[1]):
+            num, den = inv[j, i], valid[j, i]
+            out[j, i] = den / num if den >= 0.5 and num > 0 else zero
+    return out
+
+
+@_jit
+def bin_samples(a, rx, ry, r, off_x, off_y, inv, half, min_samples, t, cell, cxy, pose_var2, rad2):
     """One frame's samples binned into cells: per cell with ``min_samples`` or more, the means of the samples'
     height (relative to the camera), squared height, depth and ray's vertical component, float64 sums in
     sample order.
 
-    The samples: ``blocks``: block means, ``a`` of inverse depth and ``b`` of validity (``block_depth``: a
-    block needs half its pixels with depth; its depth is b / a); else ``a`` is the depth (finite and positive:
-    a sample). ``rx`` (W,), ``ry`` (H,): the rays; ``r``: the pose's rotation in float32; a sample's cell is
-    floor((w + off) inv) in float32 relative to the camera's cell ``cxy``. ``half``: cells farther than that
-    from the camera's cell in x or y are dropped when any sample is that far (the window). Returns (status,
-    cells_x, cells_y, h, spread, zc, upc, pose_var): status 0 with empty arrays when no sample was kept."""
+    The samples: ``a``, the depth (finite and positive: a sample; ``depth_of_blocks`` gives that of block
+    means). ``rx`` (W,), ``ry`` (H,): the rays; ``r``: the pose's rotation in float32; a sample's cell is
+    floor((w + off) inv) in float32 relative to the camera's cell ``cxy``. ``half``: samples whose cell is
+    farther than that from the camera's cell in x or y are dropped (the window; at most ``MAX_HALF``). Returns
+    (status, cells_x, cells_y, h, spread, zc, upc, pose_var): status 0 with empty arrays when no sample was
+    kept."""
     n_rows, n_cols = a.shape
-    fx = np.empty((n_rows, n_cols), np.float32)
-    fy = np.empty((n_rows, n_cols), np.float32)
-    zs = np.empty((n_rows, n_cols), np.float32)
-    oks = np.empty((n_rows, n_cols), np.bool_)
+    # the sample's cell relative to the camera's (_NONE: not kept), in int16: half the bytes of int32 to write
+    # and read back, and the loop below vectorises on them (1.9 ms against 3.1 ms a 640 x 480 frame)
+    cx = np.empty((n_rows, n_cols), np.int16)
+    cy = np.empty((n_rows, n_cols), np.int16)
     zero = np.float32(0.0)
     big = np.float32(np.inf)
-    ax0, ax1, ay0, ay1 = big, -big, big, -big     # bounds over every sample (those without depth sit at 0)
-    kx0, kx1, ky0, ky1 = big, -big, big, -big     # ... over the samples with depth
+    fh = np.float32(half)
+    none = np.int16(_NONE)
+    # the bounds of the kept samples' cells in integers and by selects, no branch (float min / max with their
+    # NaN rules were half of the loop's time)
+    x0, x1, y0, y1 = half, -half, half, -half
     for j in range(n_rows):
         y = ry[j]
         bx = r[0, 1] * y
         by = r[1, 1] * y
         for i in range(n_cols):
-            if blocks:
-                num, den = a[j, i], b[j, i]
-                good = den >= 0.5 and num > 0
-                z = den / num if good else zero
-            else:
-                z = a[j, i]
-                good = z > 0 and z < big
-                if not good:
-                    z = zero
+            z = a[j, i]
+            good = z > 0 and z < big
+            z = z if good else zero
             x = rx[i]
-            wx = (r[0, 0] * x + bx + r[0, 2]) * z
-            wy = (r[1, 0] * x + by + r[1, 2]) * z
-            ca = np.floor((wx + off_x) * inv)
-            cb = np.floor((wy + off_y) * inv)
-            fx[j, i] = ca
-            fy[j, i] = cb
-            zs[j, i] = z
-            oks[j, i] = good
-            ax0, ax1, ay0, ay1 = min(ax0, ca), max(ax1, ca), min(ay0, cb), max(ay1, cb)
-            if good:
-                kx0, kx1, ky0, ky1 = min(kx0, ca), max(kx1, ca), min(ky0, cb), max(ky1, cb)
-    fh = np.float32(half)
-    far = max(-ax0, ax1, -ay0, ay1) > fh
-    if far:   # the view is wider than the window: the samples near the camera's cell only
-        kx0, kx1, ky0, ky1 = big, -big, big, -big
-        for j in range(n_rows):
-            for i in range(n_cols):
-                ca, cb = fx[j, i], fy[j, i]
-                if oks[j, i] and abs(ca) <= fh and abs(cb) <= fh:
-                    kx0, kx1, ky0, ky1 = min(kx0, ca), max(kx1, ca), min(ky0, cb), max(ky1, cb)
-    if not kx0 <= kx1:
+            ca = np.floor(((r[0, 0] * x + bx + r[0, 2]) * z + off_x) * inv)
+            cb = np.floor(((r[1, 0] * x + by + r[1, 2]) * z + off_y) * inv)
+            # a sample without depth sits in the camera's cell (z = 0): never outside the window, so "keep
+            # the samples within the window" is the same as "drop them only when some sample is outside"
+            keep = good and abs(ca) <= fh and abs(cb) <= fh
+            ia = np.int16(ca) if keep else none
+            ib = np.int16(cb) if keep else none
+            cx[j, i] = ia
+            cy[j, i] = ib
+            x0 = ia if keep and ia < x0 else x0
+            x1 = ia if keep and ia > x1 else x1
+            y0 = ib if keep and ib < y0 else y0
+            y1 = ib if keep and ib > y1 else y1
+    if x0 > x1:
         e = np.empty(0, np.float64)
         return 0, np.empty(0, np.int64), np.empty(0, np.int64), e, e, e, e, e
-    x0, y0 = int(kx0), int(ky0)
-    nx = int(kx1) - x0 + 1
-    size = nx * (int(ky1) - y0 + 1)
+    nx = x1 - x0 + 1
+    size = nx * (y1 - y0 + 1)
     count = np.zeros(size, np.int64)
     sums = np.zeros((size, 4), np.float64)   # wz, wz^2, z, up
     for j in range(n_rows):
         y = ry[j]
         bz = r[2, 1] * y
         for i in range(n_cols):
-            if not oks[j, i]:
+            ia = cx[j, i]
+            if ia == none:
                 continue
-            ca, cb = fx[j, i], fy[j, i]
-            if far and not (abs(ca) <= fh and abs(cb) <= fh):
-                continue
-            k = (int(cb) - y0) * nx + int(ca) - x0
-            z = zs[j, i]
+            k = (cy[j, i] - y0) * nx + ia - x0
+            z = a[j, i]
             up = r[2, 0] * rx[i] + bz + r[2, 2]
             wz = up * z
             count[k] += 1
@@ -284,6 +288,32 @@ def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned
 
 
 @_jit
+def pixel_cells(depth, rx, ry, r, off_x, off_y, inv, nx, ny):
+    """Per pixel: the flat index j nx + i of its cell in an ny x nx region (its point on the ground by its depth:
+    column floor((w + off) inv), all in float32), ny nx where it has no depth or falls outside
+    (``session.pixel_cells``'s arithmetic, in one pass instead of a dozen over the frame)."""
+    out = np.empty(depth.shape, np.intp)
+    big = np.float32(np.inf)
+    zero = np.float32(0.0)
+    fnx = np.float32(nx)
+    fny = np.float32(ny)
+    outside = ny * nx
+    for j in range(depth.shape[0]):
+        y = ry[j]
+        for i in range(depth.shape[1]):
+            z = depth[j, i]
+            if not (z > 0 and z < big):
+                out[j, i] = outside
+                continue
+            x = rx[i]
+            ci = np.floor(((r[0, 0] * x + r[0, 1] * y + r[0, 2]) * z + off_x) * inv)
+            cj = np.floor(((r[1, 0] * x + r[1, 1] * y + r[1, 2]) * z + off_y) * inv)
+            inside = ci >= zero and ci < fnx and cj >= zero and cj < fny
+            out[j, i] = int(cj) * nx + int(ci) if inside else outside
+    return out
+
+
+@_jit
 def _select(a, k):
     """The k-th smallest of ``a`` (no NaN), in place (quickselect, median-of-three pivot): after it,
     a[:k] <= a[k] <= a[k + 1:]."""
@@ -367,9 +397,13 @@ def bin_frame(a: np.ndarray, b: np.ndarray | None, rx: np.ndarray, ry: np.ndarra
                                                       np.ndarray, np.ndarray]:
     """``bin_samples`` with its arguments in the types it was compiled for (one compilation serves every frame):
     ``b`` None: ``a`` is the depth, else the block means (inverse depth, validity)."""
+    if half > MAX_HALF:
+        raise ConfigError("terrain.fusion.window_m", f"{2 * half + 2} cells wide; the fusion takes at most "
+                          f"{2 * MAX_HALF + 2}: make it smaller, or the cells larger "
+                          "(terrain.fusion.cells_per_footprint)")
     f32 = np.float32
-    a = readonly(a, f32)
-    return bin_samples(a, a if b is None else readonly(b, f32), b is not None, readonly(rx.reshape(-1), f32),
+    a = readonly(a, f32) if b is None else depth_of_blocks(readonly(a, f32), readonly(b, f32))
+    return bin_samples(a, readonly(rx.reshape(-1), f32),
                        readonly(ry.reshape(-1), f32), np.array(r, f32), f32(off_x), f32(off_y), f32(inv), int(half),
                        int(min_samples), np.array(t, np.float64), float(cell), np.array(cxy, np.int64),
                        float(pose_var2), float(rad2))
@@ -403,6 +437,9 @@ def warm_up() -> None:
     for b in (None, one):
         bin_frame(one, b, np.zeros(2), np.zeros(2), r, 0.0, 0.0, 1.0, 4, 2, t, 1.0, (0, 0), 0.0, 0.0)
     block_means(one, 1)
+    f32 = np.float32
+    ray = readonly(np.zeros(2), f32)
+    pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)
     median_depth(readonly(one, np.float32), 4)
     median_inplace(np.zeros(2))
     sweep(np.zeros(1, np.int64), 0, 0, 1, -1)

@@ -15,10 +15,10 @@ import numpy as np
 from slzcli.config import Config
 from slzcli.fusion import kernels
 from slzcli.fusion.advice import Advice, advise
-from slzcli.fusion.grid import FusedGrid, FuseStats, fuse, region_around
+from slzcli.fusion.grid import FusedGrid, FuseStats, fuse, region, region_around
 from slzcli.fusion.measure import FusionParams, frame_limit_ratios, measure_frame
 from slzcli.fusion.verdict import SAFE, FusedMaps, FusedSite, best_site, fused_maps
-from slzcli.geometry import fit_intrinsics, pixel_rays, valid_depth
+from slzcli.geometry import fit_intrinsics, pixel_rays
 from slzcli.landing.raised import raised_params
 from slzcli.terrain.geometry import median_depth_m
 from slzcli.terrain.noise import DepthNoise
@@ -45,6 +45,7 @@ class FusedTerrain:
     noise: DepthNoise | None = None
     camera_m: np.ndarray | None = None
     nis: list[float] = field(default_factory=list)         # recent frames' noise scale the innovations asked for
+    view: tuple[int, int, int, int] | None = None          # (x0, y0, x1, y1): the last frame's cells, inclusive
 
     def __post_init__(self) -> None:
         self.params = FusionParams.from_config(self.config)
@@ -75,6 +76,7 @@ class FusedTerrain:
             self.focal_px = 0.5 * (cells.intrinsics.fx + cells.intrinsics.fy)
             self.noise = noise
             self.camera_m = cells.camera_m
+            self.view = (int(cells.ix.min()), int(cells.iy.min()), int(cells.ix.max()), int(cells.iy.max()))
         self.frames += 1
         return stats
 
@@ -97,11 +99,22 @@ class FusedTerrain:
         return fused_maps(region_around(self.grid, x_m, y_m, side_m), self.config, self.params, self.scorer)
 
     def maps_in_view(self) -> FusedMaps | None:
-        """The fused maps of a square around the camera wide enough for its view (at most the window)."""
-        if self.grid is None or self.camera_m is None or not math.isfinite(self.depth_m):
+        """The fused maps of the cells the last frame saw and two landing squares around them (the verdict's
+        windows reach 1.3 m; beyond, the flatness saturates), within a square around the camera of 2.5 times
+        its depth (at most the window). Not the whole square: a D435's view covers 1.9 x 1.1 times the depth,
+        a quarter of it, and the maps cost by the cell."""
+        if self.grid is None or self.camera_m is None or self.view is None or not math.isfinite(self.depth_m):
             return None
+        cm = self.params.cell_m
         side = min(self.config.terrain.fusion.window_m, 2.5 * self.depth_m + 4 * self.params.square_m)
-        return self.maps_around(float(self.camera_m[0]), float(self.camera_m[1]), side)
+        n = min(self.params.side_cells, max(1, math.ceil(side / cm)))
+        sx, sy = math.floor(self.camera_m[0] / cm) - n // 2, math.floor(self.camera_m[1] / cm) - n // 2
+        pad = math.ceil(2 * self.params.square_m / cm)
+        x0, y0 = max(sx, self.view[0] - pad), max(sy, self.view[1] - pad)
+        x1, y1 = min(sx + n - 1, self.view[2] + pad), min(sy + n - 1, self.view[3] + pad)
+        if x1 < x0 or y1 < y0:
+            return None
+        return fused_maps(region(self.grid, x0, y0, x1 - x0 + 1, y1 - y0 + 1), self.config, self.params, self.scorer)
 
     def site(self, fm: FusedMaps) -> FusedSite | None:
         return best_site(fm, raised_params(self.config))
@@ -122,27 +135,18 @@ class FusedTerrain:
 def pixel_cells(fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray) -> np.ndarray:
     """Per pixel of a frame: the flat index (row j, column i: j nx + i) of its cell in the region (its point on
     the ground, by its depth); the region's size where it has no depth or falls outside (``cells_in_frame``)."""
-    depth = np.asarray(depth_m, dtype=np.float32)
+    depth = kernels.readonly(np.asarray(depth_m), np.float32)
     intr = fit_intrinsics(intrinsics, depth.shape)
     rx, ry = pixel_rays(intr)
-    valid = valid_depth(depth)
     T = np.asarray(T_world_camera, dtype=np.float64)
-    R, t = T[:3, :3].astype(np.float32), T[:3, 3]
-    z = np.where(valid, depth, np.float32(0))
+    t = T[:3, 3]
     reg = fm.region
     ox, oy = reg.origin_m
-    wx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * z + np.float32(t[0] - ox)
-    wy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * z + np.float32(t[1] - oy)
-    inv = np.float32(1.0 / reg.cell_m)
-    # the cell's column and row in float32 (whole numbers, exact below 2^24), one conversion to integers
-    i = np.floor(wx * inv, out=wx)
-    j = np.floor(wy * inv, out=wy)
     ny, nx = reg.shape
-    inside = valid & (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
-    j *= np.float32(nx)
-    j += i
-    np.copyto(j, np.float32(ny * nx), where=~inside)
-    return j.astype(np.intp)
+    # the cell's column and row in float32 (whole numbers, exact below 2^24), one compiled pass
+    f32 = np.float32
+    return kernels.pixel_cells(depth, kernels.readonly(rx.reshape(-1), f32), kernels.readonly(ry.reshape(-1), f32),
+                               np.array(T[:3, :3], f32), f32(t[0] - ox), f32(t[1] - oy), f32(1.0 / reg.cell_m), nx, ny)
 
 
 def cells_in_frame(values: np.ndarray, index: np.ndarray) -> np.ndarray:

@@ -84,21 +84,22 @@ def _window_moments(hz: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tupl
     x = np.broadcast_to(np.arange(nx, dtype=np.float64)[None, :] * cell, hz.shape)
     y = np.broadcast_to(np.arange(ny, dtype=np.float64)[:, None] * cell, hz.shape)
     s1 = _box(w, n)
+    wx, wy, wh = w * x, w * y, w * hz     # each product once: w x x is (w x) x, the same bits
     with np.errstate(invalid="ignore", divide="ignore"):
-        mx, my, mh = _box(w * x, n) / s1, _box(w * y, n) / s1, _box(w * hz, n) / s1
-        sxx = _box(w * x * x, n) / s1 - mx * mx
-        syy = _box(w * y * y, n) / s1 - my * my
-        sxy = _box(w * x * y, n) / s1 - mx * my
-        sxh = _box(w * x * hz, n) / s1 - mx * mh
-        syh = _box(w * y * hz, n) / s1 - my * mh
-        shh = _box(w * hz * hz, n) / s1 - mh * mh
+        mx, my, mh = _box(wx, n) / s1, _box(wy, n) / s1, _box(wh, n) / s1
+        sxx = _box(wx * x, n) / s1 - mx * mx
+        syy = _box(wy * y, n) / s1 - my * my
+        sxy = _box(wx * y, n) / s1 - mx * my
+        sxh = _box(wx * hz, n) / s1 - mx * mh
+        syh = _box(wy * hz, n) / s1 - my * mh
+        shh = _box(wh * hz, n) / s1 - mh * mh
     return s1, sxx, syy, sxy, sxh, syh, shh
 
 
 def _plane_fit(h: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                                          np.ndarray]:
+                                                                          np.ndarray, np.ndarray]:
     """Least-squares plane over every n x n window of cells: (slope gradient gx, gy (m/m), residual variance,
-    valid). A window needs 3/4 of its cells seen."""
+    valid, the window's count of seen cells). A window needs 3/4 of its cells seen."""
     s1, sxx, syy, sxy, sxh, syh, shh = _window_moments(np.where(ok, h, 0.0), ok, n, cell)
     with np.errstate(invalid="ignore", divide="ignore"):
         det = sxx * syy - sxy * sxy
@@ -106,7 +107,7 @@ def _plane_fit(h: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tuple[np.n
         gy = (sxx * syh - sxy * sxh) / det
         res = np.maximum(shh - gx * sxh - gy * syh, 0.0)
     valid = ok & (s1 >= 0.75 * n * n) & (det > 0)
-    return gx, gy, res, valid
+    return gx, gy, res, valid, s1
 
 
 def _odd(x: float) -> int:
@@ -179,8 +180,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
 
     # depth variance: residual std about the 3 x 3 plane, the fused noise's share removed
     dv = terrain.depth_variance
-    _, _, res3, ok3 = _plane_fit(hc, ok, 3, cell)
-    n3 = _box(ok.astype(np.float64), 3)
+    _, _, res3, ok3, n3 = _plane_fit(hc, ok, 3, cell)
     with np.errstate(invalid="ignore", divide="ignore"):
         noise3 = _box(var_mean, 3) / np.maximum(n3, 1) * (n3 - 3) / np.maximum(n3, 1)
     s = np.sqrt(np.maximum(res3 - noise3, 0.0))
@@ -188,7 +188,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
 
     # steepness: the plane over the footprint's cells (the widest window the per-frame path uses)
     n_fp = max(3, _odd(max(uav.footprint_m) / cell))
-    gx, gy, _, okf = _plane_fit(hc, ok, n_fp, cell)
+    gx, gy, _, okf, _ = _plane_fit(hc, ok, n_fp, cell)
     tan_psi = np.hypot(np.where(okf, gx, 0.0), np.where(okf, gy, 0.0))   # a degenerate window's gradient is inf
     psi = np.arctan(tan_psi)
     slope_deg = np.where(okf, np.degrees(psi), np.nan)

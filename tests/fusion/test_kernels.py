@@ -16,6 +16,7 @@ import pytest
 from fusion_scene import INTR, Block, exact_depth, pose
 
 from slzcli.config import load_config
+from slzcli.errors import ConfigError
 from slzcli.fusion import kernels
 from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, cell_key, fuse
 from slzcli.fusion.kernels import PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, C, H, U, V
@@ -368,15 +369,25 @@ def test_median_inplace_is_numpys_median() -> None:
 
 
 def test_block_means_are_block_depths() -> None:
-    """``block_means`` then ``bin_samples``' sample rule give ``terrain.geometry.block_depth``'s depth and validity."""
+    """``block_means`` then ``depth_of_blocks`` give ``terrain.geometry.block_depth``'s depth, 0 where it has none."""
     rng = np.random.default_rng(1)
     depth = _frame(rng, pose(0.0, 0.0, 5.0))
     for block in (2, 3, 5):
         num, den = kernels.block_means(depth, block)
+        got = kernels.depth_of_blocks(num, den)
         want, ok = block_depth(depth, valid_depth(depth), block)
-        good = (den >= 0.5) & (num > 0)
-        assert np.array_equal(good, ok)
-        assert np.array_equal(den[good] / num[good], want[ok])
+        assert np.array_equal(got > 0, ok) and 0 < np.count_nonzero(ok) < ok.size
+        assert np.array_equal(got[ok], want[ok])
+
+
+def test_a_window_wider_than_the_binning_holds_is_refused() -> None:
+    """The samples' cells are int16: a window of more cells is a config error naming its key, never a wrap."""
+    one = np.ones((2, 2), np.float32)
+    args = (np.zeros(2), np.zeros(2), np.eye(3), 0.0, 0.0, 1.0)
+    rest = (2, np.zeros(3), 1.0, (0, 0), 0.0, 0.0)
+    assert kernels.bin_frame(one, None, *args, kernels.MAX_HALF, *rest)[0] == 1
+    with pytest.raises(ConfigError, match=r"terrain\.fusion\.window_m"):
+        kernels.bin_frame(one, None, *args, kernels.MAX_HALF + 1, *rest)
 
 
 def test_the_sweep_forgets_what_numpy_forgot() -> None:
@@ -390,3 +401,49 @@ def test_the_sweep_forgets_what_numpy_forgot() -> None:
     want[(want != _EMPTY) & ((np.abs(xs - 30) > 200) | (np.abs(ys + 40) > 200))] = _EMPTY
     kernels.sweep(owner, 30, -40, 200, int(_EMPTY))
     assert np.array_equal(owner, want) and 0 < np.count_nonzero(owner == _EMPTY) < owner.size
+
+
+def numpy_pixel_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.ndarray,
+                      origin_m: tuple[float, float], cell_m: float, shape: tuple[int, int]) -> np.ndarray:
+    """``session.pixel_cells`` in numpy (as it was written before its compiled pass)."""
+    depth = np.asarray(depth_m, dtype=np.float32)
+    intr = fit_intrinsics(intrinsics, depth.shape)
+    rx, ry = pixel_rays(intr)
+    valid = valid_depth(depth)
+    T = np.asarray(T_world_camera, dtype=np.float64)
+    R, t = T[:3, :3].astype(np.float32), T[:3, 3]
+    z = np.where(valid, depth, np.float32(0))
+    ox, oy = origin_m
+    wx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * z + np.float32(t[0] - ox)
+    wy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * z + np.float32(t[1] - oy)
+    inv = np.float32(1.0 / cell_m)
+    i = np.floor(wx * inv, out=wx)
+    j = np.floor(wy * inv, out=wy)
+    ny, nx = shape
+    inside = valid & (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
+    j *= np.float32(nx)
+    j += i
+    np.copyto(j, np.float32(ny * nx), where=~inside)
+    return j.astype(np.intp)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_pixel_cells_are_the_array_expressions(seed: int) -> None:
+    """The frame's pixels' cells in a region (tilted poses, holes of every kind, a region that cuts the view on
+    some sides): the same index as the numpy code at every pixel, and some pixels inside, some outside."""
+    from types import SimpleNamespace
+
+    from slzcli.fusion.session import pixel_cells
+
+    rng = np.random.default_rng(100 + seed)
+    x, y = rng.uniform(-50, 50, 2)
+    T = _tilted(rng, float(x), float(y), float(rng.uniform(3, 12)))
+    depth = _frame(rng, T)
+    cell = 0.082
+    nx, ny = (int(v) for v in rng.integers(40, 200, 2))
+    origin = (float(x + rng.uniform(-6, 0)), float(y + rng.uniform(-6, 0)))
+    reg = SimpleNamespace(origin_m=origin, cell_m=cell, shape=(ny, nx))
+    got = pixel_cells(SimpleNamespace(region=reg), depth, INTR, T)   # type: ignore[arg-type]
+    want = numpy_pixel_cells(depth, INTR, T, origin, cell, (ny, nx))
+    assert got.dtype == want.dtype and np.array_equal(got, want)
+    assert 0 < np.count_nonzero(got < nx * ny) < got.size
