@@ -109,8 +109,7 @@ def measure(path: Path) -> dict[str, Any]:
     seen = reg.seen & np.isfinite(reg.h)
     hc = np.where(seen, reg.h - np.median(reg.h[seen]), 0.0)
     for n in LOCAL_CELLS:
-        _, _, res, valid = _plane_fit(hc, seen, n, reg.cell_m)
-        cnt = _box(seen.astype(np.float64), n)
+        _, _, res, valid, cnt = _plane_fit(hc, seen, n, reg.cell_m)
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = res / (_box(np.where(seen, reg.var, 0.0), n) / cnt * (cnt - 3) / cnt)
         full = valid & np.isfinite(ratio) & (cnt >= n * n - 0.5)
