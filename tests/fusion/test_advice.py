@@ -140,7 +140,7 @@ def _fly_slope(slope_deg: float, seed: int) -> tuple[FusedTerrain, GroundTrack, 
     stereo = Stereo(0.0005, 0.2, 2.0, seed)
     noise = DepthNoise.flat(cell_noise(stereo, ft.params.cell_m * INTR.fx / ALTITUDE_M), "known")
     t = np.arange(20) / RATE_HZ
-    poses = poses_at(t, (0.0, 0.0, ALTITUDE_M), "transect", cfg.synth.flight, seed)  # type: ignore[arg-type]
+    poses = poses_at(t, (0.0, 0.0, ALTITUDE_M), "transect", cfg.synth.flight, seed)
     for i, T in enumerate(poses):
         ft.add(stereo.measure(exact_depth(T, None, slope_deg=slope_deg)), INTR, T, noise, 0, i)
         track.add(0, int(t[i] * 1e9), T)
