@@ -16,6 +16,10 @@ with the cell's shift in the image, and a white part) is then run forward:
 - sideways: one look every ``decorrelation_px`` of image shift (metres at the altitude: px x z / f);
 - descend: the per-frame limits grow as z^2 (sigma_z = a z^2 over metric windows), so one frame decides
   from ``z / sqrt(r1)``, r1 the factor of a single frame at the current altitude.
+Noise is not always what holds a square: where the slope fitted over it (beyond its own limit: a finding,
+not noise) already reads the UAV's tolerance or more, no look will make it safe (the limit only shrinks
+towards the estimate), and the advice says what it reads instead of promising frames; level ground reading
+that steep means the run's gravity is off.
 A loop over future frames of a handful of cells, never over pixels.
 """
 
@@ -48,9 +52,16 @@ class Advice:
     sideways_m: float | None       # metres of sideways flight
     descend_to_m: float | None     # altitude from which one frame decides it
     hover: bool                    # the current motion is (nearly) a hover
+    slope_deg: float | None = None       # the square's fitted slope when it alone holds it (at the tolerance or more)
+    max_slope_deg: float | None = None   # the UAV's tolerance it is read against
 
     def text(self) -> str:
         where = f"the ground at ({self.x_m:.1f}, {self.y_m:.1f}) m"
+        if self.slope_deg is not None:
+            held = ("more frames will not make it safe" if self.slope_deg >= (self.max_slope_deg or 0.0) else
+                    "no flight with this sensor tells it from a slope the UAV cannot take")
+            return (f"{where} reads a slope of {self.slope_deg:.1f} deg (the UAV takes {self.max_slope_deg:.0f} deg): "
+                    f"{held}; if that ground is level, the run's gravity is off (camera.gravity, camera.mount)")
         if self.hover and self.frames is None:
             moves = [f"fly {self.sideways_m:.1f} m sideways"] if self.sideways_m is not None else []
             if self.descend_to_m is not None:
@@ -156,18 +167,27 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
     sl = (slice(max(0, j - n // 2), j + n // 2 + 1), slice(max(0, i - n // 2), i + n // 2 + 1))
     ok = reg.seen[sl]
     tan_max = math.tan(math.radians(params.max_slope_deg))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r_cells = max(params.decided_margin, _LEVEL_FIT) * np.maximum(fm.step_min_m[sl] / params.max_step_m,
-                                                    np.tan(np.radians(fm.slope_min_deg[sl])) / tan_max)
-    r_cells = np.where(ok, r_cells, np.inf)
-    jj, ii = np.unravel_index(int(np.argmax(r_cells)), r_cells.shape)
-    r = float(r_cells[jj, ii])
+    # the slope fitted over a cell's footprint is a finding where it exceeds its own limit (else it is noise)
+    tan_lim = np.tan(np.radians(fm.slope_min_deg[sl]))
+    tan_fit = np.tan(np.radians(np.nan_to_num(fm.slope_deg[sl], nan=0.0)))
+    tan_est = np.where(ok & (tan_fit > tan_lim), tan_fit, 0.0)
+    slopes = np.degrees(np.arctan(tan_est[tan_est > 0]))
     x0, y0 = reg.origin_m
     x, y = x0 + (i + 0.5) * reg.cell_m, y0 + (j + 0.5) * reg.cell_m
     if hover is None:
         hover = shift_px_per_frame < 0.1 * params.decorrelation_px
     elif hover:
         shift_px_per_frame = 0.0
+    if slopes.size and float(np.max(slopes)) >= params.max_slope_deg:
+        return Advice(x, y, math.inf, None, None, None, hover, float(np.max(slopes)), params.max_slope_deg)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # the slope's limit must fit in what its estimate leaves of the tolerance (safe: estimate + limit)
+        r_noise = max(params.decided_margin, _LEVEL_FIT) * np.maximum(fm.step_min_m[sl] / params.max_step_m,
+                                                                       tan_lim / tan_max)
+        r_slope = tan_lim / (tan_max - tan_est)
+    r_cells = np.where(ok, np.maximum(r_noise, r_slope), np.inf)
+    jj, ii = np.unravel_index(int(np.argmax(r_cells)), r_cells.shape)
+    r = float(r_cells[jj, ii])
     if not math.isfinite(r):
         return Advice(x, y, r, None, None, None, hover)
     var = float(reg.var[sl][jj, ii])
@@ -183,8 +203,12 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
         frames = frames_to_variance(p_now, p_hc, p_cc, sc, sw, shift_px_per_frame, target, params)
         side = frames_to_variance(p_now, p_hc, p_cc, sc, sw, params.decorrelation_px, target, params)
     sideways = None if side is None else side * params.decorrelation_px * depth_m / focal_px
-    r1 = max(params.decided_margin, _LEVEL_FIT) * max(single_step_m / params.max_step_m, single_tan / tan_max)
+    r1 = max(max(params.decided_margin, _LEVEL_FIT) * max(single_step_m / params.max_step_m, single_tan / tan_max),
+             single_tan / (tan_max - float(np.max(tan_est, initial=0.0))))
     descend = depth_m / math.sqrt(r1) if r1 > 1 else None
     if descend is not None and descend < params.column_m:
         descend = None     # below the final-descent hover: not an answer
+    if frames is None and sideways is None and descend is None and r_slope[jj, ii] > r_noise[jj, ii]:
+        # nothing decides it, and its slope estimate is what holds it: say so rather than blame the sensor
+        return Advice(x, y, r, None, None, None, hover, float(np.max(slopes)), params.max_slope_deg)
     return Advice(x, y, r, frames, sideways, descend, hover)
