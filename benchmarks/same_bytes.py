@@ -22,6 +22,7 @@ the merge base with main.
 
 from __future__ import annotations
 
+import csv
 import io
 import json
 import sys
@@ -39,9 +40,10 @@ HALF_SIZE = ("--set", "camera.width=320", "--set", "camera.height=240", "--set",
              "--set", "camera.fy=231.0685", "--set", "camera.cx=160", "--set", "camera.cy=120")
 RUN_SPECIFIC = {"landing.json": ("timings_ms",),  # top-level keys that differ between two runs of the same code
                 "maps.npz": ("slope_deg: within one float16 step",)}
-# New landing.json keys a change adds on purpose (declared, documented): removed from both runs' landing.json
-# before comparing, and reported beside the result. advice: what would decide the ground (records.DecideAdvice).
-DECLARED = {"landing.json": ("advice",)}
+# New landing.json keys and sites.csv columns a change adds on purpose (declared, documented): removed from both
+# runs' files before comparing, and reported beside the result. advice: what would decide the ground
+# (records.DecideAdvice); raised_m, raised_cells: the raised-surface rule's reading per cluster (types.Candidate).
+DECLARED = {"landing.json": ("advice",), "sites.csv": ("raised_m", "raised_cells")}
 LAST_BIT = ("slope_deg",)  # maps.npz members compared to within one float16 step (see the docstring)
 
 
@@ -73,10 +75,21 @@ def comparable(run: Path) -> dict[str, bytes]:
     for key in (*RUN_SPECIFIC["landing.json"], *DECLARED["landing.json"]):
         landing.pop(key, None)
     out["landing.json"] = json.dumps(landing, sort_keys=True).encode()
-    out["sites.csv"] = (run / "sites.csv").read_bytes()
+    out["sites.csv"] = _without_columns((run / "sites.csv").read_text(), DECLARED["sites.csv"]).encode()
     for p in sorted(run.glob("frames/*/maps.npz")):
         out[str(p.relative_to(run))] = p.read_bytes()
     return out
+
+
+def _without_columns(text: str, names: tuple[str, ...]) -> str:
+    """A csv's text without the named columns, written back as site_log writes it."""
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows:
+        return text
+    keep = [i for i, name in enumerate(rows[0]) if name not in names]
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows([row[i] for i in keep] for row in rows)
+    return buf.getvalue()
 
 
 def difference(name: str, a: bytes | None, b: bytes | None) -> str | None:
