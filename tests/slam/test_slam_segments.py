@@ -9,6 +9,7 @@ CLI count the maps. The real case: the realsense_floor frames, where ORB-SLAM3 r
 
 from __future__ import annotations
 
+import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -230,10 +231,11 @@ def test_a_new_map_never_uses_the_old_maps_points(monkeypatch, flight, tmp_path)
     config = load_config(overrides=["landing.detect_on=every_nth", "landing.every_nth_frame=1"])
     summary = detect_recording(flight, config, tmp_path / "run", RunOptions())
     assert summary.detections == FRAMES
-    rows = (tmp_path / "run" / "sites.csv").read_text().splitlines()
-    frames = {int(r.split(",")[0]) for r in rows[1:]}
+    with (tmp_path / "run" / "sites.csv").open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    frames = {int(r["frame"]) for r in rows}
     assert frames and max(frames) < LOST  # candidates only on map 0's frames, where its points are
-    assert {r.split(",")[-1] for r in rows[1:]} == {"0"}
+    assert {r["segment"] for r in rows} == {"0"}
 
 
 def test_compare_counts_the_maps_and_measures_no_distance_across_them(monkeypatch, flight, tmp_path, runner) -> None:
