@@ -129,17 +129,25 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     return FuseStats(len(m), int(new), int(rejected), med, nis_med)
 
 
-def _sweep(grid: FusedGrid, m: FrameCells) -> None:
-    """Forget the cells more than half a window from the camera (in x or y), each time it has moved an
-    eighth of a window: the window holds the ground around the UAV, nothing it left behind."""
+def sweep_due(grid: FusedGrid, m: FrameCells) -> tuple[int, int] | None:
+    """The camera's cell when a sweep is due (it has moved an eighth of a window since the last), recorded as
+    the last sweep's; None: not yet."""
     s = grid.params.side_cells
     cx = int(np.floor(m.camera_m[0] / grid.params.cell_m))
     cy = int(np.floor(m.camera_m[1] / grid.params.cell_m))
     last = grid.swept_at
     if last[0] != _EMPTY and max(abs(cx - int(last[0])), abs(cy - int(last[1]))) < max(1, s // 8):
-        return
+        return None
     grid.swept_at[:] = (cx, cy)
-    kernels.sweep(grid.owner, cx, cy, s // 2, int(_EMPTY))
+    return cx, cy
+
+
+def _sweep(grid: FusedGrid, m: FrameCells) -> None:
+    """Forget the cells more than half a window from the camera (in x or y), each time it has moved an
+    eighth of a window: the window holds the ground around the UAV, nothing it left behind."""
+    due = sweep_due(grid, m)
+    if due is not None:
+        kernels.sweep(grid.owner, due[0], due[1], grid.params.side_cells // 2, int(_EMPTY))
 
 
 @dataclass(frozen=True, eq=False)

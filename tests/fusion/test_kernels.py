@@ -18,7 +18,7 @@ from fusion_scene import INTR, Block, exact_depth, pose
 from slzcli.config import load_config
 from slzcli.errors import ConfigError
 from slzcli.fusion import kernels
-from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, cell_key, fuse
+from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, cell_key, fuse, sweep_due
 from slzcli.fusion.kernels import PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, C, H, U, V
 from slzcli.fusion.measure import (
     _MIN_SAMPLES,
@@ -207,15 +207,12 @@ def numpy_fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
 
 
 def _sweep(grid: FusedGrid, m: FrameCells) -> None:
-    """Forget the cells more than half a window from the camera (in x or y), each time it has moved an
-    eighth of a window: the window holds the ground around the UAV, nothing it left behind."""
-    s = grid.params.side_cells
-    cx = int(np.floor(m.camera_m[0] / grid.params.cell_m))
-    cy = int(np.floor(m.camera_m[1] / grid.params.cell_m))
-    last = grid.swept_at
-    if last[0] != _EMPTY and max(abs(cx - int(last[0])), abs(cy - int(last[1]))) < max(1, s // 8):
+    """``grid._sweep``'s forgetting in numpy (when it is due is ``grid.sweep_due``, shared)."""
+    due = sweep_due(grid, m)
+    if due is None:
         return
-    grid.swept_at[:] = (cx, cy)
+    s = grid.params.side_cells
+    cx, cy = due
     held = grid.owner != _EMPTY
     keys = grid.owner
     xs = keys >> 32
