@@ -189,16 +189,22 @@ def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, a
     sigma_g = sigma if var_h is None else max(sigma, math.sqrt(float(np.mean(var_h[low]))))
     a = np.column_stack([np.ones(int(low.sum())), xy[low]])
     gram = a.T @ a
+    sigma_pick = sigma_g
     if low.sum() >= 4 and np.linalg.cond(gram) < 1e12:
         coef = np.linalg.solve(gram, a.T @ h[low])
-        if var_h is not None:
-            resid = h[low] - a @ coef
-            sigma_g = max(sigma_g, float(np.sqrt(np.sum(resid * resid) / (low.sum() - 3))) / _lowest_share_std(share))
+        resid = h[low] - a @ coef
+        scatter = float(np.sqrt(np.sum(resid * resid) / (low.sum() - 3))) / _lowest_share_std(share)
+        # per frame, the plane goes through cell means, whose noise a point's sigma bounds from above (relief
+        # among the lowest cells, a wall or a rock, makes their scatter larger: not noise)
+        sigma_g = min(sigma_g, scatter) if var_h is None else max(sigma_g, scatter)
+        sigma_pick = sigma_g if var_h is None else scatter
         ground_h, se_ground = float(coef[0]), sigma_g * math.sqrt(float(np.linalg.inv(gram)[0, 0]))
     else:
         ground_h, se_ground = float(np.median(h[low])), sigma_g * math.sqrt(math.pi / 2 / max(int(low.sum()), 1))
-    # choosing the lowest cells picks their noise too: level ground's lowest share lies phi(z)/share sigma low
-    ground_h += _lowest_share_bias(share) * sigma_g
+    # choosing the lowest cells picks their noise too: level ground's lowest share lies phi(z)/share sigma low,
+    # sigma the noise that picked them, the cells' own scatter (a point's sigma, or a stated std that errors the
+    # cells share make larger, would lift the ground by more than the choice lowered it and pass a low box top)
+    ground_h += _lowest_share_bias(share) * sigma_pick
     height = level - ground_h
     se = se_ground + sigma * math.sqrt(math.pi / 2 / n_site)
     threshold = tol + params.confidence_sigma * se
