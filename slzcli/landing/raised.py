@@ -16,10 +16,13 @@ edge, and the ground truth counts only the ground as landable. The rule, with he
    of the annulus, not a ditch or a strip beside the site, which are the edge clearance's and the flatness
    map's business), a plane fitted through them (free slope: a gentle slope's own ground is its plane, and
    the site's noisy normal is not extrapolated 3 m), its height at the site, with the noise share that
-   choosing the lowest cells picks removed (``phi(z) / share`` sigma, a point's sigma: it errs low). On fused
-   cells (``around_var`` given) the ground's sigma is the largest of the site's, the cells' stated one and their
-   scatter about that plane over the lowest share's own std (0.53 sigma at a third): ground noisier than the
-   site, or errors correlated into stripes, must not read as a lower surface;
+   choosing the lowest cells picks removed (``phi(z) / share`` sigma, sigma the cells' own scatter about that
+   plane over the lowest share's std, 0.53 at a third; per frame at most a point's sigma, which bounds a cell
+   mean's: relief among the lowest cells is not noise). A point's sigma there lifted the ground by up to
+   ~0.05 m where depth noise is independent per pixel and passed a 0.2 m box top. The plane's standard error
+   takes per frame the smaller of the two, on fused cells (``around_var`` given) the largest of the site's
+   sigma, the cells' stated one and their scatter: ground noisier than the site, or errors correlated into
+   stripes, must not read as a lower surface;
 4. raised: the site's level above that exceeds the UAV's step tolerance (``uav.max_step_m``) by
    ``margin_sigma`` standard errors (the plane's at the site, which grows when the low cells lie to one
    side, and the site level's). A terrace or a kerb within the tolerance is ground.
