@@ -195,6 +195,7 @@ def _fly_riser(height_m: float, seed: int, a_per_m: float) -> tuple[FusedTerrain
         ft.add(stereo.measure(exact_depth(T, riser)), INTR, T, noise, 0, i)
         track.add(0, int(t[i] * 1e9), T)
     fm = ft.maps_in_view()
+    assert fm is not None
     reg = fm.region
     x = reg.origin_m[0] + (np.arange(reg.seen.shape[1]) + 0.5) * reg.cell_m
     dist = np.broadcast_to(np.abs(x - x_riser)[None, :], reg.seen.shape)
