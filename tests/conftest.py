@@ -48,7 +48,7 @@ SLOW_FILES = frozenset({
     "test_outputs_frames.py", "test_outputs_report.py", "test_packaging.py", "test_profiles.py", "test_px4slp.py",
     "test_run_assembly.py", "test_sensor_cells.py", "test_slam.py", "test_slam_segments.py", "test_synth.py",
     "test_synth_sensor.py", "test_timeout.py", "test_touchdown_dispersion.py", "test_user_files.py",
-    "test_window.py", "test_writes.py", "test_fused.py", "test_raised_cli.py", "test_tilt_cli.py",
+    "test_window.py", "test_writes.py", "test_fused.py", "test_raised_cli.py", "test_tilt_cli.py", "test_same_bits.py",
 })
 
 

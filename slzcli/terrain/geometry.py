@@ -103,9 +103,24 @@ class NormalField:
     nz: np.ndarray
     ok: np.ndarray
 
+    def norm(self) -> np.ndarray:
+        """|n| per pixel (float32), the same bits wherever the three planes lie in memory.
+
+        Squares, sums and a square root in numpy, each rounded as IEEE 754 says, not ``cv2.magnitude``:
+        OpenCV's IPP kernel for it rounds the elements before the first aligned address and after the
+        last differently from the rest (by an ulp), so its result depended on where the allocator put
+        the planes, and the slope of a run's frame changed from run to run of the same code.
+        """
+        sq = np.multiply(self.nx, self.nx)
+        part = np.multiply(self.ny, self.ny)
+        sq += part
+        np.multiply(self.nz, self.nz, out=part)
+        sq += part
+        return np.sqrt(sq, out=sq)
+
     def unit(self) -> np.ndarray:
         """H x W x 3 float32 unit normals, NaN where there is none."""
-        norm = cv2.magnitude(cv2.magnitude(self.nx, self.ny), self.nz)
+        norm = self.norm()
         inv = np.full_like(norm, np.nan)
         np.divide(np.float32(1.0), norm, out=inv, where=self.ok & (norm > 0))
         return cv2.merge([self.nx * inv, self.ny * inv, self.nz * inv])

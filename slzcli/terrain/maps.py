@@ -326,7 +326,7 @@ def slope_rad(normals: NormalField, up_camera: np.ndarray) -> np.ndarray:
     ux, uy, uz = (float(c) for c in np.asarray(up_camera, dtype=np.float64))
     dot = cv2.addWeighted(normals.nx, ux, normals.ny, uy, 0.0)
     dot = cv2.scaleAdd(normals.nz, uz, dot)
-    norm = cv2.magnitude(cv2.magnitude(normals.nx, normals.ny), normals.nz)
+    norm = normals.norm()
     cos = cv2.divide(np.abs(dot, out=dot), norm)      # orienting n up = taking |e3 . n|
     np.minimum(cos, np.float32(1.0), out=cos)
     np.arccos(cos, out=cos)

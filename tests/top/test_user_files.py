@@ -444,7 +444,9 @@ def test_odometry_and_recorded_runs_are_bit_reproducible_alone_and_in_a_batch(ru
     res = invoke(runner, "detect", str(other), str(rec), "-o", str(tmp_path / "batch"), "--workers", "1", *FAST, *opts)
     assert res.exit_code == 0, res.stderr
     runs.append(tmp_path / "batch" / "flight")
-    for name in ("trajectory.tum", "sites.csv", "keyframes.npz", "points.ply"):
+    maps = [str(p.relative_to(runs[0])) for p in sorted(runs[0].glob("frames/*/maps.npz"))]
+    assert maps  # every detection frame's maps are compared too
+    for name in ("trajectory.tum", "sites.csv", "keyframes.npz", "points.ply", *maps):
         assert len({(r / name).read_bytes() for r in runs}) == 1, name
     landings = [json.loads((r / "landing.json").read_text()) for r in runs]
     for doc in landings:
