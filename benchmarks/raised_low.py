@@ -18,7 +18,7 @@ ground to the UAV by slz's own model, and only the truth's convention says other
 Flights: ``slz synth`` at 640 x 480 (the paper's field of view), 30 frames at 15 Hz, from ``--altitudes``; motion
 ``hover`` (the synth hover over the box's centre) or a transect of that many metres due east over it (its
 middle over the box's centre); sensors as benchmarks/fusion_render.py names them. Rendered once into
-``--cache`` (a stereo flight takes ~1.5 min; ``--render-only`` fills the cache and stops).
+``--cache`` (a stereo flight takes 1.5-4 min on a shared machine; ``--render-only`` fills the cache and stops).
 
 Per flight, ``slz detect`` per frame (``--method fuzzy``) and fused (``--method fused``), true poses
 (``slam.backend=recorded``, the synth's ground-truth pose topic; map points sampled from the keyframes' depth):
