@@ -357,10 +357,18 @@ def test_the_frame_median_is_numpys(seed: int) -> None:
 
 
 def test_median_inplace_is_numpys_median() -> None:
+    """Odd and even counts, float64 and float32, ties, a NaN anywhere (then NaN), none at all."""
     rng = np.random.default_rng(0)
-    for n in (1, 2, 3, 10, 11, 1000, 1001):
-        for values in (rng.normal(size=n), rng.integers(0, 3, n).astype(np.float64)):
-            assert kernels.median_inplace(values.copy()) == np.median(values)
+    for n in (1, 2, 3, 10, 11, 1000, 1001, 20000, 20001):
+        for values in (rng.normal(size=n), rng.integers(0, 3, n).astype(np.float64),
+                       rng.uniform(0.1, 30, n).astype(np.float32)):
+            got = kernels.median_inplace(values.copy())
+            assert got == np.median(values) and isinstance(got, float)
+            if n > 1:
+                for at in (0, n // 2, n - 1):
+                    holed = values.copy()
+                    holed[at] = np.nan
+                    assert math.isnan(kernels.median_inplace(holed))
     assert math.isnan(kernels.median_inplace(np.array([1.0, np.nan, 2.0])))
     assert math.isnan(kernels.median_inplace(np.zeros(0)))
 
@@ -377,14 +385,38 @@ def test_block_means_are_block_depths() -> None:
         assert np.array_equal(got[ok], want[ok])
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_block_depths_are_the_same_bits_as_cv2s_block_means(seed: int) -> None:
+    """``block_depths`` (one compiled pass where the sides are multiples of the block, cv2's area resize
+    otherwise) against ``terrain.geometry.block_depth`` (cv2.resize INTER_AREA): the same bits at every block,
+    on frames whose block columns fill cv2's vectors and frames with columns left over (``CV_AREA_LANES``),
+    and on the D435's and the cache's sizes."""
+    rng = np.random.default_rng(200 + seed)
+    sizes = [(480, 848), (480, 640), (int(rng.integers(2, 40)) * 2, int(rng.integers(2, 40)) * 2 + 2),
+             (int(rng.integers(1, 30)) * 120, int(rng.integers(1, 10)) * 120 + 6)]
+    whole = 0
+    for h, w in sizes:
+        intr = Intrinsics(0.6 * w, 0.6 * w, w / 2, h / 2, w, h)
+        depth = _frame(rng, _tilted(rng, 0.0, 0.0, float(rng.uniform(3, 12))), intr)
+        for block in (2, 3, 4, 5, 6, 8):
+            if block > min(h, w):
+                continue
+            got = kernels.block_depths(depth, block)
+            want, ok = block_depth(depth, valid_depth(depth), block)
+            assert got.shape == want.shape and np.array_equal(got > 0, ok), (h, w, block)
+            assert np.array_equal(got[ok].view(np.int32), want[ok].view(np.int32)), (h, w, block)
+            whole += h % block == 0 and w % block == 0
+    assert whole >= 8      # the compiled pass was checked, not only the fallback
+
+
 def test_a_window_wider_than_the_binning_holds_is_refused() -> None:
     """The samples' cells are int16: a window of more cells is a config error naming its key, never a wrap."""
     one = np.ones((2, 2), np.float32)
     args = (np.zeros(2), np.zeros(2), np.eye(3), 0.0, 0.0, 1.0)
     rest = (2, np.zeros(3), 1.0, (0, 0), 0.0, 0.0)
-    assert kernels.bin_frame(one, None, *args, kernels.MAX_HALF, *rest)[0] == 1
+    assert kernels.bin_frame(one, *args, kernels.MAX_HALF, *rest)[0] == 1
     with pytest.raises(ConfigError, match=r"terrain\.fusion\.window_m"):
-        kernels.bin_frame(one, None, *args, kernels.MAX_HALF + 1, *rest)
+        kernels.bin_frame(one, *args, kernels.MAX_HALF + 1, *rest)
 
 
 def test_the_sweep_forgets_what_numpy_forgot() -> None:
