@@ -348,6 +348,46 @@ def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned
 
 
 @_jit
+def region_cells(owner, state, frames, rejected, column, x0, y0, nx, ny, side, fixed_fraction):
+    """Cells x0..x0+nx-1, y0..y0+ny-1 of the window as dense arrays, in one pass (``grid.region``'s gathers and
+    selects, the same operations): seen, then the float64 fields H, the terrain variance (PHH + fixed_fraction
+    sig1^2), POSEV, PHC, PCC, SIGC, SIG1 (NaN unseen), looks (sig1^2 / variance, float32), frames, rejected
+    (0 unseen), SPREAD, STEPR, TANR (float32, 0 unseen), column (False unseen)."""
+    seen = np.zeros((ny, nx), np.bool_)
+    f64 = np.full((7, ny, nx), np.nan)
+    looks = np.zeros((ny, nx), np.float32)
+    fr = np.zeros((ny, nx), np.int32)
+    rej = np.zeros((ny, nx), np.int32)
+    f32 = np.zeros((3, ny, nx), np.float32)
+    col = np.zeros((ny, nx), np.bool_)
+    for j in range(ny):
+        y = y0 + j
+        for i in range(nx):
+            x = x0 + i
+            k = (y % side) * side + x % side
+            if owner[k] != ((x << 32) ^ (y & 0xFFFFFFFF)):
+                continue
+            seen[j, i] = True
+            sig1 = state[k, SIG1]
+            var = state[k, PHH] + fixed_fraction * sig1 * sig1
+            f64[0, j, i] = state[k, H]
+            f64[1, j, i] = var
+            f64[2, j, i] = state[k, POSEV]
+            f64[3, j, i] = state[k, PHC]
+            f64[4, j, i] = state[k, PCC]
+            f64[5, j, i] = state[k, SIGC]
+            f64[6, j, i] = sig1
+            looks[j, i] = np.float32(sig1 * sig1 / var)
+            fr[j, i] = frames[k]
+            rej[j, i] = rejected[k]
+            f32[0, j, i] = np.float32(state[k, SPREAD])
+            f32[1, j, i] = np.float32(state[k, STEPR])
+            f32[2, j, i] = np.float32(state[k, TANR])
+            col[j, i] = column[k]
+    return seen, f64, looks, fr, rej, f32, col
+
+
+@_jit
 def pixel_cells(depth, rx, ry, r, off_x, off_y, inv, nx, ny):
     """Per pixel: the flat index j nx + i of its cell in an ny x nx region (its point on the ground by its depth:
     column floor((w + off) inv), all in float32), ny nx where it has no depth or falls outside
@@ -490,6 +530,8 @@ def warm_up() -> None:
     pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)
     valid_depths(readonly(one, np.float32), 4)
     sweep(np.zeros(1, np.int64), 0, 0, 1, -1)
+    region_cells(np.zeros(1, np.int64), np.zeros((1, 13)), np.zeros(1, np.int32), np.zeros(1, np.int32),
+                 np.zeros(1, bool), 0, 0, 1, 1, 1, 0.0)
     i = np.zeros(1, np.int64)
     x = np.zeros(1)
     owner = np.zeros(1, np.int64)

@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from slzcli.config import Config
+from slzcli.fusion import kernels
 from slzcli.fusion.grid import Region
 from slzcli.fusion.measure import FusionParams
 from slzcli.landing.raised import Raised, RaisedParams, above_ground, raised_params
@@ -183,7 +184,7 @@ def step_noise_scale(s_abs: np.ndarray, step_min: np.ndarray, k: float) -> float
     fin = np.isfinite(s_abs) & np.isfinite(step_min) & (step_min > 0)
     if not fin.any():
         return 1.0
-    return max(1.0, float(np.median(s_abs[fin] / (step_min[fin] / k))) / _HALF_NORMAL_MEDIAN)
+    return max(1.0, kernels.median_inplace(s_abs[fin] / (step_min[fin] / k)) / _HALF_NORMAL_MEDIAN)
 
 
 def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object) -> FusedMaps:
@@ -195,7 +196,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     refused = seen & (reg.rejected > params.two_heights_fraction * np.maximum(reg.frames, 1))
     ok = seen & ~refused
     h = np.where(ok, reg.h, np.nan)
-    ref = float(np.nanmedian(h)) if ok.any() else 0.0
+    ref = kernels.median_inplace(h[ok & ~np.isnan(h)]) if ok.any() else 0.0     # np.nanmedian(h)
     hc = np.where(ok, h - ref, 0.0)
     var = np.where(ok, reg.var, 0.0)
     var_mean = np.where(ok, var, 0.0)
@@ -210,7 +211,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
 
     # steepness: the plane over the footprint's cells (the widest window the per-frame path uses)
     n_fp = max(3, _odd(max(uav.footprint_m) / cell))
-    gx, gy, _, okf, _ = _plane_fit(hc, ok, n_fp, cell)
+    gx, gy, _, okf, n_seen_fp = _plane_fit(hc, ok, n_fp, cell)
     tan_psi = np.hypot(np.where(okf, gx, 0.0), np.where(okf, gy, 0.0))   # a degenerate window's gradient is inf
     psi = np.arctan(tan_psi)
     slope_deg = np.where(okf, np.degrees(psi), np.nan)
@@ -293,7 +294,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
         fine_y = s_y + lim_y <= uav.max_step_m
         step_bad = (s_x - kb * lim_x > uav.max_step_m) | (s_y - kb * lim_y > uav.max_step_m)
         # the limits hold for a full window: a plane over a window cut by the edge of the seen ground is neither
-        full = _box(ok.astype(np.float64), n_fp) >= n_fp * n_fp - 0.5
+        full = n_seen_fp >= n_fp * n_fp - 0.5
         slope_fine = okf & full & (tan_psi + tan_min <= tan_lim)
         steep = okf & full & (tan_psi - kb * tan_min > tan_lim)
     # decided over the square and the widest window around it (the maps' and the smoothing's): every score of
