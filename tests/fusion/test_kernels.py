@@ -18,7 +18,7 @@ from fusion_scene import INTR, Block, exact_depth, pose
 from slzcli.config import load_config
 from slzcli.errors import ConfigError
 from slzcli.fusion import kernels
-from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, cell_key, fuse, sweep_due
+from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, Region, cell_key, fuse, region, sweep_due
 from slzcli.fusion.kernels import PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, C, H, U, V
 from slzcli.fusion.measure import (
     _MIN_SAMPLES,
@@ -340,6 +340,69 @@ def test_fuse_is_the_array_expressions_to_the_bit(seed: int) -> None:
             assert np.array_equal(u, v, equal_nan=u.dtype.kind == "f"), (i, name)
         rejected += a.rejected
     assert rejected > 0 and taken > 0      # the gate rejected some, new cells took slots over
+
+
+def numpy_region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
+    """``grid.region`` in numpy (as it was written before its compiled gather)."""
+    s = grid.params.side_cells
+    nx, ny = min(nx, s), min(ny, s)
+    ix = np.arange(x0, x0 + nx, dtype=np.int64)[None, :]
+    iy = np.arange(y0, y0 + ny, dtype=np.int64)[:, None]
+    k = np.mod(iy, s) * s + np.mod(ix, s)
+    seen = grid.owner[k] == cell_key(ix, iy)
+    st = grid.state[k]
+
+    def f(i: int) -> np.ndarray:
+        return np.where(seen, st[..., i], np.nan)
+
+    sig1 = f(SIG1)
+    var = f(PHH) + grid.params.fixed_fraction * sig1 * sig1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        looks = np.where(seen, sig1 * sig1 / var, 0.0).astype(np.float32)
+    zero = np.zeros(seen.shape)
+    return Region(x0, y0, grid.params.cell_m, seen, f(H), var, f(POSEV), looks,
+                  np.where(seen, grid.frames[k], 0), np.where(seen, grid.rejected[k], 0),
+                  np.where(seen, st[..., SPREAD], zero).astype(np.float32),
+                  np.where(seen, st[..., STEPR], zero).astype(np.float32),
+                  np.where(seen, st[..., TANR], zero).astype(np.float32), seen & grid.column[k],
+                  f(PHC), f(PCC), f(SIGC), sig1)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_region_is_the_array_expressions_to_the_bit(seed: int) -> None:
+    """A grid flown over (slots taken over by cells a window's side on, cells on both sides of 0): every
+    rectangle, inside the ground seen, across its edge, at negative indices, as wide as the window, gives the
+    numpy code's arrays, bit for bit and of the same types."""
+    rng = np.random.default_rng(300 + seed)
+    params = _params(12.0)
+    noise = DepthNoise(tuple(0.003 / np.sqrt(b) for b in (1, 2, 4, 8, 16)), "estimated")
+    grid = FusedGrid.empty(params)
+    x = y = 0.0
+    for i in range(8):
+        if i == 4:
+            x += params.side_cells * params.cell_m
+        x, y = x + 0.3 * rng.normal(), y + 0.3 * rng.normal()
+        T = _tilted(rng, x, y, float(rng.uniform(3.0, 7.0)))
+        cells = frame_cells(_frame(rng, T), INTR, T, noise, params, float(rng.uniform(1, 3)),
+                            float(rng.uniform(0, 1)))
+        assert cells is not None
+        fuse(grid, cells, i)
+    s = params.side_cells
+    cx, cy = int(np.floor(x / params.cell_m)), int(np.floor(y / params.cell_m))
+    boxes = [(cx - 20, cy - 15, 40, 30), (cx - s // 2, cy - s // 2, s, s), (cx - 5, cy - 5, s + 9, 3),
+             (-7, -9, 15, 12), (int(rng.integers(-200, 200)), int(rng.integers(-200, 200)), 25, 25)]
+    seen_any = 0
+    for box in boxes:
+        got, want = region(grid, *box), numpy_region(grid, *box)
+        for name in Region.__dataclass_fields__:
+            u, v = getattr(got, name), getattr(want, name)
+            if isinstance(v, np.ndarray):
+                assert u.dtype == v.dtype and u.shape == v.shape, (box, name)
+                assert np.array_equal(u, v, equal_nan=v.dtype.kind == "f"), (box, name)
+            else:
+                assert u == v, (box, name)
+        seen_any += int(got.seen.any() and not got.seen.all())
+    assert seen_any >= 2     # rectangles that cut the ground seen were compared
 
 
 @pytest.mark.parametrize("seed", range(5))
