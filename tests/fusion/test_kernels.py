@@ -539,3 +539,37 @@ def test_pixel_cells_are_the_array_expressions(seed: int) -> None:
     want = numpy_pixel_cells(depth, INTR, T, origin, cell, (ny, nx))
     assert got.dtype == want.dtype and np.array_equal(got, want)
     assert 0 < np.count_nonzero(got < nx * ny) < got.size
+
+
+def test_the_verdicts_shared_window_terms_and_step_windows_are_the_same_bits() -> None:
+    """``verdict._plane_fit`` on the window terms the maps share gives what it gives from the heights alone, and
+    ``verdict._steps``' full windows (an erosion) are those of the sum of ones it replaced (random holes, a corner
+    unseen, every window size the maps use)."""
+    import cv2
+
+    from slzcli.fusion.verdict import _plane_fit, _steps, _window_terms, step_kernel
+
+    rng = np.random.default_rng(7)
+    some = 0
+    for _ in range(12):
+        ny, nx = (int(v) for v in rng.integers(5, 200, 2))
+        ok = rng.random((ny, nx)) > rng.uniform(0, 0.1)
+        ok[: rng.integers(0, ny), : rng.integers(0, nx)] = False
+        h = rng.normal(0, 0.1, (ny, nx)) + 0.01 * np.arange(nx)[None, :]
+        hc = np.where(ok, h, 0.0)
+        rows = int(rng.choice([3, 5, 7, 9, 11, 13, 15]))
+        terms = _window_terms(hc, ok, 0.082)
+        for n in (3, rows):
+            for a, b in zip(_plane_fit(h, ok, n, 0.082), _plane_fit(hc, ok, n, 0.082, terms), strict=True):
+                assert np.array_equal(a, b, equal_nan=True)
+        half = max(2, rows // 2)
+        w, _ = step_kernel(rows, half)
+        got = _steps(hc, ok, rows, half)
+        for kern, s in zip((w, np.ascontiguousarray(w.T)), got, strict=True):
+            ones = (kern != 0).astype(np.float64)
+            est = cv2.filter2D(hc, cv2.CV_64F, kern, borderType=cv2.BORDER_CONSTANT)
+            full = cv2.filter2D(ok.astype(np.float64), cv2.CV_64F, ones,
+                                borderType=cv2.BORDER_CONSTANT) >= ones.sum() - 0.5
+            assert np.array_equal(s, np.where(full, np.abs(est), np.nan), equal_nan=True)
+            some += int(0 < np.count_nonzero(full) < full.size)
+    assert some >= 12       # windows full and not full were compared
