@@ -112,9 +112,6 @@ def _in_frame(session: Any, fm: Any, depth: np.ndarray, intr: Any, T: np.ndarray
     either commit: the pixels' cells found once, or by each of the older functions)."""
     from slzcli.fusion.verdict import SAFE
 
-    if hasattr(session, "score_and_safe_in_frame"):
-        score, safe = session.score_and_safe_in_frame(fm, session.pixel_cells(fm, depth, intr, T))
-        return score, safe
     if hasattr(session, "pixel_cells"):
         index = session.pixel_cells(fm, depth, intr, T)
         return (session.cells_in_frame(fm.score.astype(np.float32), index),

@@ -413,22 +413,6 @@ def pixel_cells(depth, rx, ry, r, off_x, off_y, inv, nx, ny):
     return out
 
 
-@_jit
-def cells_at(index, values, flags):
-    """Per pixel: the float32 ``values`` and the ``flags`` (flat, one per cell) of its cell ``index``
-    (``pixel_cells``), 0 and False where it has none (index ``values.size``): both maps in one pass."""
-    out = np.zeros(index.shape, np.float32)
-    on = np.zeros(index.shape, np.bool_)
-    n = values.size
-    for j in range(index.shape[0]):
-        for i in range(index.shape[1]):
-            k = index[j, i]
-            if k < n:
-                out[j, i] = values[k]
-                on[j, i] = flags[k]
-    return out, on
-
-
 def median_inplace(a: np.ndarray) -> float:
     """``np.median`` of a 1-d float array (NaN when any is NaN or there are none), reordering it: the middle
     value, or the mean of the two middle ones in ``a``'s own type, as numpy's. Not compiled: numpy's
@@ -543,8 +527,7 @@ def warm_up() -> None:
     block_depths(one, 2)
     f32 = np.float32
     ray = readonly(np.zeros(2), f32)
-    index = pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)
-    cells_at(index, np.zeros(4, f32), np.zeros(4, bool))
+    pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)
     valid_depths(readonly(one, np.float32), 4)
     sweep(np.zeros(1, np.int64), 0, 0, 1, -1)
     region_cells(np.zeros(1, np.int64), np.zeros((1, 13)), np.zeros(1, np.int32), np.zeros(1, np.int32),

@@ -154,13 +154,6 @@ def cells_in_frame(values: np.ndarray, index: np.ndarray) -> np.ndarray:
     return np.append(flat, np.zeros(1, flat.dtype))[index]
 
 
-def score_and_safe_in_frame(fm: FusedMaps, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The score (float32) and whether the verdict is SAFE at every pixel of a frame, by its cells' ``index``
-    (``pixel_cells``): ``cells_in_frame`` of both, in one compiled pass."""
-    score = kernels.readonly(fm.score.reshape(-1), np.float32)
-    return kernels.cells_at(index, score, (fm.verdict == SAFE).reshape(-1))
-
-
 def render_in_frame(values: np.ndarray, fm: FusedMaps, depth_m: np.ndarray, intrinsics: Intrinsics,
                     T_world_camera: np.ndarray) -> np.ndarray:
     """A per-cell float map of the region at every pixel of a frame (0 where no depth or outside)."""

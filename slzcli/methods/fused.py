@@ -24,8 +24,8 @@ from slzcli.config import Config
 from slzcli.fusion.advice import Advice, GroundTrack
 from slzcli.fusion.grid import region, seen_bounds
 from slzcli.fusion.output import Judged, landing_grid, write_landing_map
-from slzcli.fusion.session import FusedTerrain, pixel_cells, score_and_safe_in_frame
-from slzcli.fusion.verdict import fused_maps
+from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
+from slzcli.fusion.verdict import SAFE, fused_maps
 from slzcli.landing.raised import surroundings
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
@@ -79,7 +79,8 @@ class FusedMethod:
             score = ScoreMap(self.name, np.zeros(shape, np.float32), np.zeros(shape, bool))
         else:
             index = pixel_cells(fm, frame.depth_m, frame.intrinsics, T)   # once for the score and the mask
-            score = ScoreMap(self.name, *score_and_safe_in_frame(fm, index))
+            score = ScoreMap(self.name, cells_in_frame(fm.score.astype(np.float32), index),
+                             cells_in_frame(fm.verdict == SAFE, index))
         t["mask"] = _lap(t0)
         t0 = time.perf_counter()
         selection: Selection | None = None

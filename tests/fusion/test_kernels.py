@@ -573,26 +573,3 @@ def test_the_verdicts_shared_window_terms_and_step_windows_are_the_same_bits() -
             assert np.array_equal(s, np.where(full, np.abs(est), np.nan), equal_nan=True)
             some += int(0 < np.count_nonzero(full) < full.size)
     assert some >= 12       # windows full and not full were compared
-
-
-def test_score_and_safe_in_frame_are_cells_in_frame_of_each() -> None:
-    """The compiled pass that renders the score and the SAFE verdict together gives ``cells_in_frame`` of each
-    (pixels outside the region or without depth: 0 and False)."""
-    from types import SimpleNamespace
-
-    from slzcli.fusion.session import cells_in_frame, score_and_safe_in_frame
-    from slzcli.fusion.verdict import SAFE
-
-    rng = np.random.default_rng(11)
-    for _ in range(4):
-        ny, nx = (int(v) for v in rng.integers(5, 120, 2))
-        score = rng.random((ny, nx)).astype(np.float32)
-        verdict = rng.integers(0, 4, (ny, nx)).astype(np.uint8)
-        index = rng.integers(0, ny * nx + 1, (48, 64)).astype(np.intp)
-        index[rng.random(index.shape) < 0.3] = ny * nx
-        fm = SimpleNamespace(score=score, verdict=verdict)
-        got_score, got_safe = score_and_safe_in_frame(fm, index)   # type: ignore[arg-type]
-        want_score, want_safe = cells_in_frame(score, index), cells_in_frame(verdict == SAFE, index)
-        assert got_score.dtype == want_score.dtype and got_safe.dtype == want_safe.dtype
-        assert np.array_equal(got_score, want_score) and np.array_equal(got_safe, want_safe)
-        assert 0 < np.count_nonzero(got_safe) < got_safe.size
