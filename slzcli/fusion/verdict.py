@@ -58,6 +58,21 @@ _EQUAL_AREA_HALF_SIDE = math.sqrt(math.pi) / 2.0
 
 
 @dataclass(frozen=True, eq=False)
+class StepFits:
+    """The steps fitted across every cell (|s|, m; NaN where the window is not fully seen) between columns (``x``)
+    and between rows (``y``); the verdict reads each against its limit, ``scale`` x the cell's ``step_min_m``
+    (how the fitted steps scatter on the map), ``reach`` cells beyond a landing square along the step included,
+    and takes a step beyond ``known`` x its limit for a finding (a known defect when beyond the tolerance)."""
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    scale_x: float
+    scale_y: float
+    reach: int
+    known: float
+
+
+@dataclass(frozen=True, eq=False)
 class FusedMaps:
     """Everything the fused terrain says about a region (arrays of the region's shape)."""
 
@@ -77,6 +92,7 @@ class FusedMaps:
     refused: np.ndarray       # two heights
     verdict: np.ndarray       # uint8 UNSEEN / UNSAFE / UNDECIDED / SAFE
     patch: np.ndarray         # int32: the patch of cells the raised-surface rule tested (1, 2, ...; 0: none)
+    steps: StepFits           # the fitted steps and how they are read (what holds a square's step test)
     patch_tests: tuple[Raised, ...] = ()   # the rule's finding per patch (patch k: [k - 1]), best patch first
 
     def counts(self) -> dict[str, int]:
@@ -296,8 +312,8 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     half = max(2, n_fp // 2)
     s_x, s_y = _steps(hc, ok, n_fp, half)
     # each direction's limit as its fitted steps scatter on this map (the errors' stripes are directional)
-    lim_x = step_noise_scale(s_x, step_min, k) * step_min
-    lim_y = step_noise_scale(s_y, step_min, k) * step_min
+    scale_x, scale_y = step_noise_scale(s_x, step_min, k), step_noise_scale(s_y, step_min, k)
+    lim_x, lim_y = scale_x * step_min, scale_y * step_min
     tan_lim = math.tan(math.radians(uav.max_slope_deg))
     # (a known defect at k + 1 sigma: a square holds ~240 step estimates, and at k alone noise would mark
     # some level squares unsafe)
@@ -351,7 +367,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     return FusedMaps(reg, f32["depth_variance"], f32["flatness"], f32["inclination"], f32["steepness"],
                      slope_deg.astype(np.float32), score.astype(np.float32), mask, clear_score,
                      step_min.astype(np.float32), slope_min.astype(np.float32), decided, defect, refused, verdict,
-                     patch, tests)
+                     patch, StepFits(s_x, s_y, scale_x, scale_y, reach, kb), tests)
 
 
 def _site_rank(safe: np.ndarray, clear_score: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
