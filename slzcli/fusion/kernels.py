@@ -65,7 +65,8 @@ def depth_of_blocks(inv, valid):
 
 # cv2.resize's INTER_AREA at a whole factor 2 sums each 2 x 2 block pairwise, (a + b) + (c + d), in vectors of
 # this many float32 lanes, and the columns left over (and every other factor) one by one in groups of four,
-# ((a + b) + c) + d (its resizeAreaFast; tests/fusion/test_kernels.py holds ``area_block_depth`` to it)
+# ((a + b) + c) + d (its resizeAreaFast in OpenCV 5.0's x86 / ARM wheels, whose vectors are 128 bits wide;
+# tests/fusion/test_kernels.py holds ``area_block_depth`` to it: the same bits there, within a few ulp elsewhere)
 CV_AREA_LANES = 4
 
 
