@@ -7,6 +7,7 @@ the OpenCV/ROS optical frame (x right, y down, z forward); world frame z up.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -196,7 +197,12 @@ class DepthNoise:
         return self.a_per_m[0]
 
     def a_at(self, block_px: float) -> float:
-        """a at any block side: log-log interpolation; beyond the pyramid, no further reduction."""
+        """a at any block side: log-log interpolation; beyond the pyramid, no further reduction (remembered per
+        noise and side: a frame's limits ask for the same few sides some 20 times, and a noise serves frames)."""
+        return _a_at(self, float(block_px))
+
+    def interpolated_a(self, block_px: float) -> float:
+        """``a_at`` computed afresh."""
         b = max(1.0, float(block_px))
         logs = np.log(SCALES_PX[: len(self.a_per_m)])
         vals = np.asarray(self.a_per_m, dtype=np.float64)
@@ -221,6 +227,11 @@ class DepthNoise:
         return {"model": "sigma_z = a_b z^2 (b x b pixel blocks)", "source": self.source,
                 "a_per_m": {str(b): round(a, 7) for b, a in zip(SCALES_PX, self.a_per_m, strict=False)},
                 "residuals": self.residuals, "quantum_m": self.quantum_m}
+
+
+@functools.lru_cache(maxsize=1024)
+def _a_at(noise: DepthNoise, block_px: float) -> float:
+    return noise.interpolated_a(block_px)
 
 
 @dataclass(frozen=True)

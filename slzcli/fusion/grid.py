@@ -32,7 +32,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from slzcli.fusion import kernels
-from slzcli.fusion.kernels import PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, H
 from slzcli.fusion.measure import FrameCells, FusionParams
 
 _EMPTY = np.iinfo(np.int64).min      # owner of a slot no cell has used yet
@@ -183,29 +182,17 @@ class Region:
 
 
 def region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
-    """Cells x0..x0+nx-1, y0..y0+ny-1 as dense arrays (``nx``, ``ny`` at most the window's side)."""
+    """Cells x0..x0+nx-1, y0..y0+ny-1 as dense arrays (``nx``, ``ny`` at most the window's side), gathered by one
+    compiled pass (``kernels.region_cells``). The terrain's variance adds the part fixed to the ground, which
+    never averages (``fixed_fraction`` of one frame's variance); its looks are one frame's variance over it."""
     s = grid.params.side_cells
     nx, ny = min(nx, s), min(ny, s)
-    ix = np.arange(x0, x0 + nx, dtype=np.int64)[None, :]
-    iy = np.arange(y0, y0 + ny, dtype=np.int64)[:, None]
-    k = np.mod(iy, s) * s + np.mod(ix, s)
-    seen = grid.owner[k] == cell_key(ix, iy)
-    st = grid.state[k]                                     # (ny, nx, 13)
-
-    def f(i: int) -> np.ndarray:
-        return np.where(seen, st[..., i], np.nan)
-
-    sig1 = f(SIG1)
-    var = f(PHH) + grid.params.fixed_fraction * sig1 * sig1     # the part fixed to the ground never averages
-    with np.errstate(invalid="ignore", divide="ignore"):
-        looks = np.where(seen, sig1 * sig1 / var, 0.0).astype(np.float32)
-    zero = np.zeros(seen.shape)
-    return Region(x0, y0, grid.params.cell_m, seen, f(H), var, f(POSEV), looks,
-                  np.where(seen, grid.frames[k], 0), np.where(seen, grid.rejected[k], 0),
-                  np.where(seen, st[..., SPREAD], zero).astype(np.float32),
-                  np.where(seen, st[..., STEPR], zero).astype(np.float32),
-                  np.where(seen, st[..., TANR], zero).astype(np.float32), seen & grid.column[k],
-                  f(PHC), f(PCC), f(SIGC), sig1)
+    seen, f64, looks, frames, rejected, f32, column = kernels.region_cells(
+        grid.owner, grid.state, grid.frames, grid.rejected, grid.column, int(x0), int(y0), int(nx), int(ny), int(s),
+        float(grid.params.fixed_fraction))
+    h, var, pose_var, p_hc, p_cc, sig_c, sig1 = f64
+    return Region(x0, y0, grid.params.cell_m, seen, h, var, pose_var, looks, frames, rejected, f32[0], f32[1], f32[2],
+                  column, p_hc, p_cc, sig_c, sig1)
 
 
 def region_around(grid: FusedGrid, x_m: float, y_m: float, side_m: float) -> Region:

@@ -63,6 +63,67 @@ def depth_of_blocks(inv, valid):
     return out
 
 
+# cv2.resize's INTER_AREA at a whole factor 2 sums each 2 x 2 block pairwise, (a + b) + (c + d), in vectors of
+# this many float32 lanes, and the columns left over (and every other factor) one by one in groups of four,
+# ((a + b) + c) + d (its resizeAreaFast in OpenCV 5.0's x86 / ARM wheels, whose vectors are 128 bits wide;
+# tests/fusion/test_kernels.py holds ``area_block_depth`` to it: the same bits there, within a few ulp elsewhere)
+CV_AREA_LANES = 4
+
+
+@_jit
+def area_block_depth(depth, m, lanes):
+    """``depth_of_blocks`` of ``block_means`` (``terrain.geometry.block_depth``) in one pass, for a frame whose sides
+    are multiples of ``m``: the block means of inverse depth summed in cv2.resize's order (``CV_AREA_LANES``), so
+    the same bits, without the two full-size float32 frames and the resizes' second pass over them."""
+    h, w = depth.shape
+    oh, ow = h // m, w // m
+    out = np.empty((oh, ow), np.float32)
+    area = m * m
+    scale = np.float32(1.0) / np.float32(area)
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    big = np.float32(np.inf)
+    pairs = (ow // lanes) * lanes if m == 2 else 0
+    n4 = area - area % 4
+    inv = np.empty(m * w, np.float32)      # the block row's inverse depth, row after row
+    has = np.empty(m * w, np.int32)        # ... and its validity (whole numbers: any order of sum is exact)
+    ofs = np.empty(area, np.int64)         # a block's pixels in cv2's order (row by row) within those rows
+    for k in range(area):
+        ofs[k] = (k // m) * w + k % m
+    num = np.empty(ow, np.float32)
+    den = np.empty(ow, np.int32)
+    for jb in range(oh):
+        for sy in range(m):
+            row = depth[jb * m + sy]
+            b = sy * w
+            for i in range(w):
+                d = row[i]
+                ok = (d > zero) & (d < big)
+                inv[b + i] = one / d if ok else zero
+                has[b + i] = 1 if ok else 0
+        for ib in range(pairs):
+            c = 2 * ib
+            num[ib] = (inv[c] + inv[c + 1]) + (inv[w + c] + inv[w + c + 1])
+            den[ib] = (has[c] + has[c + 1]) + (has[w + c] + has[w + c + 1])
+        for ib in range(pairs, ow):
+            c = ib * m
+            s = zero
+            for k in range(0, n4, 4):
+                s += ((inv[c + ofs[k]] + inv[c + ofs[k + 1]]) + inv[c + ofs[k + 2]]) + inv[c + ofs[k + 3]]
+            for k in range(n4, area):
+                s += inv[c + ofs[k]]
+            v = 0
+            for k in range(area):
+                v += has[c + ofs[k]]
+            num[ib], den[ib] = s, v
+        for ib in range(ow):
+            a = num[ib] * scale
+            v = np.float32(den[ib]) * scale
+            out[jb, ib] = v / a if (v >= half) & (a > zero) else zero
+    return out
+
+
 @_jit
 def bin_samples(a, rx, ry, r, off_x, off_y, inv, half, min_samples, t, cell, cxy, pose_var2, rad2):
     """One frame's samples binned into cells: per cell with ``min_samples`` or more, the means of the samples'
@@ -288,6 +349,46 @@ def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned
 
 
 @_jit
+def region_cells(owner, state, frames, rejected, column, x0, y0, nx, ny, side, fixed_fraction):
+    """Cells x0..x0+nx-1, y0..y0+ny-1 of the window as dense arrays, in one pass (``grid.region``'s gathers and
+    selects, the same operations): seen, then the float64 fields H, the terrain variance (PHH + fixed_fraction
+    sig1^2), POSEV, PHC, PCC, SIGC, SIG1 (NaN unseen), looks (sig1^2 / variance, float32), frames, rejected
+    (0 unseen), SPREAD, STEPR, TANR (float32, 0 unseen), column (False unseen)."""
+    seen = np.zeros((ny, nx), np.bool_)
+    f64 = np.full((7, ny, nx), np.nan)
+    looks = np.zeros((ny, nx), np.float32)
+    fr = np.zeros((ny, nx), np.int32)
+    rej = np.zeros((ny, nx), np.int32)
+    f32 = np.zeros((3, ny, nx), np.float32)
+    col = np.zeros((ny, nx), np.bool_)
+    for j in range(ny):
+        y = y0 + j
+        for i in range(nx):
+            x = x0 + i
+            k = (y % side) * side + x % side
+            if owner[k] != ((x << 32) ^ (y & 0xFFFFFFFF)):
+                continue
+            seen[j, i] = True
+            sig1 = state[k, SIG1]
+            var = state[k, PHH] + fixed_fraction * sig1 * sig1
+            f64[0, j, i] = state[k, H]
+            f64[1, j, i] = var
+            f64[2, j, i] = state[k, POSEV]
+            f64[3, j, i] = state[k, PHC]
+            f64[4, j, i] = state[k, PCC]
+            f64[5, j, i] = state[k, SIGC]
+            f64[6, j, i] = sig1
+            looks[j, i] = np.float32(sig1 * sig1 / var)
+            fr[j, i] = frames[k]
+            rej[j, i] = rejected[k]
+            f32[0, j, i] = np.float32(state[k, SPREAD])
+            f32[1, j, i] = np.float32(state[k, STEPR])
+            f32[2, j, i] = np.float32(state[k, TANR])
+            col[j, i] = column[k]
+    return seen, f64, looks, fr, rej, f32, col
+
+
+@_jit
 def pixel_cells(depth, rx, ry, r, off_x, off_y, inv, nx, ny):
     """Per pixel: the flat index j nx + i of its cell in an ny x nx region (its point on the ground by its depth:
     column floor((w + off) inv), all in float32), ny nx where it has no depth or falls outside
@@ -313,58 +414,28 @@ def pixel_cells(depth, rx, ry, r, off_x, off_y, inv, nx, ny):
     return out
 
 
-@_jit
-def _select(a, k):
-    """The k-th smallest of ``a`` (no NaN), in place (quickselect, median-of-three pivot): after it,
-    a[:k] <= a[k] <= a[k + 1:]."""
-    lo, hi = 0, a.size - 1
-    while lo < hi:
-        mid = (lo + hi) // 2
-        x, y, z = a[lo], a[mid], a[hi]
-        pivot = max(min(x, y), min(max(x, y), z))
-        i, j = lo, hi
-        while i <= j:
-            while a[i] < pivot:
-                i += 1
-            while a[j] > pivot:
-                j -= 1
-            if i <= j:
-                a[i], a[j] = a[j], a[i]
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
-        else:
-            break
-    return a[k]
-
-
-@_jit
-def median_inplace(a):
-    """``np.median`` of ``a`` (NaN when any is NaN or there are none), reordering it: the middle value, or the
-    mean of the two middle ones summed in ``a``'s own type, as numpy's."""
+def median_inplace(a: np.ndarray) -> float:
+    """``np.median`` of a 1-d float array (NaN when any is NaN or there are none), reordering it: the middle
+    value, or the mean of the two middle ones in ``a``'s own type, as numpy's. Not compiled: numpy's
+    ``partition`` (a vectorised selection) is ~10x faster than a compiled quickselect over 20,000 values, and
+    ``np.median`` itself, which partitions at three places, ~5x slower than one partition."""
     n = a.size
     if n == 0:
-        return np.nan
-    for i in range(n):
-        if a[i] != a[i]:
-            return np.nan
+        return math.nan
     k = n // 2
-    hi = _select(a, k)
+    a.partition(k)                  # NaN sorts last: after it a[:k] <= a[k] <= a[k + 1:]
+    hi = a[k]
+    if hi != hi or np.isnan(a[k + 1:]).any():
+        return math.nan
     if n % 2:
-        return hi * 1.0
-    lo = a[0]
-    for i in range(1, k):
-        lo = max(lo, a[i])
-    return (lo + hi) * 0.5
+        return float(hi)
+    lo = a[:k].max()
+    return float((lo + hi) / a.dtype.type(2))
 
 
 @_jit
-def median_depth(depth, step):
-    """``terrain.geometry.median_depth_m``: the median of the finite, positive depths on the grid of every
-    ``step``-th pixel (NaN: none)."""
+def valid_depths(depth, step):
+    """The finite, positive depths on the grid of every ``step``-th pixel, row by row."""
     buf = np.empty(((depth.shape[0] + step - 1) // step) * ((depth.shape[1] + step - 1) // step), depth.dtype)
     n = 0
     for j in range(0, depth.shape[0], step):
@@ -373,7 +444,13 @@ def median_depth(depth, step):
             if d > 0 and d < np.inf:
                 buf[n] = d
                 n += 1
-    return median_inplace(buf[:n])
+    return buf[:n]
+
+
+def median_depth(depth: np.ndarray, step: int) -> float:
+    """``terrain.geometry.median_depth_m``: the median of the finite, positive depths on the grid of every
+    ``step``-th pixel (NaN: none)."""
+    return median_inplace(valid_depths(depth, step))
 
 
 @_jit
@@ -391,22 +468,33 @@ def sweep(owner, cx, cy, reach, empty):
             owner[k] = empty
 
 
-def bin_frame(a: np.ndarray, b: np.ndarray | None, rx: np.ndarray, ry: np.ndarray, r: np.ndarray, off_x: float,
-              off_y: float, inv: float, half: int, min_samples: int, t: np.ndarray, cell: float, cxy: tuple[int, int],
-              pose_var2: float, rad2: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                      np.ndarray, np.ndarray]:
+def bin_frame(a: np.ndarray, rx: np.ndarray, ry: np.ndarray, r: np.ndarray, off_x: float, off_y: float, inv: float,
+              half: int, min_samples: int, t: np.ndarray, cell: float, cxy: tuple[int, int], pose_var2: float,
+              rad2: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                    np.ndarray]:
     """``bin_samples`` with its arguments in the types it was compiled for (one compilation serves every frame):
-    ``b`` None: ``a`` is the depth, else the block means (inverse depth, validity)."""
+    ``a`` the samples' depth (the frame's, or its ``block_depths``)."""
     if half > MAX_HALF:
         raise ConfigError("terrain.fusion.window_m", f"{2 * half + 2} cells wide; the fusion takes at most "
                           f"{2 * MAX_HALF + 2}: make it smaller, or the cells larger "
                           "(terrain.fusion.cells_per_footprint)")
     f32 = np.float32
-    a = readonly(a, f32) if b is None else depth_of_blocks(readonly(a, f32), readonly(b, f32))
-    return bin_samples(a, readonly(rx.reshape(-1), f32),
+    return bin_samples(readonly(a, f32), readonly(rx.reshape(-1), f32),
                        readonly(ry.reshape(-1), f32), np.array(r, f32), f32(off_x), f32(off_y), f32(inv), int(half),
                        int(min_samples), np.array(t, np.float64), float(cell), np.array(cxy, np.int64),
                        float(pose_var2), float(rad2))
+
+
+def block_depths(depth: np.ndarray, block: int) -> np.ndarray:
+    """The depth of block x block means of inverse depth, 0 where a block has none (``terrain.geometry.
+    block_depth``): by ``area_block_depth`` where the frame's sides are multiples of ``block`` (cv2's whole-factor
+    area resize), else by ``block_means`` (cv2's fractional one)."""
+    d = readonly(depth, np.float32)
+    h, w = d.shape
+    if block > 1 and h % block == 0 and w % block == 0:
+        return area_block_depth(d, int(block), CV_AREA_LANES)
+    a, b = block_means(d, block)
+    return depth_of_blocks(readonly(a, np.float32), readonly(b, np.float32))
 
 
 def block_means(depth: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
@@ -434,15 +522,17 @@ def warm_up() -> None:
     t = np.zeros(3)
     cam = np.ones(4)
     one = np.ones((2, 2), np.float32)
-    for b in (None, one):
-        bin_frame(one, b, np.zeros(2), np.zeros(2), r, 0.0, 0.0, 1.0, 4, 2, t, 1.0, (0, 0), 0.0, 0.0)
+    bin_frame(one, np.zeros(2), np.zeros(2), r, 0.0, 0.0, 1.0, 4, 2, t, 1.0, (0, 0), 0.0, 0.0)
     block_means(one, 1)
+    block_depths(one, 1)
+    block_depths(one, 2)
     f32 = np.float32
     ray = readonly(np.zeros(2), f32)
     pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)
-    median_depth(readonly(one, np.float32), 4)
-    median_inplace(np.zeros(2))
+    valid_depths(readonly(one, np.float32), 4)
     sweep(np.zeros(1, np.int64), 0, 0, 1, -1)
+    region_cells(np.zeros(1, np.int64), np.zeros((1, 13)), np.zeros(1, np.int32), np.zeros(1, np.int32),
+                 np.zeros(1, bool), 0, 0, 1, 1, 1, 0.0)
     i = np.zeros(1, np.int64)
     x = np.zeros(1)
     owner = np.zeros(1, np.int64)

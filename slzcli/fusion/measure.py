@@ -187,10 +187,10 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
     f = 0.5 * (intr.fx + intr.fy)
     m = sample_block_px(z_med, f, params)
     if m > 1:
-        a, b = kernels.block_means(depth, m)
+        a = kernels.block_depths(depth, m)
         intr_b = fit_intrinsics(intr, a.shape)
     else:
-        a, b, intr_b = depth, None, intr
+        a, intr_b = depth, intr
     rx, ry = pixel_rays(intr_b)
     T = np.asarray(T_world_camera, dtype=np.float64)
     t = T[:3, 3]
@@ -199,7 +199,7 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
     cxy = (math.floor(t[0] * inv), math.floor(t[1] * inv))
     rad2 = params.pose_sigma_rad ** 2 if params.pose_sigma_rad > 0 else 0.0
     found, cells_x, cells_y, h, spread, zc, upc, pose_var = kernels.bin_frame(
-        a, b, rx, ry, T[:3, :3], t[0] % params.cell_m, t[1] % params.cell_m, inv, params.side_cells // 2 - 1,
+        a, rx, ry, T[:3, :3], t[0] % params.cell_m, t[1] % params.cell_m, inv, params.side_cells // 2 - 1,
         _MIN_SAMPLES, t, params.cell_m, cxy, params.pose_sigma_m ** 2, rad2)
     if not found:
         return None

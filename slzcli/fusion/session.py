@@ -16,7 +16,7 @@ from slzcli.config import Config
 from slzcli.fusion import kernels
 from slzcli.fusion.advice import Advice, advise
 from slzcli.fusion.grid import FusedGrid, FuseStats, fuse, region, region_around
-from slzcli.fusion.measure import FusionParams, frame_limit_ratios, measure_frame
+from slzcli.fusion.measure import FusionParams, measure_frame
 from slzcli.fusion.verdict import SAFE, FusedMaps, FusedSite, best_site, fused_maps
 from slzcli.geometry import fit_intrinsics, pixel_rays
 from slzcli.terrain.geometry import median_depth_m
@@ -125,8 +125,6 @@ class FusedTerrain:
         from slzcli.terrain.limits import working_scale
 
         work = working_scale(self.noise, self.depth_m, self.focal_px, self.config.terrain, self.config.uav)
-        step_ratio, _ = frame_limit_ratios(self.noise, self.depth_m, self.focal_px, self.config, self.params)
-        del step_ratio
         return advise(fm, self.params, self.shift_per_frame_px(), self.depth_m, self.focal_px, work.step_min_m,
                       math.tan(math.radians(work.slope_min_deg)), hover)
 

@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from slzcli.config import Config
+from slzcli.fusion import kernels
 from slzcli.fusion.grid import Region
 from slzcli.fusion.measure import FusionParams
 from slzcli.landing.raised import Raised, RaisedParams, above_ground, raised_params
@@ -113,32 +114,44 @@ def _box(a: np.ndarray, n: int) -> np.ndarray:
     return cv2.boxFilter(a, cv2.CV_64F, (n, n), normalize=False, borderType=cv2.BORDER_CONSTANT)
 
 
-def _window_moments(hz: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tuple[np.ndarray, ...]:
-    """Over every n x n window of the seen cells (``hz`` 0 where not seen): the count s1 and the second moments
-    sxx, syy, sxy, sxh, syh, shh of (x, y, h) about the window's own centroid (which keeps the sums well
-    conditioned), what a plane fit and the surface variation both need."""
+def _window_terms(hz: np.ndarray, ok: np.ndarray, cell: float) -> tuple[np.ndarray, ...]:
+    """The per-cell terms whose n x n window sums give ``_window_moments`` at any n (``hz`` 0 where not seen):
+    the weight w and w x, w y, w h, w x x, w y y, w x y, w x h, w y h, w h h, each product once (w x x is (w x) x,
+    the same bits). The maps' three window sizes share them."""
     w = ok.astype(np.float64)
     ny, nx = hz.shape
     x = np.broadcast_to(np.arange(nx, dtype=np.float64)[None, :] * cell, hz.shape)
     y = np.broadcast_to(np.arange(ny, dtype=np.float64)[:, None] * cell, hz.shape)
+    wx, wy, wh = w * x, w * y, w * hz
+    return w, wx, wy, wh, wx * x, wy * y, wx * y, wx * hz, wy * hz, wh * hz
+
+
+def _window_moments(terms: tuple[np.ndarray, ...], n: int) -> tuple[np.ndarray, ...]:
+    """Over every n x n window of the seen cells (``_window_terms``): the count s1 and the second moments
+    sxx, syy, sxy, sxh, syh, shh of (x, y, h) about the window's own centroid (which keeps the sums well
+    conditioned), what a plane fit and the surface variation both need."""
+    w, wx, wy, wh, wxx, wyy, wxy, wxh, wyh, whh = terms
     s1 = _box(w, n)
-    wx, wy, wh = w * x, w * y, w * hz     # each product once: w x x is (w x) x, the same bits
     with np.errstate(invalid="ignore", divide="ignore"):
         mx, my, mh = _box(wx, n) / s1, _box(wy, n) / s1, _box(wh, n) / s1
-        sxx = _box(wx * x, n) / s1 - mx * mx
-        syy = _box(wy * y, n) / s1 - my * my
-        sxy = _box(wx * y, n) / s1 - mx * my
-        sxh = _box(wx * hz, n) / s1 - mx * mh
-        syh = _box(wy * hz, n) / s1 - my * mh
-        shh = _box(wh * hz, n) / s1 - mh * mh
+        sxx = _box(wxx, n) / s1 - mx * mx
+        syy = _box(wyy, n) / s1 - my * my
+        sxy = _box(wxy, n) / s1 - mx * my
+        sxh = _box(wxh, n) / s1 - mx * mh
+        syh = _box(wyh, n) / s1 - my * mh
+        shh = _box(whh, n) / s1 - mh * mh
     return s1, sxx, syy, sxy, sxh, syh, shh
 
 
-def _plane_fit(h: np.ndarray, ok: np.ndarray, n: int, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                                          np.ndarray, np.ndarray]:
+def _plane_fit(h: np.ndarray, ok: np.ndarray, n: int, cell: float,
+               terms: tuple[np.ndarray, ...] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                                    np.ndarray]:
     """Least-squares plane over every n x n window of cells: (slope gradient gx, gy (m/m), residual variance,
-    valid, the window's count of seen cells). A window needs 3/4 of its cells seen."""
-    s1, sxx, syy, sxy, sxh, syh, shh = _window_moments(np.where(ok, h, 0.0), ok, n, cell)
+    valid, the window's count of seen cells). A window needs 3/4 of its cells seen. ``terms``: the
+    ``_window_terms`` of (h where ``ok`` else 0, ``ok``) when the caller has them."""
+    if terms is None:
+        terms = _window_terms(np.where(ok, h, 0.0), ok, cell)
+    s1, sxx, syy, sxy, sxh, syh, shh = _window_moments(terms, n)
     with np.errstate(invalid="ignore", divide="ignore"):
         det = sxx * syy - sxy * sxy
         gx = (syy * sxh - sxy * syh) / det
@@ -176,12 +189,12 @@ def _steps(hc: np.ndarray, ok: np.ndarray, rows: int, half: int) -> tuple[np.nda
     """|s| of the step fitted across every cell along x (a step between columns, the kernel's rows running
     along y) and along y, each NaN where its window is not fully seen."""
     w, _ = step_kernel(rows, half)
-    okf = ok.astype(np.float64)
+    ok8 = ok.astype(np.uint8)
     out = []
     for kern in (w, np.ascontiguousarray(w.T)):
-        ones = (kern != 0).astype(np.float64)
         est = cv2.filter2D(hc, cv2.CV_64F, kern, borderType=cv2.BORDER_CONSTANT)
-        full = cv2.filter2D(okf, cv2.CV_64F, ones, borderType=cv2.BORDER_CONSTANT) >= ones.sum() - 0.5
+        # every cell the kernel weighs is seen (beyond the region: not): a minimum, not a sum of ones
+        full = cv2.erode(ok8, (kern != 0).astype(np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
         out.append(np.where(full, np.abs(est), np.nan))
     return out[0], out[1]
 
@@ -199,7 +212,7 @@ def step_noise_scale(s_abs: np.ndarray, step_min: np.ndarray, k: float) -> float
     fin = np.isfinite(s_abs) & np.isfinite(step_min) & (step_min > 0)
     if not fin.any():
         return 1.0
-    return max(1.0, float(np.median(s_abs[fin] / (step_min[fin] / k))) / _HALF_NORMAL_MEDIAN)
+    return max(1.0, kernels.median_inplace(s_abs[fin] / (step_min[fin] / k)) / _HALF_NORMAL_MEDIAN)
 
 
 def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object) -> FusedMaps:
@@ -211,14 +224,15 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     refused = seen & (reg.rejected > params.two_heights_fraction * np.maximum(reg.frames, 1))
     ok = seen & ~refused
     h = np.where(ok, reg.h, np.nan)
-    ref = float(np.nanmedian(h)) if ok.any() else 0.0
+    ref = kernels.median_inplace(h[ok & ~np.isnan(h)]) if ok.any() else 0.0     # np.nanmedian(h)
     hc = np.where(ok, h - ref, 0.0)
     var = np.where(ok, reg.var, 0.0)
     var_mean = np.where(ok, var, 0.0)
 
     # depth variance: residual std about the 3 x 3 plane, the fused noise's share removed
     dv = terrain.depth_variance
-    _, _, res3, ok3, n3 = _plane_fit(hc, ok, 3, cell)
+    terms = _window_terms(hc, ok, cell)     # hc is 0 where not ok: the terms every window size sums
+    _, _, res3, ok3, n3 = _plane_fit(hc, ok, 3, cell, terms)
     with np.errstate(invalid="ignore", divide="ignore"):
         noise3 = _box(var_mean, 3) / np.maximum(n3, 1) * (n3 - 3) / np.maximum(n3, 1)
     s = np.sqrt(np.maximum(res3 - noise3, 0.0))
@@ -226,7 +240,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
 
     # steepness: the plane over the footprint's cells (the widest window the per-frame path uses)
     n_fp = max(3, _odd(max(uav.footprint_m) / cell))
-    gx, gy, _, okf, _ = _plane_fit(hc, ok, n_fp, cell)
+    gx, gy, _, okf, n_seen_fp = _plane_fit(hc, ok, n_fp, cell, terms)
     tan_psi = np.hypot(np.where(okf, gx, 0.0), np.where(okf, gy, 0.0))   # a degenerate window's gradient is inf
     psi = np.arctan(tan_psi)
     slope_deg = np.where(okf, np.degrees(psi), np.nan)
@@ -235,7 +249,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # inclination: surface variation of the cells within radius_m (an equal-area square)
     inc = terrain.inclination
     n_r = max(3, _odd(2.0 * _EQUAL_AREA_HALF_SIDE * inc.radius_m / cell))
-    s1, cxx, cyy, cxy, cxh, cyh, chh = _window_moments(hc, ok, n_r, cell)   # hc is 0 on unseen cells
+    s1, cxx, cyy, cxy, cxh, cyh, chh = _window_moments(terms, n_r)
     with np.errstate(invalid="ignore", divide="ignore"):
         chh = np.maximum(chh - _box(var_mean, n_r) / s1, 0.0)
         lam = eigvalsh3(cxx, cxy, cxh, cyy, cyh, chh)
@@ -309,7 +323,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
         fine_y = s_y + lim_y <= uav.max_step_m
         step_bad = (s_x - kb * lim_x > uav.max_step_m) | (s_y - kb * lim_y > uav.max_step_m)
         # the limits hold for a full window: a plane over a window cut by the edge of the seen ground is neither
-        full = _box(ok.astype(np.float64), n_fp) >= n_fp * n_fp - 0.5
+        full = n_seen_fp >= n_fp * n_fp - 0.5
         slope_fine = okf & full & (tan_psi + tan_min <= tan_lim)
         steep = okf & full & (tan_psi - kb * tan_min > tan_lim)
     # decided over the square and the widest window around it (the maps' and the smoothing's): every score of

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from fusion_scene import INTR, Block, exact_depth, pose
@@ -18,7 +19,7 @@ from fusion_scene import INTR, Block, exact_depth, pose
 from slzcli.config import load_config
 from slzcli.errors import ConfigError
 from slzcli.fusion import kernels
-from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, cell_key, fuse, sweep_due
+from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, Region, cell_key, fuse, region, sweep_due
 from slzcli.fusion.kernels import PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, C, H, U, V
 from slzcli.fusion.measure import (
     _MIN_SAMPLES,
@@ -342,6 +343,69 @@ def test_fuse_is_the_array_expressions_to_the_bit(seed: int) -> None:
     assert rejected > 0 and taken > 0      # the gate rejected some, new cells took slots over
 
 
+def numpy_region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
+    """``grid.region`` in numpy (as it was written before its compiled gather)."""
+    s = grid.params.side_cells
+    nx, ny = min(nx, s), min(ny, s)
+    ix = np.arange(x0, x0 + nx, dtype=np.int64)[None, :]
+    iy = np.arange(y0, y0 + ny, dtype=np.int64)[:, None]
+    k = np.mod(iy, s) * s + np.mod(ix, s)
+    seen = grid.owner[k] == cell_key(ix, iy)
+    st = grid.state[k]
+
+    def f(i: int) -> np.ndarray:
+        return np.where(seen, st[..., i], np.nan)
+
+    sig1 = f(SIG1)
+    var = f(PHH) + grid.params.fixed_fraction * sig1 * sig1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        looks = np.where(seen, sig1 * sig1 / var, 0.0).astype(np.float32)
+    zero = np.zeros(seen.shape)
+    return Region(x0, y0, grid.params.cell_m, seen, f(H), var, f(POSEV), looks,
+                  np.where(seen, grid.frames[k], 0), np.where(seen, grid.rejected[k], 0),
+                  np.where(seen, st[..., SPREAD], zero).astype(np.float32),
+                  np.where(seen, st[..., STEPR], zero).astype(np.float32),
+                  np.where(seen, st[..., TANR], zero).astype(np.float32), seen & grid.column[k],
+                  f(PHC), f(PCC), f(SIGC), sig1)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_region_is_the_array_expressions_to_the_bit(seed: int) -> None:
+    """A grid flown over (slots taken over by cells a window's side on, cells on both sides of 0): every
+    rectangle, inside the ground seen, across its edge, at negative indices, as wide as the window, gives the
+    numpy code's arrays, bit for bit and of the same types."""
+    rng = np.random.default_rng(300 + seed)
+    params = _params(12.0)
+    noise = DepthNoise(tuple(0.003 / np.sqrt(b) for b in (1, 2, 4, 8, 16)), "estimated")
+    grid = FusedGrid.empty(params)
+    x = y = 0.0
+    for i in range(8):
+        if i == 4:
+            x += params.side_cells * params.cell_m
+        x, y = x + 0.3 * rng.normal(), y + 0.3 * rng.normal()
+        T = _tilted(rng, x, y, float(rng.uniform(3.0, 7.0)))
+        cells = frame_cells(_frame(rng, T), INTR, T, noise, params, float(rng.uniform(1, 3)),
+                            float(rng.uniform(0, 1)))
+        assert cells is not None
+        fuse(grid, cells, i)
+    s = params.side_cells
+    cx, cy = int(np.floor(x / params.cell_m)), int(np.floor(y / params.cell_m))
+    boxes = [(cx - 20, cy - 15, 40, 30), (cx - s // 2, cy - s // 2, s, s), (cx - 5, cy - 5, s + 9, 3),
+             (-7, -9, 15, 12), (int(rng.integers(-200, 200)), int(rng.integers(-200, 200)), 25, 25)]
+    seen_any = 0
+    for box in boxes:
+        got, want = region(grid, *box), numpy_region(grid, *box)
+        for name in Region.__dataclass_fields__:
+            u, v = getattr(got, name), getattr(want, name)
+            if isinstance(v, np.ndarray):
+                assert u.dtype == v.dtype and u.shape == v.shape, (box, name)
+                assert np.array_equal(u, v, equal_nan=v.dtype.kind == "f"), (box, name)
+            else:
+                assert u == v, (box, name)
+        seen_any += int(got.seen.any() and not got.seen.all())
+    assert seen_any >= 2     # rectangles that cut the ground seen were compared
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_the_frame_median_is_numpys(seed: int) -> None:
     """Odd and even counts, holes of every kind, no depth at all; and another dtype goes to numpy itself."""
@@ -357,10 +421,18 @@ def test_the_frame_median_is_numpys(seed: int) -> None:
 
 
 def test_median_inplace_is_numpys_median() -> None:
+    """Odd and even counts, float64 and float32, ties, a NaN anywhere (then NaN), none at all."""
     rng = np.random.default_rng(0)
-    for n in (1, 2, 3, 10, 11, 1000, 1001):
-        for values in (rng.normal(size=n), rng.integers(0, 3, n).astype(np.float64)):
-            assert kernels.median_inplace(values.copy()) == np.median(values)
+    for n in (1, 2, 3, 10, 11, 1000, 1001, 20000, 20001):
+        for values in (rng.normal(size=n), rng.integers(0, 3, n).astype(np.float64),
+                       rng.uniform(0.1, 30, n).astype(np.float32)):
+            got = kernels.median_inplace(values.copy())
+            assert got == np.median(values) and isinstance(got, float)
+            if n > 1:
+                for at in (0, n // 2, n - 1):
+                    holed = values.copy()
+                    holed[at] = np.nan
+                    assert math.isnan(kernels.median_inplace(holed))
     assert math.isnan(kernels.median_inplace(np.array([1.0, np.nan, 2.0])))
     assert math.isnan(kernels.median_inplace(np.zeros(0)))
 
@@ -377,14 +449,46 @@ def test_block_means_are_block_depths() -> None:
         assert np.array_equal(got[ok], want[ok])
 
 
+_BITS_CHECKED_WITH = "5.0.0"    # the OpenCV whose area resize order CV_AREA_LANES copies
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_block_depths_are_the_same_bits_as_cv2s_block_means(seed: int) -> None:
+    """``block_depths`` (one compiled pass where the sides are multiples of the block, cv2's area resize
+    otherwise) against ``terrain.geometry.block_depth`` (cv2.resize INTER_AREA): the same bits at every block,
+    on frames whose block columns fill cv2's vectors and frames with columns left over (``CV_AREA_LANES``),
+    and on the D435's and the cache's sizes."""
+    rng = np.random.default_rng(200 + seed)
+    sizes = [(480, 848), (480, 640), (int(rng.integers(2, 40)) * 2, int(rng.integers(2, 40)) * 2 + 2),
+             (int(rng.integers(1, 30)) * 120, int(rng.integers(1, 10)) * 120 + 6)]
+    whole = 0
+    for h, w in sizes:
+        intr = Intrinsics(0.6 * w, 0.6 * w, w / 2, h / 2, w, h)
+        depth = _frame(rng, _tilted(rng, 0.0, 0.0, float(rng.uniform(3, 12))), intr)
+        for block in (2, 3, 4, 5, 6, 8):
+            if block > min(h, w):
+                continue
+            got = kernels.block_depths(depth, block)
+            want, ok = block_depth(depth, valid_depth(depth), block)
+            assert got.shape == want.shape and np.array_equal(got > 0, ok), (h, w, block)
+            # the same bits with this build's 4-lane order (constraints.txt); an OpenCV built with another vector
+            # width sums in another order: within a few float32 ulp then, which is all the fusion needs
+            ulp = np.abs(got[ok].view(np.int32).astype(np.int64) - want[ok].view(np.int32).astype(np.int64))
+            assert ulp.max(initial=0) <= 4, (h, w, block, int(ulp.max()))
+            if cv2.__version__ == _BITS_CHECKED_WITH:
+                assert not ulp.any(), (h, w, block)
+            whole += h % block == 0 and w % block == 0
+    assert whole >= 8      # the compiled pass was checked, not only the fallback
+
+
 def test_a_window_wider_than_the_binning_holds_is_refused() -> None:
     """The samples' cells are int16: a window of more cells is a config error naming its key, never a wrap."""
     one = np.ones((2, 2), np.float32)
     args = (np.zeros(2), np.zeros(2), np.eye(3), 0.0, 0.0, 1.0)
     rest = (2, np.zeros(3), 1.0, (0, 0), 0.0, 0.0)
-    assert kernels.bin_frame(one, None, *args, kernels.MAX_HALF, *rest)[0] == 1
+    assert kernels.bin_frame(one, *args, kernels.MAX_HALF, *rest)[0] == 1
     with pytest.raises(ConfigError, match=r"terrain\.fusion\.window_m"):
-        kernels.bin_frame(one, None, *args, kernels.MAX_HALF + 1, *rest)
+        kernels.bin_frame(one, *args, kernels.MAX_HALF + 1, *rest)
 
 
 def test_the_sweep_forgets_what_numpy_forgot() -> None:
@@ -444,3 +548,37 @@ def test_pixel_cells_are_the_array_expressions(seed: int) -> None:
     want = numpy_pixel_cells(depth, INTR, T, origin, cell, (ny, nx))
     assert got.dtype == want.dtype and np.array_equal(got, want)
     assert 0 < np.count_nonzero(got < nx * ny) < got.size
+
+
+def test_the_verdicts_shared_window_terms_and_step_windows_are_the_same_bits() -> None:
+    """``verdict._plane_fit`` on the window terms the maps share gives what it gives from the heights alone, and
+    ``verdict._steps``' full windows (an erosion) are those of the sum of ones it replaced (random holes, a corner
+    unseen, every window size the maps use)."""
+    import cv2
+
+    from slzcli.fusion.verdict import _plane_fit, _steps, _window_terms, step_kernel
+
+    rng = np.random.default_rng(7)
+    some = 0
+    for _ in range(12):
+        ny, nx = (int(v) for v in rng.integers(5, 200, 2))
+        ok = rng.random((ny, nx)) > rng.uniform(0, 0.1)
+        ok[: rng.integers(0, ny), : rng.integers(0, nx)] = False
+        h = rng.normal(0, 0.1, (ny, nx)) + 0.01 * np.arange(nx)[None, :]
+        hc = np.where(ok, h, 0.0)
+        rows = int(rng.choice([3, 5, 7, 9, 11, 13, 15]))
+        terms = _window_terms(hc, ok, 0.082)
+        for n in (3, rows):
+            for a, b in zip(_plane_fit(h, ok, n, 0.082), _plane_fit(hc, ok, n, 0.082, terms), strict=True):
+                assert np.array_equal(a, b, equal_nan=True)
+        half = max(2, rows // 2)
+        w, _ = step_kernel(rows, half)
+        got = _steps(hc, ok, rows, half)
+        for kern, s in zip((w, np.ascontiguousarray(w.T)), got, strict=True):
+            ones = (kern != 0).astype(np.float64)
+            est = cv2.filter2D(hc, cv2.CV_64F, kern, borderType=cv2.BORDER_CONSTANT)
+            full = cv2.filter2D(ok.astype(np.float64), cv2.CV_64F, ones,
+                                borderType=cv2.BORDER_CONSTANT) >= ones.sum() - 0.5
+            assert np.array_equal(s, np.where(full, np.abs(est), np.nan), equal_nan=True)
+            some += int(0 < np.count_nonzero(full) < full.size)
+    assert some >= 12       # windows full and not full were compared
