@@ -16,10 +16,13 @@ edge, and the ground truth counts only the ground as landable. The rule, with he
    of the annulus, not a ditch or a strip beside the site, which are the edge clearance's and the flatness
    map's business), a plane fitted through them (free slope: a gentle slope's own ground is its plane, and
    the site's noisy normal is not extrapolated 3 m), its height at the site, with the noise share that
-   choosing the lowest cells picks removed (``phi(z) / share`` sigma, a point's sigma: it errs low). On fused
-   cells (``around_var`` given) the ground's sigma is the largest of the site's, the cells' stated one and their
-   scatter about that plane over the lowest share's own std (0.53 sigma at a third): ground noisier than the
-   site, or errors correlated into stripes, must not read as a lower surface;
+   choosing the lowest cells picks removed (``phi(z) / share`` sigma, sigma the cells' own scatter about that
+   plane over the lowest share's std, 0.53 at a third; per frame at most a point's sigma, which bounds a cell
+   mean's: relief among the lowest cells is not noise). A point's sigma there lifted the ground by up to
+   ~0.05 m where depth noise is independent per pixel and passed a 0.2 m box top. The plane's standard error
+   takes per frame the smaller of the two, on fused cells (``around_var`` given) the largest of the site's
+   sigma, the cells' stated one and their scatter: ground noisier than the site, or errors correlated into
+   stripes, must not read as a lower surface;
 4. raised: the site's level above that exceeds the UAV's step tolerance (``uav.max_step_m``) by
    ``margin_sigma`` standard errors (the plane's at the site, which grows when the low cells lie to one
    side, and the site level's). A terrace or a kerb within the tolerance is ground.
@@ -189,16 +192,22 @@ def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, a
     sigma_g = sigma if var_h is None else max(sigma, math.sqrt(float(np.mean(var_h[low]))))
     a = np.column_stack([np.ones(int(low.sum())), xy[low]])
     gram = a.T @ a
+    sigma_pick = sigma_g
     if low.sum() >= 4 and np.linalg.cond(gram) < 1e12:
         coef = np.linalg.solve(gram, a.T @ h[low])
-        if var_h is not None:
-            resid = h[low] - a @ coef
-            sigma_g = max(sigma_g, float(np.sqrt(np.sum(resid * resid) / (low.sum() - 3))) / _lowest_share_std(share))
+        resid = h[low] - a @ coef
+        scatter = float(np.sqrt(np.sum(resid * resid) / (low.sum() - 3))) / _lowest_share_std(share)
+        # per frame, the plane goes through cell means, whose noise a point's sigma bounds from above (relief
+        # among the lowest cells, a wall or a rock, makes their scatter larger: not noise)
+        sigma_g = min(sigma_g, scatter) if var_h is None else max(sigma_g, scatter)
+        sigma_pick = sigma_g if var_h is None else scatter
         ground_h, se_ground = float(coef[0]), sigma_g * math.sqrt(float(np.linalg.inv(gram)[0, 0]))
     else:
         ground_h, se_ground = float(np.median(h[low])), sigma_g * math.sqrt(math.pi / 2 / max(int(low.sum()), 1))
-    # choosing the lowest cells picks their noise too: level ground's lowest share lies phi(z)/share sigma low
-    ground_h += _lowest_share_bias(share) * sigma_g
+    # choosing the lowest cells picks their noise too: level ground's lowest share lies phi(z)/share sigma low,
+    # sigma the noise that picked them, the cells' own scatter (a point's sigma, or a stated std that errors the
+    # cells share make larger, would lift the ground by more than the choice lowered it and pass a low box top)
+    ground_h += _lowest_share_bias(share) * sigma_pick
     height = level - ground_h
     se = se_ground + sigma * math.sqrt(math.pi / 2 / n_site)
     threshold = tol + params.confidence_sigma * se
