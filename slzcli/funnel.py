@@ -30,6 +30,7 @@ from typing import TypedDict
 
 import numpy as np
 
+from slzcli.landing.raised import NOT_TOLD
 from slzcli.types import MASK_STEPS, Detection, MaskFunnel, TerrainMaps
 
 STEP_TEXT = {"threshold": "the score threshold", "footprint": "the footprint clearance",
@@ -215,8 +216,9 @@ class FunnelLog:
             return f"{head}: {need}; more flight over the safe ground gives more map points"
         tests = ", ".join(f"{v} {CLUSTER_TESTS.get(k, k)}" for k, v in failed.most_common())
         raised = [f.raised for f in selected if f.raised]
-        lead = (f"the best site is {raised[-1]}: a UAV that misses it by its landing error drops off an edge; "
-                if raised else "")
+        edge = ("" if not raised or NOT_TOLD in raised[-1]
+                else ": a UAV that misses it by its landing error drops off an edge")
+        lead = f"the best site is {raised[-1]}{edge}; " if raised else ""
         tail = ""
         if failed and failed.most_common(1)[0][0] in ("extent", "points", "normals"):
             tail = ("; the safe patches are smaller than the footprint or hold too few map points: more flight "

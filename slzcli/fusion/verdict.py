@@ -100,7 +100,8 @@ class FusedMaps:
 
     @property
     def raised(self) -> np.ndarray:
-        """The cells of the patches the raised-surface rule refused (UNSAFE for it, SAFE but for it)."""
+        """The cells of the patches the raised-surface rule refused (SAFE but for it: UNSAFE where raised beyond
+        doubt, else UNDECIDED)."""
         return np.array([False, *(t.refused for t in self.patch_tests)])[self.patch]
 
     def raised_lead(self) -> str:
@@ -357,8 +358,11 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     verdict = np.full(hc.shape, UNSEEN, np.uint8)
     safe = ok & mask & decided & fine & reg.column
     patch, tests = raised_patches(reg, ok, safe, clear_score, raised_params(config))
-    raised = np.array([False, *(t.refused for t in tests)])[patch]
-    safe &= ~raised
+    # a patch the rule refuses is not safe: UNSAFE where it is raised beyond doubt, UNDECIDED where its height is
+    # not told from the tolerance (fewer looks or a higher camera than it needs)
+    held = np.array([False, *(t.refused for t in tests)])[patch]
+    raised = np.array([False, *(t.raised for t in tests)])[patch]
+    safe &= ~held
     unsafe = seen & ~safe & (defect | (~mask & mask_conclusive) | refused | raised)
     verdict[seen] = UNDECIDED
     verdict[unsafe] = UNSAFE

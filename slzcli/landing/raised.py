@@ -23,9 +23,11 @@ edge, and the ground truth counts only the ground as landable. The rule, with he
    takes per frame the smaller of the two, on fused cells (``around_var`` given) the largest of the site's
    sigma, the cells' stated one and their scatter: ground noisier than the site, or errors correlated into
    stripes, must not read as a lower surface;
-4. raised: the site's level above that exceeds the UAV's step tolerance (``uav.max_step_m``) by
-   ``margin_sigma`` standard errors (the plane's at the site, which grows when the low cells lie to one
-   side, and the site level's). A terrace or a kerb within the tolerance is ground.
+4. ground only when the site's level above that stays within the UAV's step tolerance (``uav.max_step_m``)
+   by ``margin_sigma`` standard errors (the plane's at the site, which grows when the low cells lie to one
+   side, and the site level's): beyond the tolerance by that margin it is raised; within the margin of it,
+   not told from raised, and refused as well (a wrong site is worse than none). A terrace or a kerb within
+   the tolerance is ground.
 
 Fewer than ``min_cells`` plan cells with a point in the annulus (the view holds too little around the
 site): not measured, the site is not refused by this rule (``Raised.measured`` False says so).
@@ -53,6 +55,7 @@ if TYPE_CHECKING:
 _MAD_TO_SIGMA = 1.4826  # a normal's std over its median absolute deviation
 _MAD_EFFICIENCY = 0.37  # the MAD's variance efficiency against the std for normal noise: its effective dof share
 _SIGMA_BOUND = 0.05     # the noise is taken at its one-sided 95 % upper bound: a few points under-read it
+NOT_TOLD = "not told from one"   # a refusal's words when the height is within the margin of the tolerance
 
 
 @dataclass(frozen=True)
@@ -98,18 +101,30 @@ class Raised:
     """What the rule found for one site."""
 
     height_m: float | None   # the site's surface above the ground around it (None: not measured)
-    threshold_m: float       # the height it had to exceed to be refused (tolerance + margin)
+    threshold_m: float       # the height above which it is raised beyond doubt (tolerance + margin)
     points: int              # plan cells of the annulus with a point
-    refused: bool
+    refused: bool            # raised, or not told from raised: height + margin above the tolerance
+    margin_m: float = 0.0    # margin_sigma standard errors of the height
 
     @property
     def measured(self) -> bool:
         return self.height_m is not None
 
+    @property
+    def raised(self) -> bool:
+        """Raised beyond doubt (else a refusal says the height cannot be told from the tolerance)."""
+        return self.height_m is not None and self.height_m > self.threshold_m
+
     def reason(self) -> str:
         """The words of a refusal (a Candidate's reason)."""
-        return (f"on a surface {self.height_m or 0.0:.1f} m above the ground around it (more than the UAV's "
-                f"step tolerance, uav.max_step_m, by the noise margin: {self.threshold_m:.2f} m)")
+        h = self.height_m or 0.0
+        tol = self.threshold_m - self.margin_m
+        if self.raised:
+            return (f"on a surface {h:.1f} m above the ground around it (more than the UAV's step tolerance, "
+                    f"uav.max_step_m, by the noise margin: {self.threshold_m:.2f} m)")
+        return (f"on a surface {h:.2f} +- {self.margin_m:.2f} m above the ground around it: {NOT_TOLD} "
+                f"higher than the UAV's step tolerance, uav.max_step_m {tol:.2f} m, at this noise (from lower, "
+                "or fused over more looks, the margin shrinks)")
 
 
 def _cell_means(rel: np.ndarray, up: np.ndarray, cell_m: float,
@@ -210,5 +225,7 @@ def above_ground(centre: np.ndarray, normal: np.ndarray, site_xyz: np.ndarray, a
     ground_h += _lowest_share_bias(share) * sigma_pick
     height = level - ground_h
     se = se_ground + sigma * math.sqrt(math.pi / 2 / n_site)
-    threshold = tol + params.confidence_sigma * se
-    return Raised(height, threshold, n_ring, height > threshold)
+    margin = params.confidence_sigma * se
+    # a site is ground only when its height is within the tolerance beyond doubt: a surface read within the
+    # margin of it may be a box top a few centimetres too high (a D435 from 5 m read a 0.2 m top at 0.09-0.16 m)
+    return Raised(height, tol + margin, n_ring, height + margin > tol, margin)

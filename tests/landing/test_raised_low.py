@@ -17,7 +17,7 @@ from fusion_scene import INTR, Block, cell_centres, exact_depth, fly, pose
 from slzcli.config import load_config
 from slzcli.fusion.verdict import SAFE, FusedMaps, best_site
 from slzcli.geometry import back_project, transform_points
-from slzcli.landing.raised import Raised, above_ground, raised_params, surroundings
+from slzcli.landing.raised import NOT_TOLD, Raised, above_ground, raised_params, surroundings
 
 CFG = load_config(None, [])
 PARAMS = raised_params(CFG)
@@ -51,14 +51,17 @@ def test_per_frame_a_box_top_0_2_m_up_is_refused_with_pixel_independent_noise() 
         assert 0.14 <= (r.height_m or 0.0) <= 0.23
 
 
-def test_per_frame_level_ground_and_a_box_top_within_the_tolerance_are_not_refused() -> None:
-    """Same frames: level ground reads -0.036..0.006 m (the old code -0.122..-0.048), a 0.06 m top 0.024-0.064 m,
-    against thresholds 0.139-0.163: neither refused. Allowed |h| <= 0.06 (margin 0.024) and the 0.06 top
-    within 0.05 of its height (margin 0.014)."""
+def test_per_frame_level_ground_is_ground_and_a_box_top_near_the_tolerance_is_not_told() -> None:
+    """Same frames: level ground reads -0.036..0.006 m (the old code -0.122..-0.048) with margins 0.052-0.073:
+    height + margin <= 0.077, ground beyond doubt (tolerance 0.09, margin 0.013). A 0.06 m top reads 0.024-0.064 m
+    with margins 0.049-0.069: not told from a top above the tolerance, refused so, never called raised (its
+    raised threshold 0.139-0.163). Allowed |h| <= 0.06 (margin 0.024), the top within 0.05 of its height
+    (margin 0.014)."""
     for seed in range(8):
         level, low = per_frame(0.0, seed), per_frame(0.06, seed)
         assert level.measured and not level.refused and abs(level.height_m or 0.0) <= 0.06, (seed, level)
-        assert low.measured and not low.refused and abs((low.height_m or 0.0) - 0.06) <= 0.05, (seed, low)
+        assert low.measured and low.refused and not low.raised, (seed, low)
+        assert NOT_TOLD in low.reason() and abs((low.height_m or 0.0) - 0.06) <= 0.05, (seed, low)
 
 
 # ---------------------------------------------------------------- the fused path
