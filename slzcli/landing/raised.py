@@ -4,10 +4,10 @@ A flat box top or a car roof passes every test of the maps (flat, level, clear o
 edge clearance) and yet is no place to land: a UAV that misses it by its landing error drops off an
 edge, and the ground truth counts only the ground as landable. The rule, with heights along gravity (``up``):
 
-1. the site's own surface: its points' scatter about the plane through its centre with its normal
-   (1.4826 MAD, at its one-sided 95 % upper bound for the number of points: five points may under-read it
-   by half) is the points' noise ``sigma``, measured at this range on this sensor; its level: the points'
-   median height;
+1. the site's own surface: its points' scatter about the plane through its centre with its normal (per frame
+   the plane fitted to its points, ``fitted_normal``; fused, the cells' own fit) (1.4826 MAD, at its one-sided
+   95 % upper bound for the number of points: five points may under-read it by half) is the points' noise
+   ``sigma``, measured at this range on this sensor; its level: the points' median height;
 2. the ground around it: the frame's depth on a pixel grid (``surroundings``; the SLAM map points crowd on
    texture), the samples whose plan distance from the centre lies in the annulus from the landing
    square's corner radius (the site's own square left out) to ``ground_radius_m``, averaged per plan cell
@@ -55,6 +55,7 @@ if TYPE_CHECKING:
 _MAD_TO_SIGMA = 1.4826  # a normal's std over its median absolute deviation
 _MAD_EFFICIENCY = 0.37  # the MAD's variance efficiency against the std for normal noise: its effective dof share
 _SIGMA_BOUND = 0.05     # the noise is taken at its one-sided 95 % upper bound: a few points under-read it
+_PLANE_REFIT = 3.0      # sigmas: points beyond it from a first plane fit are left out of the second
 NOT_TOLD = "not told from one"   # a refusal's words when the height is within the margin of the tolerance
 
 
@@ -94,6 +95,28 @@ def surroundings(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np
     xyz = back_project(sub, intrinsics.scaled(sub.shape[1], sub.shape[0]))
     pts = xyz[np.all(np.isfinite(xyz), axis=2)]
     return transform_points(T_world_camera, pts)
+
+
+def fitted_normal(points: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """The normal of the least-squares plane through ``points`` (n, 3), refitted once without the points beyond
+    ``_PLANE_REFIT`` sigma of the first fit (a stray map point off the surface would tilt it); ``fallback`` for
+    fewer than three points or a degenerate set."""
+    good = points[np.all(np.isfinite(points), axis=1)]
+    for _ in range(2):
+        if good.shape[0] < 3:
+            return fallback
+        q = good - good.mean(axis=0)
+        _, s, vt = np.linalg.svd(q, full_matrices=False)
+        if s[1] <= 0.0:
+            return fallback
+        n = vt[-1]
+        d = q @ n
+        scale = _MAD_TO_SIGMA * float(np.median(np.abs(d - np.median(d))))
+        keep = np.abs(d - np.median(d)) <= _PLANE_REFIT * scale
+        if scale <= 0.0 or keep.all():
+            break
+        good = good[keep]
+    return n
 
 
 @dataclass(frozen=True)
