@@ -72,6 +72,7 @@ from slzcli.evaluate.safety import MaskCounts, mask_counts, total
 from slzcli.evaluate.slam import ate_by_segment
 from slzcli.evaluate.truth import ground_truth_of
 from slzcli.geometry import project
+from slzcli.landing.commit import commit_radius_m
 from slzcli.methods.base import build
 from slzcli.methods.registry import names as method_names
 from slzcli.outputs import output_dir, report, run_lock
@@ -321,7 +322,7 @@ def _method(m: str, run: MethodRun, committed: CommittedSite | None, config: Con
     st = run.state
     timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
     timing["frame"] = _stats(run.frame_ms)
-    reason = no_site_reason(st, tracker.slam_name, len(tracker.keyframes))
+    reason = no_site_reason(st, tracker.slam_name, len(tracker.keyframes), commit_radius_m(config.landing, config.uav))
     site = None if committed is None else site_record(committed, site_truth(truth, committed))
     ground_truth = None
     if truth is not None:
@@ -348,7 +349,7 @@ def _summarise(path: Path, config: Config, methods: tuple[str, ...], runs: dict[
                noise: NoiseTracker, truth: GroundTruth | None, map_curves: dict[str, CurveCounts],
                map_means: dict[str, list[float]], agreement: dict[str, list[MaskCounts]],
                wall_s: float) -> Compared:
-    committed_of = {m: commit(run.state.sites.sites, config.landing, config.uav) for m, run in runs.items()}
+    committed_of = {m: commit(run.state.sites, config.landing, config.uav) for m, run in runs.items()}
     per = {m: _method(m, run, committed_of[m], config, tracker, truth) for m, run in runs.items()}
     pairs = tuple(_pair(a, b, runs, committed_of, agreement.get(f"{a}|{b}", []))
                   for i, a in enumerate(methods) for b in methods[i + 1:])

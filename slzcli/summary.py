@@ -20,7 +20,7 @@ from slzcli.config import Config
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
 from slzcli.funnel import FunnelLog
-from slzcli.landing.commit import spread_record
+from slzcli.landing.commit import commit_radius_m, refuted_reason, spread_record
 from slzcli.outputs.records_json import to_json_object
 from slzcli.outputs.results_mcap import MAP_FRAME, map_frame_of
 from slzcli.outputs.site_log import SiteLog
@@ -146,8 +146,11 @@ def untracked_frames(has_pose: np.ndarray, tracking: Mapping[str, int], slam_nam
     return UntrackedRecord(lost, round(share, 4), warning)
 
 
-def no_site_reason(st: RunState, slam_name: str, keyframes: int) -> str:
-    """Why a run found no site, from its RunState (``slz detect`` and ``slz compare``)."""
+def no_site_reason(st: RunState, slam_name: str, keyframes: int, radius_m: float) -> str:
+    """Why a run found no site, from its RunState (``slz detect`` and ``slz compare``); ``radius_m``: the commit
+    radius (``landing.commit.commit_radius_m``)."""
+    if st.sites.sites:   # sites were found and none committed: the raised-surface readings refuted them
+        return refuted_reason(st.sites.sites, st.sites.raised_readings(), radius_m)
     if st.detections == 0:
         return "no frame was due for detection (no keyframe was tracked)"
     if st.detections_without_depth == st.detections:
@@ -284,7 +287,7 @@ def summarise(facts: RunFacts, config: Config, st: RunState, committed: Committe
     table = segment_table(st.trajectory.segments(), st.trajectory.has_pose(), st.keyframes.per_segment)
     primary = primary_segment(table, None if committed is None else committed.segment)
     world = world_frame_text(facts.slam_name, facts.poses_are_recorded, table, primary)
-    reason = no_site_reason(st, facts.slam_name, len(st.keyframes))
+    reason = no_site_reason(st, facts.slam_name, len(st.keyframes), commit_radius_m(config.landing, config.uav))
     site: SiteRecord | None = None
     spread: SpreadRecord | None = None
     advice = decide_advice(st) if committed is None else None

@@ -463,6 +463,21 @@ class FoundSite:
     segment: int
 
 
+@dataclass(frozen=True, eq=False)
+class RaisedReadings:
+    """Every reading the raised-surface rule made of a run's clusters (``outputs.site_log.SiteLog``): plan
+    centre (n, 2) in its map segment's world frame, the segment, and whether the rule refused it (raised, or not
+    told from raised). Many detections read the same surface; the commit weighs them together."""
+
+    xy: np.ndarray
+    segment: np.ndarray
+    refused: np.ndarray
+
+    @classmethod
+    def empty(cls) -> RaisedReadings:
+        return cls(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, bool))
+
+
 @dataclass(frozen=True)
 class Ranked:
     """How a run's found sites rank (``landing.commit``): the committed site's index into the sites given, its

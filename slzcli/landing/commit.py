@@ -14,6 +14,12 @@ uses only what the ground gives a site, never the order detections arrived:
    middle of the good ground seen, whichever detections happened to see it. Ties go to the
    higher score, then the larger edge clearance, then the position (x, then y): never to a frame.
 
+Before any of that, a site the raised-surface rule's readings around it refute is left out: each detection
+reads the clusters it measures (landing/raised.py), so a surface seen from many frames is read many times, and
+where within ``radius_m`` of a site (same map segment) the readings that refused a cluster (raised, or not told
+from raised) outnumber those that passed one, the frame that chose it read the surface by luck (a D435 over a
+0.12 m box top from 5 m: 87 of 91 readings on the top refused it, the 3 frames that chose it not).
+
 The spread: another run sees other keyframes, so it may commit any site of this run's pool in
 the committed site's map segment (its equals change with the score's run-to-run noise). The
 largest plan distance between two of them is how far apart runs may land (``site_spread_m``
@@ -27,19 +33,54 @@ keyframe) commits the last detection's site, accepted or not.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from slzcli.types import FoundSite, Ranked
+from slzcli.types import FoundSite, RaisedReadings, Ranked
+
+if TYPE_CHECKING:
+    from slzcli.config import LandingCfg, UavCfg
 
 MIN_SITES_FOR_SPREAD = 3  # equally good sites needed to estimate the spread (two give one distance, no spread)
+
+
+def commit_radius_m(landing: LandingCfg, uav: UavCfg) -> float:
+    """How close (in plan, metres) two detections' site centres must be to confirm each other (and a raised-surface
+    reading to bear on a site)."""
+    return landing.commit_radius_factor * uav.footprint_m[0]
 
 
 def support_counts(xy: np.ndarray, segment: np.ndarray, radius_m: float) -> np.ndarray:
     """Per site: the sites of its own map segment within ``radius_m`` in plan, itself included."""
     near = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=2) <= radius_m
     return (near & (segment[:, None] == segment[None, :])).sum(axis=1)
+
+
+def refuted(xy: np.ndarray, segment: np.ndarray, readings: RaisedReadings,
+            radius_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per site (plan centres (n, 2), map segments): whether the raised-surface readings within ``radius_m`` of it
+    in its segment refused more clusters than they passed, and how many refused and passed."""
+    if len(xy) == 0 or len(readings.xy) == 0:
+        zero = np.zeros(len(xy), np.int64)
+        return np.zeros(len(xy), bool), zero, zero
+    near = (np.linalg.norm(xy[:, None, :] - readings.xy[None, :, :], axis=2) <= radius_m) \
+        & (segment[:, None] == readings.segment[None, :])
+    refused = (near & readings.refused[None, :]).sum(axis=1)
+    passed = (near & ~readings.refused[None, :]).sum(axis=1)
+    return refused > passed, refused, passed
+
+
+def refuted_reason(sites: Sequence[FoundSite], readings: RaisedReadings, radius_m: float) -> str:
+    """Why a run whose detections found sites commits none: the raised-surface readings refute every one."""
+    xy = np.array([s.site.center_world[:2] for s in sites], dtype=np.float64).reshape(-1, 2)
+    _, refused, passed = refuted(xy, np.array([s.segment for s in sites], np.int64), readings, radius_m)
+    best = int(np.argmax(passed / np.maximum(refused + passed, 1))) if len(sites) else 0
+    return (f"the raised-surface rule refutes every site the detection frames chose ({len(sites)}): around each, "
+            f"more of the clusters it read within {radius_m:.2f} m (landing.commit_radius_factor) were on a surface "
+            "it could not tell from one above the UAV's step tolerance, uav.max_step_m, than it passed (the best: "
+            f"{int(refused[best])} refused, {int(passed[best])} passed); fly lower over it, or longer with --method "
+            "fused")
 
 
 def rank(xy: np.ndarray, segment: np.ndarray, score: np.ndarray, clearance: np.ndarray, accepted: np.ndarray,
@@ -64,11 +105,16 @@ def rank(xy: np.ndarray, segment: np.ndarray, score: np.ndarray, clearance: np.n
     return Ranked(chosen, int(sup[chosen]), tuple(int(i) for i in equals), tuple(int(i) for i in alike), spread)
 
 
-def commit(sites: Sequence[FoundSite], radius_m: float, score_band: float,
-           rule: str = "agree") -> tuple[FoundSite, Ranked] | None:
-    """The committed one of a run's found sites and its ranking.
+def commit(sites: Sequence[FoundSite], radius_m: float, score_band: float, rule: str = "agree",
+           readings: RaisedReadings | None = None) -> tuple[FoundSite, Ranked] | None:
+    """The committed one of a run's found sites and its ranking (indices into the sites ``readings`` do not
+    refute; None: no site, or every site refuted).
 
     ``rule`` ``latest``: the last detection's site (by frame index), its support still counted."""
+    if sites and readings is not None:
+        xy0 = np.array([s.site.center_world[:2] for s in sites], dtype=np.float64)
+        out, _, _ = refuted(xy0, np.array([s.segment for s in sites]), readings, radius_m)
+        sites = [s for s, o in zip(sites, out, strict=True) if not o]
     if not sites:
         return None
     xy = np.array([s.site.center_world[:2] for s in sites], dtype=np.float64)

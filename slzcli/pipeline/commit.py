@@ -5,32 +5,32 @@ another detection of the same map segment within ``landing.commit_radius_factor`
 sides, within ``landing.commit_score_band`` of the best score, the plan medoid of those), never
 by the order detections arrived, which ORB-SLAM3's threads change from run to run. The committed
 site's segment is the run's world frame. ``landing.commit: latest`` (the paper's "current
-keyframe") takes the last detection's site instead.
+keyframe") takes the last detection's site instead. Either way a site the raised-surface rule's readings
+around it refute (more refused than passed within that radius) is not committed.
 """
 
 from __future__ import annotations
 
 from slzcli.config import LandingCfg, UavCfg
 from slzcli.landing.commit import commit as rank_sites
-from slzcli.types import CommittedSite, FoundSite
+from slzcli.landing.commit import commit_radius_m
+from slzcli.outputs.site_log import SiteLog
+from slzcli.types import CommittedSite, FoundSite, RaisedReadings
 
 
-def commit_radius_m(landing: LandingCfg, uav: UavCfg) -> float:
-    """How close (in plan, metres) two detections' site centres must be to confirm each other."""
-    return landing.commit_radius_factor * uav.footprint_m[0]
+def commit(log: SiteLog, landing: LandingCfg, uav: UavCfg) -> CommittedSite | None:
+    """The committed site of a run's site log under ``landing``'s rule, radius (in ``uav`` footprints) and score
+    band, none where the log's raised-surface readings refute it."""
+    return commit_site(log.sites, commit_radius_m(landing, uav), landing.commit, landing.commit_score_band,
+                       log.raised_readings())
 
 
-def commit(sites: list[FoundSite], landing: LandingCfg, uav: UavCfg) -> CommittedSite | None:
-    """The committed site of a run's sites under ``landing``'s rule, radius (in ``uav`` footprints) and score
-    band."""
-    return commit_site(sites, commit_radius_m(landing, uav), landing.commit, landing.commit_score_band)
-
-
-def commit_site(sites: list[FoundSite], side_m: float, rule: str = "agree",
-                score_band: float = 0.0) -> CommittedSite | None:
-    """The committed site (``slzcli.landing.commit``; ``score_band``: ``landing.commit_score_band``), with its
-    support, the run's and its segment's site counts and the ranking (its equally good sites and their spread)."""
-    found = rank_sites(sites, side_m, score_band, rule)
+def commit_site(sites: list[FoundSite], side_m: float, rule: str = "agree", score_band: float = 0.0,
+                readings: RaisedReadings | None = None) -> CommittedSite | None:
+    """The committed site (``slzcli.landing.commit``; ``score_band``: ``landing.commit_score_band``; ``readings``:
+    the raised-surface rule's, which may refute a site), with its support, the run's and its segment's site counts
+    and the ranking (its equally good sites and their spread)."""
+    found = rank_sites(sites, side_m, score_band, rule, readings)
     if found is None:
         return None
     best, ranked = found

@@ -141,7 +141,7 @@ def method_run(config: Config, method: str, tracker: Tracker, spool: Path | None
 def finish(source: Source, config: Config, mr: MethodRun, tracker: Tracker, truth: TruthEvaluator | None,
            wall_s: float, key: JsonObject) -> RunResult:
     """The committed site (``landing.commit``) and landing.json / run.json of a finished run."""
-    committed = commit(mr.state.sites.sites, config.landing, config.uav)
+    committed = commit(mr.state.sites, config.landing, config.uav)
     facts = RunFacts(source.path, mr.method.name, tracker.slam_name, tracker.poses_are_recorded, source.info(),
                      source.report(), wall_s, key)
     return summarise(facts, config, mr.state, committed, truth)

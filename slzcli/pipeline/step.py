@@ -90,6 +90,9 @@ def record(sites: SiteLog, det: Detection) -> None:
         "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment,
         "raised_m": c.raised_m, "raised_cells": c.raised_cells}
         for c in sel.candidates])
+    measured = [c for c in sel.candidates if c.raised_m is not None]
+    sites.add_raised(np.array([c.centroid_world[:2] for c in measured]).reshape(-1, 2), det.segment,
+                     np.array([c.test == "raised" for c in measured], bool))
     if sel.site is not None:
         assert det.points is not None  # a site is chosen among the map points
         pts = det.points.xyz_world

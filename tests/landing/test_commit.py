@@ -15,9 +15,9 @@ from conftest import GAUSSIAN, HALF_SIZE, synth_recording
 
 from slzcli.cli import main
 from slzcli.config import load_config
-from slzcli.landing.commit import MIN_SITES_FOR_SPREAD, commit, rank, spread_record
+from slzcli.landing.commit import MIN_SITES_FOR_SPREAD, commit, rank, refuted, refuted_reason, spread_record
 from slzcli.pipeline.commit import commit_site
-from slzcli.types import FoundSite
+from slzcli.types import FoundSite, RaisedReadings
 
 BAND = load_config().landing.commit_score_band
 FOOTPRINT = load_config().uav.footprint_m[0]
@@ -107,6 +107,61 @@ def test_commit_site_keeps_its_fields_and_latest_takes_the_last_frame() -> None:
     assert best.site.center_world[0] == 0.1
     latest = commit_site(sites, 1.3, "latest", BAND)
     assert latest is not None and latest.frame.index == 3 and latest.support == 3
+
+
+def readings(rows: list[tuple[float, float, bool]], segment: int = 0) -> RaisedReadings:
+    """Raised-surface readings: (x, y, refused) each."""
+    a = np.array([(x, y) for x, y, _ in rows], dtype=np.float64).reshape(-1, 2)
+    return RaisedReadings(a, np.full(len(rows), segment, np.int64), np.array([r for _, _, r in rows], bool))
+
+
+def test_a_site_the_raised_readings_around_it_refute_is_not_committed() -> None:
+    """A box top at (5, 0): two frames chose a site on it, while 8 readings there refused its clusters and 2 passed
+    (the D435 case: 87 of 91 refused). The ground's sites at (0, 0), read 3 times and passed, are committed though
+    they score lower; with the box's sites alone nothing is, and the reason says what refuted them and how much.
+    A site with a tie (as many refused as passed) is kept; readings in another map segment do not count."""
+    box = entries([(0, 5.0, 0.0, 0.95), (1, 5.2, 0.1, 0.95)])
+    ground = entries([(2, 0.0, 0.0, 0.70), (3, 0.2, 0.0, 0.70)])
+    r = readings([(5.0 + 0.1 * k, 0.05 * k, True) for k in range(8)] + [(5.0, 0.0, False), (5.2, 0.1, False)]
+                 + [(0.0, 0.0, False), (0.1, 0.0, False), (0.2, 0.0, False)])
+    out, refused_n, passed_n = refuted(np.array([[5.0, 0.0], [0.0, 0.0]]), np.zeros(2, np.int64), r, 1.3)
+    assert out.tolist() == [True, False] and refused_n.tolist() == [8, 0] and passed_n.tolist() == [2, 3]
+    assert commit(box + ground, 1.3, BAND)[0].site.center_world[0] == 5.0  # type: ignore[index]   # without
+    best = commit(box + ground, 1.3, BAND, readings=r)
+    assert best is not None and best[0].site.center_world[:2] == (0.0, 0.0)
+    for rule in ("agree", "latest"):
+        assert commit(box, 1.3, BAND, rule, readings=r) is None
+    why = refuted_reason(box, r, 1.3)
+    assert why.startswith("the raised-surface rule refutes every site the detection frames chose (2)")
+    assert "(the best: 8 refused, 2 passed)" in why and "--method fused" in why
+    tie = readings([(5.0, 0.0, True), (5.1, 0.0, False)])
+    assert commit(box, 1.3, BAND, readings=tie) is not None
+    elsewhere = RaisedReadings(r.xy, np.ones(len(r.xy), np.int64), r.refused)
+    assert commit(box, 1.3, BAND, readings=elsewhere) is not None
+    assert commit(box, 1.3, BAND, readings=RaisedReadings.empty()) is not None
+
+
+def test_every_measured_cluster_of_a_detection_is_a_raised_reading_of_the_run() -> None:
+    """A detection's clusters the raised-surface rule measured go into the run's site log as readings (refused:
+    the rule's test), those it did not measure (too few points, extent) do not."""
+    from types import SimpleNamespace
+
+    from slzcli.outputs.site_log import SiteLog
+    from slzcli.pipeline.step import record
+    from slzcli.types import Candidate
+
+    def cand(k: int, x: float, test: str, raised_m: float | None) -> Candidate:
+        return Candidate(k, 40, (x, 0.0, 0.0), 0.01, (1.5, 1.5), test == "", test or "qualifies",
+                         test, None if raised_m is None else 300, raised_m)
+
+    sel = SimpleNamespace(site=None, candidates=(cand(0, 1.0, "", 0.01), cand(1, 2.0, "raised", 0.2),
+                                                 cand(2, 3.0, "extent", None)))
+    frame = SimpleNamespace(index=4, stamp_ns=0)
+    log = SiteLog()
+    record(log, SimpleNamespace(selection=sel, frame=frame, segment=2))  # type: ignore[arg-type]
+    r = log.raised_readings()
+    assert r.xy.tolist() == [[1.0, 0.0], [2.0, 0.0]] and r.refused.tolist() == [False, True]
+    assert r.segment.tolist() == [2, 2] and log.rows == 3
 
 
 @pytest.fixture(scope="module")

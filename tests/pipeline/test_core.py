@@ -74,7 +74,7 @@ def test_the_core_gives_what_slz_detect_writes(runner, recording, tmp_path) -> N
     summary = json.loads((tmp_path / "run" / "run.json").read_text())["summary"]
     assert summary["detections"] == len(dets) == state.detections
     assert total(truth.masks).as_dict() == summary["ground_truth"]["mask"]
-    committed = commit(state.sites.sites, config.landing, config.uav)
+    committed = commit(state.sites, config.landing, config.uav)
     assert (committed is None) == (landing["status"] != "site")
     if committed is not None:
         assert landing["frame"]["index"] == committed.frame.index

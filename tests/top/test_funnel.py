@@ -24,6 +24,7 @@ from sources_util import realsense_recording
 from slzcli.cli import main
 from slzcli.config import PROFILE_DIR, Config, load_config, read_yaml_mapping
 from slzcli.funnel import BENCH_COLUMN_M, MASK_STEPS, FrameFunnel, FunnelLog, mask_funnel
+from slzcli.landing.commit import commit_radius_m
 from slzcli.landing.select import select_site
 from slzcli.methods.base import build
 from slzcli.methods.maps import fuzzy
@@ -74,7 +75,7 @@ def reason_of(cfg: Config, *dets: Detection) -> tuple[str, RunState]:
     state, method = RunState(), build("fuzzy", cfg)
     for d in dets:
         tally(state, d, method, cfg.terrain, cfg.uav)
-    return no_site_reason(state, "odometry", 1), state
+    return no_site_reason(state, "odometry", 1, commit_radius_m(cfg.landing, cfg.uav)), state
 
 
 # ----------------------------------------------------------------------------- the counts
