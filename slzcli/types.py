@@ -416,6 +416,7 @@ class Candidate:
     test: str = ""  # the first test it failed: points | normals | extent | centroid | raised ("" = qualifies)
     raised_cells: int | None = None  # plan cells around it with depth the raised-surface rule read (None: not run)
     raised_m: float | None = None    # its surface's height above the ground around it (None: not measured or run)
+    raised_margin_m: float | None = None   # the rule's margin on that height (margin_sigma standard errors)
 
 
 @dataclass(frozen=True)
@@ -466,16 +467,18 @@ class FoundSite:
 @dataclass(frozen=True, eq=False)
 class RaisedReadings:
     """Every reading the raised-surface rule made of a run's clusters (``outputs.site_log.SiteLog``): plan
-    centre (n, 2) in its map segment's world frame, the segment, and whether the rule refused it (raised, or not
-    told from raised). Many detections read the same surface; the commit weighs them together."""
+    centre (n, 2) in its map segment's world frame, the segment, whether the rule refused it (raised, or not
+    told from raised) and its margin (m; margin_sigma standard errors of the height). Many detections read the
+    same surface; the commit weighs them together, each by its precision."""
 
     xy: np.ndarray
     segment: np.ndarray
     refused: np.ndarray
+    margin_m: np.ndarray
 
     @classmethod
     def empty(cls) -> RaisedReadings:
-        return cls(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, bool))
+        return cls(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, bool), np.zeros(0))
 
 
 @dataclass(frozen=True)

@@ -17,8 +17,10 @@ uses only what the ground gives a site, never the order detections arrived:
 Before any of that, a site the raised-surface rule's readings around it refute is left out: each detection
 reads the clusters it measures (landing/raised.py), so a surface seen from many frames is read many times, and
 where within ``radius_m`` of a site (same map segment) the readings that refused a cluster (raised, or not told
-from raised) outnumber those that passed one, the frame that chose it read the surface by luck (a D435 over a
-0.12 m box top from 5 m: 87 of 91 readings on the top refused it, the 3 frames that chose it not).
+from raised) outweigh those that passed one, each weighed by its precision (1 / margin^2), the frame that chose
+it read the surface by luck (a D435 over a 0.12 m box top from 5 m: 57 of 60 readings on the top refused it (seeds 1-2), at
+margins like those of the 3 frames that chose it). By count alone, two readings of noisy level ground whose
+margins hid the tolerance by 0.4 m outvoted the 0.03 m reading that chose the site.
 
 The spread: another run sees other keyframes, so it may commit any site of this run's pool in
 the committed site's map segment (its equals change with the score's run-to-run noise). The
@@ -43,6 +45,7 @@ if TYPE_CHECKING:
     from slzcli.config import LandingCfg, UavCfg
 
 MIN_SITES_FOR_SPREAD = 3  # equally good sites needed to estimate the spread (two give one distance, no spread)
+_MIN_MARGIN_M = 1e-3      # a reading's margin is floored here before it weighs (exact depth reads margins of ~0)
 
 
 def commit_radius_m(landing: LandingCfg, uav: UavCfg) -> float:
@@ -60,15 +63,19 @@ def support_counts(xy: np.ndarray, segment: np.ndarray, radius_m: float) -> np.n
 def refuted(xy: np.ndarray, segment: np.ndarray, readings: RaisedReadings,
             radius_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per site (plan centres (n, 2), map segments): whether the raised-surface readings within ``radius_m`` of it
-    in its segment refused more clusters than they passed, and how many refused and passed."""
+    in its segment refuse it, each weighed by its precision (1 / margin^2: a reading whose noise hides the
+    tolerance by far says little either way), and how many refused and passed."""
     if len(xy) == 0 or len(readings.xy) == 0:
         zero = np.zeros(len(xy), np.int64)
         return np.zeros(len(xy), bool), zero, zero
     near = (np.linalg.norm(xy[:, None, :] - readings.xy[None, :, :], axis=2) <= radius_m) \
         & (segment[:, None] == readings.segment[None, :])
+    weight = 1.0 / np.maximum(readings.margin_m, _MIN_MARGIN_M) ** 2
+    against = (near * (readings.refused * weight)[None, :]).sum(axis=1)
+    for_ = (near * (~readings.refused * weight)[None, :]).sum(axis=1)
     refused = (near & readings.refused[None, :]).sum(axis=1)
     passed = (near & ~readings.refused[None, :]).sum(axis=1)
-    return refused > passed, refused, passed
+    return against > for_, refused, passed
 
 
 def refuted_reason(sites: Sequence[FoundSite], readings: RaisedReadings, radius_m: float) -> str:
@@ -77,10 +84,10 @@ def refuted_reason(sites: Sequence[FoundSite], readings: RaisedReadings, radius_
     _, refused, passed = refuted(xy, np.array([s.segment for s in sites], np.int64), readings, radius_m)
     best = int(np.argmax(passed / np.maximum(refused + passed, 1))) if len(sites) else 0
     return (f"the raised-surface rule refutes every site the detection frames chose ({len(sites)}): around each, "
-            f"more of the clusters it read within {radius_m:.2f} m (landing.commit_radius_factor) were on a surface "
-            "it could not tell from one above the UAV's step tolerance, uav.max_step_m, than it passed (the best: "
-            f"{int(refused[best])} refused, {int(passed[best])} passed); fly lower over it, or longer with --method "
-            "fused")
+            f"the clusters it read within {radius_m:.2f} m (landing.commit_radius_factor) on a surface it could not "
+            "tell from one above the UAV's step tolerance, uav.max_step_m, outweigh those it passed, each reading "
+            f"weighed by its precision (the best: {int(refused[best])} refused, {int(passed[best])} passed); fly "
+            "lower over it, or longer with --method fused")
 
 
 def rank(xy: np.ndarray, segment: np.ndarray, score: np.ndarray, clearance: np.ndarray, accepted: np.ndarray,

@@ -170,7 +170,8 @@ def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndar
                 reason, test = found.reason(), "raised"
     return Candidate(c, len(pts), _vec3(centroid), variance, (float(extent[0]), float(extent[1])),
                      reason == "", reason or "qualifies", test, None if found is None else found.points,
-                     None if found is None else found.height_m)
+                     None if found is None else found.height_m,
+                     None if found is None or found.height_m is None else found.margin_m)
 
 
 def raised_site(centroid: np.ndarray, normals: np.ndarray, pts: np.ndarray, around: np.ndarray,

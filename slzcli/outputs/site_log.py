@@ -37,7 +37,7 @@ class SiteLog:
         self._rows: list[Mapping[str, object]] = []  # SITE_COLUMNS -> value, as csv writes it (str)
         self._points: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._clusters: dict[int, np.ndarray] = {}
-        self._raised: list[np.ndarray] = []   # per detection: (k, 4) x, y, segment, refused of its measured clusters
+        self._raised: list[np.ndarray] = []   # per detection: (k, 5) x, y, segment, refused, margin of its clusters
         self._spool = ArraySpool(self.folder / "site_points", POINT_SPEC) if self.folder is not None else None
         self._csv = self.folder / "sites.csv" if self.folder is not None else None
         if self._csv is not None:
@@ -52,19 +52,20 @@ class SiteLog:
         with naming_write_errors(self._csv), open(self._csv, "a", newline="") as fh:
             csv.DictWriter(fh, fieldnames=SITE_COLUMNS, lineterminator="\n").writerows(rows)
 
-    def add_raised(self, xy: np.ndarray, segment: int, refused: np.ndarray) -> None:
-        """One detection's raised-surface readings: its measured clusters' plan centres and whether each was
-        refused (a few floats a detection: kept in memory)."""
+    def add_raised(self, xy: np.ndarray, segment: int, refused: np.ndarray, margin_m: np.ndarray) -> None:
+        """One detection's raised-surface readings: its measured clusters' plan centres, whether each was refused
+        and its margin (a few floats a detection: kept in memory)."""
         if len(xy):
             self._raised.append(np.column_stack([np.asarray(xy, np.float64).reshape(-1, 2),
-                                                 np.full(len(xy), float(segment)), np.asarray(refused, np.float64)]))
+                                                 np.full(len(xy), float(segment)), np.asarray(refused, np.float64),
+                                                 np.asarray(margin_m, np.float64)]))
 
     def raised_readings(self) -> RaisedReadings:
         """Every raised-surface reading of the run so far."""
         if not self._raised:
             return RaisedReadings.empty()
         a = np.vstack(self._raised)
-        return RaisedReadings(a[:, :2].copy(), a[:, 2].astype(np.int64), a[:, 3] > 0.5)
+        return RaisedReadings(a[:, :2].copy(), a[:, 2].astype(np.int64), a[:, 3] > 0.5, a[:, 4].copy())
 
     def add_site(self, frame: FrameRef, site: Site, kept_xyz: np.ndarray, chosen_xyz: np.ndarray,
                  limits: dict[str, object] | None = None, segment: int = 0,

@@ -92,7 +92,8 @@ def record(sites: SiteLog, det: Detection) -> None:
         for c in sel.candidates])
     measured = [c for c in sel.candidates if c.raised_m is not None]
     sites.add_raised(np.array([c.centroid_world[:2] for c in measured]).reshape(-1, 2), det.segment,
-                     np.array([c.test == "raised" for c in measured], bool))
+                     np.array([c.test == "raised" for c in measured], bool),
+                     np.array([c.raised_margin_m or 0.0 for c in measured], np.float64))
     if sel.site is not None:
         assert det.points is not None  # a site is chosen among the map points
         pts = det.points.xyz_world
