@@ -18,9 +18,9 @@ Before any of that, a site the raised-surface rule's readings around it refute i
 reads the clusters it measures (landing/raised.py), so a surface seen from many frames is read many times, and
 where within ``radius_m`` of a site (same map segment) the readings that refused a cluster (raised, or not told
 from raised) outweigh those that passed one, each weighed by its precision (1 / margin^2), the frame that chose
-it read the surface by luck (a D435 over a 0.12 m box top from 5 m: 57 of 60 readings on the top refused it (seeds 1-2), at
-margins like those of the 3 frames that chose it). By count alone, two readings of noisy level ground whose
-margins hid the tolerance by 0.4 m outvoted the 0.03 m reading that chose the site.
+it read the surface by luck (a D435 over a 0.12 m box top from 5 m, seeds 1-2: 57 of 60 readings on the top
+refused it, at margins like those of the 3 frames that chose it). By count alone, two readings of noisy level
+ground whose margins hid the tolerance by 0.4 m outvoted the 0.03 m reading that chose the site.
 
 The spread: another run sees other keyframes, so it may commit any site of this run's pool in
 the committed site's map segment (its equals change with the score's run-to-run noise). The
