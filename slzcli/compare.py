@@ -322,7 +322,8 @@ def _method(m: str, run: MethodRun, committed: CommittedSite | None, config: Con
     st = run.state
     timing = {k: _stats(st.timer.samples_ms.get(k, [])) for k in STAGES}
     timing["frame"] = _stats(run.frame_ms)
-    reason = no_site_reason(st, tracker.slam_name, len(tracker.keyframes), commit_radius_m(config.landing, config.uav))
+    reason = None if committed is not None else no_site_reason(st, tracker.slam_name, len(tracker.keyframes),
+                                                               commit_radius_m(config.landing, config.uav))
     site = None if committed is None else site_record(committed, site_truth(truth, committed))
     ground_truth = None
     if truth is not None:
@@ -335,7 +336,7 @@ def _method(m: str, run: MethodRun, committed: CommittedSite | None, config: Con
     return MethodComparison(
         method=m, detections=st.detections, sites_found=len(st.sites.sites),
         status="no_safe_site" if committed is None else "site",
-        reason=reason if committed is None else None, timings_ms=timing,
+        reason=reason, timings_ms=timing,
         site_world=None if site is None else site.center_world,
         site=None if committed is None or site is None else CompareSite(
             frame=committed.frame.index, stamp_ns=committed.frame.stamp_ns, center_world=site.center_world,

@@ -287,7 +287,8 @@ def summarise(facts: RunFacts, config: Config, st: RunState, committed: Committe
     table = segment_table(st.trajectory.segments(), st.trajectory.has_pose(), st.keyframes.per_segment)
     primary = primary_segment(table, None if committed is None else committed.segment)
     world = world_frame_text(facts.slam_name, facts.poses_are_recorded, table, primary)
-    reason = no_site_reason(st, facts.slam_name, len(st.keyframes), commit_radius_m(config.landing, config.uav))
+    reason = "" if committed is not None else no_site_reason(st, facts.slam_name, len(st.keyframes),
+                                                             commit_radius_m(config.landing, config.uav))
     site: SiteRecord | None = None
     spread: SpreadRecord | None = None
     advice = decide_advice(st) if committed is None else None

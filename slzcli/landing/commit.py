@@ -38,6 +38,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from slzcli.types import FoundSite, RaisedReadings, Ranked
 
@@ -65,16 +66,21 @@ def refuted(xy: np.ndarray, segment: np.ndarray, readings: RaisedReadings,
     """Per site (plan centres (n, 2), map segments): whether the raised-surface readings within ``radius_m`` of it
     in its segment refuse it, each weighed by its precision (1 / margin^2: a reading whose noise hides the
     tolerance by far says little either way), and how many refused and passed."""
-    if len(xy) == 0 or len(readings.xy) == 0:
-        zero = np.zeros(len(xy), np.int64)
-        return np.zeros(len(xy), bool), zero, zero
-    near = (np.linalg.norm(xy[:, None, :] - readings.xy[None, :, :], axis=2) <= radius_m) \
-        & (segment[:, None] == readings.segment[None, :])
-    weight = 1.0 / np.maximum(readings.margin_m, _MIN_MARGIN_M) ** 2
-    against = (near * (readings.refused * weight)[None, :]).sum(axis=1)
-    for_ = (near * (~readings.refused * weight)[None, :]).sum(axis=1)
-    refused = (near & readings.refused[None, :]).sum(axis=1)
-    passed = (near & ~readings.refused[None, :]).sum(axis=1)
+    n = len(xy)
+    if n == 0 or len(readings.xy) == 0:
+        zero = np.zeros(n, np.int64)
+        return np.zeros(n, bool), zero, zero
+    # the pairs within the radius only (a long run holds thousands of sites and tens of thousands of readings)
+    pairs = cKDTree(xy).sparse_distance_matrix(cKDTree(readings.xy), radius_m, output_type="ndarray")
+    i, j = pairs["i"], pairs["j"]
+    keep = segment[i] == readings.segment[j]
+    i, j = i[keep], j[keep]
+    no = readings.refused[j]
+    weight = 1.0 / np.maximum(readings.margin_m[j], _MIN_MARGIN_M) ** 2
+    against = np.bincount(i, weights=np.where(no, weight, 0.0), minlength=n)
+    for_ = np.bincount(i, weights=np.where(no, 0.0, weight), minlength=n)
+    refused = np.bincount(i, weights=no.astype(np.float64), minlength=n).astype(np.int64)
+    passed = np.bincount(i, weights=(~no).astype(np.float64), minlength=n).astype(np.int64)
     return against > for_, refused, passed
 
 

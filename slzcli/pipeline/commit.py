@@ -6,7 +6,7 @@ sides, within ``landing.commit_score_band`` of the best score, the plan medoid o
 by the order detections arrived, which ORB-SLAM3's threads change from run to run. The committed
 site's segment is the run's world frame. ``landing.commit: latest`` (the paper's "current
 keyframe") takes the last detection's site instead. Either way a site the raised-surface rule's readings
-around it refute (more refused than passed within that radius) is not committed.
+around it refute (within that radius, its refusals outweigh its passes, each by its precision) is not committed.
 """
 
 from __future__ import annotations
