@@ -34,6 +34,7 @@ keyframe) commits the last detection's site, accepted or not.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -71,8 +72,10 @@ def refuted(xy: np.ndarray, segment: np.ndarray, readings: RaisedReadings,
         zero = np.zeros(n, np.int64)
         return np.zeros(n, bool), zero, zero
     # the pairs within the radius only (a long run holds thousands of sites and tens of thousands of readings)
-    pairs = cKDTree(xy).sparse_distance_matrix(cKDTree(readings.xy), radius_m, output_type="ndarray")
-    i, j = pairs["i"], pairs["j"]
+    lists = cKDTree(xy).query_ball_tree(cKDTree(readings.xy), radius_m)
+    counts = np.fromiter((len(near) for near in lists), np.int64, count=n)
+    i = np.repeat(np.arange(n), counts)
+    j = np.fromiter(itertools.chain.from_iterable(lists), np.int64, count=int(counts.sum()))
     keep = segment[i] == readings.segment[j]
     i, j = i[keep], j[keep]
     no = readings.refused[j]
