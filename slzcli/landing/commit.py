@@ -87,10 +87,15 @@ def refuted(xy: np.ndarray, segment: np.ndarray, readings: RaisedReadings,
     return against > for_, refused, passed
 
 
+def _plan(sites: Sequence[FoundSite]) -> tuple[np.ndarray, np.ndarray]:
+    """The sites' plan centres (n, 2) and map segments."""
+    return (np.array([s.site.center_world[:2] for s in sites], dtype=np.float64).reshape(-1, 2),
+            np.array([s.segment for s in sites], dtype=np.int64))
+
+
 def refuted_reason(sites: Sequence[FoundSite], readings: RaisedReadings, radius_m: float) -> str:
     """Why a run whose detections found sites commits none: the raised-surface readings refute every one."""
-    xy = np.array([s.site.center_world[:2] for s in sites], dtype=np.float64).reshape(-1, 2)
-    _, refused, passed = refuted(xy, np.array([s.segment for s in sites], np.int64), readings, radius_m)
+    _, refused, passed = refuted(*_plan(sites), readings, radius_m)
     best = int(np.argmax(passed / np.maximum(refused + passed, 1))) if len(sites) else 0
     return (f"the raised-surface rule refutes every site the detection frames chose ({len(sites)}): around each, "
             f"the clusters it read within {radius_m:.2f} m (landing.commit_radius_factor) on a surface it could not "
@@ -128,13 +133,11 @@ def commit(sites: Sequence[FoundSite], radius_m: float, score_band: float, rule:
 
     ``rule`` ``latest``: the last detection's site (by frame index), its support still counted."""
     if sites and readings is not None:
-        xy0 = np.array([s.site.center_world[:2] for s in sites], dtype=np.float64)
-        out, _, _ = refuted(xy0, np.array([s.segment for s in sites]), readings, radius_m)
+        out, _, _ = refuted(*_plan(sites), readings, radius_m)
         sites = [s for s, o in zip(sites, out, strict=True) if not o]
     if not sites:
         return None
-    xy = np.array([s.site.center_world[:2] for s in sites], dtype=np.float64)
-    segment = np.array([s.segment for s in sites])
+    xy, segment = _plan(sites)
     score = np.array([s.site.score for s in sites], dtype=np.float64)
     clearance = np.array([np.nan if s.site.edge_clearance_m is None else s.site.edge_clearance_m
                           for s in sites], dtype=np.float64)
