@@ -307,3 +307,22 @@ def test_a_fused_patch_with_too_little_around_stays_safe_and_its_site_says_not_m
     site = best_site(fm)
     assert site is not None and site.raised is not None and not site.raised.measured
     assert 20 <= site.raised.points < 1000
+
+
+def test_the_rules_quantiles_are_scipy_stats_own() -> None:
+    """The raised rule's normal and chi-square quantiles come from scipy.special (scipy.stats's import costs
+    every run ~0.4 s of start-up); the values are scipy.stats's to the bit."""
+    import math
+
+    from scipy.stats import chi2, norm
+
+    from slzcli.landing import raised
+
+    for n in range(2, 300):
+        dof = max(1.0, raised._MAD_EFFICIENCY * (n - 1))
+        assert raised._sigma_bound(n) == math.sqrt(dof / float(chi2.ppf(raised._SIGMA_BOUND, dof)))
+    for share in (0.05, 0.1, 0.2, 0.25, 0.3, 1 / 3, 0.5):
+        z = float(norm.ppf(share))
+        m = float(norm.pdf(z)) / share
+        assert raised._lowest_share_bias(share) == m
+        assert raised._lowest_share_std(share) == math.sqrt(1.0 - z * m - m * m)
