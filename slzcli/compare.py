@@ -81,8 +81,7 @@ from slzcli.pipeline.run import MethodRun as PipelineRun
 from slzcli.pipeline.run import Sink
 from slzcli.pipeline.run import run as run_methods
 from slzcli.pipeline.source import open_source
-from slzcli.pipeline.tracking import Tracker
-from slzcli.slam import get_backend
+from slzcli.pipeline.tracking import Tracker, open_slam
 from slzcli.slam.segments import segment_table
 from slzcli.sources.formats import run_suffixes
 from slzcli.summary import RunState, no_site_reason, site_record, site_truth, untracked_frames
@@ -213,8 +212,7 @@ def compare_recording(path: Path, config: Config, methods: tuple[str, ...],
         with limit.stage("opening the recording"):
             truth = ground_truth_of(path, config.synth.ground_truth)
             source, config = open_source(path, config, stack)
-        slam = stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds))
-        tracker = Tracker(config, slam)
+        tracker = Tracker(config, open_slam(source, config.slam, stack))
         noise = NoiseTracker(config.terrain.noise, config.terrain.noise_estimate)  # the maps', shared
         runs = {m: MethodRun(m, PipelineRun(build(m, config), RunState()),
                              pr=CurveCounts.empty(levels) if truth is not None else None) for m in methods}

@@ -40,9 +40,8 @@ from slzcli.outputs.trajectory import KeyframeLog
 from slzcli.pipeline.commit import commit
 from slzcli.pipeline.source import FramesSource, Source, open_source
 from slzcli.pipeline.step import step, tally
-from slzcli.pipeline.tracking import Tracker, track
+from slzcli.pipeline.tracking import Tracker, open_slam, track
 from slzcli.records import JsonObject, RunSummary
-from slzcli.slam import get_backend
 from slzcli.sources import check_readable
 from slzcli.sources.window import no_frames_reason
 from slzcli.summary import RunFacts, RunState, summarise
@@ -169,8 +168,8 @@ def detect_in_memory(source: Source, config: Config, method: str, limit: StageLi
     # the keyframes' map points spool to a temporary folder, as slz detect's do to its run folder: the summary
     # reads them (the site's height above the ground) and memory does not grow with the recording
     with tempfile.TemporaryDirectory(prefix="slz-spool-") as spool:
-        with get_backend(config.slam, source.has_poses, clouds=source.clouds) as slam:
-            tracker = Tracker(config, slam, KeyframeLog(Path(spool)))
+        with ExitStack() as stack:
+            tracker = Tracker(config, open_slam(source, config.slam, stack), KeyframeLog(Path(spool)))
             mr = method_run(config, method, tracker)
             assert mr.state.noise is not None
             run(source, tracker, [mr], mr.state.noise, limit, [] if truth is None else [TruthSink(truth)])
@@ -241,8 +240,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             source, config = open_source(path, config, stack)
         results = results_mcap.open_results(tmp, config, source.recording.recorded_frames())
         stack.enter_context(results)   # __enter__ returns the writer itself
-        slam = stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds))
-        tracker = Tracker(config, slam, KeyframeLog(tmp / SPOOL_DIR))
+        tracker = Tracker(config, open_slam(source, config.slam, stack), KeyframeLog(tmp / SPOOL_DIR))
         mr = method_run(config, method, tracker, tmp / SPOOL_DIR)
         state = mr.state
         assert state.noise is not None

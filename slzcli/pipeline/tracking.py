@@ -13,19 +13,19 @@ from __future__ import annotations
 
 import time
 from collections.abc import Generator, Iterator
-from contextlib import closing
+from contextlib import ExitStack, closing
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from slzcli.config import Config
+from slzcli.config import Config, SlamCfg
 from slzcli.errors import DatasetError
 from slzcli.evaluate.timing import StageTimer
 from slzcli.geometry import invert_pose, transform_points
 from slzcli.outputs.trajectory import KeyframeLog, PoseLog
 from slzcli.pipeline.source import Source
-from slzcli.slam import MapPoints, SlamBackend, TrackingState
+from slzcli.slam import MapPoints, SlamBackend, TrackingState, get_backend
 from slzcli.sources.read_ahead import read_ahead
 from slzcli.terrain.geometry import back_project
 from slzcli.terrain.maps import frame_up
@@ -55,6 +55,17 @@ def depth_points(frame: Frame, T_world_camera: np.ndarray, stride_px: int) -> Ma
     xyz = transform_points(T_world_camera, pc)
     pixels = np.stack([u[ok], v[ok]], axis=1).astype(np.float64)
     return MapPoints(np.arange(len(xyz), dtype=np.int64), xyz, pixels, frame.index, frame.stamp_ns, T_world_camera)
+
+
+def open_slam(source: Source, slam: SlamCfg, stack: ExitStack) -> SlamBackend:
+    """The source's SLAM backend (``slam.get_backend``: its recorded poses and clouds decide), closed with
+    ``stack`` and started at once for the source's camera, so that a slow start (ORB-SLAM3's worker loading
+    its vocabulary) overlaps the rest of the run's set-up instead of holding up the first frame."""
+    backend = stack.enter_context(get_backend(slam, source.has_poses, clouds=source.clouds))
+    intrinsics = source.info().intrinsics
+    if intrinsics is not None:
+        backend.prepare(intrinsics)
+    return backend
 
 
 class Tracker:

@@ -17,7 +17,7 @@ from typing import Protocol, TypeVar, runtime_checkable
 import numpy as np
 
 from slzcli.geometry import invert_pose as invert_pose  # odometry.py of older revisions imports it from here
-from slzcli.types import Frame
+from slzcli.types import Frame, Intrinsics
 from slzcli.types import MapPoints as MapPoints  # defined with the other shared types
 
 
@@ -90,6 +90,11 @@ class SlamBackend(Protocol):
         """How long the last frame took to track where it was tracked (None: the caller's wait is that time)."""
         ...
 
+    def prepare(self, intrinsics: Intrinsics) -> None:
+        """Start what takes long to start (a worker, a vocabulary) for frames of ``intrinsics``, while the run is
+        still being set up; frames of other intrinsics still work."""
+        ...
+
     def keyframe(self) -> MapPoints | None:
         """Map points seen by the latest frame if it was a keyframe, else None."""
         ...
@@ -132,6 +137,9 @@ class BackendBase:
         return self.track(frame)
 
     def last_track_ms(self) -> float | None:
+        return None
+
+    def prepare(self, intrinsics: Intrinsics) -> None:
         return None
 
     def close(self) -> None:  # pragma: no cover - overridden where there is something to free

@@ -28,7 +28,6 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import logging
-import os
 import signal
 import socket
 import subprocess
@@ -51,7 +50,7 @@ if TYPE_CHECKING:
     from slzcli.config import OrbCfg, SlamCfg
 
 log = logging.getLogger(__name__)
-_PACKAGE_ROOT = Path(__file__).resolve().parents[2]
+_WORKER = Path(__file__).with_name("orbslam3_worker.py")   # run as a script: see its docstring
 # Process housekeeping, not tuning: how long to wait for a worker that was told to stop or died.
 _EXIT_GRACE_S = 5.0
 # A new ORB-SLAM3 map starts at exactly the identity pose; this tolerance only absorbs float noise.
@@ -106,57 +105,6 @@ def settings_yaml(K: Intrinsics, orb: OrbCfg, close_depth_m: float, baseline_m: 
     ])
 
 
-def _worker(conn: Connection, vocab_path: str, settings_text: str, sensor: str = "rgbd") -> None:
-    """Runs in the worker process: owns the native ORB-SLAM3 system, answers track requests."""
-    import os
-    import tempfile
-    import time
-
-    import pyorbslam3 as pos
-
-    with tempfile.TemporaryDirectory(prefix="slz-orbslam3-") as tmp:
-        settings = os.path.join(tmp, "settings.yaml")
-        with open(settings, "w") as f:
-            f.write(settings_text)
-        try:
-            system = pos.Slam(vocab_path, settings, pos.Sensor.MONOCULAR if sensor == "monocular" else pos.Sensor.RGBD)
-        except Exception as err:
-            conn.send(("error", f"{type(err).__name__}: {err}"))
-            return
-        conn.send(("ready", None))
-        try:
-            while True:
-                msg = conn.recv()
-                if msg[0] == "close":
-                    break
-                _, rgb, depth, t = msg
-                t0 = time.perf_counter()
-                try:
-                    r = system.track_monocular(rgb, t) if depth is None else system.track_rgbd(rgb, depth, t)
-                except Exception as err:
-                    conn.send(("error", f"{type(err).__name__}: {err}"))
-                    continue
-                pts = np.asarray(system.tracked_map_points(), np.float64).reshape(-1, 3)
-                conn.send(("ok", int(r.state), None if r.pose_wc is None else np.asarray(r.pose_wc, np.float64),
-                           int(r.num_tracked_points), pts, (time.perf_counter() - t0) * 1e3))
-        finally:
-            system.shutdown()
-            conn.send(("closed", None))
-
-
-def _worker_main() -> None:
-    """Entry of ``python -m slzcli.slam.orbslam3 FD``: the socket to the parent is file descriptor FD.
-
-    A fresh interpreter (not multiprocessing's spawn, which re-runs the parent's __main__ script).
-    """
-    import sys
-    from multiprocessing.connection import Connection
-
-    conn = Connection(int(sys.argv[1]))
-    _init, vocab_path, settings_text, sensor = conn.recv()
-    _worker(conn, vocab_path, settings_text, sensor)
-
-
 class OrbSlam3Backend(BackendBase):
     """ORB-SLAM3 in RGB-D mode, or monocular with the scale from depth (monocular can report OK on a wrong
     trajectory over planar ground: the paper's mode, kept for comparison)."""
@@ -190,34 +138,50 @@ class OrbSlam3Backend(BackendBase):
         self._source = ""
         self._warned_init = False
         self._track_ms: float | None = None  # the worker's own time for the last frame
+        self._ready = False  # the worker said it loaded the vocabulary
 
     # -- worker plumbing
-    def _start(self, frame: Frame) -> None:
-        self._intrinsics = frame.intrinsics
-        if any(frame.intrinsics.distortion):
-            log.warning("%s: camera distortion %s ignored; ORB-SLAM3 is run as an undistorted pinhole",
-                        frame.source or "recording", frame.intrinsics.distortion_model or "coefficients")
+    def prepare(self, intrinsics: Intrinsics) -> None:
+        """Start the worker now, for frames of ``intrinsics``: it loads the vocabulary while the run is still being
+        set up, and the first frame waits only for what is left (a worker prepared for other intrinsics than the
+        frames' is replaced then)."""
+        if self._proc is None:
+            self._spawn(intrinsics)
+
+    def _spawn(self, intrinsics: Intrinsics) -> None:
+        """The worker process, sent its settings; not waited for (``_start``)."""
+        self._intrinsics = intrinsics
         period = self.cfg.orbslam3.nominal_period_s   # "auto" is resolved from the recording (with_frame_period)
         fps = UNKNOWN_RATE_FPS if period == "auto" else 1.0 / period
-        text = settings_yaml(frame.intrinsics, self.cfg.orb, self.cfg.orbslam3.close_depth_m,
+        text = settings_yaml(intrinsics, self.cfg.orb, self.cfg.orbslam3.close_depth_m,
                              self.cfg.orbslam3.baseline_m, fps)
         ours, theirs = socket.socketpair()
         # ORB-SLAM3 prints progress to stdout; keep it off ours (--json) and keep stderr for the cause.
         self._log = tempfile.TemporaryFile(mode="w+b")  # noqa: SIM115  # lives as long as the worker; _stop closes it
-        env = dict(os.environ)  # the worker imports this package even when it is not installed
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_PACKAGE_ROOT), env.get("PYTHONPATH", "")) if p)
-        self._proc = subprocess.Popen([sys.executable, "-m", "slzcli.slam.orbslam3", str(theirs.fileno())],
+        self._proc = subprocess.Popen([sys.executable, str(_WORKER), str(theirs.fileno())],
                                       pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
-                                      stdout=subprocess.DEVNULL, stderr=self._log, env=env)
+                                      stdout=subprocess.DEVNULL, stderr=self._log)
         theirs.close()
         self._conn = Connection(ours.detach())
         self._conn.send(("init", self.vocab_path, text, self.cfg.orbslam3.sensor))
+
+    def _start(self, frame: Frame) -> None:
+        """The worker ready for ``frame``'s camera: the prepared one, or a new one."""
+        if any(frame.intrinsics.distortion):
+            log.warning("%s: camera distortion %s ignored; ORB-SLAM3 is run as an undistorted pinhole",
+                        frame.source or "recording", frame.intrinsics.distortion_model or "coefficients")
+        if self._proc is not None and frame.intrinsics != self._intrinsics:
+            log.debug("orbslam3: the worker was prepared for other intrinsics than the frames'; starting another")
+            self._stop()
+        if self._proc is None:
+            self._spawn(frame.intrinsics)
         kind, detail = self._recv(f"starting on {frame.source or 'the recording'} (loading the vocabulary)",
                                   self.cfg.orbslam3.load_timeout_s)[:2]
         if kind == "error":
             self._stop()
             raise SlamWorkerError(f"{self.vocab_path}: ORB-SLAM3 failed to start on {frame.source or 'the recording'}: "
                                   f"{detail}")
+        self._ready = True
 
     def _recv(self, doing: str, timeout_s: float) -> Reply:
         conn, proc = self._conn, self._proc
@@ -253,6 +217,7 @@ class OrbSlam3Backend(BackendBase):
             self._proc.kill()
             self._proc.wait(timeout=_EXIT_GRACE_S)
         self._proc = None
+        self._ready = False
         if self._conn is not None:
             self._conn.close()
             self._conn = None
@@ -286,7 +251,7 @@ class OrbSlam3Backend(BackendBase):
         """Send the frame to the worker and return at once: it tracks while the caller computes (``collect``)."""
         if self._submitted is not None:
             raise RuntimeError(f"orbslam3: frame {self._submitted.index} was submitted and never collected")
-        if self._proc is None:
+        if not self._ready:
             self._start(frame)
         elif frame.intrinsics != self._intrinsics:
             raise SlzError(f"{frame.source or 'recording'}: frame {frame.index} has other intrinsics than the first "
@@ -408,6 +373,3 @@ def monocular_scale(T_world_camera: np.ndarray, points_world: np.ndarray, depth_
         return None
     return float(np.median(measured[ok] / z[ok]))
 
-
-if __name__ == "__main__":
-    _worker_main()

@@ -23,7 +23,7 @@ from slzcli.pipeline import run as run_module
 from slzcli.pipeline.commit import commit
 from slzcli.pipeline.run import Sink, TruthSink, method_run, run
 from slzcli.pipeline.source import open_source
-from slzcli.pipeline.tracking import Tracker
+from slzcli.pipeline.tracking import Tracker, open_slam
 from slzcli.slam import get_backend
 from slzcli.summary import RunState
 from slzcli.timeout import StageLimit
@@ -57,7 +57,7 @@ def run_core(path: Path, config: Config,
     kept = Kept()
     with ExitStack() as stack:
         source, config = open_source(path, config, stack)
-        tracker = Tracker(config, stack.enter_context(get_backend(config.slam, source.has_poses, clouds=source.clouds)))
+        tracker = Tracker(config, open_slam(source, config.slam, stack))
         mr = method_run(config, method, tracker)
         assert mr.state.noise is not None
         run(source, tracker, [mr], mr.state.noise, limit, [TruthSink(truth), kept])

@@ -196,6 +196,58 @@ def test_a_dead_worker_is_an_slz_error(line_flight) -> None:
             b.track(frames[1])
 
 
+@needs_orbslam3
+def test_a_prepared_worker_is_the_one_that_tracks(line_flight) -> None:
+    """``prepare`` starts the worker before the first frame (its vocabulary loads while the run is set up); the
+    first frame is tracked by that worker, not by a second one."""
+    frames, _ = line_flight
+    config = load_config(overrides=["slam.backend=orbslam3"])
+    with get_backend(config.slam) as b:
+        b.prepare(frames[0].intrinsics)
+        proc = cast(Any, b)._proc   # a private of the ORB-SLAM3 backend
+        assert proc is not None and proc.poll() is None
+        results = [b.track(f) for f in frames[:20]]
+        assert cast(Any, b)._proc is proc
+    assert any(r.state is TrackingState.OK for r in results)
+    assert proc.poll() is not None   # closed with the backend
+
+
+@needs_orbslam3
+def test_a_worker_prepared_for_other_intrinsics_is_replaced(line_flight) -> None:
+    frames, _ = line_flight
+    config = load_config(overrides=["slam.backend=orbslam3"])
+    other = frames[0].intrinsics.scaled(frames[0].intrinsics.width // 2, frames[0].intrinsics.height // 2)
+    with get_backend(config.slam) as b:
+        b.prepare(other)
+        first = cast(Any, b)._proc
+        results = [b.track(f) for f in frames[:20]]
+        assert cast(Any, b)._proc is not first and first.poll() is not None
+    assert any(r.state is TrackingState.OK for r in results)
+
+
+@needs_orbslam3
+def test_a_prepared_worker_without_frames_closes(line_flight) -> None:
+    frames, _ = line_flight
+    config = load_config(overrides=["slam.backend=orbslam3"])
+    with get_backend(config.slam) as b:
+        b.prepare(frames[0].intrinsics)
+        proc = cast(Any, b)._proc
+    assert proc.wait(timeout=10) is not None
+
+
+def test_the_orbslam3_worker_script_imports_no_slz_module() -> None:
+    """The worker is started as a script: importing slzcli there would cost every run ~0.4 s of start-up."""
+    import ast
+
+    import slzcli.slam.orbslam3 as orb
+
+    tree = ast.parse(orb._WORKER.read_text())
+    names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    names |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert not any(n.split(".")[0] == "slzcli" for n in names), names
+    assert "pyorbslam3" in names
+
+
 # ----------------------------------------------------------------------------- registry
 def test_auto_prefers_recorded_then_orbslam3_then_odometry() -> None:
     assert set(BACKENDS) == {"recorded", "orbslam3", "odometry"}

@@ -27,7 +27,7 @@ from slzcli.evaluate.slam import ate, ate_by_segment, rpe, umeyama
 from slzcli.geometry import invert_pose
 from slzcli.outputs.summary_json import summary_json
 from slzcli.pipeline import RunOptions, detect_recording
-from slzcli.pipeline import run as run_module
+from slzcli.pipeline import tracking as tracking_module
 from slzcli.pipeline.commit import commit_site
 from slzcli.pipeline.tracking import depth_points, gravity_alignment
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
@@ -103,7 +103,7 @@ def flight(tmp_path_factory) -> Path:
 @pytest.fixture
 def two_maps(monkeypatch, flight):
     truth = load_ground_truth(flight)
-    monkeypatch.setattr(run_module, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth))
+    monkeypatch.setattr(tracking_module, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth))
     return truth
 
 
@@ -227,7 +227,7 @@ def test_two_maps_stay_apart_in_every_output(two_maps, flight, tmp_path) -> None
 def test_a_new_map_never_uses_the_old_maps_points(monkeypatch, flight, tmp_path) -> None:
     """Map 1 makes no keyframe: its frames have no map points to select from (map 0's are in another frame)."""
     truth = load_ground_truth(flight)
-    monkeypatch.setattr(run_module, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth, (0,)))
+    monkeypatch.setattr(tracking_module, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth, (0,)))
     config = load_config(overrides=["landing.detect_on=every_nth", "landing.every_nth_frame=1"])
     summary = detect_recording(flight, config, tmp_path / "run", RunOptions())
     assert summary.detections == FRAMES
@@ -239,10 +239,8 @@ def test_a_new_map_never_uses_the_old_maps_points(monkeypatch, flight, tmp_path)
 
 
 def test_compare_counts_the_maps_and_measures_no_distance_across_them(monkeypatch, flight, tmp_path, runner) -> None:
-    from slzcli import compare
-
     truth = load_ground_truth(flight)
-    monkeypatch.setattr(compare, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth))
+    monkeypatch.setattr(tracking_module, "get_backend", lambda config, has_poses=False, **kw: TwoMaps(truth))
     res = runner.invoke(main, ["compare", str(flight), "-o", str(tmp_path / "cmp"), "--json"])
     assert res.exit_code == 0, res.output
     rec = json.loads(res.stdout)["recordings"][0]
