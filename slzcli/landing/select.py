@@ -190,8 +190,12 @@ def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera:
     (uv,), _ = project(centroid[None], T_world_camera, K, score.shape)
     center_camera = transform_points(np.linalg.inv(T_world_camera), centroid)
     good_n = normals[np.all(np.isfinite(normals), axis=1)]
-    normal = good_n.mean(axis=0)
-    normal /= np.linalg.norm(normal)
+    mean_n = good_n.mean(axis=0)
+    # the surface's tilt from the plane through the cluster, not the mean of its points' normals: each of those
+    # comes from the few neighbours within normal_radius_m, and from ORB-SLAM3's sparse points at 10 m (8-61 a
+    # cluster, ~0.25 m of depth noise each) their mean read level ground as 19-72 deg (benchmarks/fused_detect.py)
+    normal = fitted_normal(pts, mean_n / np.linalg.norm(mean_n))
+    normal = normal if normal @ up >= 0.0 else -normal
     tilt = float(np.degrees(np.arccos(np.clip(normal @ up, -1.0, 1.0))))
     iu, iv = round(float(uv[0])), round(float(uv[1]))
     clearance = None if edge_distance_m is None else float(edge_distance_m[iv, iu])
