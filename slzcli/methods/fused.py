@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import functools
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +26,6 @@ from slzcli.fusion.grid import region, seen_bounds
 from slzcli.fusion.output import Judged, landing_grid, write_landing_map
 from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
 from slzcli.fusion.verdict import SAFE, fused_maps
-from slzcli.landing.raised import surroundings
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
 from slzcli.scoring import SCORERS
@@ -87,8 +86,7 @@ class FusedMethod:
         advice: Advice | None = None
         if T is not None and points is not None:
             selection = select_site(points.xyz_world, T, frame.K, score.mask, score.score, self.params,
-                                    edge_distance_m=maps.edge_distance_m, around_world=surroundings(
-                                        frame.depth_m, frame.intrinsics, T, self.config.landing.depth_points_stride_px))
+                                    edge_distance_m=maps.edge_distance_m)
             if selection.site is None and fm is not None and not score.mask.any():
                 advice = self.terrain.advice(fm, self.track.hovering(self.config.terrain.fusion.hover_speed_m_s))
                 why = fm.raised_lead() + "nothing in view is decided safe by the fused terrain"
@@ -117,10 +115,13 @@ class FusedMethod:
 
 
 def fused(config: Config) -> FusedMethod:
+    """The method; its site selection without the per-frame raised-surface rule: the fused verdict already ran
+    that rule on its cells (a patch raised or not told from raised is not SAFE), with every frame's evidence, and
+    the per-frame rule on a keyframe's SLAM map points (8-61 a cluster from ORB-SLAM3 at 10 m, ~0.25 m each)
+    refused every level cluster the fused map had decided as "not told" (benchmarks/fused_detect.py)."""
     scorer = SCORERS["fuzzy"].from_config(config.scoring, config.mask)
-    return FusedMethod(config, FusedTerrain(config, scorer),
-                       select_params(config.landing, config.uav, "min_normal_variance",
-                                     config.landing.min_extent_factor),
+    params = select_params(config.landing, config.uav, "min_normal_variance", config.landing.min_extent_factor)
+    return FusedMethod(config, FusedTerrain(config, scorer), replace(params, raised=None),
                        NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
 
 

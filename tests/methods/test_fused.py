@@ -73,3 +73,21 @@ def test_without_results_mcap_no_landing_grid_is_built(hover: Path, tmp_path: Pa
     _detect(hover, tmp_path / "run", "--set", "output.results_mcap=false")
     assert not (tmp_path / "run" / "results.mcap").exists()
     assert built == []
+
+
+def test_the_fused_site_selection_leaves_raised_surfaces_to_the_fused_verdict() -> None:
+    """The fused verdict runs the raised-surface rule on its cells with every frame's evidence (a patch raised or
+    not told from raised is not SAFE, tests/landing/test_landing_raised.py); the per-frame rule on one keyframe's
+    sparse SLAM points is not run again: on ORB-SLAM3's points at 10 m it called every level cluster the fused
+    map had decided "not told", and `slz detect --method fused` committed no site on 30 flights
+    (benchmarks/fused_detect.py; 8, all truly safe, without it)."""
+    from slzcli.config import load_config
+    from slzcli.methods.maps import select_params
+
+    config = load_config(None, [])
+    method = fused.fused(config)
+    assert method.params.raised is None
+    per_frame = select_params(config.landing, config.uav, "min_normal_variance", config.landing.min_extent_factor)
+    assert per_frame.raised is not None   # the per-frame methods keep it
+    assert {k: v for k, v in vars(method.params).items() if k != "raised"} == \
+        {k: v for k, v in vars(per_frame).items() if k != "raised"}
