@@ -20,7 +20,7 @@ from slzcli.config import Config
 from slzcli.evaluate.timing import StageTimer
 from slzcli.evaluate.truth import TruthEvaluator, site_truth_of
 from slzcli.funnel import FunnelLog
-from slzcli.landing.commit import commit_radius_m, refuted_reason, spread_record
+from slzcli.landing.commit import commit_radius_m, no_commit_reason, spread_record
 from slzcli.outputs.records_json import to_json_object
 from slzcli.outputs.results_mcap import MAP_FRAME, map_frame_of
 from slzcli.outputs.site_log import SiteLog
@@ -149,8 +149,8 @@ def untracked_frames(has_pose: np.ndarray, tracking: Mapping[str, int], slam_nam
 def no_site_reason(st: RunState, slam_name: str, keyframes: int, radius_m: float) -> str:
     """Why a run found no site, from its RunState (``slz detect`` and ``slz compare``); ``radius_m``: the commit
     radius (``landing.commit.commit_radius_m``)."""
-    if st.sites.sites:   # sites were found and none committed: the raised-surface readings refuted them
-        return refuted_reason(st.sites.sites, st.sites.raised_readings(), radius_m)
+    if st.sites.sites:   # sites were found and none committed: refuted, or none passed its acceptance test
+        return no_commit_reason(st.sites.sites, st.sites.raised_readings(), radius_m)
     if st.detections == 0:
         return "no frame was due for detection (no keyframe was tracked)"
     if st.detections_without_depth == st.detections:

@@ -4,7 +4,9 @@ ORB-SLAM3 tracks in threads, so which frames become keyframes, and so which dete
 makes and in what order, changes from run to run of the same recording. The rule therefore
 uses only what the ground gives a site, never the order detections arrived:
 
-1. the pool: the sites that pass the acceptance test (all sites when none does);
+1. the pool: the sites that pass the acceptance test; when none does, no site is committed (a site too close to
+   an edge or on a slope steeper than the UAV takes is not vouched for by the run that found it; the reason
+   names the best one's failure);
 2. confirmed: sites that another detection of the same map segment confirms (a site within
    ``radius_m`` in plan), when any is; one lucky keyframe does not commit a site alone;
 3. equally good: confirmed sites of the best-scoring confirmed site's map segment whose score
@@ -93,6 +95,20 @@ def _plan(sites: Sequence[FoundSite]) -> tuple[np.ndarray, np.ndarray]:
             np.array([s.segment for s in sites], dtype=np.int64))
 
 
+def no_commit_reason(sites: Sequence[FoundSite], readings: RaisedReadings, radius_m: float) -> str:
+    """Why a run whose detections found sites commits none (``commit``): the raised-surface readings refute every
+    one, or every one they leave failed its acceptance test."""
+    out, _, _ = refuted(*_plan(sites), readings, radius_m)
+    if out.all():
+        return refuted_reason(sites, readings, radius_m)
+    kept = [s for s, o in zip(sites, out, strict=True) if not o]
+    best = max(kept, key=lambda s: (np.nan_to_num(s.site.score, nan=-np.inf), -s.frame.index))
+    x, y = best.site.center_world[:2]
+    gone = f", after {int(out.sum())} refuted by the raised-surface rule" if out.any() else ""
+    return (f"every site the detection frames chose failed its acceptance test ({len(kept)}{gone}); the best, at "
+            f"({x:.1f}, {y:.1f}) m: {best.site.acceptance_reason}")
+
+
 def refuted_reason(sites: Sequence[FoundSite], readings: RaisedReadings, radius_m: float) -> str:
     """Why a run whose detections found sites commits none: the raised-surface readings refute every one."""
     _, refused, passed = refuted(*_plan(sites), readings, radius_m)
@@ -135,7 +151,7 @@ def commit(sites: Sequence[FoundSite], radius_m: float, score_band: float, rule:
     if sites and readings is not None:
         out, _, _ = refuted(*_plan(sites), readings, radius_m)
         sites = [s for s, o in zip(sites, out, strict=True) if not o]
-    if not sites:
+    if not sites or (rule != "latest" and not any(s.site.accepted for s in sites)):
         return None
     xy, segment = _plan(sites)
     score = np.array([s.site.score for s in sites], dtype=np.float64)

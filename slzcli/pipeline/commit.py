@@ -5,8 +5,9 @@ another detection of the same map segment within ``landing.commit_radius_factor`
 sides, within ``landing.commit_score_band`` of the best score, the plan medoid of those), never
 by the order detections arrived, which ORB-SLAM3's threads change from run to run. The committed
 site's segment is the run's world frame. ``landing.commit: latest`` (the paper's "current
-keyframe") takes the last detection's site instead. Either way a site the raised-surface rule's readings
-around it refute (within that radius, its refusals outweigh its passes, each by its precision) is not committed.
+keyframe") takes the last detection's site instead, accepted or not. Either way a site the raised-surface rule's
+readings around it refute (within that radius, its refusals outweigh its passes, each by its precision) is not
+committed; under the default rule neither is one that failed its acceptance test (edge clearance, tilt).
 """
 
 from __future__ import annotations

@@ -15,7 +15,15 @@ from conftest import GAUSSIAN, HALF_SIZE, synth_recording
 
 from slzcli.cli import main
 from slzcli.config import load_config
-from slzcli.landing.commit import MIN_SITES_FOR_SPREAD, commit, rank, refuted, refuted_reason, spread_record
+from slzcli.landing.commit import (
+    MIN_SITES_FOR_SPREAD,
+    commit,
+    no_commit_reason,
+    rank,
+    refuted,
+    refuted_reason,
+    spread_record,
+)
 from slzcli.pipeline.commit import commit_site
 from slzcli.types import FoundSite, RaisedReadings
 
@@ -29,6 +37,7 @@ class _Site:
     score: float
     accepted: bool = True
     edge_clearance_m: float | None = 2.0
+    acceptance_reason: str = "edge clearance 0.30 m <= 0.43 m"
 
 
 @dataclass(frozen=True)
@@ -85,8 +94,14 @@ def test_a_lone_detection_does_not_outvote_confirmed_sites_nor_does_a_rejected_o
     assert commit(sites, 1.3, BAND)[0].site.center_world[:2] == (0.0, 0.0)  # type: ignore[index]
     rejected = entries([(3, 9.0, 9.0, 0.99), (4, 9.1, 9.0, 0.99)], accepted=False)
     assert commit(sites + rejected, 1.3, BAND)[0].site.accepted  # type: ignore[index]
-    only_rejected = commit(rejected, 1.3, BAND)   # none accepted: the best of those, still named
-    assert only_rejected is not None and not only_rejected[0].site.accepted
+    # none accepted: no site (one too close to an edge or too tilted is not vouched for), and the reason names the
+    # best one's failure; the paper's rule (latest) still takes the last detection's site, accepted or not
+    assert commit(rejected, 1.3, BAND) is None
+    why = no_commit_reason(rejected, readings([]), 1.3)
+    assert why.startswith("every site the detection frames chose failed its acceptance test (2)"), why
+    assert ("(9.0, 9.0) m" in why or "(9.1, 9.0) m" in why) and why.endswith("edge clearance 0.30 m <= 0.43 m")
+    latest = commit(rejected, 1.3, BAND, "latest")
+    assert latest is not None and not latest[0].site.accepted
 
 
 def test_too_few_equal_sites_say_the_spread_is_unknown() -> None:
