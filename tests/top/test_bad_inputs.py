@@ -417,7 +417,9 @@ def test_a_nan_pose_is_refused_at_the_source_with_one_warning(runner: CliRunner,
 def test_missing_tum_images_are_one_warning_and_a_count(runner: CliRunner, tmp_path: Path) -> None:
     summary, stderr = detect_json(runner, B.tum_missing_images(tmp_path), tmp_path / "run")
     assert summary["frames"] == 5 and summary["pairing"]["undecodable"] == 25
-    warned = warnings_of(stderr)
+    # the images' warnings only: ORB-SLAM3 loses one of the 5 frames left in ~1 run of 15 (its threads), which
+    # adds the untracked frames' own warnings (measured: 1 of 12 runs on 9493d33's code, 1 of 18 after)
+    warned = [w for w in warnings_of(stderr) if ".png" in w]
     assert len(warned) == 1 and "rgb/5.png" in warned[0] and "counted, not shown" in warned[0]
     assert any(n.startswith("25 of 30 frame(s) not readable") for n in summary["pairing"]["notes"])
 
