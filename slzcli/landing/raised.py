@@ -70,6 +70,9 @@ class RaisedParams:
     confidence_sigma: float   # landing.raised.margin_sigma
     min_points: int           # landing.raised.min_cells (plan cells of the annulus with a point)
     cell_m: float = 0.25      # landing.raised.ground_cell_m
+    # a "not told" reading whose margin is at least the tolerance itself cannot tell level ground from a step the
+    # UAV cannot take: True drops it (no refusal, no reading) for a method whose own cells decided the ground (fused)
+    defer_untold: bool = False
 
     @classmethod
     def of(cls, raised: RaisedCfg, footprint_m: tuple[float, float], margin_m: float,

@@ -166,7 +166,10 @@ def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndar
             reason, test = "centroid falls on a pixel the mask rejects", "centroid"
         elif params.raised is not None:
             found = raised_site(centroid, good_n, pts, around, params.raised, up)
-            if found.refused:
+            if (params.raised.defer_untold and found.refused and not found.raised
+                    and found.margin_m >= params.raised.max_height_m):
+                found = None   # it cannot tell: left to the method's own evidence (RaisedParams.defer_untold)
+            elif found.refused:
                 reason, test = found.reason(), "raised"
     return Candidate(c, len(pts), _vec3(centroid), variance, (float(extent[0]), float(extent[1])),
                      reason == "", reason or "qualifies", test, None if found is None else found.points,

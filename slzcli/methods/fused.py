@@ -26,6 +26,7 @@ from slzcli.fusion.grid import region, seen_bounds
 from slzcli.fusion.output import Judged, landing_grid, write_landing_map
 from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
 from slzcli.fusion.verdict import SAFE, fused_maps
+from slzcli.landing.raised import surroundings
 from slzcli.landing.select import Selection, SelectParams, select_site
 from slzcli.methods.maps import select_params
 from slzcli.scoring import SCORERS
@@ -86,7 +87,8 @@ class FusedMethod:
         advice: Advice | None = None
         if T is not None and points is not None:
             selection = select_site(points.xyz_world, T, frame.K, score.mask, score.score, self.params,
-                                    edge_distance_m=maps.edge_distance_m)
+                                    edge_distance_m=maps.edge_distance_m, around_world=surroundings(
+                                        frame.depth_m, frame.intrinsics, T, self.config.landing.depth_points_stride_px))
             if selection.site is None and fm is not None and not score.mask.any():
                 advice = self.terrain.advice(fm, self.track.hovering(self.config.terrain.fusion.hover_speed_m_s))
                 why = fm.raised_lead() + "nothing in view is decided safe by the fused terrain"
@@ -115,13 +117,16 @@ class FusedMethod:
 
 
 def fused(config: Config) -> FusedMethod:
-    """The method; its site selection without the per-frame raised-surface rule: the fused verdict already ran
-    that rule on its cells (a patch raised or not told from raised is not SAFE), with every frame's evidence, and
-    the per-frame rule on a keyframe's SLAM map points (8-61 a cluster from ORB-SLAM3 at 10 m, ~0.25 m each)
-    refused every level cluster the fused map had decided as "not told" (benchmarks/fused_detect.py)."""
+    """The method; its site selection keeps the per-frame raised-surface rule's refusals only where a reading can
+    tell (``RaisedParams.defer_untold``): the fused verdict already ran that rule on its cells with every frame's
+    evidence, and the per-frame rule on a keyframe's SLAM map points (8-61 a cluster from ORB-SLAM3 at 10 m,
+    ~0.25 m each, margins 0.12-0.62 m) refused every level cluster the fused map had decided as "not told"
+    (benchmarks/fused_detect.py), while at 5 m (margins of centimetres) it kept a D435's 0.12 m box top, which
+    the fused mask partly calls safe, from being chosen (benchmarks/raised_low.py)."""
     scorer = SCORERS["fuzzy"].from_config(config.scoring, config.mask)
     params = select_params(config.landing, config.uav, "min_normal_variance", config.landing.min_extent_factor)
-    return FusedMethod(config, FusedTerrain(config, scorer), replace(params, raised=None),
+    raised = None if params.raised is None else replace(params.raised, defer_untold=True)
+    return FusedMethod(config, FusedTerrain(config, scorer), replace(params, raised=raised),
                        NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
 
 

@@ -3,6 +3,7 @@ and the landing grid of a detection built only when results.mcap is written."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -75,19 +76,42 @@ def test_without_results_mcap_no_landing_grid_is_built(hover: Path, tmp_path: Pa
     assert built == []
 
 
-def test_the_fused_site_selection_leaves_raised_surfaces_to_the_fused_verdict() -> None:
-    """The fused verdict runs the raised-surface rule on its cells with every frame's evidence (a patch raised or
-    not told from raised is not SAFE, tests/landing/test_landing_raised.py); the per-frame rule on one keyframe's
-    sparse SLAM points is not run again: on ORB-SLAM3's points at 10 m it called every level cluster the fused
-    map had decided "not told", and `slz detect --method fused` committed no site on 30 flights
-    (benchmarks/fused_detect.py; 8, all truly safe, without it)."""
+def test_the_fused_site_selection_drops_only_the_raised_readings_that_cannot_tell() -> None:
+    """The fused verdict runs the raised-surface rule on its cells with every frame's evidence; the per-frame rule
+    on a keyframe's sparse SLAM points refuses a fused site only where its reading can tell (margin under the
+    tolerance, or raised beyond doubt): on ORB-SLAM3's points at 10 m it called every level cluster "not told"
+    and `slz detect --method fused` committed no site on 30 flights (benchmarks/fused_detect.py)."""
+    import numpy as np
+
     from slzcli.config import load_config
+    from slzcli.landing.select import select_site
     from slzcli.methods.maps import select_params
 
     config = load_config(None, [])
     method = fused.fused(config)
-    assert method.params.raised is None
+    assert method.params.raised is not None and method.params.raised.defer_untold
     per_frame = select_params(config.landing, config.uav, "min_normal_variance", config.landing.min_extent_factor)
-    assert per_frame.raised is not None   # the per-frame methods keep it
-    assert {k: v for k, v in vars(method.params).items() if k != "raised"} == \
-        {k: v for k, v in vars(per_frame).items() if k != "raised"}
+    assert per_frame.raised is not None and not per_frame.raised.defer_untold   # the per-frame methods refuse
+    # level ground, 40 map points over 3 x 3 m with 0.25 m of noise, seen from 10 m, and level ground around it
+    # with 0.25 m of noise: the per-frame rule cannot tell it (margin over the tolerance); the fused one defers
+    K = np.array([[600.0, 0.0, 320.0], [0.0, 600.0, 240.0], [0.0, 0.0, 1.0]])
+    T = np.array([[1.0, 0, 0, 0], [0, -1.0, 0, 0], [0, 0, -1.0, 10.0], [0, 0, 0, 1.0]])
+    mask = np.ones((480, 640), bool)
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        xy = rng.uniform(-1.5, 1.5, (40, 2))
+        pts = np.column_stack([xy, rng.normal(0.0, 0.25, 40)])
+        ring = rng.uniform(-4.0, 4.0, (4000, 2))
+        ring = ring[np.hypot(*ring.T) > 1.5]
+        around = np.column_stack([ring, rng.normal(0.0, 0.25, len(ring))])
+        base = dataclasses.replace(per_frame, kmeans_k=1)
+        refused = select_site(pts, T, K, mask, mask.astype(np.float32), base, around_world=around)
+        assert refused.site is None and "not told" in refused.reason, refused.reason
+        deferred = select_site(pts, T, K, mask, mask.astype(np.float32),
+                               dataclasses.replace(method.params, kmeans_k=1), around_world=around)
+        assert deferred.site is not None, deferred.reason
+        assert deferred.candidates[0].raised_m is None   # dropped: neither a refusal nor a reading
+        # a 1.5 m box top is raised beyond doubt at that noise: refused on both
+        top = select_site(pts + np.array([0.0, 0.0, 1.5]), T, K, mask, mask.astype(np.float32),
+                          dataclasses.replace(method.params, kmeans_k=1), around_world=around)
+        assert top.site is None and "above the ground around it" in top.reason
