@@ -98,26 +98,20 @@ def _plan(sites: Sequence[FoundSite]) -> tuple[np.ndarray, np.ndarray]:
 def no_commit_reason(sites: Sequence[FoundSite], readings: RaisedReadings, radius_m: float) -> str:
     """Why a run whose detections found sites commits none (``commit``): the raised-surface readings refute every
     one, or every one they leave failed its acceptance test."""
-    out, _, _ = refuted(*_plan(sites), readings, radius_m)
+    out, refused, passed = refuted(*_plan(sites), readings, radius_m)
     if out.all():
-        return refuted_reason(sites, readings, radius_m)
+        best = int(np.argmax(passed / np.maximum(refused + passed, 1))) if len(sites) else 0
+        return (f"the raised-surface rule refutes every site the detection frames chose ({len(sites)}): around "
+                f"each, the clusters it read within {radius_m:.2f} m (landing.commit_radius_factor) on a surface it "
+                "could not tell from one above the UAV's step tolerance, uav.max_step_m, outweigh those it passed, "
+                f"each reading weighed by its precision (the best: {int(refused[best])} refused, "
+                f"{int(passed[best])} passed); fly lower over it, or longer with --method fused")
     kept = [s for s, o in zip(sites, out, strict=True) if not o]
-    best = max(kept, key=lambda s: (np.nan_to_num(s.site.score, nan=-np.inf), -s.frame.index))
-    x, y = best.site.center_world[:2]
+    best_site = max(kept, key=lambda s: (np.nan_to_num(s.site.score, nan=-np.inf), -s.frame.index))
+    x, y = best_site.site.center_world[:2]
     gone = f", after {int(out.sum())} refuted by the raised-surface rule" if out.any() else ""
     return (f"every site the detection frames chose failed its acceptance test ({len(kept)}{gone}); the best, at "
-            f"({x:.1f}, {y:.1f}) m: {best.site.acceptance_reason}")
-
-
-def refuted_reason(sites: Sequence[FoundSite], readings: RaisedReadings, radius_m: float) -> str:
-    """Why a run whose detections found sites commits none: the raised-surface readings refute every one."""
-    _, refused, passed = refuted(*_plan(sites), readings, radius_m)
-    best = int(np.argmax(passed / np.maximum(refused + passed, 1))) if len(sites) else 0
-    return (f"the raised-surface rule refutes every site the detection frames chose ({len(sites)}): around each, "
-            f"the clusters it read within {radius_m:.2f} m (landing.commit_radius_factor) on a surface it could not "
-            "tell from one above the UAV's step tolerance, uav.max_step_m, outweigh those it passed, each reading "
-            f"weighed by its precision (the best: {int(refused[best])} refused, {int(passed[best])} passed); fly "
-            "lower over it, or longer with --method fused")
+            f"({x:.1f}, {y:.1f}) m: {best_site.site.acceptance_reason}")
 
 
 def rank(xy: np.ndarray, segment: np.ndarray, score: np.ndarray, clearance: np.ndarray, accepted: np.ndarray,

@@ -21,7 +21,6 @@ from slzcli.landing.commit import (
     no_commit_reason,
     rank,
     refuted,
-    refuted_reason,
     spread_record,
 )
 from slzcli.pipeline.commit import commit_site
@@ -148,7 +147,7 @@ def test_a_site_the_raised_readings_around_it_refute_is_not_committed() -> None:
     assert best is not None and best[0].site.center_world[:2] == (0.0, 0.0)
     for rule in ("agree", "latest"):
         assert commit(box, 1.3, BAND, rule, readings=r) is None
-    why = refuted_reason(box, r, 1.3)
+    why = no_commit_reason(box, r, 1.3)
     assert why.startswith("the raised-surface rule refutes every site the detection frames chose (2)")
     assert "(the best: 8 refused, 2 passed)" in why and "--method fused" in why
     tie = readings([(5.0, 0.0, True), (5.1, 0.0, False)])
