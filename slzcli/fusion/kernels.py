@@ -7,6 +7,7 @@ in the same order as the expressions it replaces (float32 where they were float3
 order as ``np.bincount`` adds them), so the results are the same bits; ``exp`` and ``log``, whose numpy
 versions are vectorised and differ from libm's in the last bit, stay in numpy between the loops
 (tests/fusion/test_kernels.py holds the loops equal to the array expressions on random frames and grids).
+``window_depth`` replaced none: it is held to box sums over the pixels in the image, to float32 rounding.
 
 Compiled on first use and cached on disk beside this file (``cache=True``); ``warm_up`` does that before a
 run's first timed frame. ``nogil``: a thread that fuses does not hold up the others.
@@ -17,7 +18,6 @@ from __future__ import annotations
 import functools
 import math
 
-import cv2
 import numpy as np
 from numba import njit
 
@@ -33,8 +33,8 @@ MAX_HALF = np.iinfo(np.int16).max - 1   # the window's half side in cells that `
 
 @_jit
 def inverse_depth(depth):
-    """(1 / depth where it is finite and positive else 0, that validity as 1 / 0), both float32: the per-pixel
-    half of ``terrain.geometry.block_depth`` (whose block means ``cv2.resize`` takes), in one pass."""
+    """(1 / depth where it is finite and positive else 0, that validity as 1 / 0), both float32: what
+    ``window_depth`` sums, in one pass."""
     inv = np.empty(depth.shape, np.float32)
     valid = np.empty(depth.shape, np.float32)
     one, zero = np.float32(1.0), np.float32(0.0)
@@ -51,76 +51,51 @@ def inverse_depth(depth):
 
 
 @_jit
-def depth_of_blocks(inv, valid):
-    """The depth of block means of inverse depth ``inv`` and of validity ``valid`` (``terrain.geometry.block_depth``:
-    a block needs half its pixels with depth; its depth is valid / inv), 0 where it has none."""
-    out = np.empty(inv.shape, np.float32)
-    zero = np.float32(0.0)
-    for j in range(inv.shape[0]):
-        for i in range(inv.shape[1]):
-            num, den = inv[j, i], valid[j, i]
-            out[j, i] = den / num if den >= 0.5 and num > 0 else zero
-    return out
-
-
-# cv2.resize's INTER_AREA at a whole factor 2 sums each 2 x 2 block pairwise, (a + b) + (c + d), in vectors of
-# this many float32 lanes, and the columns left over (and every other factor) one by one in groups of four,
-# ((a + b) + c) + d (its resizeAreaFast in OpenCV 5.0's x86 / ARM wheels, whose vectors are 128 bits wide;
-# tests/fusion/test_kernels.py holds ``area_block_depth`` to it: the same bits there, within a few ulp elsewhere)
-CV_AREA_LANES = 4
+def _add_row(inv, valid, col_inv, col_n, sign):
+    """Add (sign 1) or take away (-1) one row's inverse depths and depth counts to / from the column sums."""
+    for i in range(inv.size):
+        col_inv[i] += sign * inv[i]
+        col_n[i] += sign * valid[i]
 
 
 @_jit
-def area_block_depth(depth, m, lanes):
-    """``depth_of_blocks`` of ``block_means`` (``terrain.geometry.block_depth``) in one pass, for a frame whose sides
-    are multiples of ``m``: the block means of inverse depth summed in cv2.resize's order (``CV_AREA_LANES``), so
-    the same bits, without the two full-size float32 frames and the resizes' second pass over them."""
+def window_depth(depth, block, window):
+    """Per block of a ``block`` grid (``(H // block) x (W // block)``, as ``terrain.geometry.block_depth``'s): the
+    depth of the mean inverse depth over the ``window`` x ``window`` pixels centred where the block's centre is (the window's
+    parity is the block's; cut by the image's border), 0 where fewer than half the window's pixels in the
+    image have depth. One pass down the frame: the window's column sums slide from block row to block row (each
+    image row added once and taken away once), and a block's sum is a difference of their running sums along
+    the row; float64 sums."""
     h, w = depth.shape
-    oh, ow = h // m, w // m
+    oh, ow = h // block, w // block
     out = np.empty((oh, ow), np.float32)
-    area = m * m
-    scale = np.float32(1.0) / np.float32(area)
-    half = np.float32(0.5)
-    zero = np.float32(0.0)
-    one = np.float32(1.0)
-    big = np.float32(np.inf)
-    pairs = (ow // lanes) * lanes if m == 2 else 0
-    n4 = area - area % 4
-    inv = np.empty(m * w, np.float32)      # the block row's inverse depth, row after row
-    has = np.empty(m * w, np.int32)        # ... and its validity (whole numbers: any order of sum is exact)
-    ofs = np.empty(area, np.int64)         # a block's pixels in cv2's order (row by row) within those rows
-    for k in range(area):
-        ofs[k] = (k // m) * w + k % m
-    num = np.empty(ow, np.float32)
-    den = np.empty(ow, np.int32)
+    lo = window // 2
+    hi = window - 1 - lo
+    inv, valid = inverse_depth(depth)
+    col_inv = np.zeros(w, np.float64)
+    col_n = np.zeros(w, np.float64)      # whole numbers: exact
+    run_inv = np.zeros(w + 1, np.float64)
+    run_n = np.zeros(w + 1, np.float64)
+    r0, r1 = 0, -1          # the rows the column sums hold
     for jb in range(oh):
-        for sy in range(m):
-            row = depth[jb * m + sy]
-            b = sy * w
-            for i in range(w):
-                d = row[i]
-                ok = (d > zero) & (d < big)
-                inv[b + i] = one / d if ok else zero
-                has[b + i] = 1 if ok else 0
-        for ib in range(pairs):
-            c = 2 * ib
-            num[ib] = (inv[c] + inv[c + 1]) + (inv[w + c] + inv[w + c + 1])
-            den[ib] = (has[c] + has[c + 1]) + (has[w + c] + has[w + c + 1])
-        for ib in range(pairs, ow):
-            c = ib * m
-            s = zero
-            for k in range(0, n4, 4):
-                s += ((inv[c + ofs[k]] + inv[c + ofs[k + 1]]) + inv[c + ofs[k + 2]]) + inv[c + ofs[k + 3]]
-            for k in range(n4, area):
-                s += inv[c + ofs[k]]
-            v = 0
-            for k in range(area):
-                v += has[c + ofs[k]]
-            num[ib], den[ib] = s, v
+        p = jb * block + block // 2
+        a, b = max(0, p - lo), min(h - 1, p + hi)
+        for r in range(r0, min(a, r1 + 1)):
+            _add_row(inv[r], valid[r], col_inv, col_n, -1.0)
+        for r in range(max(a, r1 + 1), b + 1):
+            _add_row(inv[r], valid[r], col_inv, col_n, 1.0)
+        r0, r1 = a, b
+        for i in range(w):
+            run_inv[i + 1] = run_inv[i] + col_inv[i]
+            run_n[i + 1] = run_n[i] + col_n[i]
+        rows = b - a + 1
+        o = out[jb]
         for ib in range(ow):
-            a = num[ib] * scale
-            v = np.float32(den[ib]) * scale
-            out[jb, ib] = v / a if (v >= half) & (a > zero) else zero
+            q = ib * block + block // 2
+            c0, c1 = max(0, q - lo), min(w - 1, q + hi)
+            n = run_n[c1 + 1] - run_n[c0]
+            s = run_inv[c1 + 1] - run_inv[c0]
+            o[ib] = np.float32(n / s) if (2.0 * n >= rows * (c1 - c0 + 1)) & (n > 0) else np.float32(0.0)
     return out
 
 
@@ -130,7 +105,7 @@ def bin_samples(a, rx, ry, r, off_x, off_y, inv, half, min_samples, t, cell, cxy
     height (relative to the camera), squared height, depth and ray's vertical component, float64 sums in
     sample order.
 
-    The samples: ``a``, the depth (finite and positive: a sample; ``depth_of_blocks`` gives that of block
+    The samples: ``a``, the depth (finite and positive: a sample; ``window_depth`` gives that of block
     means). ``rx`` (W,), ``ry`` (H,): the rays; ``r``: the pose's rotation in float32; a sample's cell is
     floor((w + off) inv) in float32 relative to the camera's cell ``cxy``. ``half``: samples whose cell is
     farther than that from the camera's cell in x or y are dropped (the window; at most ``MAX_HALF``). Returns
@@ -473,7 +448,7 @@ def bin_frame(a: np.ndarray, rx: np.ndarray, ry: np.ndarray, r: np.ndarray, off_
               rad2: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                     np.ndarray]:
     """``bin_samples`` with its arguments in the types it was compiled for (one compilation serves every frame):
-    ``a`` the samples' depth (the frame's, or its ``block_depths``)."""
+    ``a`` the samples' depth (the frame's, or its ``window_depth``)."""
     if half > MAX_HALF:
         raise ConfigError("terrain.fusion.window_m", f"{2 * half + 2} cells wide; the fusion takes at most "
                           f"{2 * MAX_HALF + 2}: make it smaller, or the cells larger "
@@ -483,28 +458,6 @@ def bin_frame(a: np.ndarray, rx: np.ndarray, ry: np.ndarray, r: np.ndarray, off_
                        readonly(ry.reshape(-1), f32), np.array(r, f32), f32(off_x), f32(off_y), f32(inv), int(half),
                        int(min_samples), np.array(t, np.float64), float(cell), np.array(cxy, np.int64),
                        float(pose_var2), float(rad2))
-
-
-def block_depths(depth: np.ndarray, block: int) -> np.ndarray:
-    """The depth of block x block means of inverse depth, 0 where a block has none (``terrain.geometry.
-    block_depth``): by ``area_block_depth`` where the frame's sides are multiples of ``block`` (cv2's whole-factor
-    area resize), else by ``block_means`` (cv2's fractional one)."""
-    d = readonly(depth, np.float32)
-    h, w = d.shape
-    if block > 1 and h % block == 0 and w % block == 0:
-        return area_block_depth(d, int(block), CV_AREA_LANES)
-    a, b = block_means(d, block)
-    return depth_of_blocks(readonly(a, np.float32), readonly(b, np.float32))
-
-
-def block_means(depth: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
-    """Block x block means of inverse depth and of validity (``terrain.geometry.block_depth``'s, which
-    ``bin_samples`` turns into samples)."""
-    inv, valid = inverse_depth(readonly(depth, np.float32))
-    h, w = depth.shape
-    size = (max(1, w // block), max(1, h // block))
-    return (cv2.resize(inv, size, interpolation=cv2.INTER_AREA),
-            cv2.resize(valid, size, interpolation=cv2.INTER_AREA))
 
 
 def readonly(a: np.ndarray, dtype: type) -> np.ndarray:
@@ -523,9 +476,7 @@ def warm_up() -> None:
     cam = np.ones(4)
     one = np.ones((2, 2), np.float32)
     bin_frame(one, np.zeros(2), np.zeros(2), r, 0.0, 0.0, 1.0, 4, 2, t, 1.0, (0, 0), 0.0, 0.0)
-    block_means(one, 1)
-    block_depths(one, 1)
-    block_depths(one, 2)
+    window_depth(one, 1, 3)
     f32 = np.float32
     ray = readonly(np.zeros(2), f32)
     pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)

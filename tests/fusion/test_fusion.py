@@ -284,6 +284,8 @@ def _cells_by_compression(depth: np.ndarray, T: np.ndarray, params: FusionParams
     the reference ``frame_cells`` must equal, whatever it does to be fast."""
     import math as m
 
+    from scipy.ndimage import uniform_filter
+
     from slzcli.geometry import pixel_rays, valid_depth
     from slzcli.terrain.geometry import block_depth, median_depth_m
 
@@ -291,8 +293,26 @@ def _cells_by_compression(depth: np.ndarray, T: np.ndarray, params: FusionParams
     assert z_med is not None
     f = 0.5 * (INTR.fx + INTR.fy)
     b = max(1, m.floor(params.cell_m / (params.samples_per_cell * z_med / f)))
-    depth_b, ok = block_depth(depth, valid_depth(depth), b) if b > 1 else (depth, valid_depth(depth))
-    rx, ry = pixel_rays(INTR.scaled(depth_b.shape[1], depth_b.shape[0]) if b > 1 else INTR)
+    # each sample the mean of inverse depth over the widest window of the block's parity within a cell, centred
+    # on the block and cut by the image's border (scipy's uniform filter: another implementation)
+    cell_px = params.cell_m * f / z_med
+    win = b + 2 * max(0, m.floor((cell_px - b) / 2))
+    valid = valid_depth(depth)
+    if win > b:
+        inv = np.where(valid, 1.0 / np.where(valid, depth, 1.0), 0.0)
+        o = b // 2
+        at = (slice(o, o + (depth.shape[0] // b) * b, b), slice(o, o + (depth.shape[1] // b) * b, b))
+        num = uniform_filter(inv, win, mode="constant")[at]      # means with zeros beyond the image ...
+        den = np.rint(uniform_filter(valid.astype(np.float64), win, mode="constant")[at] * win * win)
+        inside = np.rint(uniform_filter(np.ones(depth.shape), win, mode="constant")[at] * win * win)
+        ok = (2.0 * den >= inside) & (den > 0)                   # ... half the pixels inside with depth
+        num *= win * win
+        depth_b = np.where(ok, den / np.where(ok, num, 1.0), np.nan).astype(np.float32)
+    elif b > 1:
+        depth_b, ok = block_depth(depth, valid, b)
+    else:
+        depth_b, ok = depth, valid
+    rx, ry = pixel_rays(INTR.scaled(depth_b.shape[1], depth_b.shape[0]) if depth_b.shape != depth.shape else INTR)
     rows, cols = np.nonzero(ok)
     z, xr, yr = depth_b[rows, cols], rx[0, cols], ry[rows, 0]
     R, t = T[:3, :3].astype(np.float32), T[:3, 3]
