@@ -61,11 +61,11 @@ def _add_row(inv, valid, col_inv, col_n, sign):
 @_jit
 def window_depth(depth, block, window):
     """Per block of a ``block`` grid (``(H // block) x (W // block)``, as ``terrain.geometry.block_depth``'s): the
-    depth of the mean inverse depth over the ``window`` x ``window`` pixels centred where the block's centre is (the window's
-    parity is the block's; cut by the image's border), 0 where fewer than half the window's pixels in the
-    image have depth. One pass down the frame: the window's column sums slide from block row to block row (each
-    image row added once and taken away once), and a block's sum is a difference of their running sums along
-    the row; float64 sums."""
+    depth of the mean inverse depth over the ``window`` x ``window`` pixels centred where the block's centre is
+    (the window's parity is the block's; cut by the image's border), 0 where fewer than half the window's pixels
+    in the image have depth. One pass down the frame: the window's column sums slide from block row to block row
+    (each image row added once and taken away once), and a block's sum is a difference of their running sums
+    along the row; float64 sums."""
     h, w = depth.shape
     oh, ow = h // block, w // block
     out = np.empty((oh, ow), np.float32)

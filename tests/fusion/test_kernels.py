@@ -49,10 +49,10 @@ def numpy_window_depth(depth: np.ndarray, valid: np.ndarray, block: int, window:
     h, w = depth.shape
     o = block // 2
     at = (slice(o, o + (h // block) * block, block), slice(o, o + (w // block) * block, block))
-    box = {"ksize": (window, window), "normalize": False, "borderType": cv2.BORDER_CONSTANT}
-    num = cv2.boxFilter(inv, cv2.CV_64F, **box)[at]
-    den = cv2.boxFilter(valid.astype(np.float64), cv2.CV_64F, **box)[at]
-    inside = cv2.boxFilter(np.ones(depth.shape), cv2.CV_64F, **box)[at]
+    def box(a: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(a, cv2.CV_64F, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)[at]
+
+    num, den, inside = box(inv), box(valid.astype(np.float64)), box(np.ones(depth.shape))
     ok = (2.0 * den >= inside) & (den > 0)
     out = np.full(num.shape, np.nan, np.float32)
     out[ok] = (den[ok] / num[ok]).astype(np.float32)
