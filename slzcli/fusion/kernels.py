@@ -7,7 +7,6 @@ in the same order as the expressions it replaces (float32 where they were float3
 order as ``np.bincount`` adds them), so the results are the same bits; ``exp`` and ``log``, whose numpy
 versions are vectorised and differ from libm's in the last bit, stay in numpy between the loops
 (tests/fusion/test_kernels.py holds the loops equal to the array expressions on random frames and grids).
-``window_depth`` replaced none: it is held to box sums over the pixels in the image, to float32 rounding.
 
 Compiled on first use and cached on disk beside this file (``cache=True``); ``warm_up`` does that before a
 run's first timed frame. ``nogil``: a thread that fuses does not hold up the others.
@@ -34,7 +33,7 @@ MAX_HALF = np.iinfo(np.int16).max - 1   # the window's half side in cells that `
 @_jit
 def inverse_depth(depth):
     """(1 / depth where it is finite and positive else 0, that validity as 1 / 0), both float32: what
-    ``window_depth`` sums, in one pass."""
+    ``measure.window_depths`` sums, in one pass."""
     inv = np.empty(depth.shape, np.float32)
     valid = np.empty(depth.shape, np.float32)
     one, zero = np.float32(1.0), np.float32(0.0)
@@ -60,12 +59,9 @@ def _add_row(inv, valid, col_inv, col_n, sign):
 
 @_jit
 def window_depth(depth, block, window):
-    """Per block of a ``block`` grid (``(H // block) x (W // block)``, as ``terrain.geometry.block_depth``'s): the
-    depth of the mean inverse depth over the ``window`` x ``window`` pixels centred where the block's centre is
-    (the window's parity is the block's; cut by the image's border), 0 where fewer than half the window's pixels
-    in the image have depth. One pass down the frame: the window's column sums slide from block row to block row
-    (each image row added once and taken away once), and a block's sum is a difference of their running sums
-    along the row; float64 sums."""
+    """``measure.window_depths`` by sliding sums, for blocks of 2 px or more: one pass down the frame, the window's
+    column sums slide from block row to block row (each image row added once and taken away once), and a block's
+    sum is a difference of their running sums along the row; float64 sums."""
     h, w = depth.shape
     oh, ow = h // block, w // block
     out = np.empty((oh, ow), np.float32)
@@ -100,12 +96,26 @@ def window_depth(depth, block, window):
 
 
 @_jit
+def window_ratio(num, den, rows_in, cols_in):
+    """The depth of window means of inverse depth from the windows' sums ``num`` (inverse depth) and ``den``
+    (pixels with depth): den / num where at least half the window's pixels in the image (``rows_in[j] x
+    cols_in[i]``) have depth, else 0 (``measure.window_depths``)."""
+    out = np.empty(num.shape, np.float32)
+    zero = np.float32(0.0)
+    for j in range(num.shape[0]):
+        for i in range(num.shape[1]):
+            n = den[j, i]
+            out[j, i] = n / num[j, i] if (n + n >= rows_in[j] * cols_in[i]) & (n > 0) else zero
+    return out
+
+
+@_jit
 def bin_samples(a, rx, ry, r, off_x, off_y, inv, half, min_samples, t, cell, cxy, pose_var2, rad2):
     """One frame's samples binned into cells: per cell with ``min_samples`` or more, the means of the samples'
     height (relative to the camera), squared height, depth and ray's vertical component, float64 sums in
     sample order.
 
-    The samples: ``a``, the depth (finite and positive: a sample; ``window_depth`` gives that of block
+    The samples: ``a``, the depth (finite and positive: a sample; ``measure.window_depths`` gives that of block
     means). ``rx`` (W,), ``ry`` (H,): the rays; ``r``: the pose's rotation in float32; a sample's cell is
     floor((w + off) inv) in float32 relative to the camera's cell ``cxy``. ``half``: samples whose cell is
     farther than that from the camera's cell in x or y are dropped (the window; at most ``MAX_HALF``). Returns
@@ -448,7 +458,7 @@ def bin_frame(a: np.ndarray, rx: np.ndarray, ry: np.ndarray, r: np.ndarray, off_
               rad2: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                     np.ndarray]:
     """``bin_samples`` with its arguments in the types it was compiled for (one compilation serves every frame):
-    ``a`` the samples' depth (the frame's, or its ``window_depth``)."""
+    ``a`` the samples' depth (the frame's, or its ``measure.window_depths``)."""
     if half > MAX_HALF:
         raise ConfigError("terrain.fusion.window_m", f"{2 * half + 2} cells wide; the fusion takes at most "
                           f"{2 * MAX_HALF + 2}: make it smaller, or the cells larger "
@@ -476,7 +486,8 @@ def warm_up() -> None:
     cam = np.ones(4)
     one = np.ones((2, 2), np.float32)
     bin_frame(one, np.zeros(2), np.zeros(2), r, 0.0, 0.0, 1.0, 4, 2, t, 1.0, (0, 0), 0.0, 0.0)
-    window_depth(one, 1, 3)
+    window_depth(one, 2, 2)
+    window_ratio(one, one, np.ones(2, np.float32), np.ones(2, np.float32))
     f32 = np.float32
     ray = readonly(np.zeros(2), f32)
     pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)

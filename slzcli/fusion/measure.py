@@ -23,6 +23,7 @@ import functools
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from slzcli.config import Config
@@ -157,6 +158,31 @@ def sample_window_px(block: int, depth_m: float, focal_px: float, cell_m: float)
     return block + 2 * max(0, math.floor((side - block) / 2.0))
 
 
+def window_depths(depth: np.ndarray, block: int, window: int) -> np.ndarray:
+    """Per block of a ``block`` grid (``(H // block) x (W // block)``, as ``terrain.geometry.block_depth``'s): the
+    depth of the mean inverse depth over the ``window`` x ``window`` pixels centred where the block's centre is
+    (the window's parity is the block's; cut by the image's border), 0 where fewer than half the window's pixels
+    in the image have depth.
+
+    Two ways to the same sums: when every pixel is a sample (block 1, from ~10 m on a 640 x 480 camera) cv2's
+    box filter (float32, the window's few pixels: rounding only), 0.38 ms a 640 x 480 frame against 1.0 ms by
+    the compiled sliding sums (``kernels.window_depth``), which are faster once samples are sparser (0.32 ms
+    against 0.81 at blocks of 3, windows of 7), as they sum only the blocks' rows."""
+    d = kernels.readonly(depth, np.float32)
+    if block > 1:
+        return kernels.window_depth(d, block, window)
+    inv, valid = kernels.inverse_depth(d)
+    num = cv2.boxFilter(inv, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    den = cv2.boxFilter(valid, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    lo, hi = window // 2, window - 1 - window // 2
+
+    def inside(n: int) -> np.ndarray:     # pixels of each window within the image's side
+        c = np.arange(n)
+        return (np.minimum(n - 1, c + hi) - np.maximum(0, c - lo) + 1).astype(np.float32)
+
+    return kernels.window_ratio(num, den, inside(d.shape[0]), inside(d.shape[1]))
+
+
 def cell_sigma_m(noise: DepthNoise, depth_m: np.ndarray | float, focal_px: float, cell_m: float) -> np.ndarray:
     """Std of one frame's mean depth over a cell at ``depth_m``: a_b z^2 with b the cell's side in pixels there."""
     z = np.asarray(depth_m, dtype=np.float64)
@@ -203,7 +229,7 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
     m = sample_block_px(z_med, f, params)
     win = sample_window_px(m, z_med, f, params.cell_m)
     if win > 1:
-        a = kernels.window_depth(kernels.readonly(depth, np.float32), m, win)
+        a = window_depths(depth, m, win)
         intr_b = fit_intrinsics(intr, a.shape)
     else:
         a, intr_b = depth, intr

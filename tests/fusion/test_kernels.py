@@ -32,6 +32,7 @@ from slzcli.fusion.measure import (
     frame_median_m,
     sample_block_px,
     sample_window_px,
+    window_depths,
 )
 from slzcli.geometry import fit_intrinsics, pixel_rays, valid_depth
 from slzcli.terrain.geometry import block_depth, median_depth_m
@@ -42,7 +43,7 @@ from slzcli.types import Intrinsics
 # --------------------------------------------------------------------------- the reference (numpy) code
 def numpy_window_depth(depth: np.ndarray, valid: np.ndarray, block: int, window: int) -> tuple[np.ndarray, np.ndarray]:
     """(depth, valid) of the mean inverse depth over ``window`` x ``window`` pixels centred on the ``block`` grid's
-    centres, cut by the image's border (``kernels.window_depth``; half the window's pixels in the image need
+    centres, cut by the image's border (``measure.window_depths``; half the window's pixels in the image need
     depth, NaN otherwise): box sums with zeros beyond the border, over the count of pixels inside."""
     inv = np.zeros(depth.shape, np.float64)
     np.divide(1.0, depth, out=inv, where=valid)
@@ -73,8 +74,8 @@ def numpy_frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camer
     m = sample_block_px(z_med, f, params)
     valid = valid_depth(depth)
     win = sample_window_px(m, z_med, f, params.cell_m)
-    if win > m:     # the windows' sums are compiled (against numpy_window_depth below, to rounding)
-        depth_b = kernels.window_depth(kernels.readonly(depth, np.float32), m, win)
+    if win > m:     # the windows' sums are cv2's box filter (against numpy_window_depth below, to rounding)
+        depth_b = window_depths(depth, m, win)
         ok = depth_b > 0
         depth_b = np.where(ok, depth_b, np.float32(np.nan))
         intr_b = fit_intrinsics(intr, depth_b.shape)
@@ -302,7 +303,7 @@ def _same(a: object, b: object) -> None:
 
 @pytest.mark.parametrize(("block", "window"), [(1, 3), (2, 4), (3, 7), (2, 2), (5, 9)])
 def test_window_depth_is_the_mean_inverse_depth_over_each_window(block: int, window: int) -> None:
-    """``kernels.window_depth`` (sliding sums) against box sums over the count of pixels in the image: holes
+    """``measure.window_depths`` (float32 box sums) against float64 ones over the count of pixels in the image: holes
     (NaN, 0, inf, a corner without depth), windows cut by every side, odd and even windows; equal to float32
     rounding, and the same samples without depth."""
     rng = np.random.default_rng(block * 10 + window)
@@ -311,11 +312,11 @@ def test_window_depth_is_the_mean_inverse_depth_over_each_window(block: int, win
     depth[rng.random(depth.shape) < 0.05] = 0.0
     depth[rng.random(depth.shape) < 0.05] = np.inf
     depth[:12, :15] = np.nan
-    got = kernels.window_depth(kernels.readonly(depth, np.float32), block, window)
+    got = window_depths(depth, block, window)
     want, ok = numpy_window_depth(depth, valid_depth(depth), block, window)
     assert got.shape == want.shape == (97 // block, 131 // block)
     assert np.array_equal(got > 0, ok) and 0 < ok.mean() < 1
-    np.testing.assert_allclose(got[ok], want[ok], rtol=2e-7)
+    np.testing.assert_allclose(got[ok], want[ok], rtol=1e-6)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -482,16 +483,16 @@ def test_median_inplace_is_numpys_median() -> None:
 
 
 def test_a_window_of_the_block_is_the_block_mean() -> None:
-    """``window_depth`` with the window the block itself is ``terrain.geometry.block_depth`` (the per-frame path's
+    """``window_depths`` with the window the block itself is ``terrain.geometry.block_depth`` (the per-frame path's
     block means of inverse depth, cv2's area resize: whole blocks where they divide the frame's sides, as here),
     to float32 rounding, with the same blocks without depth."""
     rng = np.random.default_rng(1)
     depth = _frame(rng, pose(0.0, 0.0, 5.0))
     for block in (2, 4, 5):
-        got = kernels.window_depth(kernels.readonly(depth, np.float32), block, block)
+        got = window_depths(depth, block, block)
         want, ok = block_depth(depth, valid_depth(depth), block)
         assert np.array_equal(got > 0, ok) and 0 < np.count_nonzero(ok) < ok.size
-        np.testing.assert_allclose(got[ok], want[ok], rtol=5e-7)
+        np.testing.assert_allclose(got[ok], want[ok], rtol=1e-6)
 
 
 def test_a_window_wider_than_the_binning_holds_is_refused() -> None:
