@@ -12,16 +12,12 @@ Decisions (the paper is silent):
 - A cluster whose centroid projects onto a pixel the mask rejects (a ring around an
   obstacle) does not qualify: the site never lies where the mask says unsafe.
 - k-means is seeded from config, so a run is reproducible.
-- ``by_region`` (the fused method): k-means runs within each connected region of the mask, so that no cluster
-  spans two safe regions with unsafe ground between them (whose centroid then fell in the gap and failed the
-  test above: a D455's small safe patches at 10 m, benchmarks/fused_detect.py).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 from scipy.cluster.vq import kmeans2
 from scipy.spatial import cKDTree
@@ -50,7 +46,6 @@ class SelectParams:
     max_tilt_deg: float      # acceptance test: surface tilt at most this (uav.max_slope_deg)
     max_normal_pairs: int = 0  # neighbour pairs point_normals may build (0 = no bound; landing.max_normal_pairs)
     raised: RaisedParams | None = None  # the raised-surface rule (landing/raised.py; None: not applied)
-    by_region: bool = False  # cluster within each connected region of the mask (the fused method), not across
 
 
 def point_normals(xyz: np.ndarray, radius_m: float, up: np.ndarray, max_pairs: int = 0) -> np.ndarray:
@@ -111,20 +106,10 @@ def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray
                f"(at least {params.min_cluster_points} needed)")
         return replace(empty, reason=why)
 
-    use, region = kept, None
-    if params.by_region:      # each point's connected region of the mask; regions too sparse for a cluster left out
-        _, regions = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-        of = np.full(n, -1)
-        of[np.flatnonzero(inside)] = regions[iu[:, 1], iu[:, 0]]
-        sizes = np.bincount(of[kept])
-        use = kept & (sizes[np.maximum(of, 0)] >= params.min_cluster_points)
-        if not use.any():
-            return replace(empty, reason=f"no region of the landing mask holds {params.min_cluster_points} SLAM map "
-                                         f"points (most: {int(sizes.max())} of the {n_kept} on it)")
-        region = of[use]
-    pts = xyz_world[use]
-    lab, k = _clusters(pts, region, params)
-    labels[use] = lab
+    pts = xyz_world[kept]
+    k = max(1, min(params.kmeans_k, n_kept // params.min_cluster_points))
+    _, lab = kmeans2(pts, k, minit="++", seed=params.seed)
+    labels[kept] = lab
     up = up_world / np.linalg.norm(up_world)
     normals = point_normals(pts, params.normal_radius_m, up, params.max_normal_pairs)
     min_extent = np.asarray(params.footprint_m) * params.min_extent_factor
@@ -146,25 +131,6 @@ def select_site(xyz_world: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray
     member = lab == best.cluster
     site = _site(best, pts[member], normals[member], T_world_camera, K, score, params, up, edge_distance_m)
     return replace(empty, site=site, candidates=tuple(candidates))
-
-
-def _clusters(pts: np.ndarray, region: np.ndarray | None, params: SelectParams) -> tuple[np.ndarray, int]:
-    """k-means labels of the points (0..k-1) and k: over all of them, or within each region of ``region`` (each
-    its own k, as many clusters as its points allow, up to ``kmeans_k``)."""
-    def kmeans(p: np.ndarray) -> tuple[np.ndarray, int]:
-        k = max(1, min(params.kmeans_k, len(p) // params.min_cluster_points))
-        return kmeans2(p, k, minit="++", seed=params.seed)[1], k
-
-    if region is None:
-        return kmeans(pts)
-    lab = np.empty(len(pts), np.int64)
-    k = 0
-    for r in np.unique(region):      # a handful of regions: not a per-point loop
-        member = region == r
-        sub, kr = kmeans(pts[member])
-        lab[member] = sub + k
-        k += kr
-    return lab, k
 
 
 def raised_lead(candidates: list[Candidate], params: SelectParams) -> str:

@@ -122,13 +122,11 @@ def fused(config: Config) -> FusedMethod:
     evidence, and the per-frame rule on a keyframe's SLAM map points (8-61 a cluster from ORB-SLAM3 at 10 m,
     ~0.25 m each, margins 0.12-0.62 m) refused every level cluster the fused map had decided as "not told"
     (benchmarks/fused_detect.py), while at 5 m (margins of centimetres) it kept a D435's 0.12 m box top, which
-    the fused mask partly calls safe, from being chosen (benchmarks/raised_low.py). Its map points are clustered
-    within each connected region of the rendered verdict (``SelectParams.by_region``): its SAFE patches can be
-    small and apart, and a k-means cluster over two of them had its centroid in the unsafe ground between."""
+    the fused mask partly calls safe, from being chosen (benchmarks/raised_low.py)."""
     scorer = SCORERS["fuzzy"].from_config(config.scoring, config.mask)
     params = select_params(config.landing, config.uav, "min_normal_variance", config.landing.min_extent_factor)
     raised = None if params.raised is None else replace(params.raised, defer_untold=True)
-    return FusedMethod(config, FusedTerrain(config, scorer), replace(params, raised=raised, by_region=True),
+    return FusedMethod(config, FusedTerrain(config, scorer), replace(params, raised=raised),
                        NoiseTracker(config.terrain.noise, config.terrain.noise_estimate))
 
 

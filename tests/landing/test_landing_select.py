@@ -61,38 +61,6 @@ def test_flatter_of_two_blobs_wins() -> None:
     assert sel.site.tilt_deg < 5 and sel.site.accepted is True
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_clusters_stay_within_a_region_of_the_mask_when_asked(seed: int) -> None:
-    """Two safe squares 2 m apart with 10 sparse points each (ORB-SLAM3's at 10 m): one k-means cluster over both
-    (``kmeans_k`` 1 here; k-means also merges such patches when they outnumber k) has its centroid in the gap and
-    no site comes of it; clustered within each region of the mask (``by_region``, the fused method), a site on one
-    of the squares, and none of its points from the other."""
-    rng = np.random.default_rng(seed)
-    xyz = np.vstack([patch((-1.6, 0.0), 1.2, 10, rng), patch((1.6, 0.0), 1.2, 10, rng)])
-    mask = mask_from_world_boxes([(-1.6, 0.0, 0.65), (1.6, 0.0, 0.65)])
-    merged = select_site(xyz, T_WC, K, mask, mask.astype(np.float32), params(kmeans_k=1))
-    assert merged.site is None and "centroid falls on a pixel the mask rejects" in merged.reason
-    sel = select_site(xyz, T_WC, K, mask, mask.astype(np.float32), params(kmeans_k=1, by_region=True))
-    assert sel.site is not None, sel.reason
-    assert abs(abs(sel.site.center_world[0]) - 1.6) < 0.4
-    best = next(c for c in sel.candidates if c.qualifies and c.normal_variance == sel.site.normal_variance)
-    chosen = sel.labels == best.cluster
-    assert chosen.sum() == sel.site.cluster_points == 10
-    assert np.all(np.sign(xyz[chosen, 0]) == np.sign(sel.site.center_world[0]))
-    assert len(sel.candidates) == 2 and sel.kept.sum() == 20
-
-
-def test_a_region_too_sparse_for_a_cluster_is_left_out_and_said() -> None:
-    """``by_region``: points on regions holding fewer than ``min_cluster_points`` form no cluster; when no region
-    holds enough, the reason says so (and how many the best held)."""
-    rng = np.random.default_rng(0)
-    xyz = np.vstack([patch((-1.6, 0.0), 1.2, 4, rng), patch((1.6, 0.0), 1.2, 4, rng)])
-    mask = mask_from_world_boxes([(-1.6, 0.0, 0.65), (1.6, 0.0, 0.65)])
-    sel = select_site(xyz, T_WC, K, mask, mask.astype(np.float32), params(by_region=True))
-    assert sel.site is None and sel.reason.startswith("no region of the landing mask holds 5 SLAM map points")
-    assert "(most: 4 of the 8 on it)" in sel.reason and sel.kept.sum() == 8
-
-
 def test_largest_rule_picks_the_bigger_cluster() -> None:
     rng = np.random.default_rng(2)
     small_flat = patch((-2.5, 0), 1.5, 80, rng)
