@@ -32,7 +32,8 @@ frame's chosen site (sites.csv), each put into the truth world through its own f
 map's SAFE cells and how many of them the truth calls unsafe. A run without a site is put down to the stage
 that lost it, from its reason: the per-frame depth noise (the frames could not vouch), the fused verdict (nothing
 in view decided safe), the raised-surface rule (the best cluster not told from raised, or raised beyond doubt),
-no cluster of map points qualifying, or the commit's refutation.
+no cluster of map points qualifying, too few map points on the mask (or on any one region of it), the commit's
+refutation, or every site failing its acceptance test.
 
 Prints a row per run (status, committed site truly safe: yes / NO / none, detection frames with a site / of them
 not truly safe, the stage, the reason or the site's acceptance) and the totals per method (committed sites, those
@@ -247,7 +248,8 @@ def detect(rec: Path, method: str, extra: list[str], keep: bool) -> dict[str, An
 STAGES = (("refutes every site", "commit: refuted"), ("not told from one higher", "raised: not told"),
           ("above the ground around it (more than", "raised: beyond doubt"),
           ("nothing in view is decided safe", "fused: nothing safe"), ("depth noise", "per frame: not vouched"),
-          ("no cluster qualifies", "no cluster qualifies"))
+          ("no cluster qualifies", "no cluster qualifies"), ("failed its acceptance test", "commit: acceptance"),
+          ("SLAM map points", "too few map points"))
 
 
 def stage(r: dict[str, Any]) -> str | None:
