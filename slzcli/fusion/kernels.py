@@ -115,8 +115,8 @@ def bin_samples(a, rx, ry, r, off_x, off_y, inv, half, min_samples, t, cell, cxy
     height (relative to the camera), squared height, depth and ray's vertical component, float64 sums in
     sample order.
 
-    The samples: ``a``, the depth (finite and positive: a sample; ``measure.window_depths`` gives that of block
-    means). ``rx`` (W,), ``ry`` (H,): the rays; ``r``: the pose's rotation in float32; a sample's cell is
+    The samples: ``a``, the depth (finite and positive: a sample; ``measure.window_depths`` gives that of the
+    samples' windows). ``rx`` (W,), ``ry`` (H,): the rays; ``r``: the pose's rotation in float32; a sample's cell is
     floor((w + off) inv) in float32 relative to the camera's cell ``cxy``. ``half``: samples whose cell is
     farther than that from the camera's cell in x or y are dropped (the window; at most ``MAX_HALF``). Returns
     (status, cells_x, cells_y, h, spread, zc, upc, pose_var): status 0 with empty arrays when no sample was
