@@ -50,6 +50,7 @@ def numpy_window_depth(depth: np.ndarray, valid: np.ndarray, block: int, window:
     h, w = depth.shape
     o = block // 2
     at = (slice(o, o + (h // block) * block, block), slice(o, o + (w // block) * block, block))
+
     def box(a: np.ndarray) -> np.ndarray:
         return cv2.boxFilter(a, cv2.CV_64F, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)[at]
 
@@ -303,9 +304,10 @@ def _same(a: object, b: object) -> None:
 
 @pytest.mark.parametrize(("block", "window"), [(1, 3), (2, 4), (3, 7), (2, 2), (5, 9)])
 def test_window_depth_is_the_mean_inverse_depth_over_each_window(block: int, window: int) -> None:
-    """``measure.window_depths`` (float32 box sums) against float64 ones over the count of pixels in the image: holes
-    (NaN, 0, inf, a corner without depth), windows cut by every side, odd and even windows; equal to float32
-    rounding, and the same samples without depth."""
+    """``measure.window_depths`` (cv2's float32 box sums at blocks of 1 px, the compiled float64 sliding sums at
+    larger blocks) against float64 box sums over the count of pixels in the image: holes (NaN, 0, inf, a corner
+    without depth), windows cut by every side, odd and even windows; equal to float32 rounding, and the same
+    samples without depth."""
     rng = np.random.default_rng(block * 10 + window)
     depth = rng.uniform(4.0, 12.0, (97, 131)).astype(np.float32)
     depth[rng.random(depth.shape) < 0.3] = np.nan
