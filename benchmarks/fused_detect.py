@@ -55,6 +55,9 @@ import harness
 import numpy as np
 from fusion_render import SENSORS
 
+from slzcli.errors import DatasetError
+from slzcli.synth.groundtruth import GroundTruth, load_ground_truth
+
 SCENES = ("clear_field", "parking_lot", "office", "slopes", "no_site")
 TRUE_POSES = ("--set", "slam.backend=recorded", "--set", "sources.use_ground_truth_pose=true")
 
@@ -106,30 +109,6 @@ def _map_poses(out: Path) -> dict[int, np.ndarray]:
     return poses
 
 
-class Truth:
-    """The recording's ground truth (``.gt.npz``): true poses by stamp, the safety raster."""
-
-    def __init__(self, rec: Path) -> None:
-        gt = np.load(f"{rec}.gt.npz")
-        self.stamps = np.asarray(gt["stamps_ns"], np.int64)
-        self.T = np.asarray(gt["T_world_camera"], np.float64)
-        self.safe = np.asarray(gt["raster_safe"], bool)
-        self.origin = np.asarray(gt["raster_origin_xy"], np.float64)
-        self.res = float(gt["raster_resolution_m"])
-
-    def T_at(self, stamp_ns: int) -> np.ndarray | None:
-        i = int(np.argmin(np.abs(self.stamps - stamp_ns)))
-        return self.T[i] if abs(int(self.stamps[i]) - stamp_ns) < 1_000_000 else None
-
-    def safe_at(self, xy: np.ndarray) -> np.ndarray:
-        c = np.floor((xy[:, 0] - self.origin[0]) / self.res).astype(int)
-        r = np.floor((xy[:, 1] - self.origin[1]) / self.res).astype(int)
-        inside = (r >= 0) & (r < self.safe.shape[0]) & (c >= 0) & (c < self.safe.shape[1])
-        out = np.zeros(len(xy), bool)
-        out[inside] = self.safe[r[inside], c[inside]]
-        return out
-
-
 def _pose_at(poses: dict[int, np.ndarray], stamp_ns: int) -> np.ndarray | None:
     """The map pose of the frame at ``stamp_ns`` (within 1 ms), None when it was not tracked."""
     if not poses:
@@ -138,18 +117,27 @@ def _pose_at(poses: dict[int, np.ndarray], stamp_ns: int) -> np.ndarray | None:
     return poses[us] if abs(us - stamp_ns / 1e3) < 1000 else None
 
 
-def _to_world(truth: Truth, poses: dict[int, np.ndarray], stamp_ns: int, p_map: np.ndarray) -> np.ndarray | None:
+def _true_pose(truth: GroundTruth, stamp_ns: int) -> np.ndarray | None:
+    """The recording's true camera pose at ``stamp_ns`` (within 1 ms), None when it has no frame there."""
+    try:
+        return np.asarray(truth.T_world_camera[truth.index_of(stamp_ns, 1_000_000)], np.float64)
+    except DatasetError:
+        return None
+
+
+def _to_world(truth: GroundTruth, poses: dict[int, np.ndarray], stamp_ns: int,
+              p_map: np.ndarray) -> np.ndarray | None:
     """A point of the map frame in the truth's world through its frame's true pose (as slz's own site truth does:
     the point's position relative to the camera that saw it, not the map's drift)."""
     T_map = _pose_at(poses, stamp_ns)
-    T_true = truth.T_at(stamp_ns)
+    T_true = _true_pose(truth, stamp_ns)
     if T_map is None or T_true is None:
         return None
     T = T_true @ np.linalg.inv(T_map)
     return np.asarray(p_map, np.float64) @ T[:3, :3].T + T[:3, 3]
 
 
-def frame_sites(out: Path, truth: Truth, poses: dict[int, np.ndarray]) -> dict[str, Any]:
+def frame_sites(out: Path, truth: GroundTruth, poses: dict[int, np.ndarray]) -> dict[str, Any]:
     """Every detection frame's chosen site (sites.csv) against the truth; the candidate clusters, those that
     qualified and those the raised-surface rule refused (not told from raised / raised beyond doubt), with the
     points of the clusters it measured (its margin on the site's level shrinks with their number)."""
@@ -166,7 +154,7 @@ def frame_sites(out: Path, truth: Truth, poses: dict[int, np.ndarray]) -> dict[s
         w = _to_world(truth, poses, int(r["stamp_ns"]), np.array([float(r["x"]), float(r["y"]), float(r["z"])]))
         if w is None:
             unplaced += 1
-        elif truth.safe_at(w[None, :2])[0]:
+        elif truth.raster.safe_at(w[0], w[1]):
             safe += 1
         else:
             unsafe += 1
@@ -182,7 +170,7 @@ def frame_sites(out: Path, truth: Truth, poses: dict[int, np.ndarray]) -> dict[s
             "raised_points_median": float(np.median([int(r["points"]) for r in measured])) if measured else None}
 
 
-def landing_map_cells(out: Path, truth: Truth, poses: dict[int, np.ndarray]) -> dict[str, Any]:
+def landing_map_cells(out: Path, truth: GroundTruth, poses: dict[int, np.ndarray]) -> dict[str, Any]:
     """The last landing map (fused): its SAFE cells and those whose centre the truth calls unsafe (through the last
     tracked frame's true pose)."""
     from slzcli.fusion.verdict import SAFE
@@ -200,7 +188,7 @@ def landing_map_cells(out: Path, truth: Truth, poses: dict[int, np.ndarray]) -> 
     w = _to_world(truth, poses, last * 1000, xyz)
     if w is None:
         return {"safe_cells": len(jj), "safe_cells_truly_unsafe": None}
-    return {"safe_cells": len(jj), "safe_cells_truly_unsafe": int(np.sum(~truth.safe_at(w[:, :2])))}
+    return {"safe_cells": len(jj), "safe_cells_truly_unsafe": int(np.sum(~truth.raster.safe_at(w[:, 0], w[:, 1])))}
 
 
 def detect(rec: Path, method: str, extra: list[str], keep: bool) -> dict[str, Any]:
@@ -218,7 +206,7 @@ def detect(rec: Path, method: str, extra: list[str], keep: bool) -> dict[str, An
     gt = site.get("ground_truth") or {}
     mask = (s.get("ground_truth") or {}).get("mask") or {}
     advice = landing.get("advice") or {}
-    truth = Truth(rec)
+    truth = load_ground_truth(rec)
     poses = _map_poses(out)
     row: dict[str, Any] = {
         "status": s["status"], "site_safe": gt.get("safe") if site else None,
