@@ -28,6 +28,8 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import logging
+import mmap
+import os
 import signal
 import socket
 import subprocess
@@ -43,6 +45,7 @@ from slzcli.errors import SlzError
 from slzcli.geometry import project
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
 from slzcli.slam.keyframes import is_new_keyframe
+from slzcli.slam.orbslam3_worker import frame_bytes, frame_views
 from slzcli.slam.vocabulary import DEFAULT_VOCABULARY, read_vocabulary
 from slzcli.types import Frame, Intrinsics
 
@@ -105,6 +108,29 @@ def settings_yaml(K: Intrinsics, orb: OrbCfg, close_depth_m: float, baseline_m: 
     ])
 
 
+def depth_for_tracker(depth_m: np.ndarray, out: np.ndarray) -> None:
+    """Depth as ORB-SLAM3 reads it, written into ``out`` (float32): it takes a depth <= 0 as none, so NaN (no
+    measurement) and anything below zero become 0, and +inf the largest float32 (a far point, not a NaN in its
+    back-projection)."""
+    np.fmin(np.fmax(depth_m, 0.0, out=out), np.finfo(np.float32).max, out=out)
+
+
+def _anonymous_file(size: int) -> int:
+    """A file descriptor of ``size`` bytes that lives in memory only and has no name to leak if a process dies
+    (Linux's memfd; an unlinked temporary file elsewhere)."""
+    if hasattr(os, "memfd_create"):
+        fd = os.memfd_create("slz-orbslam3-frame")
+    else:
+        with tempfile.TemporaryFile() as f:
+            fd = os.dup(f.fileno())
+    try:
+        os.ftruncate(fd, size)
+    except OSError:
+        os.close(fd)
+        raise
+    return fd
+
+
 class OrbSlam3Backend(BackendBase):
     """ORB-SLAM3 in RGB-D mode, or monocular with the scale from depth (monocular can report OK on a wrong
     trajectory over planar ground: the paper's mode, kept for comparison)."""
@@ -139,6 +165,8 @@ class OrbSlam3Backend(BackendBase):
         self._warned_init = False
         self._track_ms: float | None = None  # the worker's own time for the last frame
         self._ready = False  # the worker said it loaded the vocabulary
+        self._buf: mmap.mmap | None = None   # the frame buffer shared with the worker (orbslam3_worker.frame_views)
+        self._views: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- worker plumbing
     def prepare(self, intrinsics: Intrinsics) -> None:
@@ -156,14 +184,22 @@ class OrbSlam3Backend(BackendBase):
         text = settings_yaml(intrinsics, self.cfg.orb, self.cfg.orbslam3.close_depth_m,
                              self.cfg.orbslam3.baseline_m, fps)
         ours, theirs = socket.socketpair()
+        size = frame_bytes(intrinsics.height, intrinsics.width)
+        buf_fd = _anonymous_file(size)
         # ORB-SLAM3 prints progress to stdout; keep it off ours (--json) and keep stderr for the cause.
         self._log = tempfile.TemporaryFile(mode="w+b")  # noqa: SIM115  # lives as long as the worker; _stop closes it
-        self._proc = subprocess.Popen([sys.executable, str(_WORKER), str(theirs.fileno())],
-                                      pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
-                                      stdout=subprocess.DEVNULL, stderr=self._log)
-        theirs.close()
+        try:
+            self._proc = subprocess.Popen([sys.executable, str(_WORKER), str(theirs.fileno()), str(buf_fd)],
+                                          pass_fds=(theirs.fileno(), buf_fd), stdin=subprocess.DEVNULL,
+                                          stdout=subprocess.DEVNULL, stderr=self._log)
+            self._buf = mmap.mmap(buf_fd, size)
+        finally:
+            os.close(buf_fd)   # the mappings (ours, the worker's) keep the memory; it goes with the last
+            theirs.close()
+        self._views = frame_views(self._buf, intrinsics.height, intrinsics.width)
         self._conn = Connection(ours.detach())
-        self._conn.send(("init", self.vocab_path, text, self.cfg.orbslam3.sensor))
+        self._conn.send(("init", self.vocab_path, text, self.cfg.orbslam3.sensor,
+                         (intrinsics.height, intrinsics.width)))
 
     def _start(self, frame: Frame) -> None:
         """The worker ready for ``frame``'s camera: the prepared one, or a new one."""
@@ -224,6 +260,10 @@ class OrbSlam3Backend(BackendBase):
         if self._log is not None:
             self._log.close()
             self._log = None
+        self._views = None
+        if self._buf is not None:
+            self._buf.close()
+            self._buf = None
 
     def abort(self) -> None:
         """Kill the worker: after an error it may be stuck in the very call that failed."""
@@ -256,10 +296,17 @@ class OrbSlam3Backend(BackendBase):
         elif frame.intrinsics != self._intrinsics:
             raise SlzError(f"{frame.source or 'recording'}: frame {frame.index} has other intrinsics than the first "
                            "frame; ORB-SLAM3 is configured once per run")
-        depth = None if self.monocular else np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32)  # <= 0: none
-        assert self._conn is not None  # _start opened it
+        assert self._conn is not None and self._views is not None  # _start opened them
+        rgb, depth = self._views   # the worker copies them out before it tracks and before it replies
+        if frame.rgb.shape != rgb.shape or (not self.monocular and frame.depth_m.shape != depth.shape):
+            raise SlzError(f"{frame.source or 'recording'}: frame {frame.index} is {frame.rgb.shape[1]}x"
+                           f"{frame.rgb.shape[0]} px (depth {frame.depth_m.shape[1]}x{frame.depth_m.shape[0]}), its "
+                           f"camera {rgb.shape[1]}x{rgb.shape[0]}: ORB-SLAM3 is configured for the camera's size")
+        np.copyto(rgb, frame.rgb)
+        if not self.monocular:
+            depth_for_tracker(frame.depth_m, depth)
         with contextlib.suppress(BrokenPipeError, OSError):  # _recv reports how the worker died
-            self._conn.send(("track", np.ascontiguousarray(frame.rgb), depth, frame.stamp_ns * 1e-9))
+            self._conn.send(("track", not self.monocular, frame.stamp_ns * 1e-9))
         self._submitted = frame
 
     def last_track_ms(self) -> float | None:

@@ -1,13 +1,21 @@
 """The ORB-SLAM3 worker process: owns the native system and answers the parent's track requests.
 
-Started as a script (``python .../orbslam3_worker.py FD``, the socket to the parent on file descriptor FD), not
-as a module of the package: a fresh interpreter (multiprocessing's spawn would re-run the parent's __main__)
-that imports numpy and pyorbslam3 only, so it is ready in ~0.1 s where importing slzcli first took ~0.5 s of
-every run's start. The protocol (the replies) is described in ``orbslam3.py``, which starts and feeds it.
+Started as a script (``python .../orbslam3_worker.py FD BUF``, the socket to the parent on file descriptor FD,
+the shared frame buffer on BUF), not as a module of the package: a fresh interpreter (multiprocessing's spawn
+would re-run the parent's __main__) that imports numpy and pyorbslam3 only, so it is ready in ~0.1 s where
+importing slzcli first took ~0.5 s of every run's start. The protocol (the replies) is described in
+``orbslam3.py``, which starts and feeds it.
+
+The images travel through a buffer both processes map (``frame_views``), the socket carries only the request:
+pickled over the socket a 640x480 frame (2.1 MB) cost the parent ~4 ms of blocking send and the worker its
+unpickling, every frame, on the path ORB-SLAM3's own rate is measured on. The parent writes the buffer only
+between a reply and its next request, and the worker copies the images out before tracking, so what the native
+code keeps never changes under it.
 """
 
 from __future__ import annotations
 
+import mmap
 import os
 import sys
 import tempfile
@@ -20,7 +28,20 @@ if __name__ == "__main__" and sys.path and os.path.abspath(sys.path[0]) == os.pa
 import numpy as np  # after the path is cleaned
 
 
-def serve(conn: Connection, vocab_path: str, settings_text: str, sensor: str = "rgbd") -> None:
+def frame_bytes(height: int, width: int) -> int:
+    """Size of the shared frame buffer: the RGB image (uint8) then the depth (float32 metres, 0 = none)."""
+    return height * width * 3 + height * width * 4
+
+
+def frame_views(buf: mmap.mmap, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The RGB and depth images laid over the shared buffer (the one layout both processes use)."""
+    rgb = np.ndarray((height, width, 3), np.uint8, buffer=buf)
+    depth = np.ndarray((height, width), np.float32, buffer=buf, offset=height * width * 3)
+    return rgb, depth
+
+
+def serve(conn: Connection, vocab_path: str, settings_text: str, sensor: str,
+          views: tuple[np.ndarray, np.ndarray]) -> None:
     """Load the vocabulary, say ready (or the error), then track each frame sent until told to close."""
     import pyorbslam3 as pos
 
@@ -39,7 +60,9 @@ def serve(conn: Connection, vocab_path: str, settings_text: str, sensor: str = "
                 msg = conn.recv()
                 if msg[0] == "close":
                     break
-                _, rgb, depth, t = msg
+                _, with_depth, t = msg
+                rgb = views[0].copy()
+                depth = views[1].copy() if with_depth else None
                 t0 = time.perf_counter()
                 try:
                     r = system.track_monocular(rgb, t) if depth is None else system.track_rgbd(rgb, depth, t)
@@ -56,8 +79,9 @@ def serve(conn: Connection, vocab_path: str, settings_text: str, sensor: str = "
 
 def main() -> None:
     conn = Connection(int(sys.argv[1]))
-    _init, vocab_path, settings_text, sensor = conn.recv()
-    serve(conn, vocab_path, settings_text, sensor)
+    _init, vocab_path, settings_text, sensor, (height, width) = conn.recv()
+    buf = mmap.mmap(int(sys.argv[2]), frame_bytes(height, width))   # unmapped when the process ends
+    serve(conn, vocab_path, settings_text, sensor, frame_views(buf, height, width))
 
 
 if __name__ == "__main__":

@@ -434,3 +434,34 @@ def test_orbslam3_is_told_the_recordings_own_frame_rate(tmp_path, runner, monkey
         assert told.pop() == pytest.approx(fps, rel=1e-6)
         run = json.loads((out / "run.json").read_text())
         assert run["config"]["slam"]["orbslam3"]["nominal_period_s"] == pytest.approx(1 / fps, rel=1e-6)
+
+
+def test_depth_for_the_tracker_marks_what_is_not_a_depth_as_none() -> None:
+    """ORB-SLAM3 reads depth <= 0 as none: NaN and negative values become 0, +inf a finite far depth, and every
+    measured depth is passed bit for bit (it is written into the buffer the worker shares, not pickled)."""
+    from slzcli.slam.orbslam3 import depth_for_tracker
+
+    rng = np.random.default_rng(0)
+    d = rng.uniform(0.2, 12.0, (48, 64)).astype(np.float32)
+    d[rng.random(d.shape) < 0.2] = np.nan
+    d[0, :4] = [-1.0, -np.inf, np.inf, 0.0]
+    out = np.full_like(d, 7.0)
+    depth_for_tracker(d, out)
+    assert out.dtype == np.float32 and np.isfinite(out).all()
+    measured = np.isfinite(d) & (d > 0)
+    assert np.array_equal(out[measured], d[measured])
+    assert (out[np.isnan(d)] == 0).all() and out[0, 0] == 0 and out[0, 1] == 0 and out[0, 3] == 0
+    assert out[0, 2] == np.finfo(np.float32).max
+
+
+@needs_orbslam3
+def test_a_frame_of_another_size_than_its_camera_is_refused_by_name(line_flight) -> None:
+    from dataclasses import replace
+
+    frames, _ = line_flight
+    config = load_config(overrides=["slam.backend=orbslam3"])
+    f = frames[0]
+    small = replace(f, rgb=f.rgb[::2, ::2].copy(), depth_m=f.depth_m[::2, ::2].copy(), source="flight.mcap")
+    with get_backend(config.slam) as b, pytest.raises(SlzError, match=r"flight.mcap: frame 0 is 240x180 px .* "
+                                                                     r"camera 480x360"):
+        b.track(small)
