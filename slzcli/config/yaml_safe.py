@@ -120,7 +120,12 @@ def read_yaml_mapping(path: Path) -> dict[str, object]:
     if not path.is_file():
         what = "not a regular file (a FIFO, device or folder)" if path.exists() else "config file not found"
         raise ConfigError("", what, source=str(path))
-    data = _load_yaml_file(path)
+    return yaml_text_mapping(read_yaml_text(path), path)
+
+
+def yaml_text_mapping(text: str, path: Path) -> dict[str, object]:
+    """The mapping of a YAML file's text (read by ``read_yaml_text``); ConfigError naming the file otherwise."""
+    data = _load_yaml_text(text, path)
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -128,9 +133,8 @@ def read_yaml_mapping(path: Path) -> dict[str, object]:
     return data
 
 
-def _load_yaml_file(path: Path) -> object:
+def _load_yaml_text(text: str, path: Path) -> object:
     """A YAML file's content within the loader's bounds; ConfigError naming the file otherwise."""
-    text = read_yaml_text(path)
     try:
         return safe_yaml_load(text)
     except YamlLimitError as err:

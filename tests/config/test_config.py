@@ -24,6 +24,22 @@ def test_defaults_load_and_hold_paper_values() -> None:
     assert cfg.uav.footprint_m == (0.656, 0.656)
 
 
+def test_default_yaml_is_parsed_once_per_content_and_never_shared(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    from slzcli.config import loader
+
+    copy = tmp_path / "default.yaml"
+    copy.write_text(DEFAULT_CONFIG.read_text())
+    monkeypatch.setattr(loader, "DEFAULT_CONFIG", copy)
+    first = loader._defaults()
+    first["mask"]["threshold"] = 0.9  # type: ignore[index]  # a caller changing its copy changes no other
+    hits = loader._parsed_defaults.cache_info().hits
+    assert load_config().mask.threshold == 0.5 == load_config().mask.threshold
+    assert loader._parsed_defaults.cache_info().hits == hits + 2   # parsed once
+    copy.write_text(DEFAULT_CONFIG.read_text().replace("\n  threshold: 0.5 ", "\n  threshold: 0.6 ", 1))
+    assert load_config().mask.threshold == 0.6   # an edited file is read again
+
+
 def test_every_leaf_of_default_yaml_has_unit_and_source_comment() -> None:
     for line in DEFAULT_CONFIG.read_text().splitlines():
         stripped = line.strip()
