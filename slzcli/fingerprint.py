@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import threading
 from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -86,6 +87,34 @@ def run_inputs(recording: Path, config: Config, cache: dict[str, Entry]) -> dict
         "vocabulary": [q for q in [_vocabulary(config)] if q is not None and q.is_file()],
     }
     return {role: [digest(q, cache) for q in paths] for role, paths in roles.items()}
+
+
+class PendingInputs:
+    """``run_inputs`` taken in a thread of its own, for a run whose key is only recorded (no finished run in
+    its folder to compare the key with): the recording is hashed while the run opens it, instead of before.
+    sha256 lets go of the GIL on each block, so the hashing takes the core the run's start leaves idle.
+    A daemon thread: a run that fails first does not wait for it to finish."""
+
+    def __init__(self, recording: Path, config: Config, cache: dict[str, Entry]) -> None:
+        self._inputs: dict[str, list[Entry]] | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._take, args=(recording, config, cache),
+                                        name="slz-hash-inputs", daemon=True)
+        self._thread.start()
+
+    def _take(self, recording: Path, config: Config, cache: dict[str, Entry]) -> None:
+        try:
+            self._inputs = run_inputs(recording, config, cache)
+        except BaseException as err:  # raised again by result(), in the run's thread
+            self._error = err
+
+    def result(self) -> dict[str, list[Entry]]:
+        """The inputs once hashed (waits); what hashing them raised."""
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        assert self._inputs is not None
+        return self._inputs
 
 
 def _may_use_orbslam3(config: Config) -> bool:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 from array import array
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Protocol
@@ -29,17 +29,19 @@ log = logging.getLogger(__name__)
 
 
 def ground_truth_of(path: Path, cfg: GroundTruthCfg,
-                    cache: dict[str, fingerprint.Entry] | None = None) -> GroundTruth | None:
+                    digests: Callable[[], dict[str, fingerprint.Entry]] | None = None) -> GroundTruth | None:
     """The `slz synth` ground truth beside a recording, or None when it has no sidecar.
 
     Its frames are looked up by stamp within ``cfg.stamp_tolerance_ms`` (``synth.ground_truth``). A sidecar bound to
-    other recording files is refused (DatasetError); ``cache``: the recording's digests a run already took.
+    other recording files is refused (DatasetError); ``digests``: the recording's digests a run takes anyway
+    (called only for a sidecar bound to its recording).
     """
     if not all(p.is_file() for p in sidecar_paths(path)):
         return None
     tolerance_ns = round(cfg.stamp_tolerance_ms * 1e6)
     gt = load_ground_truth(path)
     json_path = sidecar_paths(path)[1]
+    cache = digests() if digests is not None and BINDING_KEY in gt.header else None
     problem = fingerprint.binding_problem(gt.header, Path(path), cache)
     if problem is not None:
         raise DatasetError(json_path, problem)

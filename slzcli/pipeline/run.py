@@ -235,7 +235,7 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     t_start = time.perf_counter()
     with output_dir.build(out_dir, output_dir.DETECT, replace=True) as tmp, ExitStack() as stack:
         with limit.stage("opening the recording"):
-            gt = ground_truth_of(path, config.synth.ground_truth, fingerprint.cache_of({"key": key}))  # digests once
+            gt = ground_truth_of(path, config.synth.ground_truth, key.digests)  # the recording's digests once
             truth = None if gt is None else TruthEvaluator(gt)  # a sink: detection never reads the truth
             source, config = open_source(path, config, stack)
         results = results_mcap.open_results(tmp, config, source.recording.recorded_frames())
@@ -255,7 +255,8 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
             writer.close()  # every frame written before the run's own files and results.mcap's end
             outputs = getattr(mr.method, "write_outputs", None)  # a method's own run-wide files (fused: its map)
             landing_grid = outputs(tmp) if outputs is not None else None   # and the landing map they hold
-            result = finish(source, config, mr, tracker, truth, time.perf_counter() - t_start, key)
+            wall_s = time.perf_counter() - t_start
+            result = finish(source, config, mr, tracker, truth, wall_s, key.json())
             results.write_run(result.committed, landing_grid)
             run_folder.write_run(tmp, result, state.sites, state.trajectory, state.keyframes)
             stack.close()  # SLAM worker, results.mcap and the recording, before the folder is renamed
@@ -263,25 +264,53 @@ def detect_recording(path: Path, config: Config, out_dir: Path, options: RunOpti
     return result.summary
 
 
+@dataclass(frozen=True)
+class RunKey:
+    """A run's key (``fingerprint``): run.json's ``key`` once the inputs are hashed, perhaps in the background
+    (``fingerprint.PendingInputs``) while the run starts."""
+
+    config: Config
+    method: str
+    versions: dict[str, str | None]
+    inputs: dict[str, list[fingerprint.Entry]] | fingerprint.PendingInputs
+
+    def hashed(self) -> dict[str, list[fingerprint.Entry]]:
+        """The inputs with their digests (waits for the hashing)."""
+        return self.inputs.result() if isinstance(self.inputs, fingerprint.PendingInputs) else self.inputs
+
+    def json(self) -> JsonObject:
+        """run.json's ``key`` (waits for the hashing)."""
+        inputs = self.hashed()
+        return {"sha256": fingerprint.run_key(self.config, self.method, inputs, self.versions), "method": self.method,
+                "versions": self.versions, "inputs": inputs,
+                "config": self.config.to_dict()}  # as asked; run.json's config adds what the recording set
+
+    def digests(self) -> dict[str, fingerprint.Entry]:
+        """The digests of the files read, by path (``fingerprint.cache_of``; waits for the hashing)."""
+        return fingerprint.cache_of({"key": {"inputs": self.hashed()}})
+
+
 def rerun_key(path: Path, config: Config, method: str, out_dir: Path, force: bool,
-              limit: StageLimit) -> tuple[JsonObject, RunSummary | None]:
+              limit: StageLimit) -> tuple[RunKey, RunSummary | None]:
     """The run's key (``fingerprint``) and, when ``out_dir`` holds a finished run of that key and
     ``force`` is off, its summary marked ``skipped`` (else None). Refuses an unusable ``out_dir``
-    (OutputError) and one holding a finished run of another key without ``force``."""
+    (OutputError) and one holding a finished run of another key without ``force``. When there is no
+    finished run to compare the key with (or ``force`` replaces it anyway), the inputs are hashed in the
+    background: the key is only recorded, at the end of the run."""
     check_readable(path)  # a missing, looping or unreadable input is named before anything else reads it
     output_dir.refuse_inputs(out_dir, [path])
     existing = output_dir.inspect(out_dir, output_dir.DETECT)  # refuses a path that is not a detect run folder
     previous = existing.marker if existing.finished else None
-    with limit.stage("hashing the inputs"):
-        inputs = fingerprint.run_inputs(path, config, fingerprint.cache_of(existing.marker))
+    cache = fingerprint.cache_of(existing.marker)
     vers = fingerprint.versions(config)
-    key = {"sha256": fingerprint.run_key(config, method, inputs, vers), "method": method, "versions": vers,
-           "inputs": inputs, "config": config.to_dict()}  # as asked; run.json's config adds what the recording set
-    if previous is not None and not force:
-        if (previous.get("key") or {}).get("sha256") == key["sha256"] and "summary" in previous:
-            log.info("%s: already done for these inputs and config (%s); use --force to redo", out_dir, config.hash())
-            return key, replace(read_summary(previous["summary"]), skipped=True)
-        raise OutputError(out_dir, "holds a finished run of other inputs or config ("
-                                   f"{fingerprint.what_changed(previous, config, method, inputs, vers)}); "
-                                   "use --force to replace it (files slz did not write stay) or another -o")
-    return key, None
+    if previous is None or force:
+        return RunKey(config, method, vers, fingerprint.PendingInputs(path, config, cache)), None
+    with limit.stage("hashing the inputs"):
+        inputs = fingerprint.run_inputs(path, config, cache)
+    key = RunKey(config, method, vers, inputs)
+    if (previous.get("key") or {}).get("sha256") == key.json()["sha256"] and "summary" in previous:
+        log.info("%s: already done for these inputs and config (%s); use --force to redo", out_dir, config.hash())
+        return key, replace(read_summary(previous["summary"]), skipped=True)
+    raise OutputError(out_dir, "holds a finished run of other inputs or config ("
+                               f"{fingerprint.what_changed(previous, config, method, inputs, vers)}); "
+                               "use --force to replace it (files slz did not write stay) or another -o")

@@ -209,6 +209,35 @@ def test_the_key_covers_the_orb_vocabulary_when_orbslam3_may_run(tmp_path) -> No
     assert fingerprint.run_inputs(rec, odometry, {})["vocabulary"] == []  # not read: not in the key
 
 
+def test_inputs_hashed_in_the_background_are_the_same_and_fail_the_same(tmp_path, monkeypatch) -> None:
+    """A first run hashes its inputs while it starts (fingerprint.PendingInputs): the same digests as in the
+    run's own thread, and what hashing raised is raised where the run waits for them."""
+    from slzcli.config import load_config
+
+    rec, cfg = B.good(tmp_path, n=2), load_config()
+    assert fingerprint.PendingInputs(rec, cfg, {}).result() == fingerprint.run_inputs(rec, cfg, {})
+
+    def unreadable(p: Path) -> str:
+        raise PermissionError(13, "Permission denied", str(p))
+
+    monkeypatch.setattr(fingerprint, "sha256_of", unreadable)
+    pending = fingerprint.PendingInputs(rec, cfg, {})
+    with pytest.raises(PermissionError):
+        pending.result()
+
+
+def test_a_first_runs_key_is_the_one_a_rerun_compares(runner, tmp_path) -> None:
+    rec, run = B.good(tmp_path, n=3), tmp_path / "run"
+    detect(runner, rec, run)   # no finished run in the folder: hashed in the background
+    key = json.loads((run / "run.json").read_text())["key"]
+    from slzcli.config import load_config
+
+    cfg = load_config(overrides=list(FAST[1::2]))
+    inputs = fingerprint.run_inputs(rec, cfg, {})
+    assert key["inputs"] == json.loads(json.dumps(inputs))
+    assert key["sha256"] == fingerprint.run_key(cfg, "fuzzy", inputs, fingerprint.versions(cfg))
+
+
 def test_a_rerun_does_not_rehash_unchanged_inputs(runner, tmp_path, monkeypatch) -> None:
     rec, run = B.good(tmp_path, n=3), tmp_path / "run"
     hashed: list[str] = []
