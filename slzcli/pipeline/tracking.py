@@ -12,6 +12,7 @@ another segment.
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Generator, Iterator
 from contextlib import ExitStack, closing
 from dataclasses import replace
@@ -85,7 +86,7 @@ class Tracker:
         self.frames = 0
         self.align: dict[int, np.ndarray] = {}  # T_world_slam of each map segment, from its first pose
         self._segment = 0  # map segment of the latest frame
-        self._t_submit = 0.0  # when the frame being tracked was submitted
+        self._t_submit: deque[float] = deque()  # when each frame in SLAM's hands was submitted
         self._points: MapPoints | None = None  # the latest keyframe's map points (of the current segment)
 
     @property
@@ -126,8 +127,8 @@ class Tracker:
 
     def submit(self, frame: Frame) -> None:
         """Start tracking ``frame``: a backend in a worker process tracks it while this process computes."""
-        self._t_submit = time.perf_counter()
         self.slam.submit(frame)
+        self._t_submit.append(time.perf_counter())
 
     def collect(self, frame: Frame) -> tuple[np.ndarray | None, bool]:
         """The submitted frame's gravity-aligned pose and whether it is a keyframe with map points.
@@ -140,7 +141,8 @@ class Tracker:
         points = slam.keyframe() if result.is_keyframe else None
         waited = _lap(t0)
         own = slam.last_track_ms()
-        self.timer.add("slam", _lap(self._t_submit) if own is None else own)
+        submitted = self._t_submit.popleft()
+        self.timer.add("slam", _lap(submitted) if own is None else own)
         self.timer.add("slam_wait", waited)
         if result.segment != self._segment:  # a new map: the old map's points are in another frame
             self._segment, self._points = result.segment, None
@@ -186,16 +188,28 @@ def _track_each(path: Path, frames: Iterator[Frame], tracker: Tracker, limit: St
             tracker.submit(frame)
         return frame
 
+    # frames in SLAM's hands before the oldest is collected: with track_ahead, the next (a worker tracks it while
+    # this frame's detection runs) and as many more as the backend takes (the worker's next, waiting in its queue)
     ahead = config.slam.track_ahead
-    frame = next_frame()
-    while frame is not None:
+    depth = tracker.slam.in_flight if ahead else 1
+    pending: deque[Frame] = deque()
+
+    def top_up() -> None:
+        while len(pending) < depth and (got := next_frame()) is not None:
+            pending.append(got)
+
+    top_up()
+    while pending:
+        frame = pending.popleft()
         with limit.stage(f"SLAM on frame {frame.index}"):
             T, is_keyframe = tracker.collect(frame)
         slam_ms, points, segment = tracker.latest_slam_ms(), tracker.points, tracker.segment
-        after = next_frame() if ahead else None  # tracked (in a SLAM worker) while frame's detection runs
+        if ahead:
+            top_up()
         due = is_keyframe if config.landing.detect_on == "keyframes" else frame.index % every == 0
         yield TrackedFrame(frame, T, segment, points, due, slam_ms)
-        frame = after if ahead else next_frame()
+        if not ahead:
+            top_up()
 
 
 def check_frame_size(path: Path, frame: Frame, min_px: tuple[int, ...]) -> None:

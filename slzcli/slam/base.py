@@ -68,22 +68,26 @@ class SlamBackend(Protocol):
       pipeline turns it gravity-aligned.
     - ``map_points_from_depth``: a keyframe with no map points stands for its depth image
       (poses recorded without a map cloud); the pipeline samples map points from the depth.
+    - ``in_flight``: how many frames may be submitted before the first is collected (a worker process
+      tracks the next while its answer for one is read; 1 where the work is done in ``collect``).
     """
 
     name: str
     poses_are_recorded: bool
     map_points_from_depth: bool
+    in_flight: int
 
     def track(self, frame: Frame) -> TrackResult:
         """Consume one frame; the pose of that frame (or None) and whether it became a keyframe."""
         ...
 
     def submit(self, frame: Frame) -> None:
-        """Hand the next frame over; ``collect`` answers for it. ``track`` is ``submit`` then ``collect``."""
+        """Hand the next frame over (at most ``in_flight`` not yet collected); ``collect`` answers for the frames in
+        the order they were submitted. ``track`` is ``submit`` then ``collect``."""
         ...
 
     def collect(self) -> TrackResult:
-        """The answer for the frame last submitted (as ``track`` gives it)."""
+        """The answer for the oldest frame submitted and not yet collected (as ``track`` gives it)."""
         ...
 
     def last_track_ms(self) -> float | None:
@@ -118,6 +122,7 @@ class BackendBase:
     name = "base"
     poses_are_recorded = False
     map_points_from_depth = False
+    in_flight = 1
     _submitted: Frame | None = None
 
     # A backend that tracks in a worker process overrides submit/collect so that the worker starts on a frame

@@ -35,6 +35,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+from collections import deque
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Literal
@@ -45,7 +46,7 @@ from slzcli.errors import SlzError
 from slzcli.geometry import project
 from slzcli.slam.base import BackendBase, MapPoints, TrackingState, TrackResult
 from slzcli.slam.keyframes import is_new_keyframe
-from slzcli.slam.orbslam3_worker import frame_bytes, frame_views
+from slzcli.slam.orbslam3_worker import SLOTS, frame_bytes, frame_views
 from slzcli.slam.vocabulary import DEFAULT_VOCABULARY, read_vocabulary
 from slzcli.types import Frame, Intrinsics
 
@@ -136,6 +137,7 @@ class OrbSlam3Backend(BackendBase):
     trajectory over planar ground: the paper's mode, kept for comparison)."""
 
     name = "orbslam3"
+    in_flight = SLOTS   # one frame tracked, the next waiting in the worker's socket: it never idles between them
 
     def __init__(self, slam: SlamCfg, vocabulary: str | Path | None = None) -> None:
         if not available():
@@ -166,7 +168,9 @@ class OrbSlam3Backend(BackendBase):
         self._track_ms: float | None = None  # the worker's own time for the last frame
         self._ready = False  # the worker said it loaded the vocabulary
         self._buf: mmap.mmap | None = None   # the frame buffer shared with the worker (orbslam3_worker.frame_views)
-        self._views: tuple[np.ndarray, np.ndarray] | None = None
+        self._views: list[tuple[np.ndarray, np.ndarray]] = []   # its slots
+        self._in_worker: deque[Frame] = deque()   # submitted, not yet collected (oldest first)
+        self._slot = 0   # the slot the next frame is written to
 
     # -- worker plumbing
     def prepare(self, intrinsics: Intrinsics) -> None:
@@ -184,7 +188,7 @@ class OrbSlam3Backend(BackendBase):
         text = settings_yaml(intrinsics, self.cfg.orb, self.cfg.orbslam3.close_depth_m,
                              self.cfg.orbslam3.baseline_m, fps)
         ours, theirs = socket.socketpair()
-        size = frame_bytes(intrinsics.height, intrinsics.width)
+        size = SLOTS * frame_bytes(intrinsics.height, intrinsics.width)
         buf_fd = _anonymous_file(size)
         # ORB-SLAM3 prints progress to stdout; keep it off ours (--json) and keep stderr for the cause.
         self._log = tempfile.TemporaryFile(mode="w+b")  # noqa: SIM115  # lives as long as the worker; _stop closes it
@@ -260,7 +264,8 @@ class OrbSlam3Backend(BackendBase):
         if self._log is not None:
             self._log.close()
             self._log = None
-        self._views = None
+        self._views = []
+        self._in_worker.clear()
         if self._buf is not None:
             self._buf.close()
             self._buf = None
@@ -288,16 +293,19 @@ class OrbSlam3Backend(BackendBase):
         return self.collect()
 
     def submit(self, frame: Frame) -> None:
-        """Send the frame to the worker and return at once: it tracks while the caller computes (``collect``)."""
-        if self._submitted is not None:
-            raise RuntimeError(f"orbslam3: frame {self._submitted.index} was submitted and never collected")
+        """Send the frame to the worker and return at once: it tracks while the caller computes (``collect``); with
+        one frame still in the worker, this one waits in its socket and is tracked right after."""
+        if len(self._in_worker) >= self.in_flight:
+            raise RuntimeError(f"orbslam3: frame {self._in_worker[0].index} was submitted and never collected")
         if not self._ready:
             self._start(frame)
         elif frame.intrinsics != self._intrinsics:
             raise SlzError(f"{frame.source or 'recording'}: frame {frame.index} has other intrinsics than the first "
                            "frame; ORB-SLAM3 is configured once per run")
-        assert self._conn is not None and self._views is not None  # _start opened them
-        rgb, depth = self._views   # the worker copies them out before it tracks and before it replies
+        assert self._conn is not None and self._views  # _start opened them
+        # the slot of the frame SLOTS submissions ago, which was collected: the worker copied it out long since
+        slot, self._slot = self._slot, (self._slot + 1) % SLOTS
+        rgb, depth = self._views[slot]
         if frame.rgb.shape != rgb.shape or (not self.monocular and frame.depth_m.shape != depth.shape):
             raise SlzError(f"{frame.source or 'recording'}: frame {frame.index} is {frame.rgb.shape[1]}x"
                            f"{frame.rgb.shape[0]} px (depth {frame.depth_m.shape[1]}x{frame.depth_m.shape[0]}), its "
@@ -306,16 +314,16 @@ class OrbSlam3Backend(BackendBase):
         if not self.monocular:
             depth_for_tracker(frame.depth_m, depth)
         with contextlib.suppress(BrokenPipeError, OSError):  # _recv reports how the worker died
-            self._conn.send(("track", not self.monocular, frame.stamp_ns * 1e-9))
-        self._submitted = frame
+            self._conn.send(("track", slot, not self.monocular, frame.stamp_ns * 1e-9))
+        self._in_worker.append(frame)
 
     def last_track_ms(self) -> float | None:
         return self._track_ms
 
     def collect(self) -> TrackResult:
-        frame, self._submitted = self._submitted, None
-        if frame is None:
+        if not self._in_worker:
             raise RuntimeError("orbslam3: collect() without a submitted frame")
+        frame = self._in_worker.popleft()
         reply = self._recv(f"tracking frame {frame.index} of {frame.source or 'the recording'}",
                            self.cfg.orbslam3.frame_timeout_s)
         if reply[0] != "ok":  # the native tracker threw: the worker is alive, the frame is not usable

@@ -8,9 +8,10 @@ importing slzcli first took ~0.5 s of every run's start. The protocol (the repli
 
 The images travel through a buffer both processes map (``frame_views``), the socket carries only the request:
 pickled over the socket a 640x480 frame (2.1 MB) cost the parent ~4 ms of blocking send and the worker its
-unpickling, every frame, on the path ORB-SLAM3's own rate is measured on. The parent writes the buffer only
-between a reply and its next request, and the worker copies the images out before tracking, so what the native
-code keeps never changes under it.
+unpickling, every frame, on the path ORB-SLAM3's own rate is measured on. The buffer has ``SLOTS`` frames, so
+that the next request waits in the socket while one is tracked (the worker never idles between frames); the
+parent writes a slot only after the reply to the frame it held, and the worker copies the images out before
+tracking, so what the native code keeps never changes under it.
 """
 
 from __future__ import annotations
@@ -27,21 +28,25 @@ if __name__ == "__main__" and sys.path and os.path.abspath(sys.path[0]) == os.pa
 
 import numpy as np  # after the path is cleaned
 
+SLOTS = 2   # frames in the shared buffer: one tracked, the next waiting (the parent's in_flight)
+
 
 def frame_bytes(height: int, width: int) -> int:
-    """Size of the shared frame buffer: the RGB image (uint8) then the depth (float32 metres, 0 = none)."""
+    """Size of one slot of the shared frame buffer: the RGB image (uint8) then the depth (float32 metres, 0 =
+    none)."""
     return height * width * 3 + height * width * 4
 
 
-def frame_views(buf: mmap.mmap, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """The RGB and depth images laid over the shared buffer (the one layout both processes use)."""
-    rgb = np.ndarray((height, width, 3), np.uint8, buffer=buf)
-    depth = np.ndarray((height, width), np.float32, buffer=buf, offset=height * width * 3)
-    return rgb, depth
+def frame_views(buf: mmap.mmap, height: int, width: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The RGB and depth images of each slot, laid over the shared buffer (the one layout both processes use)."""
+    size = frame_bytes(height, width)
+    return [(np.ndarray((height, width, 3), np.uint8, buffer=buf, offset=k * size),
+             np.ndarray((height, width), np.float32, buffer=buf, offset=k * size + height * width * 3))
+            for k in range(SLOTS)]
 
 
 def serve(conn: Connection, vocab_path: str, settings_text: str, sensor: str,
-          views: tuple[np.ndarray, np.ndarray]) -> None:
+          views: list[tuple[np.ndarray, np.ndarray]]) -> None:
     """Load the vocabulary, say ready (or the error), then track each frame sent until told to close."""
     import pyorbslam3 as pos
 
@@ -60,9 +65,9 @@ def serve(conn: Connection, vocab_path: str, settings_text: str, sensor: str,
                 msg = conn.recv()
                 if msg[0] == "close":
                     break
-                _, with_depth, t = msg
-                rgb = views[0].copy()
-                depth = views[1].copy() if with_depth else None
+                _, slot, with_depth, t = msg
+                rgb = views[slot][0].copy()
+                depth = views[slot][1].copy() if with_depth else None
                 t0 = time.perf_counter()
                 try:
                     r = system.track_monocular(rgb, t) if depth is None else system.track_rgbd(rgb, depth, t)
@@ -80,7 +85,7 @@ def serve(conn: Connection, vocab_path: str, settings_text: str, sensor: str,
 def main() -> None:
     conn = Connection(int(sys.argv[1]))
     _init, vocab_path, settings_text, sensor, (height, width) = conn.recv()
-    buf = mmap.mmap(int(sys.argv[2]), frame_bytes(height, width))   # unmapped when the process ends
+    buf = mmap.mmap(int(sys.argv[2]), SLOTS * frame_bytes(height, width))   # unmapped when the process ends
     serve(conn, vocab_path, settings_text, sensor, frame_views(buf, height, width))
 
 

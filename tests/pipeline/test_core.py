@@ -159,3 +159,57 @@ def test_slam_is_handed_the_next_frame_before_this_frames_detection(recording, m
         want += [f"submit {i + 1}"] if i + 1 < FRAMES else []
         want += [f"detect {i}"] + (["collect"] if i + 1 < FRAMES else [])
     assert events == want
+
+
+def test_a_backend_taking_two_frames_gets_the_next_two_and_answers_each_frame_in_order(recording, monkeypatch) -> None:
+    """A backend whose worker takes a frame while it tracks another (``in_flight`` 2, ORB-SLAM3's): frames n+1 and
+    n+2 are in its hands while frame n is detected, each detection gets its own frame's pose, and the poses are
+    those of one frame at a time."""
+    from collections import deque
+
+    real_step = run_module.step
+
+    def tracked_run(in_flight: int) -> tuple[list[str], list[tuple[int, np.ndarray | None]]]:
+        events: list[str] = []
+        poses: list[tuple[int, np.ndarray | None]] = []
+
+        def step(tracked, *args):
+            events.append(f"detect {tracked.frame.index}")
+            poses.append((tracked.frame.index, tracked.T_world_camera))
+            return real_step(tracked, *args)
+
+        monkeypatch.setattr(run_module, "step", step)
+        config = load_config(None, ["slam.backend=odometry", "landing.detect_on=every_nth",
+                                    "landing.every_nth_frame=1"])
+        with ExitStack() as stack:
+            source, config = open_source(recording, config, stack)
+            slam = stack.enter_context(get_backend(config.slam, False))
+            queue: deque = deque()
+
+            def submit(frame):   # a worker's queue: frames wait until collected in order
+                assert len(queue) < in_flight
+                events.append(f"submit {frame.index}")
+                queue.append(frame)
+
+            def collect():
+                events.append("collect")
+                return slam.track(queue.popleft())
+
+            monkeypatch.setattr(slam, "in_flight", in_flight)
+            monkeypatch.setattr(slam, "submit", submit)
+            monkeypatch.setattr(slam, "collect", collect)
+            tracker = Tracker(config, slam)
+            mr = method_run(config, "fuzzy", tracker)
+            assert mr.state.noise is not None
+            run(source, tracker, [mr], mr.state.noise, StageLimit(None, str(recording)))
+        return events, poses
+
+    events, poses = tracked_run(2)
+    want = ["submit 0", "submit 1"]
+    for i in range(FRAMES):
+        want += ["collect"] + ([f"submit {i + 2}"] if i + 2 < FRAMES else []) + [f"detect {i}"]
+    assert events == want
+    _, one_at_a_time = tracked_run(1)
+    assert [i for i, _ in poses] == [i for i, _ in one_at_a_time] == list(range(FRAMES))
+    pairs = zip(poses, one_at_a_time, strict=True)
+    assert all(a is not None and b is not None and np.array_equal(a, b) for (_, a), (_, b) in pairs)
