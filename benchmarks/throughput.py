@@ -24,9 +24,10 @@ worker's own time, run.json ``timings.slam``, measured in that very run) and the
 divided by it (``of_slam_bound``: 1 = slz is as fast as its tracker; the target for ``fused`` is >= 0.7).
 That bound counts the tracking thread alone; ORB-SLAM3's LocalMapping and LoopClosing threads share the same
 cores. So the same frames are also tracked by ORB-SLAM3 alone (``--slam-alone``, the default: decoded once into
-memory, handed to a fresh worker back to back, wall time of the tracking loop, ``--repeats`` times): the rate
-the tracker really allows on this machine, and each variant's rate over it (``of_slam_alone``), from the
-process's wall time (start-up included) and from the run's own ``wall_s`` (the frame loop and final writes).
+memory, handed to a fresh worker back to back, as many in its hands as it takes, wall time of the tracking
+loop, ``--repeats`` times): the rate the tracker really allows on this machine, and each variant's rate over it
+(``of_slam_alone``), from the process's wall time (start-up included) and from the run's own ``wall_s`` (the
+frame loop and final writes).
 The fusion's own cost is run.json ``timings.fuse`` (CPU time of the main thread per tracked frame).
 
 Per variant: median frames/s over the process's wall time, median ms per stage from run.json
@@ -118,7 +119,8 @@ def run(recording: Path, out: Path, sets: tuple[str, ...]) -> dict[str, Any]:
 
 def slam_alone(recording: Path, sets: tuple[str, ...], repeats: int) -> dict[str, Any]:
     """Frames/s of ORB-SLAM3 alone on the recording's frames (decoded first, and the first frame, which starts the
-    worker and loads the vocabulary, tracked outside the timing)."""
+    worker and loads the vocabulary, tracked outside the timing), fed as slz feeds it: as many frames in its
+    worker's hands as it takes (``in_flight``), so that it never waits for the next."""
     from slzcli.config import load_config
     from slzcli.slam.orbslam3 import OrbSlam3Backend
     from slzcli.sources import open_recording
@@ -131,8 +133,15 @@ def slam_alone(recording: Path, sets: tuple[str, ...], repeats: int) -> dict[str
         backend = OrbSlam3Backend(cfg.slam)
         backend.track(frames[0])   # the worker's start (its vocabulary) and the map's first keyframe: not timed
         t0 = time.perf_counter()
+        waiting = 0
         for f in frames[1:]:
-            backend.track(f)
+            if waiting == backend.in_flight:
+                backend.collect()
+                waiting -= 1
+            backend.submit(f)
+            waiting += 1
+        for _ in range(waiting):
+            backend.collect()
         rates.append((len(frames) - 1) / (time.perf_counter() - t0))
         backend.close()
     return {"frames": len(frames), "fps": [round(r, 2) for r in rates],
