@@ -165,8 +165,9 @@ def track(source: Source, tracker: Tracker, limit: StageLimit) -> Generator[Trac
     """The frames of a source with their SLAM pose, map segment, map points and whether detection is due.
 
     Frames are decoded in a thread (``sources.read_ahead``); reading each frame and tracking it are stages
-    under ``limit``. With ``slam.track_ahead`` the next frame is handed to SLAM (a worker process starts
-    on it) before this frame is yielded, so it is tracked while this frame's detection runs.
+    under ``limit``. With ``slam.track_ahead`` the next frames, as many as the backend takes (``in_flight``), are
+    handed to SLAM (a worker process starts on them) before this frame is yielded, so they are tracked while this
+    frame's detection runs.
     """
     config = tracker.config
     with closing(read_ahead(source.frames(), config.sources.read_ahead_frames)) as frames:

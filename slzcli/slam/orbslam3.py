@@ -304,12 +304,13 @@ class OrbSlam3Backend(BackendBase):
                            "frame; ORB-SLAM3 is configured once per run")
         assert self._conn is not None and self._views  # _start opened them
         # the slot of the frame SLOTS submissions ago, which was collected: the worker copied it out long since
-        slot, self._slot = self._slot, (self._slot + 1) % SLOTS
+        slot = self._slot
         rgb, depth = self._views[slot]
         if frame.rgb.shape != rgb.shape or (not self.monocular and frame.depth_m.shape != depth.shape):
             raise SlzError(f"{frame.source or 'recording'}: frame {frame.index} is {frame.rgb.shape[1]}x"
                            f"{frame.rgb.shape[0]} px (depth {frame.depth_m.shape[1]}x{frame.depth_m.shape[0]}), its "
                            f"camera {rgb.shape[1]}x{rgb.shape[0]}: ORB-SLAM3 is configured for the camera's size")
+        self._slot = (slot + 1) % SLOTS
         np.copyto(rgb, frame.rgb)
         if not self.monocular:
             depth_for_tracker(frame.depth_m, depth)
