@@ -289,6 +289,8 @@ class OrbSlam3Backend(BackendBase):
 
     # -- tracking
     def track(self, frame: Frame) -> TrackResult:
+        if self._in_worker:   # collect would answer for the oldest frame in the worker, not for this one
+            raise RuntimeError(f"orbslam3: frame {self._in_worker[0].index} was submitted and never collected")
         self.submit(frame)
         return self.collect()
 

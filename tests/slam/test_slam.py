@@ -470,8 +470,8 @@ def test_a_frame_of_another_size_than_its_camera_is_refused_by_name(line_flight)
 @needs_orbslam3
 def test_orbslam3_answers_two_frames_in_its_hands_in_the_order_given(line_flight) -> None:
     """Its worker takes the next frame while it tracks one (``in_flight`` 2, two slots of the shared buffer): each
-    answer is its own frame's (a pose one frame off would be 5-8 cm off on this flight), and a third frame before
-    the first is collected is refused."""
+    answer is its own frame's (a pose one frame off would be 5-8 cm off on this flight), a third frame before
+    the first is collected is refused, and so is ``track`` while a frame is in the worker."""
     frames, truth = line_flight
     frames, truth = frames[:40], truth[:40]
     config = load_config(overrides=["slam.backend=orbslam3"])
@@ -485,7 +485,11 @@ def test_orbslam3_answers_two_frames_in_its_hands_in_the_order_given(line_flight
         for f in frames[2:]:
             results.append(b.collect())
             b.submit(f)
-        results += [b.collect(), b.collect()]
+        results.append(b.collect())
+        last = len(frames) - 1
+        with pytest.raises(RuntimeError, match=f"frame {last} was submitted and never collected"):
+            b.track(frames[0])   # with one frame in the worker, its answer would be that frame's
+        results.append(b.collect())
     assert len(results) == len(frames) and all(r.state is TrackingState.OK for r in results[1:])
     assert ate([r.T_world_camera for r in results], truth).rmse_m < ATE_LIMIT_M
     # against the same frames one at a time (same map frame: the first camera's): each pose is its own frame's
