@@ -63,7 +63,8 @@ class ClusterRow(TypedDict):
 
 class FrameRow(TypedDict, total=False):
     """A frame's row in run.json ``funnel.frames`` (``mask_px`` ... ``emptied_by`` only with mask counts,
-    ``weakest_map`` only when the threshold emptied the mask, ``note`` only when no selection ran)."""
+    ``weakest_map`` only when the threshold emptied the mask, ``note`` only when no selection ran, ``cells`` only
+    from a method with a verdict per cell: ``fusion/funnel.py``)."""
 
     frame: int
     mask_px: dict[str, int]
@@ -74,6 +75,7 @@ class FrameRow(TypedDict, total=False):
     clusters: list[ClusterRow]
     site: dict[str, object] | None
     note: str
+    cells: dict[str, int]
 
 
 class FunnelDoc(TypedDict):
@@ -100,6 +102,7 @@ class FrameFunnel:
     weakest: tuple[str, float, float] | None = None  # the lowest map's name and median, the median slope (deg)
     note: str = ""                               # why no selection ran (no pose, no map points, not vouched)
     raised: str = ""                             # the largest cluster refused as raised: its reason
+    cells: dict[str, int] | None = None          # a verdict per cell (fused): the cells each of its tests left
 
     def as_dict(self) -> FrameRow:
         """The frame's row in run.json ``funnel.frames``."""
@@ -118,6 +121,8 @@ class FrameFunnel:
         out["site"] = None if self.site is None else {"accepted": self.site[0], "reason": self.site[1]}
         if self.note:
             out["note"] = self.note
+        if self.cells is not None:
+            out["cells"] = dict(self.cells)
         return out
 
 
@@ -132,14 +137,15 @@ def frame_funnel(det: Detection) -> FrameFunnel:
         note = ("no pose (SLAM lost)" if det.T_world_camera is None else
                 "no map points yet (no keyframe in this map segment)" if det.points is None else
                 "the frame cannot vouch (noise limits): no selection")
-        return FrameFunnel(det.frame.index, mask, None, (), None, weakest, note)
+        return FrameFunnel(det.frame.index, mask, None, (), None, weakest, note, cells=det.cells)
     n = int(sel.kept.shape[0])
     on_mask = int(np.count_nonzero(sel.kept))
     clusters = tuple((c.points, c.test) for c in sel.candidates)
     site = None if sel.site is None else (sel.site.accepted, sel.site.acceptance_reason)
     raised = [c for c in sel.candidates if c.test == "raised"]
     lead = max(raised, key=lambda c: c.points).reason if raised else ""
-    return FrameFunnel(det.frame.index, mask, (n, int(sel.in_view), on_mask), clusters, site, weakest, raised=lead)
+    return FrameFunnel(det.frame.index, mask, (n, int(sel.in_view), on_mask), clusters, site, weakest, raised=lead,
+                       cells=det.cells)
 
 
 def weakest_map(maps: TerrainMaps) -> tuple[str, float, float] | None:

@@ -563,6 +563,8 @@ class Detection:
     advice: DecideAdvice | None = None  # a method that can tell: what would decide the ground it could not
     landing_grid: Callable[[], LandingGrid] | None = None  # a method's landing map as of this frame (fused: the
     # cells in view), built when a sink writes it
+    cells: dict[str, int] | None = None  # a method with a verdict per cell: the cells in view each of its tests
+    # left, in order (fused: fusion/funnel.py CELL_STEPS)
 
 
 # ----------------------------------------------------------------------------- slz land simulate

@@ -40,13 +40,14 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from slzcli.config import Config
 from slzcli.fusion import kernels
+from slzcli.fusion.funnel import CellFunnel
 from slzcli.fusion.grid import Region
 from slzcli.fusion.measure import FusionParams
 from slzcli.landing.raised import Raised, RaisedParams, above_ground, raised_params
@@ -94,6 +95,9 @@ class FusedMaps:
     patch: np.ndarray         # int32: the patch of cells the raised-surface rule tested (1, 2, ...; 0: none)
     steps: StepFits           # the fitted steps and how they are read (what holds a square's step test)
     patch_tests: tuple[Raised, ...] = ()   # the rule's finding per patch (patch k: [k - 1]), best patch first
+    funnel: CellFunnel | None = None       # the cells each test of the verdict left (``fusion/funnel.py``)
+    whole: np.ndarray | None = None        # the seen cells whose four maps rest on their windows (none scored 0 for
+                                           # a window too little seen)
 
     def counts(self) -> dict[str, int]:
         return {name: int(np.count_nonzero(self.verdict == code)) for code, name in VERDICT_NAMES.items()}
@@ -109,6 +113,25 @@ class FusedMaps:
         (as the per-frame path's ``select.raised_lead``); "" when the rule refused none."""
         best = next((t for t in self.patch_tests if t.refused), None)
         return "" if best is None else f"the best site is {best.reason()}; "
+
+    def why_none(self, camera_depth_m: float | None = None) -> str:
+        """Why no cell here is SAFE (``CellFunnel.text``), with the weakest map and the slope where the score
+        threshold left none (medians over the seen cells, taken only then)."""
+        f = self.funnel
+        if f is None:
+            return "no verdict"
+        if f.emptied_by() == "score" and self.whole is not None:
+            ok = self.whole
+            maps = {"depth_variance": self.depth_variance, "flatness": self.flatness,
+                    "inclination": self.inclination, "steepness": self.steepness}
+            medians = {name: float(np.median(m[ok])) for name, m in maps.items()} if ok.any() else {}
+            finite = ok & np.isfinite(self.slope_deg)
+            weakest = min(medians.items(), key=lambda kv: kv[1]) if medians else None
+            if finite.any():
+                f = replace(f, slope_deg=float(np.median(self.slope_deg[finite])),
+                            slope_limit_deg=float(np.median(self.slope_min_deg[finite])))
+            f = replace(f, weakest=weakest)
+        return f.text(camera_depth_m)
 
 
 def _box(a: np.ndarray, n: int) -> np.ndarray:
@@ -367,11 +390,22 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     verdict[seen] = UNDECIDED
     verdict[unsafe] = UNSAFE
     verdict[safe] = SAFE
+    left, cells = [], seen
+    for test in (seen, mask, decided, ok & fine, reg.column, ~held):   # in the order of CELL_STEPS
+        cells = cells & test
+        left.append(int(np.count_nonzero(cells)))
+    whole = ok & ok3 & okf & okr
+    covered = cv2.erode(ok.astype(np.uint8), np.ones((n_dec, n_dec), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                        borderValue=0) > 0
+    funnel = CellFunnel(tuple(left), float(thr), float(clear_score[seen].max()) if seen.any() else None,
+                        int(np.count_nonzero(whole)), n_fp * cell, int(np.count_nonzero(seen & mask & covered)),
+                        n_dec * cell, int(np.count_nonzero(unsafe)), uav.max_step_m, uav.max_slope_deg,
+                        config.control.desired_depth_m)
     f32 = {n: m.astype(np.float32) for n, m in maps.items()}
     return FusedMaps(reg, f32["depth_variance"], f32["flatness"], f32["inclination"], f32["steepness"],
                      slope_deg.astype(np.float32), score.astype(np.float32), mask, clear_score,
                      step_min.astype(np.float32), slope_min.astype(np.float32), decided, defect, refused, verdict,
-                     patch, StepFits(s_x, s_y, scale_x, scale_y, reach, kb), tests)
+                     patch, StepFits(s_x, s_y, scale_x, scale_y, reach, kb), tests, funnel, whole)
 
 
 def _site_rank(safe: np.ndarray, clear_score: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -91,15 +91,17 @@ class FusedMethod:
                                         frame.depth_m, frame.intrinsics, T, self.config.landing.depth_points_stride_px))
             if selection.site is None and fm is not None and not score.mask.any():
                 advice = self.terrain.advice(fm, self.track.hovering(self.config.terrain.fusion.hover_speed_m_s))
-                why = fm.raised_lead() + "nothing in view is decided safe by the fused terrain"
+                why = (fm.raised_lead() + "nothing in view is decided safe by the fused terrain: "
+                       + fm.why_none(self.terrain.depth_m))
                 selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
                                       selection.candidates, selection.projected, selection.kept, selection.labels)
         t["select"] = _lap(t0)
         # the cells judged, built when a sink writes them (results.mcap, in its writer), not on the compute path
         grid = None if fm is None or not fm.region.seen.any() else \
             functools.partial(landing_grid, Judged.of(fm), tracked.segment, *self.last_fused, crop=True)
+        cells = None if fm is None or fm.funnel is None else fm.funnel.as_dict()
         return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment,
-                         None if advice is None else advice.record(), grid)
+                         None if advice is None else advice.record(), grid, cells)
 
 
     def write_outputs(self, folder: Path) -> LandingGrid | None:

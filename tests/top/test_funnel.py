@@ -283,3 +283,28 @@ def test_the_bench_profile_finds_a_safe_site_where_the_default_is_out_of_its_env
     rows = json.loads((tmp_path / "b" / "run.json").read_text())["funnel"]["frames"]
     assert any(r["site"] is not None and r["site"]["accepted"] for r in rows)
     assert all(r["best_score"] is None for r in rows)     # only taken when no pixel passed the threshold
+
+
+def test_the_real_frames_fused_reason_names_the_verdicts_test(floor_bag: Path, tmp_path: Path, runner) -> None:
+    """The same real frames through the fused method: nothing in view is decided safe, and the reason says which
+    of the verdict's tests left no cell (the score: 181 cells seen, the footprint's windows seen whole around 6 of
+    them, the flatness map lowest), and that the camera, 0.9 m from the ground, flew below the descent column.
+    run.json holds each tracked detection frame's cell counts, in the verdict's order."""
+    from slzcli.fusion.funnel import CELL_STEPS
+
+    out = tmp_path / "run"
+    res = runner.invoke(main, ["detect", str(floor_bag), "-o", str(out), "--json", "--method", "fused",
+                               "--set", "slam.backend=odometry", "--set", "landing.detect_on=every_nth",
+                               "--set", "camera.mount.pitch_deg=80"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert summary["status"] == "no_safe_site" and summary["site_world"] is None
+    reason = summary["reason"]
+    assert reason.startswith("nothing in view is decided safe by the fused terrain: no landing square among the ")
+    assert "lowest of the four maps" in reason
+    assert "outside this UAV's envelope" in reason and "--profile bench" in reason
+    rows = [f["cells"] for f in json.loads((out / "run.json").read_text())["funnel"]["frames"] if "cells" in f]
+    assert rows and summary["tracking"]["ok"] == len(rows)
+    for cells in rows:
+        assert list(cells) == list(CELL_STEPS) and cells["seen"] > 0 and cells["safe"] == 0
+        assert list(cells.values()) == sorted(cells.values(), reverse=True)
