@@ -23,11 +23,11 @@ Against ORB-SLAM3 alone: per run, the rate its tracking allows (1000 / the media
 worker's own time, run.json ``timings.slam``, measured in that very run) and the run's end-to-end rate
 divided by it (``of_slam_bound``: 1 = slz is as fast as its tracker; the target for ``fused`` is >= 0.7).
 That bound counts the tracking thread alone; ORB-SLAM3's LocalMapping and LoopClosing threads share the same
-cores. So the same frames are also tracked by ORB-SLAM3 alone (``--slam-alone``, the default: decoded once into
-memory, handed to a fresh worker back to back, as many in its hands as it takes, wall time of the tracking
-loop, ``--repeats`` times): the rate the tracker really allows on this machine, and each variant's rate over it
-(``of_slam_alone``), from the process's wall time (start-up included) and from the run's own ``wall_s`` (the
-frame loop and final writes).
+cores. So the same frames are also tracked by ORB-SLAM3 alone (``--slam-alone``, the default: one period of the
+ping-pong decoded once into memory and fed again with the recording's stamps, handed to a fresh worker back to
+back, as many in its hands as it takes, wall time of the tracking loop, ``--repeats`` times): the rate the tracker
+really allows on this machine, and each variant's rate over it (``of_slam_alone``), from the process's wall time
+(start-up included) and from the run's own ``wall_s`` (the frame loop and final writes).
 The fusion's own cost is run.json ``timings.fuse`` (CPU time of the main thread per tracked frame).
 
 Per variant: median frames/s over the process's wall time, median ms per stage from run.json
@@ -60,6 +60,7 @@ VARIANTS: dict[str, tuple[str, ...]] = {   # --set values, or a CLI option pair
     "fused, sequential": (*FUSED, *SEQUENTIAL),
     "fused": FUSED,
 }
+RATE_HZ = 15.0   # the recording's frame rate (the renderer's, and the ping-pong's)
 REFERENCE = {"overlapped": "sequential", "every frame, overlapped": "every frame, sequential",
              "fused": "fused, sequential"}
 
@@ -76,11 +77,11 @@ def render(folder: Path, frames: int, seed_frames: int, size: str = "640x480") -
     tag = "" if size == "640x480" else f"_{size}"
     seed = folder / f"descent_{seed_frames}{tag}.mcap"
     if not seed.exists():
-        harness.slz("synth", "parking_lot", "-o", str(seed), "--frames", str(seed_frames), "--rate", "15",
+        harness.slz("synth", "parking_lot", "-o", str(seed), "--frames", str(seed_frames), "--rate", f"{RATE_HZ:g}",
                     "--path", "descent", "--start", "0,0,8", *harness.size_overrides(size))
     path = folder / f"descent_{seed_frames}{tag}_x{frames}.mcap"
     if not path.exists():
-        write_ping_pong(seed, path, frames, load_config(), rate_hz=15.0)
+        write_ping_pong(seed, path, frames, load_config(), rate_hz=RATE_HZ)
     return path
 
 
@@ -117,24 +118,37 @@ def run(recording: Path, out: Path, sets: tuple[str, ...]) -> dict[str, Any]:
             "stage_ms": {k: round(v["median_ms"], 2) for k, v in timings.items()}}
 
 
-def slam_alone(recording: Path, sets: tuple[str, ...], repeats: int) -> dict[str, Any]:
+def slam_alone(recording: Path, sets: tuple[str, ...], repeats: int, frames_total: int,
+               period: int) -> dict[str, Any]:
     """Frames/s of ORB-SLAM3 alone on the recording's frames (decoded first, and the first frame, which starts the
     worker and loads the vocabulary, tracked outside the timing), fed as slz feeds it: as many frames in its
-    worker's hands as it takes (``in_flight``), so that it never waits for the next."""
+    worker's hands as it takes (``in_flight``), so that it never waits for the next.
+
+    The recording is the ping-pong of ``render``: frame i shows what frame i % ``period`` shows, stamped as
+    ``write_ping_pong`` stamps it, so only one period is decoded and held (a 3,000-frame flight would take ~6 GB)."""
+    from dataclasses import replace
+    from itertools import islice
+
     from slzcli.config import load_config
     from slzcli.slam.orbslam3 import OrbSlam3Backend
     from slzcli.sources import open_recording
 
     cfg = load_config(None, [s for s in sets if not s.startswith("--") and "=" in s])
     with open_recording(str(recording), cfg) as rec:
-        frames = list(rec.frames())
+        cycle = list(islice(rec.frames(), period))
+    t0 = cycle[0].stamp_ns
+
+    def frame(i: int) -> Any:
+        return replace(cycle[i % len(cycle)], index=i, stamp_ns=t0 + round(i * 1e9 / RATE_HZ))
+
     rates = []
     for _ in range(repeats):
         backend = OrbSlam3Backend(cfg.slam)
-        backend.track(frames[0])   # the worker's start (its vocabulary) and the map's first keyframe: not timed
-        t0 = time.perf_counter()
+        backend.track(frame(0))   # the worker's start (its vocabulary) and the map's first keyframe: not timed
+        t_start = time.perf_counter()
         waiting = 0
-        for f in frames[1:]:
+        for i in range(1, frames_total):
+            f = frame(i)
             if waiting == backend.in_flight:
                 backend.collect()
                 waiting -= 1
@@ -142,9 +156,9 @@ def slam_alone(recording: Path, sets: tuple[str, ...], repeats: int) -> dict[str
             waiting += 1
         for _ in range(waiting):
             backend.collect()
-        rates.append((len(frames) - 1) / (time.perf_counter() - t0))
+        rates.append((frames_total - 1) / (time.perf_counter() - t_start))
         backend.close()
-    return {"frames": len(frames), "fps": [round(r, 2) for r in rates],
+    return {"frames": frames_total, "fps": [round(r, 2) for r in rates],
             "fps_median": round(statistics.median(rates), 2)}
 
 
@@ -171,7 +185,7 @@ def main() -> None:
     alone: list[float] = []
     for _ in range(args.repeats):
         if args.slam_alone and args.backend == "orbslam3":   # interleaved with the variants, like them
-            alone += slam_alone(recording, base, 1)["fps"]
+            alone += slam_alone(recording, base, 1, args.frames, 2 * args.seed_frames - 2)["fps"]
         for name, sets in variants.items():
             rows[name].append(run(recording, work / f"run_{name.replace(', ', '_').replace(' ', '_')}",
                                   (*base, *sets)))
