@@ -8,8 +8,8 @@ the ones before it left:
 - ``score``: the cell's landing square scores above the threshold everywhere (the mask, after ``mask.smooth_m``);
 - ``decided``: the fused noise no longer hides a step or slope the UAV cannot take over the square and the maps'
   windows around it (what ``terrain.fusion.decided_margin`` asks), all of them seen;
-- ``tolerances``: the steps fitted across the square and the slope of its plane within the UAV's tolerances,
-  one height per cell;
+- ``tolerances``: the steps fitted across the square and the slope of its plane, each with its noise limit added,
+  within the UAV's tolerances, one height per cell;
 - ``column``: the final descent's column above the cell was in view of some frame;
 - ``safe``: not on a patch the raised-surface rule refused: the SAFE cells.
 
@@ -93,9 +93,10 @@ class CellFunnel:
             return (f"the {n['score']} cells whose landing square scores above the threshold are all undecided: "
                     "the fused depth noise still hides a step or slope the UAV cannot take there")
         if step == "tolerances":
-            return (f"every one of the {n['decided']} decided cells has a step over {self.max_step_m:g} m or a slope "
-                    f"over {self.max_slope_deg:g} deg in its landing square (uav.max_step_m, uav.max_slope_deg), or "
-                    "ground seen at two heights")
+            return (f"every one of the {n['decided']} decided cells holds in its landing square a step or a slope "
+                    "that its noise limit added puts beyond the UAV's tolerance "
+                    f"(uav.max_step_m {self.max_step_m:g} m, uav.max_slope_deg {self.max_slope_deg:g} deg), or ground "
+                    "seen at two heights")
         if step == "column":
             return (f"the final descent's column (control.desired_depth_m {self.column_m:g} m above the ground) was "
                     f"in view over none of the {n['tolerances']} cells that pass every other test: close to the "
