@@ -47,7 +47,23 @@ def funnel_section(funnel: Mapping[str, object] | None) -> str:
             "order (the score threshold, the footprint square's clearance, the final descent's column in view, "
             "the depth noise limits), then the SLAM map points on the mask, the k-means clusters and the first "
             "test each failed, and the site's acceptance test (docs/DESIGN.md, run.json funnel). The first row "
-            f"sums the run.{more}</p><table><tr>{th}</tr>{''.join(rows)}</table>")
+            f"sums the run.{more}</p><table><tr>{th}</tr>{''.join(rows)}</table>" + _verdict_cells(frames))
+
+
+def _verdict_cells(frames: list[Mapping[str, object]]) -> str:
+    """A method with a verdict per cell (fused): the cells in view each of its tests left, per detection frame
+    ("" when no frame has them)."""
+    with_cells = [(f["frame"], _obj(f.get("cells"))) for f in frames[:MAX_ROWS] if f.get("cells")]
+    if not with_cells:
+        return ""
+    steps = list(with_cells[0][1])
+    th = "".join(f"<th>{html.escape(c)}</th>" for c in ("frame", *steps))
+    rows = "".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (frame, *(c.get(s, "-") for s in steps)))
+                   + "</tr>" for frame, c in with_cells)
+    return ("<p class=note>The fused verdict's cells in view each test left, in the order a cell must pass them "
+            "(seen, its landing square's score above the threshold, decided by the noise, within the step and slope "
+            "tolerances, its descent column seen, off a refused raised surface: safe; docs/METHOD.md 2.3.6). "
+            f"Frames without a pose have none.</p><table><tr>{th}</tr>{rows}</table>")
 
 
 def _cells(f: Mapping[str, object]) -> list[str]:

@@ -289,7 +289,7 @@ def test_the_real_frames_fused_reason_names_the_verdicts_test(floor_bag: Path, t
     """The same real frames through the fused method: nothing in view is decided safe, and the reason says which
     of the verdict's tests left no cell (the score: 181 cells seen, the footprint's windows seen whole around 6 of
     them, the flatness map lowest), and that the camera, 0.9 m from the ground, flew below the descent column.
-    run.json holds each tracked detection frame's cell counts, in the verdict's order."""
+    run.json and report.html hold each tracked detection frame's cell counts, in the verdict's order."""
     from slzcli.fusion.funnel import CELL_STEPS
 
     out = tmp_path / "run"
@@ -308,3 +308,8 @@ def test_the_real_frames_fused_reason_names_the_verdicts_test(floor_bag: Path, t
     for cells in rows:
         assert list(cells) == list(CELL_STEPS) and cells["seen"] > 0 and cells["safe"] == 0
         assert list(cells.values()) == sorted(cells.values(), reverse=True)
+    page = (out / "report.html").read_text()
+    table = page[page.index("The fused verdict's cells in view"):]
+    table = table[:table.index("</table>")]
+    assert table.count("<tr>") == 1 + len(rows)   # the header, then one row a tracked detection frame
+    assert f"<td>{rows[-1]['seen']}</td>" in table
