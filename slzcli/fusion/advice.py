@@ -4,7 +4,9 @@ For the undecided landing square with the best cleared score, the factor its fus
 shrink by is ``r = m max(step_min / max_step, tan(slope_min) / tan(max_slope))`` over the square, m the
 larger of ``terrain.fusion.decided_margin`` (the gate on the noise alone) and 2: ``verdict`` calls a square
 safe when the fitted step plus its limit stays within the UAV's tolerance, and over a square of cells the
-largest fitted step of level ground is about the limit itself (estimate + limit ~ 2 limits). The cell's
+largest fitted step of level ground is about the limit itself (estimate + limit ~ 2 limits); and at least what
+that tolerance test reads now where the step or slope is the noise's (estimate + limit over the tolerance: both
+shrink with the noise; the largest of hundreds of fitted steps is often more than one limit). The cell's
 own Kalman filter (``grid``'s model: a shared error that decorrelates as exp(-shift / decorrelation_px)
 with the cell's shift in the image, and a white part) is then run forward:
 - frames: at the image shift per frame the flight has now; holding position (a hover: its net ground speed
@@ -182,13 +184,19 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
            single_step_m: float, single_tan: float, hover: bool | None = None) -> Advice | None:
     """Advice for the undecided square with the best cleared score (None: nothing undecided is a candidate).
 
+    A candidate is held by what looks can change: its landing square and the maps' windows around it are seen whole
+    and its descent column was in view. Ground held by too narrow a view or an unseen column is no candidate: more
+    of the same flight would not decide it, and the reason's verdict funnel (``fusion/funnel.py``) says what would.
+
     ``shift_px_per_frame``: the current motion (median image shift of cells between frames);
     ``single_step_m`` / ``single_tan``: one frame's limits at ``depth_m`` (``limits.working_scale``);
     ``hover``: the UAV holds position (``GroundTrack.hovering``): more frames are projected without any shift;
     None: judged by the shift alone (a tenth of the decorrelation length a frame).
     """
     reg: Region = fm.region
-    cand = (fm.verdict == UNDECIDED) & (fm.clear_score > 0)
+    cand = (fm.verdict == UNDECIDED) & (fm.clear_score > 0) & reg.column
+    if fm.covered is not None:
+        cand &= fm.covered
     if not cand.any():
         return None
     j, i = np.unravel_index(int(np.argmax(np.where(cand, fm.clear_score, -1.0))), cand.shape)
@@ -214,11 +222,17 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
     # estimate + limit)
     step_min = fm.step_min_m[sl].astype(np.float64)
     r_step = np.zeros(ok.shape)
+    # what the verdict's tolerance test reads now (SAFE: the fitted step plus its limit within the tolerance),
+    # where the step is the noise's (both shrink with it): over a square's hundreds of windows the largest fitted
+    # step of level ground is often more than the limit the level fit below assumes (a hover: 2.7 limits)
+    r_fit = np.zeros(ok.shape)
     s_read, r1_step = 0.0, 0.0
     for axis, (s_dir, scale) in enumerate(((st.x_m[sl], st.scale_x), (st.y_m[sl], st.scale_y))):
         along = ((dy <= far) & (dx <= half)) if axis == 0 else ((dy <= half) & (dx <= far))
         lim = scale * step_min
         fitted = along & ok & np.isfinite(s_dir) & np.isfinite(lim)
+        r_fit = np.maximum(r_fit, np.where(fitted, (np.nan_to_num(s_dir) + np.nan_to_num(lim)) / params.max_step_m,
+                                           0.0))
         found = fitted & (np.nan_to_num(s_dir) > st.known * lim)
         if not found.any():
             continue
@@ -258,11 +272,13 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
         r_noise = max(params.decided_margin, _LEVEL_FIT) * np.maximum(step_min / params.max_step_m,
                                                                        tan_lim / tan_max)
         r_slope = tan_lim / (tan_max - tan_est)
+        # the slope's tolerance test as it reads now where the fitted slope is the noise's (estimate + limit)
+        r_noise = np.maximum(r_noise, np.where(tan_fit > tan_lim, 0.0, (tan_fit + tan_lim) / tan_max))
     r_noise, r_slope = np.where(square, r_noise, -np.inf), np.where(square, r_slope, -np.inf)
-    r_cells = np.where(square & ~ok, np.inf, np.maximum(np.maximum(r_noise, r_slope), r_step))
+    r_cells = np.where(square & ~ok, np.inf, np.maximum(np.maximum(np.maximum(r_noise, r_fit), r_slope), r_step))
     jj, ii = np.unravel_index(int(np.argmax(r_cells)), r_cells.shape)
     r = float(r_cells[jj, ii])
-    step_holds = bool(r_step[jj, ii] > max(r_noise[jj, ii], r_slope[jj, ii]))
+    step_holds = bool(r_step[jj, ii] > max(r_noise[jj, ii], r_fit[jj, ii], r_slope[jj, ii]))
     if not math.isfinite(r):
         # a single window's step at the tolerance, not read beyond it along its run: no look tells which it is
         return held_by_step(s_read, False) if step_holds else Advice(x, y, r, None, None, None, hover)

@@ -98,6 +98,8 @@ class FusedMaps:
     funnel: CellFunnel | None = None       # the cells each test of the verdict left (``fusion/funnel.py``)
     whole: np.ndarray | None = None        # the seen cells whose four maps rest on their windows (none scored 0 for
                                            # a window too little seen)
+    covered: np.ndarray | None = None      # the cells whose landing square and the windows around it are seen whole
+                                           # (what ``decided`` needs besides the noise)
 
     def counts(self) -> dict[str, int]:
         return {name: int(np.count_nonzero(self.verdict == code)) for code, name in VERDICT_NAMES.items()}
@@ -116,7 +118,7 @@ class FusedMaps:
 
     def why_none(self, camera_depth_m: float | None = None) -> str:
         """Why no cell here is SAFE (``CellFunnel.text``), with the weakest map and the slope where the score
-        threshold left none (medians over the seen cells, taken only then)."""
+        threshold left none (medians over the cells whose maps rest on their windows, taken only then)."""
         f = self.funnel
         if f is None:
             return "no verdict"
@@ -405,7 +407,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     return FusedMaps(reg, f32["depth_variance"], f32["flatness"], f32["inclination"], f32["steepness"],
                      slope_deg.astype(np.float32), score.astype(np.float32), mask, clear_score,
                      step_min.astype(np.float32), slope_min.astype(np.float32), decided, defect, refused, verdict,
-                     patch, StepFits(s_x, s_y, scale_x, scale_y, reach, kb), tests, funnel, whole)
+                     patch, StepFits(s_x, s_y, scale_x, scale_y, reach, kb), tests, funnel, whole, covered)
 
 
 def _site_rank(safe: np.ndarray, clear_score: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

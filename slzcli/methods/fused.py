@@ -36,6 +36,10 @@ from slzcli.types import Detection, LandingGrid, ScoreMap, TerrainMaps, TrackedF
 NAME = "fused"
 
 
+# the clusters' tests more map points can pass (landing/select.py ``Candidate.test``); "raised" is a finding
+SPARSE = frozenset({"points", "normals", "extent", "centroid"})
+
+
 @dataclass(eq=False)
 class FusedMethod:
     """The run's fused terrain and the site selection on its verdict."""
@@ -93,8 +97,15 @@ class FusedMethod:
                 advice = self.terrain.advice(fm, self.track.hovering(self.config.terrain.fusion.hover_speed_m_s))
                 why = (fm.raised_lead() + "nothing in view is decided safe by the fused terrain: "
                        + fm.why_none(self.terrain.depth_m))
-                selection = Selection(None, f"{why}; {advice.text()}" if advice is not None else why,
-                                      selection.candidates, selection.projected, selection.kept, selection.labels)
+                selection = replace(selection, reason=f"{why}; {advice.text()}" if advice is not None else why)
+            elif (selection.site is None and fm is not None and {c.test for c in selection.candidates} <= SPARSE
+                  and (best := self.terrain.site(fm)) is not None):
+                # the fused map has a site the map points are too few or too sparse to confirm (METHOD 2.5)
+                selection = replace(selection, reason=(
+                    f"the fused terrain calls {int(np.count_nonzero(fm.verdict == SAFE))} cells in view safe (the "
+                    f"best at ({best.x_m:.1f}, {best.y_m:.1f}) m, {best.clearance_m:.1f} m from ground it does not "
+                    f"call safe), but the SLAM map points do not confirm a site there: {selection.reason}; more "
+                    "flight over that ground (a longer or slower pass) gives SLAM more map points on it"))
         t["select"] = _lap(t0)
         # the cells judged, built when a sink writes them (results.mcap, in its writer), not on the compute path
         grid = None if fm is None or not fm.region.seen.any() else \

@@ -76,13 +76,15 @@ def test_noise_read_as_a_slope_is_not_blamed_on_the_ground() -> None:
 def test_a_view_narrower_than_the_landing_square_says_so() -> None:
     """From 1.5 m the strip seen is narrower than a landing square with its windows: the score passes on 278 cells
     (seeds 0-2), none decided because none has its square seen whole, which the reason says (not the noise), with
-    the camera below the descent column named too."""
+    the camera below the descent column named too, and no advice promises frames that would not decide it."""
     for seed in SEEDS:
         ft, fm = _last("narrow", seed)
         assert fm.funnel.emptied_by() == "decided" and fm.funnel.covered == 0
         why = fm.why_none(ft.depth_m)
         assert "narrower than a landing square" in why and "noise" not in why
         assert "outside this UAV's envelope" in why
+        # no "N more frames": the noise is not what holds these squares (the advice said "1 more frame")
+        assert ft.advice(fm) is None
 
 
 def test_below_the_descent_column_names_the_column() -> None:
@@ -93,3 +95,4 @@ def test_below_the_descent_column_names_the_column() -> None:
         assert fm.funnel.emptied_by() == "column" and fm.funnel.left[4 - 1] > 0
         why = fm.why_none(ft.depth_m)
         assert "descent's column" in why and "camera was 1.8 m from the ground" in why
+        assert ft.advice(fm) is None   # more frames from 1.8 m never see the column (the advice said "1 more frame")
