@@ -96,3 +96,33 @@ def test_below_the_descent_column_names_the_column() -> None:
         why = fm.why_none(ft.depth_m)
         assert "descent's column" in why and "camera was 1.8 m from the ground" in why
         assert ft.advice(fm) is None   # more frames from 1.8 m never see the column (the advice said "1 more frame")
+
+
+def _funnel(left: tuple[int, ...], **kw: Any) -> Any:
+    from slzcli.fusion.funnel import CellFunnel
+
+    base: dict[str, Any] = {"threshold": 0.5, "best_score": 0.4, "whole": left[0], "window_m": 0.7, "covered": 0,
+                            "decided_window_m": 2.4, "unsafe": 0, "max_step_m": 0.09, "max_slope_deg": 15.0,
+                            "column_m": 2.0}
+    return CellFunnel(left, **{**base, **kw})
+
+
+def test_each_test_that_can_empty_the_funnel_is_named() -> None:
+    """The text for the tests no synthetic scene above empties first (the tolerances, a raised surface), the first
+    empty test after a non-empty one, and the envelope note only below the column and without a safe cell."""
+    assert _funnel((0, 0, 0, 0, 0, 0)).text() == "no cell in view was measured"
+    assert _funnel((0, 0, 0, 0, 0, 0)).emptied_by() is None
+    tol = _funnel((90, 60, 40, 0, 0, 0))
+    assert tol.emptied_by() == "tolerances"
+    assert tol.text().startswith("every one of the 40 decided cells holds in its landing square a step or a slope "
+                                 "that its noise limit added puts beyond the UAV's tolerance")
+    raised = _funnel((90, 60, 40, 30, 20, 0))
+    assert raised.emptied_by() == "safe"
+    assert raised.text() == "the 20 cells that pass every other test lie on surfaces the raised-surface rule refused"
+    noisy = _funnel((90, 60, 0, 0, 0, 0), covered=12)
+    assert noisy.text().endswith("all undecided: the fused depth noise still hides a step or slope the UAV cannot "
+                                 "take there")
+    assert "outside this UAV's envelope" in noisy.text(camera_depth_m=1.2)
+    assert "outside this UAV's envelope" not in noisy.text(camera_depth_m=2.5)
+    some = _funnel((90, 60, 40, 30, 20, 10))
+    assert some.emptied_by() is None and some.text(camera_depth_m=1.2) == "10 of the 90 cells in view are safe"
