@@ -18,9 +18,9 @@ Verdict per cell:
              them),
              the step fitted across every cell of the square (and in the windows centred up to half a
              window beyond it along the step, which read a step ending in the square whole) and the slope
-             of its plane stay within the tolerances by those limits (estimate + limit <= tolerance) and
-             its descent column was seen, and its connected patch of such cells is not on a raised surface
-             (below);
+             of its plane stay within the tolerances by those limits (estimate + limit <= tolerance), the
+             descent column above its whole square was seen, and its connected patch of such cells is not on a
+             raised surface (below);
   UNSAFE     a defect is known in its square (a step or slope beyond the tolerance by more than (k + 1) / k
              times its limit, a refused cell), or the mask fails on a square whose limits are
              ``terrain.fusion.unsafe_margin`` times within the tolerances, or its patch is raised;
@@ -381,7 +381,10 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     defect = cv2.dilate(bad.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
 
     verdict = np.full(hc.shape, UNSEEN, np.uint8)
-    safe = ok & mask & decided & fine & reg.column
+    # the final descent's column above every cell of the landing square, not only its centre: the UAV's body comes
+    # down over the whole square (a tree crown's rim beside a site overhangs its edge, not its middle)
+    column = erode(reg.column, n_sq, n_sq)
+    safe = ok & mask & decided & fine & column
     patch, tests = raised_patches(reg, ok, safe, clear_score, raised_params(config))
     # a patch the rule refuses is not safe: UNSAFE where it is raised beyond doubt, UNDECIDED where its height is
     # not told from the tolerance (fewer looks or a higher camera than it needs)
@@ -393,7 +396,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     verdict[unsafe] = UNSAFE
     verdict[safe] = SAFE
     left, cells = [], seen
-    for test in (seen, mask, decided, ok & fine, reg.column, ~held):   # in the order of CELL_STEPS
+    for test in (seen, mask, decided, ok & fine, column, ~held):   # in the order of CELL_STEPS
         cells = cells & test
         left.append(int(np.count_nonzero(cells)))
     whole = ok & ok3 & okf & okr

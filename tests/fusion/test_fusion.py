@@ -401,3 +401,23 @@ def test_slz_detect_times_the_fusion_of_every_frame(tmp_path) -> None:
     assert fuse["count"] == run["summary"]["frames"] == 6
     assert run["summary"]["detections"] == 2
     assert fuse["median_ms"] > 0 and fuse["mean_ms"] > 0
+
+
+def test_the_descent_column_is_seen_over_the_whole_landing_square() -> None:
+    """The UAV's body comes down over its whole landing square, so SAFE needs the final descent's column seen above
+    every cell of the square, not only its centre. A 0.2 m UAV hovering 3 m up sees the 2 m column over the view's
+    central third: 131-547 cells safe (seeds 0-2), none with a cell of its square whose column no frame saw; with the
+    centre's column alone 865-1614 were, 734-1067 of them with part of the square's column unseen."""
+    import cv2
+
+    sets = ["uav.footprint_m=[0.2,0.2]", "mask.smooth_m=0", "terrain.inclination.radius_m=0.15"]
+    for seed in range(3):
+        *_, (_, ft, fm) = fly(sets, a_per_m=0.0005, white=0.2, corr_px=2.0, seed=seed, frames=20, step_m=0.0,
+                              altitude_m=3.0, region_m=4.0)
+        reg = fm.region
+        n_sq = max(1, 2 * math.ceil((ft.params.square_m / reg.cell_m - 1) / 2) + 1)
+        whole = cv2.erode(reg.column.astype(np.uint8), np.ones((n_sq, n_sq), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                          borderValue=0) > 0
+        safe = fm.verdict == SAFE
+        assert safe.sum() > 100
+        assert not np.any(safe & ~whole)
