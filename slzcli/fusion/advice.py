@@ -185,8 +185,11 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
     """Advice for the undecided square with the best cleared score (None: nothing undecided is a candidate).
 
     A candidate is held by what looks can change: its landing square and the maps' windows around it are seen whole
-    and its descent column was in view. Ground held by too narrow a view or an unseen column is no candidate: more
-    of the same flight would not decide it, and the reason's verdict funnel (``fusion/funnel.py``) says what would.
+    and the descent column above the square was in view. Ground held by too narrow a view or an unseen column is
+    no candidate for frames: more of the same flight would not decide it, and the reason's verdict funnel
+    (``fusion/funnel.py``) says what would. Where no square has its whole column in view, squares with their
+    centre's column in view are read for what they hold (a step or a slope beyond the tolerance), never promised
+    frames.
 
     ``shift_px_per_frame``: the current motion (median image shift of cells between frames);
     ``single_step_m`` / ``single_tan``: one frame's limits at ``depth_m`` (``limits.working_scale``);
@@ -194,11 +197,23 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
     None: judged by the shift alone (a tenth of the decorrelation length a frame).
     """
     reg: Region = fm.region
-    cand = (fm.verdict == UNDECIDED) & (fm.clear_score > 0) & reg.column
+    base = (fm.verdict == UNDECIDED) & (fm.clear_score > 0) & reg.column
     if fm.covered is not None:
-        cand &= fm.covered
-    if not cand.any():
+        base &= fm.covered
+    whole = base if fm.column is None else base & fm.column
+    if whole.any():
+        return _advise(fm, whole, params, shift_px_per_frame, depth_m, focal_px, single_step_m, single_tan, hover)
+    if not base.any():
         return None
+    adv = _advise(fm, base, params, shift_px_per_frame, depth_m, focal_px, single_step_m, single_tan, hover)
+    # the square's column is not all in view: what it holds is a finding, a promise of frames is not
+    return adv if adv is not None and (adv.step_m is not None or adv.slope_deg is not None) else None
+
+
+def _advise(fm: FusedMaps, cand: np.ndarray, params: FusionParams, shift_px_per_frame: float, depth_m: float,
+            focal_px: float, single_step_m: float, single_tan: float, hover: bool | None) -> Advice | None:
+    """``advise`` for the best of the candidate cells ``cand``."""
+    reg: Region = fm.region
     j, i = np.unravel_index(int(np.argmax(np.where(cand, fm.clear_score, -1.0))), cand.shape)
     half = max(1, 2 * math.ceil((params.square_m / reg.cell_m - 1) / 2) + 1) // 2
     st = fm.steps

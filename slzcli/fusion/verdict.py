@@ -100,6 +100,7 @@ class FusedMaps:
                                            # a window too little seen)
     covered: np.ndarray | None = None      # the cells whose landing square and the windows around it are seen whole
                                            # (what ``decided`` needs besides the noise)
+    column: np.ndarray | None = None       # the cells whose landing square's descent column was seen whole
 
     def counts(self) -> dict[str, int]:
         return {name: int(np.count_nonzero(self.verdict == code)) for code, name in VERDICT_NAMES.items()}
@@ -410,7 +411,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     return FusedMaps(reg, f32["depth_variance"], f32["flatness"], f32["inclination"], f32["steepness"],
                      slope_deg.astype(np.float32), score.astype(np.float32), mask, clear_score,
                      step_min.astype(np.float32), slope_min.astype(np.float32), decided, defect, refused, verdict,
-                     patch, StepFits(s_x, s_y, scale_x, scale_y, reach, kb), tests, funnel, whole, covered)
+                     patch, StepFits(s_x, s_y, scale_x, scale_y, reach, kb), tests, funnel, whole, covered, column)
 
 
 def _site_rank(safe: np.ndarray, clear_score: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

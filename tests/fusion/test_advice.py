@@ -108,7 +108,7 @@ def test_the_sideways_distance_is_the_noise_models(seed: int) -> None:
         adv = ft.advice(fm, track.hovering(_hover_speed()))
         assert adv is not None and adv.sideways_m is not None
         p, reg, st = ft.params, fm.region, fm.steps
-        cand = (fm.verdict == UNDECIDED) & (fm.clear_score > 0) & reg.column & fm.covered   # held by the noise
+        cand = (fm.verdict == UNDECIDED) & (fm.clear_score > 0) & fm.column & fm.covered   # held by the noise
         j, i = np.unravel_index(int(np.argmax(np.where(cand, fm.clear_score, -1.0))), cand.shape)
         half = (2 * math.ceil((p.square_m / reg.cell_m - 1) / 2) + 1) // 2
         far = half + st.reach     # the step windows the verdict reads beyond the square, along the step
@@ -243,11 +243,13 @@ def test_a_riser_just_under_the_limit_is_not_called_beyond_it(seed: int, a_per_m
     it safe. Measured, seeds 0-2 at both noises: read along the riser 0.077-0.085 m; 5 of 6 "reads a step of
     ... m: no flight with this sensor tells it from a step the UAV cannot take", 1 "409 more frames or 20.7 m
     of sideways flight ..." (the old code: "40-409 more frames" on all 6). A 0.085 m riser is told "more frames
-    will not make it safe" on 1 of 6 (read 0.0903 m): the margin of this test is that 0.005 m."""
+    will not make it safe" on 1 of 6 (read 0.0903 m): the margin of this test is that 0.005 m. The squares the
+    riser crosses do not all have their whole descent column in view: where none does and the answer was frames
+    (seed 0, a = 0.0005) there is no advice now (a promise of frames is only made where the column is all seen)."""
     ft, track, fm, _ = _fly_riser(0.08, seed, a_per_m)
     adv = ft.advice(fm, track.hovering(_hover_speed()))
-    assert adv is not None and not adv.step_beyond
-    assert "more frames will not make it safe" not in adv.text() and "gravity" not in adv.text()
+    assert adv is None or not adv.step_beyond
+    assert adv is None or ("more frames will not make it safe" not in adv.text() and "gravity" not in adv.text())
 
 
 @pytest.mark.parametrize("seed", range(3))

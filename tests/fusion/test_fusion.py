@@ -421,3 +421,7 @@ def test_the_descent_column_is_seen_over_the_whole_landing_square() -> None:
         safe = fm.verdict == SAFE
         assert safe.sum() > 100
         assert not np.any(safe & ~whole)
+        # the squares held only by their column (undecided, all else passed) are promised no frames: a hover never
+        # sees more of it (with the centre's column alone the advice said "1 more frame" on seeds 0-2)
+        adv = ft.advice(fm)
+        assert adv is None or adv.frames is None
