@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypedDict
 
@@ -342,10 +342,16 @@ class MaskFunnel:
     def emptied_by(self) -> str | None:
         """The step that left no pixel while the one before it left some (None: the mask is not empty, or
         no pixel had depth)."""
-        for i in range(1, len(MASK_STEPS)):
-            if self.left[i] == 0:
-                return MASK_STEPS[i] if self.left[i - 1] > 0 else None
-        return None
+        return emptied_by(self.left, MASK_STEPS)
+
+
+def emptied_by(left: Sequence[int], steps: Sequence[str]) -> str | None:
+    """Of a funnel's counts (``left``, one per step, non-increasing): the step that left none while the one before
+    it left some (None: the last step left some, or the first none)."""
+    for i in range(1, len(steps)):
+        if left[i] == 0:
+            return steps[i] if left[i - 1] > 0 else None
+    return None
 
 
 @dataclass(frozen=True, eq=False)

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from slzcli.types import emptied_by
+
 CELL_STEPS = ("seen", "score", "decided", "tolerances", "column", "safe")
 
 
@@ -57,10 +59,7 @@ class CellFunnel:
     def emptied_by(self) -> str | None:
         """The test that left no cell while the one before it left some (None: some cell is SAFE, or none was
         seen)."""
-        for i in range(1, len(CELL_STEPS)):
-            if self.left[i] == 0:
-                return CELL_STEPS[i] if self.left[i - 1] > 0 else None
-        return None
+        return emptied_by(self.left, CELL_STEPS)
 
     def as_dict(self) -> dict[str, int]:
         return dict(zip(CELL_STEPS, self.left, strict=True))

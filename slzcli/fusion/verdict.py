@@ -401,8 +401,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
         cells = cells & test
         left.append(int(np.count_nonzero(cells)))
     whole = ok & ok3 & okf & okr
-    covered = cv2.erode(ok.astype(np.uint8), np.ones((n_dec, n_dec), np.uint8), borderType=cv2.BORDER_CONSTANT,
-                        borderValue=0) > 0
+    covered = erode(ok, n_dec, n_dec)
     funnel = CellFunnel(tuple(left), float(thr), float(clear_score[seen].max()) if seen.any() else None,
                         int(np.count_nonzero(whole)), n_fp * cell, int(np.count_nonzero(seen & mask & covered)),
                         n_dec * cell, int(np.count_nonzero(unsafe)), uav.max_step_m, uav.max_slope_deg,

@@ -102,7 +102,7 @@ class FusedMethod:
                   and (best := self.terrain.site(fm)) is not None):
                 # the fused map has a site the map points are too few or too sparse to confirm (METHOD 2.5)
                 selection = replace(selection, reason=(
-                    f"the fused terrain calls {int(np.count_nonzero(fm.verdict == SAFE))} cells in view safe (the "
+                    f"the fused terrain calls {fm.counts()['safe']} cells in view safe (the "
                     f"best at ({best.x_m:.1f}, {best.y_m:.1f}) m, {best.clearance_m:.1f} m from ground it does not "
                     f"call safe), but the SLAM map points do not confirm a site there: {selection.reason}; more "
                     "flight over that ground (a longer or slower pass) gives SLAM more map points on it"))

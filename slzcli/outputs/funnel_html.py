@@ -58,8 +58,8 @@ def _verdict_cells(frames: list[Mapping[str, object]]) -> str:
         return ""
     steps = list(with_cells[0][1])
     th = "".join(f"<th>{html.escape(c)}</th>" for c in ("frame", *steps))
-    rows = "".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (frame, *(c.get(s, "-") for s in steps)))
-                   + "</tr>" for frame, c in with_cells)
+    rows = "".join(_row([str(v) for v in (frame, *(c.get(s, "-") for s in steps))], left_from=len(steps) + 1)
+                   for frame, c in with_cells)
     return ("<p class=note>The fused verdict's cells in view each test left, in the order a cell must pass them "
             "(seen, its landing square's score above the threshold, decided by the noise, within the step and slope "
             "tolerances, its descent column seen, off a refused raised surface: safe; docs/METHOD.md 2.3.6). "
@@ -81,6 +81,7 @@ def _cells(f: Mapping[str, object]) -> list[str]:
     return [str(f["frame"]), *mask, str(f.get("emptied_by") or "-"), points, cl, what]
 
 
-def _row(cells: list[str], cls: str = "") -> str:
-    tds = "".join(f"<td{' class=l' if i >= 6 else ''}>{html.escape(c)}</td>" for i, c in enumerate(cells))
+def _row(cells: list[str], cls: str = "", left_from: int = 6) -> str:
+    """A table row; the cells from ``left_from`` on are text (left-aligned), the ones before it numbers."""
+    tds = "".join(f"<td{' class=l' if i >= left_from else ''}>{html.escape(c)}</td>" for i, c in enumerate(cells))
     return f"<tr{cls}>{tds}</tr>"
