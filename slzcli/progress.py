@@ -103,7 +103,9 @@ class Bar:
         return self
 
     def update(self, done: int, total: int | None = None, note: str = "") -> None:
-        """``done`` of ``total`` units (None: not known yet); ``note``: a short addition to the line."""
+        """``done`` of ``total`` units (None: not known yet); ``note``: a short addition to the line. A total
+        that was an estimate and is passed (a run's frames counted from the index by log time) is dropped."""
+        total = None if total is not None and done > total else total
         elapsed = time.perf_counter() - self.t0
         if self.rich is not None and self.task is not None:
             rate = f"{_rate(done / elapsed)} {self.unit}/s" if elapsed > 0 and done else ""

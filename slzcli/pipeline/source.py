@@ -51,7 +51,8 @@ class RecordingSource:
         return self.recording.report
 
     def info(self) -> RecordingInfo:
-        return self.opened
+        """The info the run opened with; once the frames are read, with their pairing (``after_frames``)."""
+        return self.recording.after_frames(self.opened)
 
 
 @dataclass(eq=False)
@@ -100,7 +101,7 @@ def open_source(path: Path, config: Config, stack: ExitStack) -> tuple[Recording
     are no source of it), the camera preset's depth noise prior and the frame period ORB-SLAM3 is told
     (``slam.orbslam3.nominal_period_s: auto``)."""
     rec = stack.enter_context(open_recording(path, config))
-    slam, info = vet_recorded_poses(path, rec, rec.info(), config.slam, config.sources.pose_tolerance_ms)
+    slam, info = vet_recorded_poses(path, rec, rec.run_info(), config.slam, config.sources.pose_tolerance_ms)
     config = replace(config, slam=slam)  # rejected poses: an error, or another backend
     resolved, info, config = gravity.apply(path, rec, info, config)
     config = with_noise_prior(config, info.camera_preset)

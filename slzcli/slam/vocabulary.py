@@ -327,7 +327,7 @@ def build_from_recordings(paths: Sequence[str | Path], out: str | Path, config: 
     n_frames = 0
     for path in paths:
         with open_recording(path, config) as rec:
-            total = max(1, rec.info().expected_frames)
+            total = max(1, rec.run_info().expected_frames)
             stride = max(1, total // per_rec)
             frames = (f for i, f in enumerate(rec.frames()) if i % stride == 0)
             got = frame_descriptors((f for _, f in zip(range(per_rec), frames, strict=False)), config.slam.orb)

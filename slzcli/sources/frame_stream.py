@@ -86,7 +86,8 @@ class FrameStream:
     """One ``frames()`` pass of an open message recording (``quiet``: a look-ahead pass, see
     ``Recording.quiet_frames``)."""
 
-    def __init__(self, setup: CameraSetup, quiet: bool, on_report: Callable[[PairingReport], None]) -> None:
+    def __init__(self, setup: CameraSetup, quiet: bool,
+                 on_report: Callable[[PairingReport, list[str]], None]) -> None:
         self.setup = setup
         self.log = setup.log
         self.path = setup.path
@@ -96,7 +97,8 @@ class FrameStream:
         self.on_report = on_report
 
     def frames(self, points_topic: str) -> Iterator[Frame]:
-        """Paired, decoded frames in stamp order; ``on_report`` gets the pairing report when the pass ends."""
+        """Paired, decoded frames in stamp order; ``on_report`` gets the pairing report and its stamp problems
+        when the pass ends."""
         ch = self.setup.choices
         cfg = self.cfg
         tol_pose = int(cfg.pose_tolerance_ms * NS_PER_MS)
@@ -164,8 +166,10 @@ class FrameStream:
         if state.clouds is not None and state.clouds.late:
             state.note(f"{state.clouds.late} map cloud(s) on {points_topic} were logged later than "
                        "sources.reorder_window_ms after the images of their time and went to no frame")
-        notes = tuple(state.notes) + tuple(stamp_report(ch, stamps, pairer))
-        self.on_report(pairing_report(self.log, pairer, state.without_pose, state.n_undecodable, notes, win))
+        stamp_lines = stamp_report(ch, stamps, pairer)
+        notes = tuple(state.notes) + tuple(stamp_lines)
+        self.on_report(pairing_report(self.log, pairer, state.without_pose, state.n_undecodable, notes, win),
+                       stamp_lines)
         if self.log.warnings:
             log.warning("%s: %d frames recovered (%s)", self.path, state.yielded, "; ".join(self.log.warnings))
         if state.yielded == 0 and state.first_error is not None:

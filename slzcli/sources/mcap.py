@@ -9,16 +9,19 @@ channels fall back to the ROS 2 Humble / ROS 1 Noetic typestores.
 
 from __future__ import annotations
 
+import io
 import logging
 import struct
 from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
+import numpy as np
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, McapRecord, Message, Schema
+from mcap.records import Channel, Chunk, McapRecord, Message, MessageIndex, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.summary import Summary
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -57,6 +60,7 @@ class McapLog(MessageLog):
         self._registered: set[tuple[str, str]] = set()
         self._schemas: dict[int, Schema] = {}
         self._truncation_reported = False
+        self._summary: Summary | None = None
 
     # ------------------------------------------------------------------ open
     def open(self) -> None:
@@ -88,6 +92,7 @@ class McapLog(MessageLog):
             return False
         if summary is None or not summary.channels:
             return False
+        self._summary = summary
         for ch in summary.channels.values():
             self._add_channel(ch, summary.schemas.get(ch.schema_id))
         return True
@@ -194,6 +199,38 @@ class McapLog(MessageLog):
             self._truncation_reported = True
             log.warning("%s: %s", self.path, text)
 
+    def log_times(self) -> dict[str, np.ndarray] | None:
+        """From the summary's chunk indexes and the message index records written after each chunk (read,
+        never decompressed). None unless they account for every message the summary's statistics count:
+        a file without statistics, with messages outside chunks, or with a chunk whose indexes are missing."""
+        s = self._summary
+        if s is None or s.statistics is None or not s.chunk_indexes:
+            return None
+        per_channel: dict[int, list[np.ndarray]] = {}
+        try:
+            with self.path.open("rb") as f:
+                for ci in s.chunk_indexes:
+                    f.seek(ci.chunk_start_offset + ci.chunk_length)
+                    block = f.read(ci.message_index_length)
+                    if len(block) != ci.message_index_length:
+                        return None
+                    for channel_id, times in _message_indexes(block):
+                        per_channel.setdefault(channel_id, []).append(times)
+        except (OSError, McapError, struct.error, ValueError):
+            return None
+        counts = {c: sum(len(t) for t in ts) for c, ts in per_channel.items()}
+        stats = s.statistics
+        if sum(counts.values()) != stats.message_count or any(
+                counts.get(c, 0) != n for c, n in stats.channel_message_counts.items()):
+            return None
+        out: dict[str, list[np.ndarray]] = {}
+        for c, ts in per_channel.items():
+            ch = s.channels.get(c)
+            if ch is None:
+                return None
+            out.setdefault(ch.topic, []).extend(ts)
+        return {topic: np.sort(np.concatenate(ts)) for topic, ts in out.items()}
+
     def deserialize(self, topic: str, data: bytes | memoryview) -> RosMessage:
         enc = self._encoding.get(topic, "")
         msgtype = self._topics.get(topic, "")
@@ -212,6 +249,21 @@ class McapLog(MessageLog):
         if key not in self._stores:
             self._stores[key] = get_typestore(Stores.ROS1_NOETIC if encoding == ROS1_ENCODING else Stores.ROS2_HUMBLE)
         return self._stores[key]
+
+
+def _message_indexes(block: bytes) -> Iterator[tuple[int, np.ndarray]]:
+    """(channel id, log times) of each MessageIndex record in the bytes after a chunk, read by mcap's own
+    reader; ValueError on any other record (the spec puts only message indexes there) and on a log time beyond
+    int64 ns (the full pass counts and skips those)."""
+    try:
+        for rec in StreamReader(io.BytesIO(block), skip_magic=True).records:
+            if not isinstance(rec, MessageIndex):
+                raise ValueError(f"{type(rec).__name__} among the message indexes")
+            yield rec.channel_id, np.fromiter((t for t, _ in rec.records), np.int64, len(rec.records))
+    except EndOfFile:
+        return
+    except OverflowError as err:
+        raise ValueError(str(err)) from err
 
 
 def _file_size(f: BinaryIO) -> int:

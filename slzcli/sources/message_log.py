@@ -9,6 +9,8 @@ from collections.abc import Collection, Generator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from slzcli.errors import DatasetError, SlzError
 from slzcli.sources.ros_types import Message
 
@@ -48,6 +50,12 @@ class MessageLog(abc.ABC):
     @abc.abstractmethod
     def messages(self, topics: Collection[str]) -> Iterator[RawMessage]:
         """Messages of ``topics`` (all when empty) in log-time order, streamed."""
+
+    def log_times(self) -> dict[str, np.ndarray] | None:
+        """Every message's log time (ns, sorted) per topic, from the file's own index, no message read;
+        None when the format or this file has no index that accounts for every message (a run then reads
+        every message once before its first frame, as ``slz info`` does)."""
+        return None
 
     @abc.abstractmethod
     def deserialize(self, topic: str, data: bytes | memoryview) -> Message:

@@ -72,6 +72,7 @@ class Recording(abc.ABC):
     def __init__(self, path: Path) -> None:
         self.path = path
         self.report = PairingReport()
+        self.pairing_final = False  # a frames() pass ended and ``report`` is its own
         # A frames() pass that only looks ahead (the recorded-pose check reads the first frames before the
         # run) sets this: its per-frame warnings (a torn message, an unusable pose) are the run's to give.
         self.quiet_frames = False
@@ -95,6 +96,15 @@ class Recording(abc.ABC):
     @abc.abstractmethod
     def info(self) -> RecordingInfo:
         """Topics, choices and pair count from one pass over stamps (no image decoding)."""
+
+    def run_info(self) -> RecordingInfo:
+        """What a run needs before its first frame; the pairing may be an estimate that ``after_frames``
+        replaces (a format that can do without the full pass says how). Default: ``info()``."""
+        return self.info()
+
+    def after_frames(self, info: RecordingInfo) -> RecordingInfo:
+        """``info`` with what a finished frames pass found. Default: unchanged."""
+        return info
 
     def recorded_frames(self) -> RecordedFrames:
         """The recording's own frame ids (camera, tf, poses); none for a format without them (TUM)."""

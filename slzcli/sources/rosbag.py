@@ -11,6 +11,7 @@ import stat
 from collections.abc import Collection, Iterator
 from pathlib import Path
 
+import numpy as np
 import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
@@ -83,6 +84,24 @@ class RosbagLog(MessageLog):
             return
         for conn, stamp, data in reader.messages(connections=conns):
             yield RawMessage(conn.topic, stamp, data)
+
+    def log_times(self) -> dict[str, np.ndarray] | None:
+        """A ROS 1 bag: its index, which rosbags reads on opening (every message's time per connection; a bag
+        without one is refused then). A rosbag2 folder: None (its metadata counts messages, not their times)."""
+        readers = getattr(self._reader, "readers", None) if self.ros1 else None
+        if not readers or len(readers) != 1:
+            return None
+        bag = readers[0]
+        indexes = getattr(bag, "indexes", None)
+        if not isinstance(indexes, dict):
+            return None
+        out: dict[str, list[np.ndarray]] = {}
+        for c in bag.connections:
+            entries = indexes.get(c.id)
+            if entries is None:
+                return None
+            out.setdefault(c.topic, []).append(np.fromiter((e.time for e in entries), np.int64, len(entries)))
+        return {topic: np.sort(np.concatenate(ts)) for topic, ts in out.items()}
 
     def deserialize(self, topic: str, data: bytes | memoryview) -> Message:
         try:

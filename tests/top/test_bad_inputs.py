@@ -344,12 +344,18 @@ def warnings_of(stderr: str) -> list[str]:
     return [ln for ln in lines if ln.startswith("slz: WARNING:")]
 
 
+def stamp_warnings_of(stderr: str) -> list[str]:
+    """The warnings about stamps (ORB-SLAM3 on these 10 flat frames may also restart its map, or not,
+    depending on how its threads are scheduled: a warning of its own)."""
+    return [w for w in warnings_of(stderr) if "message(s)" in w]
+
+
 def test_header_stamps_of_zero_use_the_log_time_with_one_counted_warning_per_stream(runner: CliRunner,
                                                                                      tmp_path: Path) -> None:
     path = B.stamps_all_zero(tmp_path)
     summary, stderr = detect_json(runner, path, tmp_path / "run")
     assert summary["frames"] == 10
-    warned = warnings_of(stderr)
+    warned = stamp_warnings_of(stderr)
     assert len(warned) == 2 and all("10 of 10 message(s) have header stamp 0" in w for w in warned)
     assert "/camera/color/image_raw" in warned[0] and "/camera/aligned_depth_to_color/image_raw" in warned[1]
     assert sum("header stamp 0" in n for n in summary["pairing"]["notes"]) == 2
@@ -364,7 +370,7 @@ def test_one_stamp_for_ten_different_frames_is_warned_and_counted(runner: CliRun
                for w in warnings_of(res.stderr))
     summary, stderr = detect_json(runner, path, tmp_path / "run")
     assert summary["frames"] == 1
-    warned = warnings_of(stderr)
+    warned = stamp_warnings_of(stderr)
     assert len(warned) == 1 and "/camera/color/image_raw: 9 of 10" in warned[0] and path.name in warned[0]
     # identical depth images under one stamp are a recorded-twice duplicate: a note, no warning
     assert any("9 of 10 message(s) repeat" in n for n in summary["pairing"]["notes"])

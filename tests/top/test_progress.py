@@ -62,3 +62,13 @@ def test_on_a_terminal_the_bar_prints_no_lines(monkeypatch: pytest.MonkeyPatch,
         bar.update(1, 4)
         bar.update(4, 4)
     assert "slz: detect:" not in capsys.readouterr().err
+
+
+def test_an_estimated_total_that_is_passed_is_dropped_not_shown_over_100_percent(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A run's total is estimated from the recording's index by log time; more frames may pair."""
+    with Bar("detect", "frames", every_s=0.0, lines=True) as bar:
+        bar.update(2, 2)
+        bar.update(3, 2)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].startswith("slz: detect: 2 of 2 frames (100 %)") and lines[1].startswith("slz: detect: 3 frames in")

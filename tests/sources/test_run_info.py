@@ -1,0 +1,120 @@
+"""A run's info before its first frame: from the file's own index where it accounts for every message (an MCAP's
+summary and message indexes, a ROS 1 bag's index), else the full pass ``slz info`` makes; after the frames pass,
+that pass's own pairing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+from sources_util import PERIOD_NS, SUFFIX, write_frames
+
+from slzcli.config.loader import load_config
+from slzcli.sources import open_recording
+from slzcli.sources.messages import MessageRecording
+from slzcli.sources.recording import RecordingInfo
+
+N = 7
+
+
+def _no_full_pass(monkeypatch: pytest.MonkeyPatch) -> None:
+    def refuse(self: MessageRecording) -> RecordingInfo:
+        raise AssertionError("the full info pass ran")
+    monkeypatch.setattr(MessageRecording, "info", refuse)
+
+
+def _same_info(a: RecordingInfo, b: RecordingInfo) -> None:
+    assert a.streams == b.streams and a.duration_s == b.duration_s and a.choices == b.choices
+    assert a.intrinsics == b.intrinsics and a.intrinsics_source == b.intrinsics_source
+    assert a.frame_period_s == pytest.approx(PERIOD_NS * 1e-9)
+    assert a.expected_frames == b.expected_frames == N
+    assert a.warnings == b.warnings and a.camera_preset == b.camera_preset
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "mcap-ros1", "ros1"])
+def test_a_run_reads_the_index_and_learns_what_the_full_pass_does(fmt: str, tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / f"rec{SUFFIX[fmt]}"
+    write_frames(path, fmt, N, **({"chunk_bytes": 4000} if fmt.startswith("mcap") else {}))  # many chunks
+    config = load_config()
+    with open_recording(path, config) as rec:
+        full = rec.info()
+    with monkeypatch.context() as m, open_recording(path, config) as rec:
+        _no_full_pass(m)
+        indexed = rec.run_info()
+    _same_info(indexed, full)
+
+
+def test_a_ros2_bag_has_no_such_index_and_gets_the_full_pass(tmp_path: Path) -> None:
+    path = tmp_path / "rec"
+    write_frames(path, "ros2-sqlite", N)
+    with open_recording(path, load_config()) as rec:
+        assert rec.log.log_times() is None
+        _same_info(rec.run_info(), rec.info())
+
+
+def _copy_messages(src: Path, dst: Path, **writer_options: bool) -> None:
+    """The recording's messages rewritten by mcap's own writer with ``writer_options``."""
+    with src.open("rb") as f, dst.open("wb") as out:
+        w = Writer(out, **writer_options)
+        w.start(profile="ros2", library="test")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, msg in make_reader(f).iter_messages():
+            if schema is not None and schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                          schemas.get(channel.schema_id, 0))
+            w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time)
+        w.finish()
+
+
+@pytest.mark.parametrize("damage", ["cut short", "unchunked", "no statistics"])
+def test_an_mcap_whose_index_does_not_account_for_every_message_gets_the_full_pass(damage: str,
+                                                                                    tmp_path: Path) -> None:
+    """Cut short (no summary: the recorder was killed), messages outside chunks (no message index), or no
+    statistics to check the indexes against: every message is read, as before."""
+    path = tmp_path / "rec.mcap"
+    write_frames(path, "mcap", N, chunk_bytes=4000)
+    if damage == "cut short":
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) * 9 // 10])  # the summary and the last chunk's end gone
+    else:
+        dst = tmp_path / "copy.mcap"
+        _copy_messages(path, dst, use_chunking=damage != "unchunked", use_statistics=damage != "no statistics")
+        path = dst
+    with open_recording(path, load_config()) as rec:
+        assert rec.log.log_times() is None
+        a, b = rec.run_info(), rec.info()
+    assert a.streams == b.streams and a.pairing == b.pairing
+
+
+def test_a_window_is_estimated_from_the_log_times_as_the_full_pass_counts_it(tmp_path: Path,
+                                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "rec.mcap"
+    write_frames(path, "mcap", N)
+    for keys, frames in ((["sources.window.max_frames=3"], 3),
+                         ([f"sources.window.start_s={1.5 * PERIOD_NS * 1e-9}"], N - 2),
+                         (["sources.window.stride=2"], (N + 1) // 2)):
+        config = load_config(None, keys)
+        with open_recording(path, config) as rec:
+            full = rec.info().expected_frames
+        with monkeypatch.context() as m, open_recording(path, config) as rec:
+            _no_full_pass(m)
+            assert rec.run_info().expected_frames == full == frames, keys
+
+
+def test_after_the_frames_pass_the_info_holds_that_pass_s_pairing(tmp_path: Path) -> None:
+    path = tmp_path / "rec.mcap"
+    write_frames(path, "mcap", N)
+    with open_recording(path, load_config(None, ["sources.window.max_frames=4"])) as rec:
+        info = rec.run_info()
+        assert rec.after_frames(info) is info  # no pass yet: the estimate stands
+        frames = list(rec.frames())
+        after = rec.after_frames(info)
+    assert len(frames) == 4 and after.pairing == rec.report and after.pairing.paired == 4
+    assert after.pairing.outside_window == N - 4 and any("--max-frames 4" in n for n in after.pairing.notes)
+    assert after.streams == info.streams
