@@ -213,6 +213,7 @@ def detect(rec: Path, method: str, extra: list[str], keep: bool) -> dict[str, An
         "site_true_xy": gt.get("true_xy"), "site_clearance_m": gt.get("clearance_m"),
         "site_world": site.get("center_world"), "site_frame": (landing.get("frame") or {}).get("index"),
         "site_score": site.get("score"), "support": site.get("support"),
+        "site_source": site.get("source"),   # map points (a cluster) or the fused terrain
         "site_accepted": (site.get("acceptance") or {}).get("passed"),
         "acceptance": (site.get("acceptance") or {}).get("reason"),
         "reason": landing.get("reason"), "advice": advice.get("text"), "advice_hover": advice.get("hover"),
@@ -263,6 +264,7 @@ def totals(rows: list[dict[str, Any]], methods: list[str]) -> dict[str, Any]:
         out[m] = {"runs": len(mine), "failed": sum(r["status"] == "failed" for r in mine),
                   "committed_sites": len(sites), "unsafe_committed_sites": sum(not r["site_safe"] for r in sites),
                   "committed_not_accepted": sum(r["site_accepted"] is False for r in sites),
+                  "committed_by_fused_terrain": sum(r.get("site_source") == "fused terrain" for r in sites),
                   "no_site_runs": len(no_site), "no_site_sites": sum(r["status"] == "site" for r in no_site),
                   "frame_sites": sum(r.get("frames_with_site", 0) for r in mine),
                   "frame_sites_unsafe": sum(r.get("frame_sites_unsafe", 0) for r in mine),

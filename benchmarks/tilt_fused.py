@@ -158,7 +158,8 @@ def detect(runner: Any, rec: Path, method: str, gravity: str, extra: list[str]) 
     row = {"status": s["status"], "site_safe": site.get("safe"), "site_true_xy": xy, "site_on_box": on_box,
            "mask_precision": mask.get("precision"), "mask_recall": mask.get("recall"),
            "gravity_source": s["gravity"]["source"], "gravity_tilt_deg": s["gravity"]["tilt_deg"],
-           "clusters_raised": int(failed.get("raised", 0)), "reason": s.get("reason")}
+           "clusters_raised": int(failed.get("raised", 0)), "reason": s.get("reason"),
+           "site_source": s.get("site_source")}   # map points (a cluster) or the fused terrain
     if method == "fused":
         row.update(fused_cells(out, np.load(str(rec) + ".gt.npz"), "level" in rec.stem))
     shutil.rmtree(out, ignore_errors=True)

@@ -111,6 +111,7 @@ class SiteRecord:
     depth_limits: JsonObject | None  # terrain.limits.Working of the site's frame (``Working.as_dict``)
     ground_truth: JsonObject | None = field(default=None, metadata=OMIT_NONE)  # evaluate.truth.site_truth_of
     height: SiteHeight | None = field(default=None, metadata=OMIT_NONE)
+    source: str = "map points"  # what chose it (types.Site.source: map points, or the fused terrain)
 
 
 @dataclass(frozen=True)
@@ -220,6 +221,7 @@ class RunSummary:
     pairing: PairingRecord | None
     ground_truth: JsonObject | None = field(default=None, metadata=OMIT_NONE)  # evaluate.truth.truth_summary
     skipped: bool = field(default=False, metadata=OMIT_FALSE)  # done before with the same key: read back
+    site_source: str | None = field(default=None, metadata=OMIT_NONE)  # what chose the site (types.Site.source)
 
 
 @dataclass(frozen=True)

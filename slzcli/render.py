@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from slzcli.records import BatchRow, JsonObject, RunSummary, SiteHeight
+from slzcli.types import SITE_FROM_FUSED
 
 
 def height_text(h: SiteHeight) -> str:
@@ -55,6 +56,8 @@ def detect_text(out: Path, s: RunSummary) -> str:
         result = f"landing site at ({x:.2f}, {y:.2f}, {z:.2f}) m in {where}"
         if s.site_height:
             result += f": {height_text(s.site_height)}"
+        if s.site_source == SITE_FROM_FUSED:
+            result += " (the fused terrain's own safe square: too few SLAM map points on it to cluster)"
     else:
         result = f"no safe site: {s.reason}"
     lines = [head, "  " + result]

@@ -243,7 +243,7 @@ def site_record(committed: CommittedSite, site_truth: JsonObject | None = None,
         score=s.score,
         acceptance=AcceptanceRecord(s.accepted, s.acceptance_reason, s.tilt_deg, s.edge_clearance_m),
         support=SupportRecord(committed.support, committed.detections, committed.segment_detections),
-        depth_limits=committed.found.limits, ground_truth=site_truth, height=height)
+        depth_limits=committed.found.limits, ground_truth=site_truth, height=height, source=s.source)
 
 
 def landing_record(source: Path, method: str, committed: CommittedSite | None, world_frame: str,
@@ -310,6 +310,7 @@ def summarise(facts: RunFacts, config: Config, st: RunState, committed: Committe
         source=str(facts.source), method=facts.method, frames=st.frames, detections=st.detections,
         status=landing.status, site_world=None if site is None else site.center_world,
         site_height=None if site is None else site.height, reason=landing.reason,
+        site_source=None if site is None else site.source,
         site_spread_m=None if spread is None else spread.site_spread_m, advice=advice,
         slam_backend=facts.slam_name, tracking=st.tracking,
         slam=slam_summary(facts.slam_name, table, primary, trajectory_files(st.trajectory),

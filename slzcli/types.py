@@ -425,8 +425,15 @@ class Candidate:
     raised_margin_m: float | None = None   # the rule's margin on that height (margin_sigma standard errors)
 
 
+SITE_FROM_POINTS = "map points"       # a cluster of the SLAM map points on the landing mask (METHOD 2.5)
+SITE_FROM_FUSED = "fused terrain"      # the fused verdict's own safe square, its map points too few (METHOD 2.3.6)
+
+
 @dataclass(frozen=True)
 class Site:
+    """A landing site one detection frame chose; ``source``: what chose it (``SITE_FROM_POINTS`` or
+    ``SITE_FROM_FUSED``). Every site passes the same acceptance test (edge clearance at its pixel, tilt)."""
+
     pixel: tuple[float, float]
     center_camera: tuple[float, float, float]
     center_world: tuple[float, float, float]
@@ -440,6 +447,7 @@ class Site:
     edge_clearance_m: float | None
     accepted: bool
     acceptance_reason: str
+    source: str = SITE_FROM_POINTS
 
 
 @dataclass(frozen=True)
@@ -453,6 +461,15 @@ class Selection:
     kept: np.ndarray       # (N,) bool: under the mask
     labels: np.ndarray     # (N,) int: cluster of each kept point, -1 for the rest
     in_view: int = 0       # map points in front of the camera and inside the image
+
+    def chosen_cluster(self) -> int | None:
+        """The cluster whose centroid is the site (the candidate nearest its centre); None without a site, and
+        for a site no cluster chose (``SITE_FROM_FUSED``)."""
+        if self.site is None or self.site.source != SITE_FROM_POINTS or not self.candidates:
+            return None
+        centre = np.asarray(self.site.center_world)
+        return min(self.candidates,
+                   key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre))).cluster
 
 
 @dataclass(frozen=True)

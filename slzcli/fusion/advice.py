@@ -36,7 +36,7 @@ import numpy as np
 
 from slzcli.fusion.grid import Region
 from slzcli.fusion.measure import FusionParams
-from slzcli.fusion.verdict import UNDECIDED, FusedMaps
+from slzcli.fusion.verdict import UNDECIDED, FusedMaps, square_cells
 from slzcli.records import DecideAdvice
 
 _MAX_FRAMES = 1800      # frames; beyond a minute at 30 Hz "N more frames" is not an answer (fly instead)
@@ -215,7 +215,7 @@ def _advise(fm: FusedMaps, cand: np.ndarray, params: FusionParams, shift_px_per_
     """``advise`` for the best of the candidate cells ``cand``."""
     reg: Region = fm.region
     j, i = np.unravel_index(int(np.argmax(np.where(cand, fm.clear_score, -1.0))), cand.shape)
-    half = max(1, 2 * math.ceil((params.square_m / reg.cell_m - 1) / 2) + 1) // 2
+    half = square_cells(params.square_m, reg.cell_m) // 2
     st = fm.steps
     # the square and, as the verdict reads them, the step windows up to ``reach`` cells beyond it along the step
     far = half + st.reach

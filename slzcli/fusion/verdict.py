@@ -316,7 +316,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
         kk = max(3, round(sg * 8 + 1) | 1)
         sm = cv2.GaussianBlur(score.astype(np.float32), (kk, kk), sg)
         sm = np.where(ok, sm, 0.0).astype(np.float32)
-    n_sq = max(1, 2 * math.ceil((params.square_m / cell - 1) / 2) + 1)
+    n_sq = square_cells(params.square_m, cell)
     kernel = np.ones((n_sq, n_sq), np.uint8)
     clear_score = cv2.erode(sm.astype(np.float32), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
     thr = scorer.threshold  # type: ignore[attr-defined]
@@ -471,6 +471,30 @@ def best_site(fm: FusedMaps) -> FusedSite | None:
     return FusedSite(x0 + (i + 0.5) * reg.cell_m, y0 + (j + 0.5) * reg.cell_m, float(reg.h[j, i]),
                      float(dist[j, i] * reg.cell_m), float(fm.score[j, i]), float(reg.looks[j, i]),
                      float(fm.step_min_m[j, i]), fm.patch_tests[k - 1] if k > 0 else None)
+
+
+def square_cells(square_m: float, cell_m: float) -> int:
+    """The landing square's side in cells: odd, so that a cell is its centre (at least 1)."""
+    return max(1, 2 * math.ceil((square_m / cell_m - 1) / 2) + 1)
+
+
+def site_surface(fm: FusedMaps, site: FusedSite, square_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The site's centre on its landing square's plane (world) and that plane's unit normal (z up): the plane
+    fitted to the fused heights of the square's cells (least squares; SAFE needs every one of them seen)."""
+    reg = fm.region
+    c = reg.cell_m
+    i = int((site.x_m - reg.origin_m[0]) // c)
+    j = int((site.y_m - reg.origin_m[1]) // c)
+    half = square_cells(square_m, c) // 2
+    sl = (slice(max(0, j - half), j + half + 1), slice(max(0, i - half), i + half + 1))
+    h = reg.h[sl].astype(np.float64)
+    jj, ii = np.nonzero(np.isfinite(h))
+    dx, dy = (ii + sl[1].start - i) * c, (jj + sl[0].start - j) * c
+    if len(jj) < 3:
+        return np.array([site.x_m, site.y_m, site.z_m]), np.array([0.0, 0.0, 1.0])
+    coef = np.linalg.lstsq(np.c_[np.ones(len(jj)), dx, dy], h[jj, ii], rcond=None)[0]
+    normal = np.array([-coef[1], -coef[2], 1.0])
+    return np.array([site.x_m, site.y_m, coef[0]]), normal / np.linalg.norm(normal)
 
 
 def raised_cell(fm: FusedMaps, j: int, i: int, params: RaisedParams) -> Raised:

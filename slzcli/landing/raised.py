@@ -74,6 +74,11 @@ class RaisedParams:
     # UAV cannot take: True drops it (no refusal, no reading) for a method whose own cells decided the ground (fused)
     defer_untold: bool = False
 
+    def defers(self, found: Raised) -> bool:
+        """Whether ``found`` is dropped (neither a refusal nor a reading): ``defer_untold`` and a "not told" whose
+        margin is at least the tolerance."""
+        return self.defer_untold and found.refused and not found.raised and found.margin_m >= self.max_height_m
+
     @classmethod
     def of(cls, raised: RaisedCfg, footprint_m: tuple[float, float], margin_m: float,
            max_step_m: float) -> RaisedParams:

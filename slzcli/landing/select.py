@@ -26,7 +26,7 @@ from slzcli.errors import ConfigError
 from slzcli.geometry import project, transform_points
 from slzcli.landing.corners import square_corners
 from slzcli.landing.raised import Raised, RaisedParams, above_ground, fitted_normal
-from slzcli.types import Candidate, Selection, Site
+from slzcli.types import SITE_FROM_POINTS, Candidate, Selection, Site
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])  # world up when the caller names none: +z
 
@@ -166,8 +166,7 @@ def _candidate(c: int, pts: np.ndarray, normals: np.ndarray, min_extent: np.ndar
             reason, test = "centroid falls on a pixel the mask rejects", "centroid"
         elif params.raised is not None:
             found = raised_site(centroid, good_n, pts, around, params.raised, up)
-            if (params.raised.defer_untold and found.refused and not found.raised
-                    and found.margin_m >= params.raised.max_height_m):
+            if params.raised.defers(found):
                 found = None   # it cannot tell: left to the method's own evidence (RaisedParams.defer_untold)
             elif found.refused:
                 reason, test = found.reason(), "raised"
@@ -190,16 +189,36 @@ def raised_site(centroid: np.ndarray, normals: np.ndarray, pts: np.ndarray, arou
 def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray,
           score: np.ndarray, params: SelectParams, up: np.ndarray, edge_distance_m: np.ndarray | None) -> Site:
     centroid = np.asarray(best.centroid_world)
-    (uv,), _ = project(centroid[None], T_world_camera, K, score.shape)
-    center_camera = transform_points(np.linalg.inv(T_world_camera), centroid)
     good_n = normals[np.all(np.isfinite(normals), axis=1)]
     mean_n = good_n.mean(axis=0)
     # the surface's tilt from the plane through the cluster, not the mean of its points' normals: each of those
     # comes from the few neighbours within normal_radius_m, and from ORB-SLAM3's sparse points at 10 m (8-61 a
     # cluster, ~0.25 m of depth noise each) their mean read level ground as 19-72 deg (benchmarks/fused_detect.py)
     normal = fitted_normal(pts, mean_n / np.linalg.norm(mean_n))
+    notes = []
+    if params.raised is not None and best.raised_cells is not None and best.raised_m is None:
+        notes.append(unmeasured_note(best.raised_cells, params.raised))
+    px_pts, inside = project(pts, T_world_camera, K, score.shape)
+    ip = np.round(px_pts[inside]).astype(int)
+    site_score = float(score[ip[:, 1], ip[:, 0]].mean()) if len(ip) else float("nan")
+    site = accepted_site(centroid, normal, T_world_camera, K, score.shape, params, up, edge_distance_m, notes)
+    assert site is not None  # the cluster's centroid lies on the mask, inside the image
+    return replace(site, cluster_points=best.points, normal_variance=best.normal_variance, extent_m=best.extent_m,
+                   score=site_score)
+
+
+def accepted_site(centre: np.ndarray, normal: np.ndarray, T_world_camera: np.ndarray, K: np.ndarray,
+                  shape: tuple[int, int], params: SelectParams, up: np.ndarray, edge_distance_m: np.ndarray | None,
+                  notes: list[str], source: str = SITE_FROM_POINTS) -> Site | None:
+    """A site at ``centre`` (world) on the surface of ``normal``, with the acceptance test every site passes
+    whatever chose it: the edge clearance at its pixel above ``params.edge_clearance_m`` and the tilt within
+    ``params.max_tilt_deg``. None when its centre is outside the image. The cluster's fields are left empty
+    (no points, variance NaN, the footprint's extent, score NaN): a cluster's site fills them."""
+    (uv,), (inside,) = project(centre[None], T_world_camera, K, shape)
+    if not inside:
+        return None
     normal = normal if normal @ up >= 0.0 else -normal
-    tilt = float(np.degrees(np.arccos(np.clip(normal @ up, -1.0, 1.0))))
+    tilt = float(np.degrees(np.arccos(np.clip(normal @ up / np.linalg.norm(normal), -1.0, 1.0))))
     iu, iv = round(float(uv[0])), round(float(uv[1]))
     clearance = None if edge_distance_m is None else float(edge_distance_m[iv, iu])
     failures = []
@@ -207,20 +226,16 @@ def _site(best: Candidate, pts: np.ndarray, normals: np.ndarray, T_world_camera:
         failures.append(f"edge clearance {clearance:.2f} m <= {params.edge_clearance_m:.2f} m")
     if tilt > params.max_tilt_deg:
         failures.append(f"tilt {tilt:.1f} deg > {params.max_tilt_deg:.1f} deg")
-    notes = [] if failures or clearance is not None else ["tilt only: edge clearance not measured"]
-    if params.raised is not None and best.raised_cells is not None and best.raised_m is None:
-        notes.append(unmeasured_note(best.raised_cells, params.raised))
-    corners = square_corners(centroid, params.footprint_m)
-    px_pts, inside = project(pts, T_world_camera, K, score.shape)
-    ip = np.round(px_pts[inside]).astype(int)
-    site_score = float(score[ip[:, 1], ip[:, 0]].mean()) if len(ip) else float("nan")
+    notes = ([] if failures or clearance is not None else ["tilt only: edge clearance not measured"]) + notes
     return Site(
-        pixel=(float(uv[0]), float(uv[1])), center_camera=_vec3(center_camera),
-        center_world=_vec3(centroid), corners_world=tuple(_vec3(c) for c in corners),
-        normal_world=_vec3(normal), cluster_points=best.points, normal_variance=best.normal_variance,
-        extent_m=best.extent_m, score=site_score, tilt_deg=tilt, edge_clearance_m=clearance,
-        accepted=not failures,
-        acceptance_reason=("; ".join(failures) or "passed") + (f" ({'; '.join(notes)})" if notes else ""))
+        pixel=(float(uv[0]), float(uv[1])), center_camera=_vec3(transform_points(np.linalg.inv(T_world_camera),
+                                                                                centre)),
+        center_world=_vec3(centre), corners_world=tuple(_vec3(c) for c in square_corners(centre, params.footprint_m)),
+        normal_world=_vec3(normal / np.linalg.norm(normal)), cluster_points=0, normal_variance=float("nan"),
+        extent_m=(float(params.footprint_m[0]), float(params.footprint_m[1])), score=float("nan"), tilt_deg=tilt,
+        edge_clearance_m=clearance, accepted=not failures,
+        acceptance_reason=("; ".join(failures) or "passed") + (f" ({'; '.join(notes)})" if notes else ""),
+        source=source)
 
 
 def unmeasured_note(cells: int, params: RaisedParams) -> str:

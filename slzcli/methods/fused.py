@@ -4,8 +4,10 @@ It keeps state across frames: every tracked frame with a pose goes into the fuse
 (``observe``); on a frame due, the verdict of the cells in view is rendered into the frame's pixels as its
 mask (SAFE cells only) and its score, and the site is chosen among the SLAM map points on that mask as the
 paper's clustering does (``landing.select``: a confirmation by the map points of what the fused map calls
-safe). The per-frame maps are not what gates it (their noise limits are the fused map's business, per
-cell); when nothing in view is safe its reason says what would decide the best undecided ground.
+safe); where the map points are too few or too sparse to form a cluster there, the site is the fused map's
+own safest square (``_fused_site``), through the same acceptance test. The per-frame maps are not what gates
+it (their noise limits are the fused map's business, per cell); when nothing in view is safe its reason says
+what would decide the best undecided ground.
 
 The depth noise of a frame that is not due is the last one the run measured on a frame due (the maps'
 ``work.noise``); before any, the method's own estimate of that frame.
@@ -25,13 +27,13 @@ from slzcli.fusion.advice import Advice, GroundTrack
 from slzcli.fusion.grid import region, seen_bounds
 from slzcli.fusion.output import Judged, landing_grid, write_landing_map
 from slzcli.fusion.session import FusedTerrain, cells_in_frame, pixel_cells
-from slzcli.fusion.verdict import SAFE, fused_maps
-from slzcli.landing.raised import surroundings
-from slzcli.landing.select import Selection, SelectParams, select_site
+from slzcli.fusion.verdict import SAFE, FusedMaps, FusedSite, fused_maps, site_surface
+from slzcli.landing.raised import above_ground, surroundings
+from slzcli.landing.select import WORLD_UP, Selection, SelectParams, accepted_site, select_site, unmeasured_note
 from slzcli.methods.maps import select_params
 from slzcli.scoring import SCORERS
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
-from slzcli.types import Detection, LandingGrid, ScoreMap, TerrainMaps, TrackedFrame
+from slzcli.types import SITE_FROM_FUSED, Detection, LandingGrid, ScoreMap, TerrainMaps, TrackedFrame
 
 NAME = "fused"
 
@@ -52,7 +54,8 @@ class FusedMethod:
     name: str = NAME
     reads_maps: bool = False
     selects: str = ("the cluster of the least normal variance among the map points on cells the fused map calls "
-                    "safe (METHOD 2.3.6)")
+                    "safe; where they are too few or too sparse to cluster, the fused map's own safest square "
+                    "(METHOD 2.3.6)")
     last_fused: tuple[int, int] = (-1, 0)   # (index, stamp_ns) of the last frame fused: the landing map's time
     track: GroundTrack = field(default_factory=GroundTrack)   # the camera's recent positions: hover or flight
 
@@ -90,9 +93,9 @@ class FusedMethod:
         selection: Selection | None = None
         advice: Advice | None = None
         if T is not None and points is not None:
+            around = surroundings(frame.depth_m, frame.intrinsics, T, self.config.landing.depth_points_stride_px)
             selection = select_site(points.xyz_world, T, frame.K, score.mask, score.score, self.params,
-                                    edge_distance_m=maps.edge_distance_m, around_world=surroundings(
-                                        frame.depth_m, frame.intrinsics, T, self.config.landing.depth_points_stride_px))
+                                    edge_distance_m=maps.edge_distance_m, around_world=around)
             if selection.site is None and fm is not None and not score.mask.any():
                 advice = self.terrain.advice(fm, self.track.hovering(self.config.terrain.fusion.hover_speed_m_s))
                 why = (fm.raised_lead() + "nothing in view is decided safe by the fused terrain: "
@@ -100,12 +103,8 @@ class FusedMethod:
                 selection = replace(selection, reason=f"{why}; {advice.text()}" if advice is not None else why)
             elif (selection.site is None and fm is not None and {c.test for c in selection.candidates} <= SPARSE
                   and (best := self.terrain.site(fm)) is not None):
-                # the fused map has a site the map points are too few or too sparse to confirm (METHOD 2.5)
-                selection = replace(selection, reason=(
-                    f"the fused terrain calls {fm.counts()['safe']} cells in view safe (the "
-                    f"best at ({best.x_m:.1f}, {best.y_m:.1f}) m, {best.clearance_m:.1f} m from ground it does not "
-                    f"call safe), but the SLAM map points do not confirm a site there: {selection.reason}; more "
-                    "flight over that ground (a longer or slower pass) gives SLAM more map points on it"))
+                # the map points are too few or too sparse to confirm a site: the fused verdict's own (METHOD 2.5)
+                selection = self._fused_site(selection, fm, best, T, frame.K, shape, maps.edge_distance_m, around)
         t["select"] = _lap(t0)
         # the cells judged, built when a sink writes them (results.mcap, in its writer), not on the compute path
         grid = None if fm is None or not fm.region.seen.any() else \
@@ -114,6 +113,36 @@ class FusedMethod:
         return Detection(frame, T, maps, score, points, selection, maps.edge_distance_m, t, tracked.segment,
                          None if advice is None else advice.record(), grid, cells)
 
+
+    def _fused_site(self, sel: Selection, fm: FusedMaps, best: FusedSite, T: np.ndarray, K: np.ndarray,
+                    shape: tuple[int, int], edge_distance_m: np.ndarray | None, around: np.ndarray) -> Selection:
+        """The fused verdict's best site as the frame's site, where the SLAM map points are too few or too sparse
+        to form a cluster on the safe cells (``SPARSE``): the centre of its landing square on the plane of the
+        square's fused heights, through the tests a cluster's site passes: the raised-surface rule on this frame's
+        depth (the depth points in its square as the site's, those around as the ground: a cluster's reading, with
+        its map points replaced by depth; one that cannot tell is left to the fused verdict, which read the patch
+        with every frame's evidence), then the acceptance test (edge clearance, tilt). Its square was decided safe
+        whole (METHOD 2.3.6); the clusters add nothing there but their count. Out of the frame, or refused: the
+        reason says so."""
+        centre, normal = site_surface(fm, best, self.terrain.params.square_m)
+        where = f"the best at ({best.x_m:.1f}, {best.y_m:.1f}) m"
+        head = f"the fused terrain calls {fm.counts()['safe']} cells in view safe ({where}"
+        rp = self.params.raised
+        if rp is not None:
+            # the site's own depth points: those of its square, as the fused patch test takes its cells
+            own = np.all(np.abs(around[:, :2] - centre[:2]) <= rp.inner_radius_m, axis=1)
+            found = above_ground(centre, normal, around[own], around, rp, WORLD_UP)
+            if found.refused and not rp.defers(found):
+                return replace(sel, reason=(f"{head}), but on this frame's depth its square is {found.reason()}; "
+                                            f"the SLAM map points confirm no site: {sel.reason}"))
+        raised = best.raised
+        notes = [unmeasured_note(raised.points, rp)] if raised is not None and not raised.measured and rp else []
+        site = accepted_site(centre, normal, T, K, shape, self.params, WORLD_UP, edge_distance_m, notes,
+                             SITE_FROM_FUSED)
+        if site is None:
+            return replace(sel, reason=(f"{head}, out of this frame's image), and the SLAM map points confirm no "
+                                        f"site in it: {sel.reason}"))
+        return replace(sel, site=replace(site, score=best.score), reason="")
 
     def write_outputs(self, folder: Path) -> LandingGrid | None:
         """The flight-wide landing map of the run's last map segment (``fusion/output.py``), when it has one;

@@ -32,7 +32,7 @@ from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
 from slzcli.records import DecideAdvice, LandingRecord, RunSummary
 from slzcli.render import height_text
-from slzcli.types import CommittedSite, RunResult
+from slzcli.types import SITE_FROM_FUSED, CommittedSite, RunResult
 
 if TYPE_CHECKING:
     import jinja2
@@ -112,6 +112,9 @@ def _result(s: RunSummary, landing: LandingRecord) -> str:
                 f"{sup.detections_agreeing} of {sup.detections_with_site} detections with a site; acceptance "
                 f"test {'passed' if acc.passed else 'NOT passed: ' + html.escape(str(acc.reason))}, "
                 f"tilt {acc.tilt_deg:.1f} deg.")
+        if site.source == SITE_FROM_FUSED:
+            what += (" Chosen by the fused terrain (its safest square): too few SLAM map points lay on it to form "
+                     "a cluster.")
         gt = site.ground_truth
         if gt:
             what += f" Ground truth: {'safe' if gt.get('safe') else 'NOT safe'}."
@@ -293,7 +296,7 @@ def _nice_step(raw: float) -> float:
 
 
 SITE_COLUMNS = ("frame", "map", "x m", "y m", "z m", "score", "accepted", "reason", "tilt deg", "edge m",
-                "normal var", "extent m", "points")
+                "normal var", "extent m", "points", "chosen by")
 
 
 def _site_rows(sites: SiteLog, committed: CommittedSite | None) -> list[dict[str, object]]:
@@ -306,7 +309,8 @@ def _site_rows(sites: SiteLog, committed: CommittedSite | None) -> list[dict[str
         cells = [str(e.frame.index), str(e.segment), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}", f"{st.score:.2f}",
                  "yes" if st.accepted else "no", st.acceptance_reason or "", f"{st.tilt_deg:.1f}",
                  "n/a" if st.edge_clearance_m is None else f"{st.edge_clearance_m:.2f}",
-                 f"{st.normal_variance:.2e}", f"{st.extent_m[0]:.2f} x {st.extent_m[1]:.2f}", str(st.cluster_points)]
+                 f"{st.normal_variance:.2e}", f"{st.extent_m[0]:.2f} x {st.extent_m[1]:.2f}", str(st.cluster_points),
+                 st.source]
         rows.append({"cells": cells, "committed": e.id == chosen})
     return rows
 

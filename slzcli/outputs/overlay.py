@@ -18,10 +18,9 @@ def detection_overlay_bgr(det: Detection) -> np.ndarray:
     sel = det.selection
     chosen = corners_px = None
     if sel is not None and sel.site is not None:
-        centre = np.asarray(sel.site.center_world)
-        nearest = min(sel.candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre)))
-        chosen = sel.labels == nearest.cluster
-        assert det.T_world_camera is not None  # a site is chosen among map points, which only a posed frame has
+        cluster = sel.chosen_cluster()
+        chosen = None if cluster is None else sel.labels == cluster
+        assert det.T_world_camera is not None  # a site is chosen in view of a posed frame
         corners_px, _ = project(np.asarray(sel.site.corners_world), det.T_world_camera, det.frame.K,
                                 det.score.mask.shape)
     valid = det.maps.valid

@@ -22,7 +22,7 @@ from slzcli.records import RunSummary
 if TYPE_CHECKING:  # the compare records hold numpy arrays; the command line imports this module without numpy
     from slzcli.compare_records import Comparison, ProfileComparison
 
-SCHEMA_VERSION = "1.2"
+SCHEMA_VERSION = "1.3"
 DECIMALS = 6       # digits after the point for |x| >= 1; project decision (1 um, 1 us)
 SIGNIFICANT = 10   # significant digits for |x| < 1; project decision (keeps 1e-7 variances)
 

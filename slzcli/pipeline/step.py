@@ -21,7 +21,7 @@ from slzcli.summary import RunState
 from slzcli.terrain.limits import would_vouch
 from slzcli.terrain.maps import MapParams, frame_maps
 from slzcli.terrain.noise import NoiseTracker
-from slzcli.types import Candidate, DepthNoise, Detection, Frame, Site, TerrainMaps, TrackedFrame
+from slzcli.types import DepthNoise, Detection, Frame, TerrainMaps, TrackedFrame
 
 
 def posed_maps(frame: Frame, T_world_camera: np.ndarray | None, params: MapParams,
@@ -82,7 +82,7 @@ def record(sites: SiteLog, det: Detection) -> None:
     sel = det.selection
     if sel is None:
         return
-    chosen = _chosen_cluster(sel.candidates, sel.site) if sel.site is not None else None
+    chosen = sel.chosen_cluster()   # None for a site no cluster chose (the fused terrain's own)
     sites.add_rows([{
         "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": c.cluster, "points": c.points,
         "x": c.centroid_world[0], "y": c.centroid_world[1], "z": c.centroid_world[2],
@@ -90,6 +90,14 @@ def record(sites: SiteLog, det: Detection) -> None:
         "qualifies": c.qualifies, "reason": c.reason, "chosen": c.cluster == chosen, "segment": det.segment,
         "raised_m": c.raised_m, "raised_cells": c.raised_cells}
         for c in sel.candidates])
+    if sel.site is not None and chosen is None:   # no cluster chose it: its own row, cluster -1
+        st = sel.site
+        sites.add_rows([{
+            "frame": det.frame.index, "stamp_ns": det.frame.stamp_ns, "cluster": -1, "points": st.cluster_points,
+            "x": st.center_world[0], "y": st.center_world[1], "z": st.center_world[2],
+            "normal_variance": st.normal_variance, "extent_x_m": st.extent_m[0], "extent_y_m": st.extent_m[1],
+            "qualifies": True, "reason": f"chosen by the {st.source}: too few map points on it to cluster",
+            "chosen": True, "segment": det.segment, "raised_m": None, "raised_cells": None}])
     measured = [c for c in sel.candidates if c.raised_m is not None]
     sites.add_raised(np.array([c.centroid_world[:2] for c in measured]).reshape(-1, 2), det.segment,
                      np.array([c.test == "raised" for c in measured], bool),
@@ -98,10 +106,6 @@ def record(sites: SiteLog, det: Detection) -> None:
         assert det.points is not None  # a site is chosen among the map points
         pts = det.points.xyz_world
         limits = det.maps.work.as_dict() if det.maps.work is not None else None
-        sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen], limits, det.segment,
+        sites.add_site(det.frame.ref(), sel.site, pts[sel.kept], pts[sel.labels == chosen] if chosen is not None
+                       else pts[:0], limits, det.segment,
                        kept_cluster=sel.labels[sel.kept])
-
-
-def _chosen_cluster(candidates: Sequence[Candidate], site: Site) -> int:
-    centre = np.asarray(site.center_world)
-    return min(candidates, key=lambda c: float(np.linalg.norm(np.asarray(c.centroid_world) - centre))).cluster

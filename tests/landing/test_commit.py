@@ -181,14 +181,14 @@ def test_every_measured_cluster_of_a_detection_is_a_raised_reading_of_the_run() 
 
     from slzcli.outputs.site_log import SiteLog
     from slzcli.pipeline.step import record
-    from slzcli.types import Candidate
+    from slzcli.types import Candidate, Selection
 
     def cand(k: int, x: float, test: str, raised_m: float | None) -> Candidate:
         return Candidate(k, 40, (x, 0.0, 0.0), 0.01, (1.5, 1.5), test == "", test or "qualifies",
                          test, None if raised_m is None else 300, raised_m, None if raised_m is None else 0.05 + x)
 
-    sel = SimpleNamespace(site=None, candidates=(cand(0, 1.0, "", 0.01), cand(1, 2.0, "raised", 0.2),
-                                                 cand(2, 3.0, "extent", None)))
+    sel = Selection(None, "", (cand(0, 1.0, "", 0.01), cand(1, 2.0, "raised", 0.2), cand(2, 3.0, "extent", None)),
+                    np.zeros((0, 2)), np.zeros(0, bool), np.zeros(0, int))
     frame = SimpleNamespace(index=4, stamp_ns=0)
     log = SiteLog()
     record(log, SimpleNamespace(selection=sel, frame=frame, segment=2))  # type: ignore[arg-type]

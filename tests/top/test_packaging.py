@@ -86,7 +86,7 @@ def test_the_wheel_carries_configs_rules_and_scenes(installed: tuple[Path, dict[
     schema = _run([str(venv / "bin" / "python"), "-c", "from slzcli.outputs.summary_json import schema_path as p; "
                    "import json; print(json.loads(p().read_text())['$defs']['schema_version']['const'])"],
                   cwd=work, env=env).stdout.strip()
-    assert schema == "1.2"  # the --json schema is in the wheel
+    assert schema == "1.3"  # the --json schema is in the wheel
     presets = _run([str(venv / "bin" / "python"), "-c", "from slzcli.sources.presets import preset_names as p; "
                     "print(' '.join(p()))"], cwd=work, env=env).stdout.split()
     assert {"d435_aligned", "d435_raw", "zed", "oakd", "realsense_viewer", "tum_fr1"} <= set(presets)  # camera presets
