@@ -95,13 +95,7 @@ class MessageRecording(Recording):
                     for pair in pairer.push(role, stamped[0], msg.data):
                         win.keep(pair.stamp_ns)
             elif msg.topic == ch.camera_info.topic and intrinsics is None:
-                try:
-                    intrinsics = setup.check_info(msg.topic, decode.decode_camera_info(
-                        self.log.deserialize(msg.topic, msg.data)))
-                except DecodeError as err:  # reported once (a later CameraInfo may still be good), not fatal
-                    if not info_failed:
-                        log.warning("%s: CameraInfo on %s not decodable: %s", self.path, msg.topic, err)
-                    info_failed = True
+                intrinsics, info_failed = self._camera_info(msg.topic, msg.data, info_failed)
         for pair in pairer.flush():
             win.keep(pair.stamp_ns)
         streams = tuple(StreamInfo(t, setup.topics.get(t, "?"), c[0], c[1] if c[0] else None, c[2] if c[0] else None)
@@ -168,13 +162,21 @@ class MessageRecording(Recording):
         failed = False
         with closing(self.log.read([topic])) as messages:
             for msg in messages:
-                try:
-                    return setup.check_info(topic, decode.decode_camera_info(self.log.deserialize(topic, msg.data)))
-                except DecodeError as err:  # reported once (a later CameraInfo may still be good), not fatal
-                    if not failed:
-                        log.warning("%s: CameraInfo on %s not decodable: %s", self.path, topic, err)
-                    failed = True
+                k, failed = self._camera_info(topic, msg.data, failed)
+                if k is not None:
+                    return k
         return None
+
+    def _camera_info(self, topic: str, data: bytes | memoryview, failed: bool) -> tuple[Intrinsics | None, bool]:
+        """One CameraInfo message decoded and checked (DatasetError when unusable); (None, True) when it cannot be
+        decoded, warned of once (``failed``: already warned): a later one may still be good."""
+        try:
+            k = decode.decode_camera_info(self.log.deserialize(topic, data))
+        except DecodeError as err:
+            if not failed:
+                log.warning("%s: CameraInfo on %s not decodable: %s", self.path, topic, err)
+            return None, True
+        return self.camera_setup().check_info(topic, k), failed
 
     def _warn_stamps(self, lines: list[str]) -> None:
         """The stamp problems of a pass on stderr, each once per recording (info pass and frames pass)."""
