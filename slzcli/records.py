@@ -26,6 +26,12 @@ Status = Literal["site", "no_safe_site"]
 
 
 # ----------------------------------------------------------------------------- what would decide
+# what chose a landing site (types.Site.source, landing.json site.source, run.json summary.site_source)
+SITE_FROM_POINTS = "map points"       # a cluster of the SLAM map points on the landing mask (METHOD 2.5)
+SITE_FROM_FUSED = "fused terrain"      # the fused verdict's own safe square, its map points too few (METHOD 2.3.6)
+SITE_FROM_PX4SLP = "px4slp grid"       # PX4's safe_landing_planner's land-able disk of its grid (docs/PX4SLP.md)
+
+
 @dataclass(frozen=True)
 class DecideAdvice:
     """What would decide the ground a run could not vouch for (landing.json and summary ``advice``).
@@ -111,7 +117,7 @@ class SiteRecord:
     depth_limits: JsonObject | None  # terrain.limits.Working of the site's frame (``Working.as_dict``)
     ground_truth: JsonObject | None = field(default=None, metadata=OMIT_NONE)  # evaluate.truth.site_truth_of
     height: SiteHeight | None = field(default=None, metadata=OMIT_NONE)
-    source: str = "map points"  # what chose it (types.Site.source: map points, or the fused terrain)
+    source: str = SITE_FROM_POINTS  # what chose it (types.Site.source)
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from slzcli.records import BatchRow, JsonObject, RunSummary, SiteHeight
-from slzcli.types import SITE_FROM_FUSED
+from slzcli.records import SITE_FROM_FUSED, BatchRow, JsonObject, RunSummary, SiteHeight
 
 
 def height_text(h: SiteHeight) -> str:

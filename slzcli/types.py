@@ -15,7 +15,14 @@ from typing import Any, TypedDict
 
 import numpy as np
 
-from slzcli.records import DecideAdvice, LandingRecord, RunRecord, RunSummary
+from slzcli.records import (
+    SITE_FROM_FUSED,
+    SITE_FROM_POINTS,
+    DecideAdvice,
+    LandingRecord,
+    RunRecord,
+    RunSummary,
+)
 
 
 @dataclass(frozen=True)
@@ -425,14 +432,10 @@ class Candidate:
     raised_margin_m: float | None = None   # the rule's margin on that height (margin_sigma standard errors)
 
 
-SITE_FROM_POINTS = "map points"       # a cluster of the SLAM map points on the landing mask (METHOD 2.5)
-SITE_FROM_FUSED = "fused terrain"      # the fused verdict's own safe square, its map points too few (METHOD 2.3.6)
-
-
 @dataclass(frozen=True)
 class Site:
-    """A landing site one detection frame chose; ``source``: what chose it (``SITE_FROM_POINTS`` or
-    ``SITE_FROM_FUSED``). Every site passes the same acceptance test (edge clearance at its pixel, tilt)."""
+    """A landing site one detection frame chose; ``source``: what chose it (``SITE_FROM_POINTS``,
+    ``SITE_FROM_FUSED`` or ``SITE_FROM_PX4SLP``)."""
 
     pixel: tuple[float, float]
     center_camera: tuple[float, float, float]
@@ -465,7 +468,7 @@ class Selection:
     def chosen_cluster(self) -> int | None:
         """The cluster whose centroid is the site (the candidate nearest its centre); None without a site, and
         for a site no cluster chose (``SITE_FROM_FUSED``)."""
-        if self.site is None or self.site.source != SITE_FROM_POINTS or not self.candidates:
+        if self.site is None or self.site.source == SITE_FROM_FUSED or not self.candidates:
             return None
         centre = np.asarray(self.site.center_world)
         return min(self.candidates,

@@ -18,6 +18,7 @@ import numpy as np
 
 from slzcli.geometry import project, transform_points
 from slzcli.landing.corners import square_corners
+from slzcli.records import SITE_FROM_PX4SLP
 from slzcli.types import Candidate, Selection, Site
 
 # waypoint_generator.hpp exploration_pattern, in its order
@@ -106,7 +107,8 @@ def grid_site(hysteresis: np.ndarray, mean: np.ndarray, position: np.ndarray, ce
         center_world=_vec3(centre), corners_world=tuple(_vec3(c) for c in square_corners(centre, footprint_m)),
         normal_world=_vec3(normal), cluster_points=int(members.sum()), normal_variance=normal_var, extent_m=extent,
         score=score, tilt_deg=tilt, edge_clearance_m=clearance, accepted=True,
-        acceptance_reason="passed (px4slp: every cell of the disk land-able; upstream has no tilt or edge test)")
+        acceptance_reason="passed (px4slp: every cell of the disk land-able; upstream has no tilt or edge test)",
+        source=SITE_FROM_PX4SLP)
     candidate = Candidate(0, int(members.sum()), _vec3(centre), normal_var, extent, True,
                           f"disk at ({offset[0]:+d}, {offset[1]:+d}) cells from the vehicle land-able")
     return Selection(site, "", (candidate,), pixels, kept, labels, int(np.count_nonzero(inside)))

@@ -26,7 +26,8 @@ from slzcli.errors import ConfigError
 from slzcli.geometry import project, transform_points
 from slzcli.landing.corners import square_corners
 from slzcli.landing.raised import Raised, RaisedParams, above_ground, fitted_normal
-from slzcli.types import SITE_FROM_POINTS, Candidate, Selection, Site
+from slzcli.records import SITE_FROM_POINTS
+from slzcli.types import Candidate, Selection, Site
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])  # world up when the caller names none: +z
 

@@ -31,9 +31,10 @@ from slzcli.fusion.verdict import SAFE, FusedMaps, FusedSite, fused_maps, site_s
 from slzcli.landing.raised import above_ground, surroundings
 from slzcli.landing.select import WORLD_UP, Selection, SelectParams, accepted_site, select_site, unmeasured_note
 from slzcli.methods.maps import select_params
+from slzcli.records import SITE_FROM_FUSED
 from slzcli.scoring import SCORERS
 from slzcli.terrain.noise import DepthNoise, NoiseTracker
-from slzcli.types import SITE_FROM_FUSED, Detection, LandingGrid, ScoreMap, TerrainMaps, TrackedFrame
+from slzcli.types import Detection, LandingGrid, ScoreMap, TerrainMaps, TrackedFrame
 
 NAME = "fused"
 

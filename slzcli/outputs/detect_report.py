@@ -30,9 +30,9 @@ from slzcli.outputs.funnel_html import funnel_section
 from slzcli.outputs.landing_map import landing_map_bgr, read_landing_map
 from slzcli.outputs.site_log import SiteLog
 from slzcli.outputs.trajectory import PoseLog
-from slzcli.records import DecideAdvice, LandingRecord, RunSummary
+from slzcli.records import SITE_FROM_FUSED, DecideAdvice, LandingRecord, RunSummary
 from slzcli.render import height_text
-from slzcli.types import SITE_FROM_FUSED, CommittedSite, RunResult
+from slzcli.types import CommittedSite, RunResult
 
 if TYPE_CHECKING:
     import jinja2
