@@ -51,14 +51,14 @@ def test_a_ros2_bag_has_no_such_index_and_gets_the_full_pass(tmp_path: Path) -> 
     path = tmp_path / "rec"
     write_frames(path, "ros2-sqlite", N)
     with open_recording(path, load_config()) as rec:
-        assert rec.log.log_times() is None
+        assert isinstance(rec, MessageRecording) and rec.log.log_times() is None
         _same_info(rec.run_info(), rec.info())
 
 
-def _copy_messages(src: Path, dst: Path, **writer_options: bool) -> None:
-    """The recording's messages rewritten by mcap's own writer with ``writer_options``."""
+def _copy_messages(src: Path, dst: Path, chunked: bool, statistics: bool) -> None:
+    """The recording's messages rewritten by mcap's own writer, in chunks or not, with statistics or not."""
     with src.open("rb") as f, dst.open("wb") as out:
-        w = Writer(out, **writer_options)
+        w = Writer(out, use_chunking=chunked, use_statistics=statistics)
         w.start(profile="ros2", library="test")
         schemas: dict[int, int] = {}
         channels: dict[int, int] = {}
@@ -84,10 +84,10 @@ def test_an_mcap_whose_index_does_not_account_for_every_message_gets_the_full_pa
         path.write_bytes(data[: len(data) * 9 // 10])  # the summary and the last chunk's end gone
     else:
         dst = tmp_path / "copy.mcap"
-        _copy_messages(path, dst, use_chunking=damage != "unchunked", use_statistics=damage != "no statistics")
+        _copy_messages(path, dst, chunked=damage != "unchunked", statistics=damage != "no statistics")
         path = dst
     with open_recording(path, load_config()) as rec:
-        assert rec.log.log_times() is None
+        assert isinstance(rec, MessageRecording) and rec.log.log_times() is None
         a, b = rec.run_info(), rec.info()
     assert a.streams == b.streams and a.pairing == b.pairing
 
