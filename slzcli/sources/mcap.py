@@ -200,36 +200,8 @@ class McapLog(MessageLog):
             log.warning("%s: %s", self.path, text)
 
     def log_times(self) -> dict[str, np.ndarray] | None:
-        """From the summary's chunk indexes and the message index records written after each chunk (read,
-        never decompressed). None unless they account for every message the summary's statistics count:
-        a file without statistics, with messages outside chunks, or with a chunk whose indexes are missing."""
-        s = self._summary
-        if s is None or s.statistics is None or not s.chunk_indexes:
-            return None
-        per_channel: dict[int, list[np.ndarray]] = {}
-        try:
-            with self.path.open("rb") as f:
-                for ci in s.chunk_indexes:
-                    f.seek(ci.chunk_start_offset + ci.chunk_length)
-                    block = f.read(ci.message_index_length)
-                    if len(block) != ci.message_index_length:
-                        return None
-                    for channel_id, times in _message_indexes(block):
-                        per_channel.setdefault(channel_id, []).append(times)
-        except (OSError, McapError, struct.error, ValueError):
-            return None
-        counts = {c: sum(len(t) for t in ts) for c, ts in per_channel.items()}
-        stats = s.statistics
-        if sum(counts.values()) != stats.message_count or any(
-                counts.get(c, 0) != n for c, n in stats.channel_message_counts.items()):
-            return None
-        out: dict[str, list[np.ndarray]] = {}
-        for c, ts in per_channel.items():
-            ch = s.channels.get(c)
-            if ch is None:
-                return None
-            out.setdefault(ch.topic, []).extend(ts)
-        return {topic: np.sort(np.concatenate(ts)) for topic, ts in out.items()}
+        """From the file's summary and message indexes (``index_log_times``)."""
+        return None if self._summary is None else index_log_times(self.path, self._summary)
 
     def deserialize(self, topic: str, data: bytes | memoryview) -> RosMessage:
         enc = self._encoding.get(topic, "")
@@ -249,6 +221,49 @@ class McapLog(MessageLog):
         if key not in self._stores:
             self._stores[key] = get_typestore(Stores.ROS1_NOETIC if encoding == ROS1_ENCODING else Stores.ROS2_HUMBLE)
         return self._stores[key]
+
+
+def index_log_times(path: Path, s: Summary) -> dict[str, np.ndarray] | None:
+    """Every message's log time per topic from an MCAP's summary (its chunk indexes) and the message index
+    records written after each chunk (read, never decompressed). None unless they account for every message
+    the summary's statistics count: a file without statistics, with messages outside chunks, or with a chunk
+    whose indexes are missing."""
+    if s.statistics is None or not s.chunk_indexes:
+        return None
+    per_channel: dict[int, list[np.ndarray]] = {}
+    try:
+        with path.open("rb") as f:
+            for ci in s.chunk_indexes:
+                f.seek(ci.chunk_start_offset + ci.chunk_length)
+                block = f.read(ci.message_index_length)
+                if len(block) != ci.message_index_length:
+                    return None
+                for channel_id, times in _message_indexes(block):
+                    per_channel.setdefault(channel_id, []).append(times)
+    except (OSError, McapError, struct.error, ValueError):
+        return None
+    counts = {c: sum(len(t) for t in ts) for c, ts in per_channel.items()}
+    stats = s.statistics
+    if sum(counts.values()) != stats.message_count or any(
+            counts.get(c, 0) != n for c, n in stats.channel_message_counts.items()):
+        return None
+    out: dict[str, list[np.ndarray]] = {}
+    for c, ts in per_channel.items():
+        ch = s.channels.get(c)
+        if ch is None:
+            return None
+        out.setdefault(ch.topic, []).extend(ts)
+    return {topic: np.sort(np.concatenate(ts)) for topic, ts in out.items()}
+
+
+def mcap_file_log_times(path: Path) -> dict[str, np.ndarray] | None:
+    """``index_log_times`` of an MCAP file by its path (None: no readable summary)."""
+    try:
+        with path.open("rb") as f:
+            summary = SeekingReader(f).get_summary()
+    except (McapError, struct.error, ValueError, OSError):
+        return None
+    return None if summary is None else index_log_times(path, summary)
 
 
 def _message_indexes(block: bytes) -> Iterator[tuple[int, np.ndarray]]:

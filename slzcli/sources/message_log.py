@@ -52,7 +52,7 @@ class MessageLog(abc.ABC):
         """Messages of ``topics`` (all when empty) in log-time order, streamed."""
 
     def log_times(self) -> dict[str, np.ndarray] | None:
-        """Every message's log time (ns, sorted) per topic, from the file's own index, no message read;
+        """Every message's log time (ns, sorted) per topic, from the file's own index, no message's data read;
         None when the format or this file has no index that accounts for every message (a run then reads
         every message once before its first frame, as ``slz info`` does)."""
         return None

@@ -87,10 +87,12 @@ class RosbagLog(MessageLog):
 
     def log_times(self) -> dict[str, np.ndarray] | None:
         """A ROS 1 bag: its index, which rosbags reads on opening (every message's time per connection; a bag
-        without one is refused then). A rosbag2 folder: None (its metadata counts messages, not their times)."""
-        readers = getattr(self._reader, "readers", None) if self.ros1 else None
+        without one is refused then). A rosbag2 folder: its storage files' (``_ros2_log_times``)."""
+        readers = getattr(self._reader, "readers", None)
         if not readers or len(readers) != 1:
             return None
+        if not self.ros1:
+            return _ros2_log_times(self.path, readers[0])
         bag = readers[0]
         indexes = getattr(bag, "indexes", None)
         if not isinstance(indexes, dict):
@@ -113,6 +115,51 @@ class RosbagLog(MessageLog):
         if self._reader is None:
             raise DatasetError(self.path, "bag is not open")
         return self._reader
+
+
+def _ros2_log_times(folder: Path, bag: object) -> dict[str, np.ndarray] | None:
+    """Every message's log time per topic of a rosbag2 folder without reading a message's data: an MCAP storage
+    file's summary and message indexes (``mcap.mcap_file_log_times``), a sqlite3 one's timestamp column (the
+    rows' data stays on its overflow pages). None for whole-file compression (the files are compressed on disk)
+    and when the times do not add up to the counts the metadata gives (``connections``' msgcount)."""
+    from slzcli.sources.mcap import mcap_file_log_times
+
+    if getattr(bag, "compression_mode", None) == "file":
+        return None
+    files = [p for p in bag_folder_files(folder)[1:] if p.suffix in (".mcap", ".db3")]
+    if not files:
+        return None
+    out: dict[str, list[np.ndarray]] = {}
+    for p in files:
+        times = mcap_file_log_times(p) if p.suffix == ".mcap" else _sqlite_log_times(p)
+        if times is None:
+            return None
+        for topic, ts in times.items():
+            out.setdefault(topic, []).append(ts)
+    merged = {topic: np.sort(np.concatenate(ts)) for topic, ts in out.items()}
+    counts: dict[str, int] = {}
+    for c in getattr(bag, "connections", []):
+        counts[c.topic] = counts.get(c.topic, 0) + int(c.msgcount)
+    if any(len(merged.get(t, ())) != n for t, n in counts.items()) or set(merged) - set(counts):
+        return None
+    return merged
+
+
+def _sqlite_log_times(path: Path) -> dict[str, np.ndarray] | None:
+    """A rosbag2 sqlite3 file's message timestamps per topic (read-only; None when it cannot be read)."""
+    import sqlite3
+
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            names = dict(con.execute("SELECT id, name FROM topics").fetchall())
+            rows = np.array(con.execute("SELECT topic_id, timestamp FROM messages").fetchall(), np.int64)
+        finally:
+            con.close()
+    except (sqlite3.Error, OverflowError, ValueError):
+        return None
+    rows = rows.reshape(-1, 2)
+    return {name: rows[rows[:, 0] == tid, 1] for tid, name in names.items()}
 
 
 def _reason(err: Exception) -> str:

@@ -33,7 +33,7 @@ def _same_info(a: RecordingInfo, b: RecordingInfo) -> None:
     assert a.warnings == b.warnings and a.camera_preset == b.camera_preset
 
 
-@pytest.mark.parametrize("fmt", ["mcap", "mcap-ros1", "ros1"])
+@pytest.mark.parametrize("fmt", ["mcap", "mcap-ros1", "ros1", "ros2-sqlite", "ros2-mcap"])
 def test_a_run_reads_the_index_and_learns_what_the_full_pass_does(fmt: str, tmp_path: Path,
                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     path = tmp_path / f"rec{SUFFIX[fmt]}"
@@ -47,12 +47,24 @@ def test_a_run_reads_the_index_and_learns_what_the_full_pass_does(fmt: str, tmp_
     _same_info(indexed, full)
 
 
-def test_a_ros2_bag_has_no_such_index_and_gets_the_full_pass(tmp_path: Path) -> None:
+def test_a_rosbag2_whose_storage_does_not_add_up_gets_the_full_pass(tmp_path: Path) -> None:
+    """A sqlite3 rosbag2 whose messages table lost a row its metadata still counts: the times do not account
+    for every message, so the full pass reads what is there."""
+    import sqlite3
+
     path = tmp_path / "rec"
     write_frames(path, "ros2-sqlite", N)
+    db = next(path.glob("*.db3"))
+    con = sqlite3.connect(db)
+    con.execute("DELETE FROM messages WHERE id = (SELECT MAX(id) FROM messages)")
+    con.commit()
+    con.close()
     with open_recording(path, load_config()) as rec:
-        assert isinstance(rec, MessageRecording) and rec.log.log_times() is None
-        _same_info(rec.run_info(), rec.info())
+        assert isinstance(rec, MessageRecording)
+        if rec.log.log_times() is not None:   # rosbags counted the rows itself: then they add up
+            pytest.skip("this rosbags counts the messages from the storage, not the metadata")
+        a, b = rec.run_info(), rec.info()
+    assert a.streams == b.streams and a.pairing == b.pairing
 
 
 def _copy_messages(src: Path, dst: Path, chunked: bool, statistics: bool) -> None:
