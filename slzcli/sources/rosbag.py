@@ -20,6 +20,7 @@ from slzcli.bounds import MAX_BAG_METADATA_BYTES, file_kind, read_regular
 from slzcli.config import Config
 from slzcli.errors import DatasetError, DecodeError, SlzError
 from slzcli.sources.formats import ROS1_MAGIC
+from slzcli.sources.mcap import mcap_file_log_times
 from slzcli.sources.message_log import MessageLog, RawMessage
 from slzcli.sources.messages import MessageRecording
 from slzcli.sources.ros_types import Message
@@ -122,8 +123,6 @@ def _ros2_log_times(folder: Path, bag: object) -> dict[str, np.ndarray] | None:
     file's summary and message indexes (``mcap.mcap_file_log_times``), a sqlite3 one's timestamp column (the
     rows' data stays on its overflow pages). None for whole-file compression (the files are compressed on disk)
     and when the times do not add up to the counts the metadata gives (``connections``' msgcount)."""
-    from slzcli.sources.mcap import mcap_file_log_times
-
     if getattr(bag, "compression_mode", None) == "file":
         return None
     files = [p for p in bag_folder_files(folder)[1:] if p.suffix in (".mcap", ".db3")]
