@@ -483,18 +483,26 @@ def site_surface(fm: FusedMaps, site: FusedSite, square_m: float) -> tuple[np.nd
     fitted to the fused heights of the square's cells (least squares; SAFE needs every one of them seen)."""
     reg = fm.region
     c = reg.cell_m
-    i = int((site.x_m - reg.origin_m[0]) // c)
-    j = int((site.y_m - reg.origin_m[1]) // c)
+    x0, y0 = reg.origin_m
+    i, j = int((site.x_m - x0) // c), int((site.y_m - y0) // c)
     half = square_cells(square_m, c) // 2
-    sl = (slice(max(0, j - half), j + half + 1), slice(max(0, i - half), i + half + 1))
-    h = reg.h[sl].astype(np.float64)
+    ja, ia = max(0, j - half), max(0, i - half)
+    h = reg.h[ja:j + half + 1, ia:i + half + 1].astype(np.float64)
     jj, ii = np.nonzero(np.isfinite(h))
-    dx, dy = (ii + sl[1].start - i) * c, (jj + sl[0].start - j) * c
-    if len(jj) < 3:
-        return np.array([site.x_m, site.y_m, site.z_m]), np.array([0.0, 0.0, 1.0])
-    coef = np.linalg.lstsq(np.c_[np.ones(len(jj)), dx, dy], h[jj, ii], rcond=None)[0]
-    normal = np.array([-coef[1], -coef[2], 1.0])
-    return np.array([site.x_m, site.y_m, coef[0]]), normal / np.linalg.norm(normal)
+    pts = np.stack([x0 + (ii + ia + 0.5) * c, y0 + (jj + ja + 0.5) * c, h[jj, ii]], axis=1)
+    centre, normal = _plane_through(pts, np.array([site.x_m, site.y_m, site.z_m]))
+    return centre, normal / np.linalg.norm(normal)
+
+
+def _plane_through(pts: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares plane z = a + b dx + c dy through ``pts`` (n, 3), dx, dy from ``centre``'s plan
+    position: ``centre`` lifted onto it and its upward normal (not unit); with fewer than 3 points ``centre`` as
+    given and straight up."""
+    if len(pts) < 3:
+        return centre.copy(), np.array([0.0, 0.0, 1.0])
+    a = np.c_[np.ones(len(pts)), pts[:, 0] - centre[0], pts[:, 1] - centre[1]]
+    coef = np.linalg.lstsq(a, pts[:, 2], rcond=None)[0]
+    return np.array([centre[0], centre[1], coef[0]]), np.array([-coef[1], -coef[2], 1.0])
 
 
 def raised_cell(fm: FusedMaps, j: int, i: int, params: RaisedParams) -> Raised:
@@ -517,9 +525,6 @@ def _raised_at(reg: Region, usable: np.ndarray, j: int, i: int, params: RaisedPa
     half = params.inner_radius_m
     own = (np.abs(xyz[:, 0] - centre[0]) <= half) & (np.abs(xyz[:, 1] - centre[1]) <= half)
     pts = xyz[own]
-    a = np.c_[np.ones(len(pts)), pts[:, 0] - centre[0], pts[:, 1] - centre[1]]
-    coef = np.linalg.lstsq(a, pts[:, 2], rcond=None)[0] if len(pts) >= 3 else np.array([centre[2], 0.0, 0.0])
-    centre[2] = coef[0]
-    normal = np.array([-coef[1], -coef[2], 1.0])
+    centre, normal = _plane_through(pts, centre)
     return above_ground(centre, normal, pts, xyz, params, np.array([0.0, 0.0, 1.0]),
                         reg.var[jj, ii].astype(np.float64))

@@ -85,11 +85,7 @@ class McapLog(MessageLog):
 
     def _read_summary(self) -> bool:
         """Channels from the summary section; False when it is missing or unreadable (cut short)."""
-        try:
-            with self.path.open("rb") as f:
-                summary = SeekingReader(f).get_summary()
-        except (McapError, struct.error, ValueError, OSError):
-            return False
+        summary = read_summary(self.path)
         if summary is None or not summary.channels:
             return False
         self._summary = summary
@@ -256,13 +252,18 @@ def index_log_times(path: Path, s: Summary) -> dict[str, np.ndarray] | None:
     return {topic: np.sort(np.concatenate(ts)) for topic, ts in out.items()}
 
 
-def mcap_file_log_times(path: Path) -> dict[str, np.ndarray] | None:
-    """``index_log_times`` of an MCAP file by its path (None: no readable summary)."""
+def read_summary(path: Path) -> Summary | None:
+    """The file's summary section; None when it is missing or unreadable (a file cut short has none)."""
     try:
         with path.open("rb") as f:
-            summary = SeekingReader(f).get_summary()
+            return SeekingReader(f).get_summary()
     except (McapError, struct.error, ValueError, OSError):
         return None
+
+
+def mcap_file_log_times(path: Path) -> dict[str, np.ndarray] | None:
+    """``index_log_times`` of an MCAP file by its path (None: no readable summary)."""
+    summary = read_summary(path)
     return None if summary is None else index_log_times(path, summary)
 
 
