@@ -19,7 +19,6 @@ from __future__ import annotations
 import mmap
 import os
 import sys
-import tempfile
 import time
 from multiprocessing.connection import Connection
 
@@ -50,36 +49,37 @@ def serve(conn: Connection, vocab_path: str, settings_text: str, sensor: str,
     """Load the vocabulary, say ready (or the error), then track each frame sent until told to close."""
     import pyorbslam3 as pos
 
-    with tempfile.TemporaryDirectory(prefix="slz-orbslam3-") as tmp:
-        settings = os.path.join(tmp, "settings.yaml")
-        with open(settings, "w") as f:
-            f.write(settings_text)
-        try:
-            system = pos.Slam(vocab_path, settings, pos.Sensor.MONOCULAR if sensor == "monocular" else pos.Sensor.RGBD)
-        except Exception as err:
-            conn.send(("error", f"{type(err).__name__}: {err}"))
-            return
-        conn.send(("ready", None))
-        try:
-            while True:
-                msg = conn.recv()
-                if msg[0] == "close":
-                    break
-                _, slot, with_depth, t = msg
-                rgb = views[slot][0].copy()
-                depth = views[slot][1].copy() if with_depth else None
-                t0 = time.perf_counter()
-                try:
-                    r = system.track_monocular(rgb, t) if depth is None else system.track_rgbd(rgb, depth, t)
-                except Exception as err:
-                    conn.send(("error", f"{type(err).__name__}: {err}"))
-                    continue
-                pts = np.asarray(system.tracked_map_points(), np.float64).reshape(-1, 3)
-                conn.send(("ok", int(r.state), None if r.pose_wc is None else np.asarray(r.pose_wc, np.float64),
-                           int(r.num_tracked_points), pts, (time.perf_counter() - t0) * 1e3))
-        finally:
-            system.shutdown()
-            conn.send(("closed", None))
+    # the settings live in memory, named by a /proc path the native loader opens like a file: nothing is left on
+    # disk however the worker ends (a temporary folder stayed behind each time the parent killed a stuck worker)
+    fd = os.memfd_create("slz-orbslam3-settings")
+    os.write(fd, settings_text.encode())
+    settings = f"/proc/self/fd/{fd}"
+    try:
+        system = pos.Slam(vocab_path, settings, pos.Sensor.MONOCULAR if sensor == "monocular" else pos.Sensor.RGBD)
+    except Exception as err:
+        conn.send(("error", f"{type(err).__name__}: {err}"))
+        return
+    conn.send(("ready", None))
+    try:
+        while True:
+            msg = conn.recv()
+            if msg[0] == "close":
+                break
+            _, slot, with_depth, t = msg
+            rgb = views[slot][0].copy()
+            depth = views[slot][1].copy() if with_depth else None
+            t0 = time.perf_counter()
+            try:
+                r = system.track_monocular(rgb, t) if depth is None else system.track_rgbd(rgb, depth, t)
+            except Exception as err:
+                conn.send(("error", f"{type(err).__name__}: {err}"))
+                continue
+            pts = np.asarray(system.tracked_map_points(), np.float64).reshape(-1, 3)
+            conn.send(("ok", int(r.state), None if r.pose_wc is None else np.asarray(r.pose_wc, np.float64),
+                       int(r.num_tracked_points), pts, (time.perf_counter() - t0) * 1e3))
+    finally:
+        system.shutdown()
+        conn.send(("closed", None))
 
 
 def main() -> None:

@@ -186,14 +186,18 @@ def test_malformed_vocabulary_never_reaches_the_native_loader(tmp_path, line_fli
 
 
 @needs_orbslam3
-def test_a_dead_worker_is_an_slz_error(line_flight) -> None:
+def test_a_dead_worker_is_an_slz_error_and_leaves_nothing_on_disk(tmp_path, monkeypatch, line_flight) -> None:
     frames, _ = line_flight
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))   # the worker is a fresh interpreter: its temporary files land here
     config = load_config(overrides=["slam.backend=orbslam3"])
     with get_backend(config.slam) as b:
         b.track(frames[0])
         cast(Any, b)._proc.kill()  # stands in for a native crash (a private of the ORB-SLAM3 backend)
         with pytest.raises(SlzError, match=r"died .*SIGKILL"):
             b.track(frames[1])
+    assert list(tmp.iterdir()) == []
 
 
 @needs_orbslam3
