@@ -32,6 +32,36 @@ class Block:
     height_m: float
 
 
+@dataclass(frozen=True)
+class Slab:
+    """A box hanging over the ground (a canopy, a roof): x0..x1, y0..y1, from z0 up to z1, open below."""
+
+    x0: float
+    x1: float
+    y0: float
+    y1: float
+    z0: float
+    z1: float
+
+
+def slab_depth(T: np.ndarray, slab: Slab, depth: np.ndarray, intr: Intrinsics = INTR) -> np.ndarray:
+    """``depth`` with the slab in front of it where a ray enters the slab first (the slab test of a ray and a box)."""
+    u = (np.arange(intr.width) - intr.cx) / intr.fx
+    v = (np.arange(intr.height) - intr.cy) / intr.fy
+    rx, ry = np.meshgrid(u, v)
+    d = np.stack([rx, ry, np.ones_like(rx)], -1) @ T[:3, :3].T
+    t = T[:3, 3]
+    lo = np.full(rx.shape, -np.inf)
+    hi = np.full(rx.shape, np.inf)
+    for i, (a, b) in enumerate(((slab.x0, slab.x1), (slab.y0, slab.y1), (slab.z0, slab.z1))):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0, t1 = (a - t[i]) / d[..., i], (b - t[i]) / d[..., i]
+        lo = np.maximum(lo, np.minimum(t0, t1))
+        hi = np.minimum(hi, np.maximum(t0, t1))
+    hit = (lo <= hi) & (lo > 0)
+    return np.where(hit & ~(depth < lo), lo, depth).astype(np.float32)
+
+
 def pose(x: float, y: float, z: float, yaw_deg: float = 0.0) -> np.ndarray:
     c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
     T = np.eye(4)
@@ -103,7 +133,8 @@ def cell_noise(stereo: Stereo, cell_px: float, trials: int = 4) -> float:
 
 def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float, seed: int, frames: int,
         step_m: float, altitude_m: float = 8.0, block: Block | None = None, start_x: float | None = None,
-        region_m: float = 8.0, noise_white: bool = False, slope_deg: float = 0.0) -> Iterator[tuple[int, Any, Any]]:
+        region_m: float = 8.0, noise_white: bool = False, slope_deg: float = 0.0,
+        slab: Slab | None = None) -> Iterator[tuple[int, Any, Any]]:
     """Fly ``frames`` frames ``step_m`` apart along world x (centred on 0) over the scene; yield, per frame,
     (index, FusedTerrain, FusedMaps of the ``region_m`` square around the origin). ``slope_deg`` tilts the
     ground about the y axis (its height x tan(slope_deg)); the block needs level ground."""
@@ -122,7 +153,10 @@ def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float,
     x0 = -0.5 * step_m * (frames - 1) if start_x is None else start_x
     for i in range(frames):
         T = pose(x0 + step_m * i, 0.0, altitude_m)
-        ft.add(stereo.measure(exact_depth(T, block, slope_deg=slope_deg)), INTR, T, noise, 0, i)
+        depth = exact_depth(T, block, slope_deg=slope_deg)
+        if slab is not None:
+            depth = slab_depth(T, slab, depth)
+        ft.add(stereo.measure(depth), INTR, T, noise, 0, i)
         yield i, ft, ft.maps_around(0.0, 0.0, region_m)
 
 

@@ -251,6 +251,7 @@ class FusionCfg:
     hover_speed_m_s: float = rng(0)
     gate_sigma: float = rng(0, lo_open=True)
     two_heights_fraction: float = rng(0, 1, lo_open=True)
+    column_step_m: float = rng(0, lo_open=True)
     pose_sigma_m: float = rng(0)
     pose_sigma_deg: float = rng(0)
     decided_margin: float = rng(1)

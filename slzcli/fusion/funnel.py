@@ -10,7 +10,8 @@ the ones before it left:
   windows around it (what ``terrain.fusion.decided_margin`` asks), all of them seen;
 - ``tolerances``: the steps fitted across the square and the slope of its plane, each with its noise limit added,
   within the UAV's tolerances, one height per cell;
-- ``column``: the final descent's column above every cell of its landing square was in view of some frame;
+- ``column``: the column above every cell of its landing square seen clear: the final descent's top seen free by
+  some frame, and every level above it that a frame had in view seen free by some frame (nothing overhangs it);
 - ``safe``: not on a patch the raised-surface rule refused: the SAFE cells.
 
 A low score or an undecided square has two causes the text tells apart: the ground (or its noise, read as
@@ -97,10 +98,10 @@ class CellFunnel:
                     f"(uav.max_step_m {self.max_step_m:g} m, uav.max_slope_deg {self.max_slope_deg:g} deg), or ground "
                     "seen at two heights")
         if step == "column":
-            return (f"the final descent's column (control.desired_depth_m {self.column_m:g} m above the ground) was "
-                    f"in view over the whole landing square of none of the {n['tolerances']} cells that pass every "
-                    "other test: close to the ground the view is too narrow to see what may overhang a site, a higher "
-                    "pass sees more")
+            return (f"the column above the ground (from control.desired_depth_m {self.column_m:g} m up) was seen "
+                    f"clear over the whole landing square of none of the {n['tolerances']} cells that pass every "
+                    "other test: something overhangs them, or close to the ground the view is too narrow to see what "
+                    "may overhang a site (a higher pass sees more)")
         return f"the {n['column']} cells that pass every other test lie on surfaces the raised-surface rule refused"
 
     def _score_text(self, seen: int) -> str:

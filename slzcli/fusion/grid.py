@@ -6,7 +6,7 @@ frame (a grid centred on the vehicle and blended index by index, as PX4's safe_l
 mixes ground whenever the vehicle moves). Memory is a window of ``side_cells`` x ``side_cells`` slots
 that follows the UAV: cell (ix, iy) lives in slot (iy mod side, ix mod side) with its indices as the
 slot's owner; a cell that comes into view where an older one, ``side_cells`` away, still sits takes the
-slot over. Memory is fixed (31 MB at the defaults) however long the flight.
+slot over. Memory is fixed (34 MB at the defaults) however long the flight.
 
 State per cell. The measurement of a frame (``measure.FrameCells``) is ``y = h + c + w``: the height h,
 an error c that the frame's stereo pattern shares with the next frames as long as the cell stays where
@@ -59,7 +59,8 @@ class FusedGrid:
     state: np.ndarray       # float64 (side^2, 13)
     frames: np.ndarray      # int32 frames that measured the cell
     rejected: np.ndarray    # int32 of them rejected by the gate
-    column: np.ndarray      # bool: some frame saw the column ``column_m`` above the cell
+    column: np.ndarray      # uint64: the levels of the column above the cell some frame saw free (kernels.update_cells)
+    blocked: np.ndarray     # uint64: the levels some frame had in view with something at or in front of them
     last_frame: np.ndarray  # int64 index of the last frame that measured it
     swept_at: np.ndarray    # int64 (2,): the camera's cell at the last sweep of cells left behind
 
@@ -67,7 +68,7 @@ class FusedGrid:
     def empty(cls, params: FusionParams) -> FusedGrid:
         n = params.side_cells * params.side_cells
         return cls(params, np.full(n, _EMPTY, np.int64), np.zeros((n, _FIELDS), np.float64), np.zeros(n, np.int32),
-                   np.zeros(n, np.int32), np.zeros(n, bool), np.full(n, -1, np.int64),
+                   np.zeros(n, np.int32), np.zeros(n, np.uint64), np.zeros(n, np.uint64), np.full(n, -1, np.int64),
                    np.array([_EMPTY, _EMPTY], np.int64))
 
     def nbytes(self) -> int:
@@ -118,14 +119,25 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
         return np.ascontiguousarray(a, np.float64)
 
     new, rejected, nis = kernels.update_cells(
-        grid.owner, grid.state, grid.frames, grid.rejected, grid.column, grid.last_frame, k, owned, u_px, v_px, rho,
-        ix, iy, y, f64(m.sigma_w_m), f64(m.sigma_c_m), f64(m.spread_m), f64(m.pose_var_m2), p.gate_sigma ** 2,
-        max(1.0 - p.fixed_fraction, 1e-9), float(m.step_per_sigma), float(m.tan_slope_per_sigma), int(frame_index),
-        float(p.column_m), float(p.cell_m), r, t, cam, int(intr.width), int(intr.height))
+        grid.owner, grid.state, grid.frames, grid.rejected, grid.column, grid.blocked, grid.last_frame, k, owned, u_px,
+        v_px, rho, ix, iy, y, f64(m.sigma_w_m), f64(m.sigma_c_m), f64(m.spread_m), f64(m.pose_var_m2),
+        p.gate_sigma ** 2, max(1.0 - p.fixed_fraction, 1e-9), float(m.step_per_sigma), float(m.tan_slope_per_sigma),
+        int(frame_index), float(p.column_m), float(p.column_step_m), float(p.cell_m), r, t, cam, m.depth_image,
+        float(m.pixel_a), float(p.confidence_sigma), _nadir_in_view(r, cam, intr.width, intr.height))
     _sweep(grid, m)
     med = float(kernels.median_inplace(shift[owned]))
     nis_med = float(kernels.median_inplace(nis))
     return FuseStats(len(m), int(new), int(rejected), med, nis_med)
+
+
+def _nadir_in_view(r: np.ndarray, cam: np.ndarray, width: int, height: int) -> bool:
+    """The image of the point straight below the camera (the vanishing point of vertical lines) lies in the view."""
+    dz = -r[2, 2]                  # the world's down in camera coordinates: -(R's third row)
+    if dz <= 0:
+        return False
+    u = cam[0] * -r[2, 0] / dz + cam[2]
+    v = cam[1] * -r[2, 1] / dz + cam[3]
+    return bool(-0.5 <= u < width - 0.5 and -0.5 <= v < height - 0.5)
 
 
 def sweep_due(grid: FusedGrid, m: FrameCells) -> tuple[int, int] | None:
@@ -166,7 +178,7 @@ class Region:
     spread: np.ndarray      # float32
     step_ratio: np.ndarray  # float32
     tan_ratio: np.ndarray   # float32
-    column: np.ndarray      # bool
+    column: np.ndarray      # bool: the descent column above the cell clear (kernels.column_clear)
     p_hc: np.ndarray        # float64 the Kalman state's other covariances (for ``advice``)
     p_cc: np.ndarray
     sigma_c: np.ndarray     # float64 std of the shared error at the last look
@@ -188,8 +200,8 @@ def region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
     s = grid.params.side_cells
     nx, ny = min(nx, s), min(ny, s)
     seen, f64, looks, frames, rejected, f32, column = kernels.region_cells(
-        grid.owner, grid.state, grid.frames, grid.rejected, grid.column, int(x0), int(y0), int(nx), int(ny), int(s),
-        float(grid.params.fixed_fraction))
+        grid.owner, grid.state, grid.frames, grid.rejected, grid.column, grid.blocked, int(x0), int(y0), int(nx),
+        int(ny), int(s), float(grid.params.fixed_fraction))
     h, var, pose_var, p_hc, p_cc, sig_c, sig1 = f64
     return Region(x0, y0, grid.params.cell_m, seen, h, var, pose_var, looks, frames, rejected, f32[0], f32[1], f32[2],
                   column, p_hc, p_cc, sig_c, sig1)

@@ -260,12 +260,38 @@ def _min(a, b):
     return a if (a != a or a <= b) else b
 
 
+COLUMN_LEVELS = 64   # levels of the column above a cell, one bit each of a uint64
+
+
 @_jit
-def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned, u, v, rho, ix, iy, y, sigma_w,
-                 sigma_c, spread, pose_var, gate2, sig1_den, step_ratio, tan_ratio, frame_index, column_m, cell,
-                 r, t, cam, width, height):
+def _lowest_zero_bit(bits):
+    """Index of the lowest bit not set (``bits`` not all ones): log2 of that bit alone, exact for a power of 2."""
+    low = ~bits & (bits + np.uint64(1))
+    return int(np.log2(float(low)) + 0.5)
+
+
+@_jit
+def column_clear(free, blocked):
+    """The descent column above a cell is clear: its lowest level (control.desired_depth_m) seen free, and every
+    level some frame had in view with depth seen free by some frame (one only ever seen behind something, or at
+    a surface, is under an overhang or hidden by one)."""
+    return (free & np.uint64(1)) != 0 and (blocked & ~free) == 0
+
+
+@_jit
+def update_cells(owner, state, frames, rejected, column, blocked, last_frame, slot, owned, u, v, rho, ix, iy, y,
+                 sigma_w, sigma_c, spread, pose_var, gate2, sig1_den, step_ratio, tan_ratio, frame_index, column_m,
+                 column_step, cell, r, t, cam, depth, free_a, free_k, nadir_in_view):
     """The Kalman update of a frame's cells in their slots (in place; grid.fuse says what each step means).
-    Returns (new cells, rejected, the normalised innovation squared of the cells held before, in order)."""
+    Returns (new cells, rejected, the normalised innovation squared of the cells held before, in order).
+
+    Then the column above each cell, ``COLUMN_LEVELS`` levels ``column_step`` apart from ``column_m`` up:
+    ``column`` gains the levels this frame saw free (its ``depth`` at the level's pixel beyond the level by
+    ``free_k`` x the depth's noise ``free_a D^2``), ``blocked`` the levels it had in view with a depth nearer
+    than that (something at or in front of them: a crown, a roof, a pole between); a level without depth at its
+    pixel, outside the image or behind the camera, neither. A vertical line's image runs away from the image of the
+    nadir as it rises: once out of the image it stays out when that point is in the view (``nadir_in_view``) or a
+    lower level was in it."""
     n = slot.size
     nis = np.empty(n, np.float64)
     n_owned = 0
@@ -314,7 +340,8 @@ def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned
             owner[k] = (ix[c] << 32) ^ (iy[c] & 0xFFFFFFFF)
             frames[k] = 0
             rejected[k] = 0
-            column[k] = False
+            column[k] = 0
+            blocked[k] = 0
         if ok or not own:
             state[k, U] = u[c]
             state[k, V] = v[c]
@@ -324,21 +351,48 @@ def update_cells(owner, state, frames, rejected, column, last_frame, slot, owned
             state[k, TANR] = tan_ratio
         frames[k] += 1
         last_frame[k] = frame_index
-        # the descent column: the point column_m above the cell's (updated) height in view
+        # the column above the cell's (updated) height, level by level from column_m up; a level seen free once
+        # is not looked at again
         px = (ix[c] + 0.5) * cell - t[0]
         py = (iy[c] + 0.5) * cell - t[1]
-        uc, vc, zc = _pixel(px, py, state[k, H] + column_m, r, t, cam)
-        if zc > 0 and uc >= -0.5 and uc <= width - 0.5 and vc >= -0.5 and vc <= height - 0.5:
-            column[k] = True
+        free = column[k]
+        if ~free == 0:
+            continue
+        first = _lowest_zero_bit(free)  # the levels below were all seen free: not looked at again
+        entered = first > 0
+        for lv in range(first, COLUMN_LEVELS):
+            bit = np.uint64(1) << np.uint64(lv)
+            if free & bit:
+                entered = True
+                continue
+            pz = state[k, H] + column_m + lv * column_step - t[2]
+            zc = (r[0, 2] * px + r[1, 2] * py) + r[2, 2] * pz
+            if zc <= 0:
+                break                  # this level and the ones above are behind the camera
+            inv = 1.0 / zc
+            ju = int(np.floor(cam[0] * ((r[0, 0] * px + r[1, 0] * py) + r[2, 0] * pz) * inv + cam[2] + 0.5))
+            jv = int(np.floor(cam[1] * ((r[0, 1] * px + r[1, 1] * py) + r[2, 1] * pz) * inv + cam[3] + 0.5))
+            if ju < 0 or ju >= depth.shape[1] or jv < 0 or jv >= depth.shape[0]:
+                if entered or nadir_in_view:
+                    break
+                continue
+            entered = True
+            d = depth[jv, ju]
+            if d > 0 and d < np.inf:
+                if d - free_k * free_a * d * d > zc:
+                    free |= bit
+                else:
+                    blocked[k] |= bit
+        column[k] = free
     return n_new, n_rej, nis[:n_owned]
 
 
 @_jit
-def region_cells(owner, state, frames, rejected, column, x0, y0, nx, ny, side, fixed_fraction):
+def region_cells(owner, state, frames, rejected, column, blocked, x0, y0, nx, ny, side, fixed_fraction):
     """Cells x0..x0+nx-1, y0..y0+ny-1 of the window as dense arrays, in one pass (``grid.region``'s gathers and
     selects, the same operations): seen, then the float64 fields H, the terrain variance (PHH + fixed_fraction
     sig1^2), POSEV, PHC, PCC, SIGC, SIG1 (NaN unseen), looks (sig1^2 / variance, float32), frames, rejected
-    (0 unseen), SPREAD, STEPR, TANR (float32, 0 unseen), column (False unseen)."""
+    (0 unseen), SPREAD, STEPR, TANR (float32, 0 unseen), the column clear (``column_clear``; False unseen)."""
     seen = np.zeros((ny, nx), np.bool_)
     f64 = np.full((7, ny, nx), np.nan)
     looks = np.zeros((ny, nx), np.float32)
@@ -369,7 +423,7 @@ def region_cells(owner, state, frames, rejected, column, x0, y0, nx, ny, side, f
             f32[0, j, i] = np.float32(state[k, SPREAD])
             f32[1, j, i] = np.float32(state[k, STEPR])
             f32[2, j, i] = np.float32(state[k, TANR])
-            col[j, i] = column[k]
+            col[j, i] = column_clear(column[k], blocked[k])
     return seen, f64, looks, fr, rej, f32, col
 
 
@@ -494,12 +548,13 @@ def warm_up() -> None:
     valid_depths(readonly(one, np.float32), 4)
     sweep(np.zeros(1, np.int64), 0, 0, 1, -1)
     region_cells(np.zeros(1, np.int64), np.zeros((1, 13)), np.zeros(1, np.int32), np.zeros(1, np.int32),
-                 np.zeros(1, bool), 0, 0, 1, 1, 1, 0.0)
+                 np.zeros(1, np.uint64), np.zeros(1, np.uint64), 0, 0, 1, 1, 1, 0.0)
     i = np.zeros(1, np.int64)
     x = np.zeros(1)
     owner = np.zeros(1, np.int64)
     state = np.zeros((1, 13))
     slot, owned, u, v, _ = cell_shifts(owner, state, i, i, x, 1, 1.0, r, t, cam)
-    update_cells(owner, state, np.zeros(1, np.int32), np.zeros(1, np.int32), np.zeros(1, bool),
-                 np.zeros(1, np.int64), slot, owned, u, v, x, i, i, x, x, x, x, x, 1.0, 1.0, 0.0, 0.0, 0, 1.0, 1.0,
-                 r, t, cam, 1, 1)
+    bits = np.zeros(1, np.uint64)
+    update_cells(owner, state, np.zeros(1, np.int32), np.zeros(1, np.int32), bits, bits.copy(),
+                 np.zeros(1, np.int64), slot, owned, u, v, x, i, i, x, x, x, x, x, 1.0, 1.0, 0.0, 0.0, 0, 1.0, 0.25,
+                 1.0, r, t, cam, readonly(one, np.float32), 0.0, 3.0, True)

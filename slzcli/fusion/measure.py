@@ -56,6 +56,7 @@ class FusionParams:
     max_step_m: float
     max_slope_deg: float
     column_m: float             # the descent column's height above a site (control.desired_depth_m)
+    column_step_m: float        # the column above it checked for overhangs at levels this far apart
     square_m: float             # side of the square a landing needs clear (the mask's footprint + margins)
 
     @classmethod
@@ -71,6 +72,7 @@ class FusionParams:
                    confidence_sigma=config.terrain.limits.confidence_sigma,
                    decided_margin=f.decided_margin, unsafe_margin=f.unsafe_margin, max_step_m=uav.max_step_m,
                    max_slope_deg=uav.max_slope_deg, column_m=config.control.desired_depth_m,
+                   column_step_m=f.column_step_m,
                    square_m=mc.margin_factor * max(uav.footprint_m) + 2.0 * uav.clearance_m)
 
 
@@ -91,6 +93,8 @@ class FrameCells:
     depth_m: float           # the frame's median depth
     step_per_sigma: float    # the frame's smallest detectable step / its cell-height std (limits.working_scale)
     tan_slope_per_sigma: float  # tan(smallest detectable slope) / its cell-height std, 1/m
+    depth_image: np.ndarray  # float32 the frame's depth (m, 0 none), the intrinsics' size: what it saw free
+    pixel_a: float           # a of one pixel's depth noise, sigma = a z^2 (the estimate's finest scale)
 
     def __len__(self) -> int:
         return int(self.ix.size)
@@ -250,7 +254,8 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
     sw = sigma * math.sqrt(wf)
     sc = sigma * math.sqrt(1.0 - wf - params.fixed_fraction)
     return FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
-                      step_per_sigma, tan_slope_per_sigma)
+                      step_per_sigma, tan_slope_per_sigma, kernels.readonly(depth, np.float32),
+                      float(noise.a1_per_m))
 
 
 def frame_limit_ratios(noise: DepthNoise, depth_m: float, focal_px: float, config: Config,

@@ -20,7 +20,7 @@ from slzcli.config import load_config
 from slzcli.errors import ConfigError
 from slzcli.fusion import kernels
 from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, Region, cell_key, fuse, region, sweep_due
-from slzcli.fusion.kernels import PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, C, H, U, V
+from slzcli.fusion.kernels import COLUMN_LEVELS, PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, C, H, U, V
 from slzcli.fusion.measure import (
     _MIN_SAMPLES,
     CellView,
@@ -146,7 +146,7 @@ def numpy_frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camer
         r2 = ((cells_x + 0.5) * params.cell_m - t[0]) ** 2 + ((cells_y + 0.5) * params.cell_m - t[1]) ** 2
         pose_var += r2 * params.pose_sigma_rad ** 2
     return FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
-                      step_per_sigma, tan_slope_per_sigma)
+                      step_per_sigma, tan_slope_per_sigma, depth, noise.a1_per_m)
 
 
 def _floor(w: np.ndarray, offset: np.float32, inv: np.float32) -> np.ndarray:
@@ -221,11 +221,12 @@ def numpy_fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     grid.owner[kn] = cell_key(m.ix[new], m.iy[new])
     grid.frames[kn] = 0
     grid.rejected[kn] = 0
-    grid.column[kn] = False
+    grid.column[kn] = 0
+    grid.blocked[kn] = 0
     grid.frames[k] += 1
     grid.rejected[k[owned & ~ok]] += 1
     grid.last_frame[k] = frame_index
-    _column(grid, view, k, f[H])
+    _column(grid, view, k, f[H], m)
     _sweep(grid, m)
     so = shift[owned]
     med = float(np.median(so)) if so.size else float("nan")
@@ -251,13 +252,49 @@ def _sweep(grid: FusedGrid, m: FrameCells) -> None:
     grid.owner[far] = _EMPTY
 
 
-def _column(grid: FusedGrid, view: CellView, k: np.ndarray, h: np.ndarray) -> None:
-    """A cell's descent column counts as seen once any frame had the point ``column_m`` above it in view."""
-    u, v, front = view.at(h + grid.params.column_m)
+def nadir_in_view(m: FrameCells) -> bool:
+    """The image of the point below the camera in the frame (numpy's projection of the world's down)."""
+    R = np.asarray(m.T_world_camera)[:3, :3]
+    d = R.T @ np.array([0.0, 0.0, -1.0])
+    if d[2] <= 0:
+        return False
+    u = m.intrinsics.fx * d[0] / d[2] + m.intrinsics.cx
+    v = m.intrinsics.fy * d[1] / d[2] + m.intrinsics.cy
+    return bool(-0.5 <= u < m.intrinsics.width - 0.5 and -0.5 <= v < m.intrinsics.height - 0.5)
+
+
+def _column(grid: FusedGrid, view: CellView, k: np.ndarray, h: np.ndarray, m: FrameCells) -> None:
+    """The column above each cell, level by level from ``column_m`` up: a level is seen free where the frame's
+    depth at its pixel lies beyond it by k times that depth's noise, blocked where a depth lies nearer; levels
+    seen free before are not looked at; the first level behind the camera ends the column, and so does the first
+    outside the image after one inside it (or seen free before), or at all when the nadir is in the view."""
+    p = grid.params
+    depth = m.depth_image
+    lv = np.arange(COLUMN_LEVELS)
+    hl = h[:, None] + p.column_m + lv[None, :] * p.column_step_m          # (cells, levels)
+    pz = hl - view.t_z
+    xc, yc, zc = (view.xy[i][:, None] + view.r_z[i] * pz for i in range(3))
     intr = view.intr
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / zc
+        u, v = intr.fx * xc * inv + intr.cx, intr.fy * yc * inv + intr.cy
+    bits = np.left_shift(np.uint64(1), lv.astype(np.uint64))
+    before = (grid.column[k][:, None] & bits[None, :]) != 0
     with np.errstate(invalid="ignore"):
-        inside = front & (u >= -0.5) & (u <= intr.width - 0.5) & (v >= -0.5) & (v <= intr.height - 0.5)
-    grid.column[k[inside]] = True
+        ju = np.floor(u + 0.5)
+        jv = np.floor(v + 0.5)
+        in_image = (zc > 0) & (ju >= 0) & (ju < depth.shape[1]) & (jv >= 0) & (jv < depth.shape[0])
+    entered = np.cumsum(before | in_image, axis=1) - (before | in_image) > 0     # at some level below
+    stop = ~before & ((zc <= 0) | (~in_image & (entered | nadir_in_view(m))))
+    active = (np.cumsum(stop, axis=1) == 0) & ~before
+    inside = active & in_image
+    d = np.zeros_like(zc)
+    d[inside] = depth[jv[inside].astype(np.intp), ju[inside].astype(np.intp)]
+    with np.errstate(invalid="ignore"):   # NaN depth: neither
+        has = inside & (d > 0) & (d < np.inf)
+        free = has & (d - p.confidence_sigma * m.pixel_a * d * d > zc)
+    grid.column[k] |= np.bitwise_or.reduce(np.where(free, bits[None, :], np.uint64(0)), axis=1)
+    grid.blocked[k] |= np.bitwise_or.reduce(np.where(has & ~free, bits[None, :], np.uint64(0)), axis=1)
 
 
 # --------------------------------------------------------------------------- random frames and grids
@@ -353,7 +390,7 @@ def test_frame_cells_without_depth_or_beyond_the_window_are_none_in_both() -> No
 
 def _copy(g: FusedGrid) -> FusedGrid:
     return FusedGrid(g.params, g.owner.copy(), g.state.copy(), g.frames.copy(), g.rejected.copy(), g.column.copy(),
-                     g.last_frame.copy(), g.swept_at.copy())
+                     g.blocked.copy(), g.last_frame.copy(), g.swept_at.copy())
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -383,7 +420,7 @@ def test_fuse_is_the_array_expressions_to_the_bit(seed: int) -> None:
         a, b = fuse(got, cells, i), numpy_fuse(want, cells, i)
         assert a.cells == b.cells and a.new == b.new and a.rejected == b.rejected
         assert np.array_equal([a.median_shift_px, a.nis_median], [b.median_shift_px, b.nis_median], equal_nan=True)
-        for name in ("owner", "state", "frames", "rejected", "column", "last_frame", "swept_at"):
+        for name in ("owner", "state", "frames", "rejected", "column", "blocked", "last_frame", "swept_at"):
             u, v = getattr(got, name), getattr(want, name)
             assert np.array_equal(u, v, equal_nan=u.dtype.kind == "f"), (i, name)
         rejected += a.rejected
@@ -412,7 +449,8 @@ def numpy_region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
                   np.where(seen, grid.frames[k], 0), np.where(seen, grid.rejected[k], 0),
                   np.where(seen, st[..., SPREAD], zero).astype(np.float32),
                   np.where(seen, st[..., STEPR], zero).astype(np.float32),
-                  np.where(seen, st[..., TANR], zero).astype(np.float32), seen & grid.column[k],
+                  np.where(seen, st[..., TANR], zero).astype(np.float32),
+                  seen & ((grid.column[k] & np.uint64(1)) != 0) & ((grid.blocked[k] & ~grid.column[k]) == 0),
                   f(PHC), f(PCC), f(SIGC), sig1)
 
 
