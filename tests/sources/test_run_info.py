@@ -130,3 +130,35 @@ def test_after_the_frames_pass_the_info_holds_that_pass_s_pairing(tmp_path: Path
     assert len(frames) == 4 and after.pairing == rec.report and after.pairing.paired == 4
     assert after.pairing.outside_window == N - 4 and any("--max-frames 4" in n for n in after.pairing.notes)
     assert after.streams == info.streams
+
+
+def test_a_sqlite3_bags_times_are_streamed_not_listed(tmp_path: Path) -> None:
+    """The timestamp column of a rosbag2 sqlite3 file is read into one array, not a Python list of rows first (an
+    hour with a 1 kHz IMU is 3.6 million rows: 535 MB traced as a list against 90 MB streamed, measured). Measured
+    here: 25 bytes a row traced streamed (the array, the per-topic masks and copies), 144 as a list; the bound, 40,
+    is 1.6x the first and 1/3.6 of the second."""
+    import sqlite3
+    import tracemalloc
+
+    from slzcli.sources.rosbag import _sqlite_log_times
+
+    n = 200_000
+    db = tmp_path / "bag_0.db3"
+    con = sqlite3.connect(db)
+    con.execute("CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT)")
+    con.execute("CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER, timestamp INTEGER, data BLOB)")
+    con.executemany("INSERT INTO topics VALUES (?, ?)", [(1, "/imu"), (2, "/camera/color")])
+    con.executemany("INSERT INTO messages(topic_id, timestamp, data) VALUES (?, ?, ?)",
+                    ((2 if i % 30 == 0 else 1, 10**18 + i * 10**6, b"") for i in range(n)))
+    con.commit()
+    con.close()
+    tracemalloc.start()
+    try:
+        times = _sqlite_log_times(db)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert times is not None
+    assert len(times["/camera/color"]) == -(-n // 30) and len(times["/imu"]) == n - -(-n // 30)
+    assert times["/imu"][0] == 10**18 + 10**6 and times["/camera/color"][-1] == 10**18 + (n - 1) // 30 * 30 * 10**6
+    assert peak < 40 * n, f"{peak / n:.0f} bytes a row"
