@@ -94,7 +94,8 @@ def test_below_the_descent_column_names_the_column() -> None:
         ft, fm = _last("column", seed)
         assert fm.funnel.emptied_by() == "column" and fm.funnel.left[4 - 1] > 0
         why = fm.why_none(ft.depth_m)
-        assert "descent's column" in why and "camera was 1.8 m from the ground" in why
+        assert "column above the ground (from control.desired_depth_m 2 m up) was seen clear" in why
+        assert "camera was 1.8 m from the ground" in why
         assert ft.advice(fm) is None   # more frames from 1.8 m never see the column (the advice said "1 more frame")
 
 
