@@ -15,6 +15,16 @@ benchmarks/fusion_matrix.py replays it). Per flight:
   cells and bias), and its split into a long-wavelength part (the normalised error smoothed by a Gaussian
   of 2 and 6 cells, ``lp2``, ``lp6``) and the rest (``hp2``, ``hp6``): where the fused map is overconfident,
   which wavelengths carry the excess?
+- ``fixed_px``, ``image_fixed``, ``ground_fixed``, ``moving``: where the long-wavelength part of one frame's error
+  lives. One frame's normalised cell errors (as ``frame_spread``) averaged over blocks ``FIXED_BLOCK_PX`` wide at the
+  frame's median depth, per frame; the blocks taken once in the image (fixed pixel ranges) and once on the ground
+  (fixed world squares of the same size). ``image_fixed``: the variance of the image blocks' means over the frames
+  (a pattern the camera carries); ``ground_fixed``: that of the ground blocks' means over the frames that saw them
+  (at least ``FIXED_MIN_FRAMES``), less their own sampling variance (a pattern the ground carries: every difference
+  of two looks cancels it); ``moving``: the rest of the per-frame block variance (what motion averages), all in
+  units of the stated one-frame variance.
+- ``spread_looks_n``, ``share_looks_n``: ``spread`` on the open level cells seen by at least n frames (their own
+  common bias removed), and their share of them: is the excess where the map has many looks or few?
 - ``local_n``: the map's own consistency, truth-free: the residual std of the fused heights about the plane
   of every n x n cells (n = 3, 7, 15) over what their stated variances give (``verdict._plane_fit``; the
   depth-variance map's noise share), median over full windows (``_all``: every seen cell, relief included;
@@ -35,6 +45,10 @@ import harness
 import numpy as np
 
 SMOOTH_CELLS = (2.0, 6.0)     # Gaussian sigma (cells) of the long-wavelength part
+FIXED_BLOCK_PX = 40           # px; the blocks of the image / ground-fixed split (the correlation lengths measured on
+                              # the overconfident flights are 40-180 px, METHOD 2.3.6)
+FIXED_MIN_FRAMES = 10         # frames a ground block needs for its mean over them
+LOOKS_BANDS = (10, 20)        # frames; the spread again on the cells seen by at least this many
 LOCAL_CELLS = (3, 7, 15)      # windows of the map's own plane residuals: 3 x 3 (the depth-variance map), the
                               # footprint's 7 x 7 (steps, slope), twice the footprint
 
@@ -52,8 +66,9 @@ def smooth(a: np.ndarray, ok: np.ndarray, s: float) -> np.ndarray:
     return np.where(den > 0.2, num / np.maximum(den, 1e-9), np.nan)
 
 
-def one_frame(fl: fmx.Flight, i: int, ft: Any) -> tuple[float, float] | None:
-    """(spread, spread with the current noise scale) of frame i's cell errors over their stated one-frame std."""
+def frame_errors(fl: fmx.Flight, i: int, ft: Any) -> tuple[np.ndarray, ...] | None:
+    """Frame i's cell errors over their stated one-frame std (the frame's median error removed), with the cells'
+    indices and pixels (None: no depth)."""
     from slzcli.fusion.measure import measure_frame
 
     m = measure_frame(fl.depth[i], fl.intr, fl.T[i], fl.noise[i], fl.cfg, ft.params)
@@ -65,8 +80,51 @@ def one_frame(fl: fmx.Flight, i: int, ft: Any) -> tuple[float, float] | None:
     _, ia, ib = np.intersect1d(ka, kb, return_indices=True)
     e = m.height_m[ia] - mt.height_m[ib]
     s1 = np.sqrt((m.sigma_w_m[ia] ** 2 + m.sigma_c_m[ia] ** 2) / (1.0 - ft.params.fixed_fraction))
-    z = (e - np.median(e)) / s1
+    u, v = m.pixels(ft.params.cell_m)
+    return (e - np.median(e)) / s1, m.ix[ia], m.iy[ia], u[ia], v[ia], np.array(m.depth_m)
+
+
+def one_frame(z: np.ndarray, ft: Any) -> tuple[float, float]:
+    """(spread, spread with the current noise scale) of a frame's normalised cell errors."""
     return robust(z), robust(z / math.sqrt(ft.noise_scale()))
+
+
+def _block_means(key: np.ndarray, z: np.ndarray, min_cells: int) -> dict[int, float]:
+    uk, inv = np.unique(key, return_inverse=True)
+    sums, cnts = np.bincount(inv, z), np.bincount(inv)
+    return {int(k): float(s / c) for k, s, c in zip(uk, sums, cnts, strict=True) if c >= min_cells}
+
+
+def fixed_parts(frames: list[tuple[np.ndarray, ...]], cell_m: float, focal_px: float,
+                open_keys: np.ndarray) -> dict[str, float]:
+    """The image- and ground-fixed shares of the frames' long-wavelength error (the docstring's ``image_fixed``,
+    ``ground_fixed``, ``moving``), on the open level cells (``open_keys``: their ``ix << 32 ^ iy``) as ``spread``."""
+    z_med = float(np.median([f[5] for f in frames]))
+    g = max(1, round(FIXED_BLOCK_PX * z_med / focal_px / cell_m))          # ground block, cells
+    min_cells = max(4, g * g // 4)
+    img: dict[int, list[float]] = {}
+    ground: dict[int, list[float]] = {}
+    per_frame: list[float] = []
+    for z, ix, iy, u, v, _ in frames:
+        ok = (np.abs(z) < 6.0) & np.isfinite(u) & np.isfinite(v) & (u >= 0) & (v >= 0)
+        ok &= np.isin((ix << 32) ^ (iy & 0xFFFFFFFF), open_keys)
+        bu = (u[ok] // FIXED_BLOCK_PX).astype(np.int64)
+        bv = (v[ok] // FIXED_BLOCK_PX).astype(np.int64)
+        for k, val in _block_means((bu << 20) + bv, z[ok], min_cells).items():
+            img.setdefault(k, []).append(val)
+            per_frame.append(val)
+        gx, gy = np.floor_divide(ix[ok], g), np.floor_divide(iy[ok], g)
+        for k, val in _block_means((gx << 32) + (gy & 0xFFFFFFFF), z[ok], min_cells).items():
+            ground.setdefault(k, []).append(val)
+    total = float(np.var(per_frame))
+    im = [np.mean(v) for v in img.values() if len(v) >= FIXED_MIN_FRAMES]
+    gr = [v for v in ground.values() if len(v) >= FIXED_MIN_FRAMES]
+    within = float(np.mean([np.var(v, ddof=1) for v in gr])) if gr else math.nan
+    n_mean = float(np.mean([len(v) for v in gr])) if gr else math.nan
+    ground_fixed = float(np.var([np.mean(v) for v in gr])) - within / n_mean if gr else math.nan
+    image_fixed = float(np.var(im)) if im else math.nan
+    return {"fixed_px": FIXED_BLOCK_PX, "block_var": round(total, 3), "image_fixed": round(image_fixed, 3),
+            "ground_fixed": round(ground_fixed, 3), "moving": round(total - image_fixed - ground_fixed, 3)}
 
 
 def measure(path: Path) -> dict[str, Any]:
@@ -76,11 +134,12 @@ def measure(path: Path) -> dict[str, Any]:
 
     fl = fmx.Flight(path, 3, [])
     ft = FusedTerrain(fl.cfg, fl.scorer)
-    frames = []
+    frames, errors = [], []
     for i in range(fl.n):
-        f = one_frame(fl, i, ft)
-        if f is not None:
-            frames.append(f)
+        fe = frame_errors(fl, i, ft)
+        if fe is not None:
+            frames.append(one_frame(fe[0], ft))
+            errors.append(fe)
         ft.add(fl.depth[i], fl.intr, fl.T[i], fl.noise[i], 0, i)
     out: dict[str, Any] = {"flight": path.name, **(fmx.parse_name(path.stem) or {}),
                            "noise_scale_last": round(ft.noise_scale(), 3)}
@@ -100,6 +159,15 @@ def measure(path: Path) -> dict[str, Any]:
     err = reg.h - h_true
     z = np.where(ok, (err - np.median(err[ok])) / np.sqrt(np.where(ok, reg.var, 1.0)), np.nan)
     out["spread"] = round(robust(z[open_]), 3)
+    for n in LOOKS_BANDS:         # the cells seen by at least n frames, their own common bias removed
+        sel = open_ & (reg.frames >= n)
+        if np.count_nonzero(sel) >= 50:
+            e = err[sel]
+            out[f"spread_looks_{n}"] = round(robust((e - np.median(e)) / np.sqrt(reg.var[sel])), 3)
+            out[f"share_looks_{n}"] = round(float(np.count_nonzero(sel) / np.count_nonzero(open_)), 3)
+    jj, ii = np.nonzero(open_)
+    out.update(fixed_parts(errors, ft.params.cell_m, 0.5 * (fl.intr.fx + fl.intr.fy),
+                           ((ii.astype(np.int64) + reg.x0) << 32) ^ ((jj.astype(np.int64) + reg.y0) & 0xFFFFFFFF)))
     out["error_robust_m"] = round(robust(err[open_]), 4)
     out["sigma_median_m"] = round(float(np.median(np.sqrt(reg.var[open_]))), 4)
     for s in SMOOTH_CELLS:
