@@ -302,10 +302,13 @@ def _params(window_m: float = 40.0) -> FusionParams:
     return FusionParams.from_config(load_config(None, [f"terrain.fusion.window_m={window_m}"]))
 
 
-def _tilted(rng: np.random.Generator, x: float, y: float, z: float) -> np.ndarray:
-    """A downward pose with a random yaw and up to 15 degrees of roll and pitch."""
+def _tilted(rng: np.random.Generator, x: float, y: float, z: float, steep: bool = False) -> np.ndarray:
+    """A downward pose with a random yaw and up to 15 degrees of roll and pitch; ``steep``: rolled 32-45 degrees
+    (the test camera's half view is 27.5 degrees across its rows: the point below it is out of the view)."""
     T = pose(x, y, z, yaw_deg=float(rng.uniform(-180, 180)))
     ax, ay = np.radians(rng.uniform(-15, 15, 2))
+    if steep:
+        ax = math.copysign(math.radians(rng.uniform(32, 45)), ax)
     rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
     ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
     T[:3, :3] = rx @ ry @ T[:3, :3]
@@ -396,25 +399,27 @@ def _copy(g: FusedGrid) -> FusedGrid:
 @pytest.mark.parametrize("seed", range(4))
 def test_fuse_is_the_array_expressions_to_the_bit(seed: int) -> None:
     """A random flight (moves, hovers, jumps of the window's side so slots are taken over, outliers the gate
-    rejects): after every frame the grid (state, owners, counts, columns) and the frame's stats are the numpy
-    code's, bit for bit."""
+    rejects, frames pitched so far that the point below the camera is out of the view): after every frame the grid
+    (state, owners, counts, the columns' levels seen free and blocked) and the frame's stats are the numpy code's,
+    bit for bit."""
     rng = np.random.default_rng(100 + seed)
     params = _params(12.0)
     noise = DepthNoise(tuple(0.003 / np.sqrt(b) for b in (1, 2, 4, 8, 16)), "estimated")
     got, want = FusedGrid.empty(params), FusedGrid.empty(params)
     x = y = 0.0
-    rejected = taken = 0
+    rejected = taken = steep = 0
     for i in range(14):
         if i in (5, 10):       # a window's side on: the new cells take the slots of the ones left behind
             x += params.side_cells * params.cell_m
         else:
             step = rng.choice([0.0, 0.05, 0.5])
             x, y = x + step * rng.normal(), y + step * rng.normal()
-        T = _tilted(rng, x, y, float(rng.uniform(3.0, 7.0)))
+        T = _tilted(rng, x, y, float(rng.uniform(3.0, 7.0)), steep=i % 4 == 3)
         depth = _frame(rng, T)
         depth[rng.random(depth.shape) < 0.01] -= 2.0          # outliers
         cells = frame_cells(depth, INTR, T, noise, params, float(rng.uniform(1, 3)), float(rng.uniform(0, 1)))
         assert cells is not None
+        steep += not nadir_in_view(cells)
         k, owned = got.slots(cells.ix, cells.iy)
         taken += int(np.count_nonzero(~owned & (got.owner[k] != _EMPTY)))
         a, b = fuse(got, cells, i), numpy_fuse(want, cells, i)
@@ -425,6 +430,8 @@ def test_fuse_is_the_array_expressions_to_the_bit(seed: int) -> None:
             assert np.array_equal(u, v, equal_nan=u.dtype.kind == "f"), (i, name)
         rejected += a.rejected
     assert rejected > 0 and taken > 0      # the gate rejected some, new cells took slots over
+    assert steep > 0                       # some frames had the nadir out of the view
+    assert np.any(got.column) and np.any(got.blocked & ~got.column)   # levels seen free, some only blocked (outliers)
 
 
 def numpy_region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
