@@ -252,6 +252,7 @@ class FusionCfg:
     gate_sigma: float = rng(0, lo_open=True)
     two_heights_fraction: float = rng(0, 1, lo_open=True)
     column_step_m: float = rng(0, lo_open=True)
+    border_sigma: float = rng(0)
     pose_sigma_m: float = rng(0)
     pose_sigma_deg: float = rng(0)
     decided_margin: float = rng(1)

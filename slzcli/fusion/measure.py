@@ -57,6 +57,7 @@ class FusionParams:
     max_slope_deg: float
     column_m: float             # the descent column's height above a site (control.desired_depth_m)
     column_step_m: float        # the column above it checked for overhangs at levels this far apart
+    border_sigma: float         # a frame measures cells this many sideways noise reaches inside its image border
     square_m: float             # side of the square a landing needs clear (the mask's footprint + margins)
 
     @classmethod
@@ -72,7 +73,7 @@ class FusionParams:
                    confidence_sigma=config.terrain.limits.confidence_sigma,
                    decided_margin=f.decided_margin, unsafe_margin=f.unsafe_margin, max_step_m=uav.max_step_m,
                    max_slope_deg=uav.max_slope_deg, column_m=config.control.desired_depth_m,
-                   column_step_m=f.column_step_m,
+                   column_step_m=f.column_step_m, border_sigma=f.border_sigma,
                    square_m=mc.margin_factor * max(uav.footprint_m) + 2.0 * uav.clearance_m)
 
 
@@ -249,6 +250,12 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
         _MIN_SAMPLES, t, params.cell_m, cxy, params.pose_sigma_m ** 2, rad2)
     if not found:
         return None
+    keep = inside_border(cells_x, cells_y, h, T, intr, params, border_px(noise, z_med, intr, params))
+    if keep is not None:
+        if not keep.any():
+            return None
+        cells_x, cells_y, h, spread, zc, upc, pose_var = (v[keep] for v in (cells_x, cells_y, h, spread, zc, upc,
+                                                                            pose_var))
     sigma = cell_sigma_m(noise, zc, f, params.cell_m) * upc
     wf = params.white_fraction
     sw = sigma * math.sqrt(wf)
@@ -256,6 +263,27 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
     return FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
                       step_per_sigma, tan_slope_per_sigma, kernels.readonly(depth, np.float32),
                       float(noise.a1_per_m))
+
+
+def border_px(noise: DepthNoise, depth_m: float, intr: Intrinsics, params: FusionParams) -> float:
+    """How far inside the image border a frame measures cells (px): ``border_sigma`` times the sideways reach of
+    one pixel's depth error at the image's corner-most side, ``a_1 z x r`` (a depth error ``a_1 z^2`` moves a sample
+    along its ray, ``r / f`` of it sideways, ``f / z`` px a metre)."""
+    half = max(intr.cx, intr.width - intr.cx, intr.cy, intr.height - intr.cy)
+    return params.border_sigma * float(noise.a1_per_m) * depth_m * half
+
+
+def inside_border(ix: np.ndarray, iy: np.ndarray, h: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics,
+                  params: FusionParams, margin_px: float) -> np.ndarray | None:
+    """The cells whose centre, at its measured height, lies ``margin_px`` or more inside the image (None: all,
+    no margin). A cell at the edge of what the frame sees gets the samples its noise pushed outwards (too far:
+    low) and none pushed in from beyond the view: its mean is biased, and only there (METHOD 2.3.6)."""
+    if margin_px <= 0:
+        return None
+    u, v, front = project_cells(ix, iy, h, T_world_camera, intr, params.cell_m)
+    with np.errstate(invalid="ignore"):
+        return (front & (u >= margin_px - 0.5) & (u <= intr.width - 0.5 - margin_px)
+                & (v >= margin_px - 0.5) & (v <= intr.height - 0.5 - margin_px))
 
 
 def frame_limit_ratios(noise: DepthNoise, depth_m: float, focal_px: float, config: Config,

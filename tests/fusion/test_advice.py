@@ -285,8 +285,9 @@ def test_the_step_advice_is_what_landing_json_the_summary_and_the_report_carry()
 
 def test_frames_promised_are_what_the_tolerance_test_needs() -> None:
     """A 0.1 m-a-frame transect at 8 m (a = 0.001, white 0.2): after 40 frames 4900 cells are decided by their noise
-    and none passes the tolerance test (the largest fitted step of a square plus its limit, over hundreds of
-    windows, still above 0.09 m). The advice reads that test as it stands: 14-68 more frames (seeds 0-2), and no
+    and all but a few pass no tolerance test (the largest fitted step of a square plus its limit, over hundreds of
+    windows, still above 0.09 m; 0 / 0 / 4 cells pass on seeds 0-2, 0 / 0 / 2 before a frame measured only the
+    cells inside its image border). The advice reads that test as it stands: 14-68 more frames (seeds 0-2), and no
     promise made during the flight comes due unkept. It used to take a level square's fitted step for one limit
     and promised "1 more frame" at the end, 16-27 more on the way, every one of 34 promises broken."""
     for seed in range(3):
@@ -300,5 +301,5 @@ def test_frames_promised_are_what_the_tolerance_test_needs() -> None:
             if i >= 5 and adv is not None and adv.frames is not None:
                 promised.append((i + adv.frames, adv.x_m, adv.y_m))
         funnel = fm.funnel.as_dict()
-        assert funnel["decided"] > 1000 and funnel["tolerances"] <= 2 and adv is not None
+        assert funnel["decided"] > 1000 and funnel["tolerances"] <= 4 and adv is not None
         assert adv.frames is not None and adv.frames >= 10
