@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -250,40 +250,41 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
         _MIN_SAMPLES, t, params.cell_m, cxy, params.pose_sigma_m ** 2, rad2)
     if not found:
         return None
-    keep = inside_border(cells_x, cells_y, h, T, intr, params, border_px(noise, z_med, intr, params))
-    if keep is not None:
-        if not keep.any():
-            return None
-        cells_x, cells_y, h, spread, zc, upc, pose_var = (v[keep] for v in (cells_x, cells_y, h, spread, zc, upc,
-                                                                            pose_var))
     sigma = cell_sigma_m(noise, zc, f, params.cell_m) * upc
     wf = params.white_fraction
     sw = sigma * math.sqrt(wf)
     sc = sigma * math.sqrt(1.0 - wf - params.fixed_fraction)
-    return FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
-                      step_per_sigma, tan_slope_per_sigma, kernels.readonly(depth, np.float32),
-                      float(noise.a1_per_m))
+    return within_border(FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
+                                    step_per_sigma, tan_slope_per_sigma, kernels.readonly(depth, np.float32),
+                                    float(noise.a1_per_m)), params)
 
 
-def border_px(noise: DepthNoise, depth_m: float, intr: Intrinsics, params: FusionParams) -> float:
+def border_px(pixel_a: float, depth_m: float, intr: Intrinsics, params: FusionParams) -> float:
     """How far inside the image border a frame measures cells (px): ``border_sigma`` times the sideways reach of
-    one pixel's depth error at the image's corner-most side, ``a_1 z x r`` (a depth error ``a_1 z^2`` moves a sample
+    one pixel's depth error at the image's farthest side, ``a_1 z x r`` (a depth error ``a_1 z^2`` moves a sample
     along its ray, ``r / f`` of it sideways, ``f / z`` px a metre)."""
     half = max(intr.cx, intr.width - intr.cx, intr.cy, intr.height - intr.cy)
-    return params.border_sigma * float(noise.a1_per_m) * depth_m * half
+    return params.border_sigma * pixel_a * depth_m * half
 
 
-def inside_border(ix: np.ndarray, iy: np.ndarray, h: np.ndarray, T_world_camera: np.ndarray, intr: Intrinsics,
-                  params: FusionParams, margin_px: float) -> np.ndarray | None:
-    """The cells whose centre, at its measured height, lies ``margin_px`` or more inside the image (None: all,
-    no margin). A cell at the edge of what the frame sees gets the samples its noise pushed outwards (too far:
-    low) and none pushed in from beyond the view: its mean is biased, and only there (METHOD 2.3.6)."""
-    if margin_px <= 0:
-        return None
-    u, v, front = project_cells(ix, iy, h, T_world_camera, intr, params.cell_m)
+def within_border(m: FrameCells, params: FusionParams) -> FrameCells | None:
+    """The frame's cells whose centre, at its measured height, lies ``border_px`` or more inside the image (None:
+    none). A cell at the edge of what the frame sees gets the samples its noise pushed outwards (too far: low) and
+    none pushed in from beyond the view: its mean is biased, and only there (METHOD 2.3.6)."""
+    margin = border_px(m.pixel_a, m.depth_m, m.intrinsics, params)
+    if margin <= 0:
+        return m
+    intr = m.intrinsics
+    u, v, front = project_cells(m.ix, m.iy, m.height_m, m.T_world_camera, intr, params.cell_m)
     with np.errstate(invalid="ignore"):
-        return (front & (u >= margin_px - 0.5) & (u <= intr.width - 0.5 - margin_px)
-                & (v >= margin_px - 0.5) & (v <= intr.height - 0.5 - margin_px))
+        keep = (front & (u >= margin - 0.5) & (u <= intr.width - 0.5 - margin)
+                & (v >= margin - 0.5) & (v <= intr.height - 0.5 - margin))
+    if keep.all():
+        return m
+    if not keep.any():
+        return None
+    return replace(m, **{f: getattr(m, f)[keep] for f in ("ix", "iy", "height_m", "spread_m", "sigma_w_m",
+                                                          "sigma_c_m", "pose_var_m2")})
 
 
 def frame_limit_ratios(noise: DepthNoise, depth_m: float, focal_px: float, config: Config,

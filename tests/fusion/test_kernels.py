@@ -26,15 +26,14 @@ from slzcli.fusion.measure import (
     CellView,
     FrameCells,
     FusionParams,
-    border_px,
     cell_sigma_m,
     cell_view,
     frame_cells,
     frame_median_m,
-    inside_border,
     sample_block_px,
     sample_window_px,
     window_depths,
+    within_border,
 )
 from slzcli.geometry import fit_intrinsics, pixel_rays, valid_depth
 from slzcli.terrain.geometry import block_depth, median_depth_m
@@ -147,14 +146,8 @@ def numpy_frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camer
     if params.pose_sigma_rad > 0:
         r2 = ((cells_x + 0.5) * params.cell_m - t[0]) ** 2 + ((cells_y + 0.5) * params.cell_m - t[1]) ** 2
         pose_var += r2 * params.pose_sigma_rad ** 2
-    keep = inside_border(cells_x, cells_y, h, T, intr, params, border_px(noise, z_med, intr, params))
-    if keep is not None:
-        if not keep.any():
-            return None
-        cells_x, cells_y, h, spread, sw, sc, pose_var = (v[keep] for v in (cells_x, cells_y, h, spread, sw, sc,
-                                                                          pose_var))
-    return FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
-                      step_per_sigma, tan_slope_per_sigma, depth, noise.a1_per_m)
+    return within_border(FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
+                                    step_per_sigma, tan_slope_per_sigma, depth, noise.a1_per_m), params)
 
 
 def _floor(w: np.ndarray, offset: np.float32, inv: np.float32) -> np.ndarray:
