@@ -185,11 +185,11 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
     """Advice for the undecided square with the best cleared score (None: nothing undecided is a candidate).
 
     A candidate is held by what looks can change: its landing square and the maps' windows around it are seen whole
-    and the descent column above the square was in view. Ground held by too narrow a view or an unseen column is
-    no candidate for frames: more of the same flight would not decide it, and the reason's verdict funnel
-    (``fusion/funnel.py``) says what would. Where no square has its whole column in view, squares with their
-    centre's column in view are read for what they hold (a step or a slope beyond the tolerance), never promised
-    frames.
+    and the column above the square was seen clear (``kernels.column_clear``). Ground held by too narrow a view, an
+    unseen column or an overhang is no candidate for frames: more of the same flight would not decide it, and the
+    reason's verdict funnel (``fusion/funnel.py``) says what would. Where no square has its whole column clear,
+    squares with their centre's column clear are read for what they hold (a step or a slope beyond the tolerance),
+    never promised frames.
 
     ``shift_px_per_frame``: the current motion (median image shift of cells between frames);
     ``single_step_m`` / ``single_tan``: one frame's limits at ``depth_m`` (``limits.working_scale``);
@@ -206,7 +206,7 @@ def advise(fm: FusedMaps, params: FusionParams, shift_px_per_frame: float, depth
     if not base.any():
         return None
     adv = _advise(fm, base, params, shift_px_per_frame, depth_m, focal_px, single_step_m, single_tan, hover)
-    # the square's column is not all in view: what it holds is a finding, a promise of frames is not
+    # the square's column is not all seen clear: what it holds is a finding, a promise of frames is not
     return adv if adv is not None and (adv.step_m is not None or adv.slope_deg is not None) else None
 
 

@@ -19,7 +19,7 @@ Verdict per cell:
              the step fitted across every cell of the square (and in the windows centred up to half a
              window beyond it along the step, which read a step ending in the square whole) and the slope
              of its plane stay within the tolerances by those limits (estimate + limit <= tolerance), the
-             descent column above its whole square was seen, and its connected patch of such cells is not on a
+             column above its whole square was seen clear, and its connected patch of such cells is not on a
              raised surface (below);
   UNSAFE     a defect is known in its square (a step or slope beyond the tolerance by more than (k + 1) / k
              times its limit, a refused cell), or the mask fails on a square whose limits are
@@ -100,7 +100,7 @@ class FusedMaps:
                                            # a window too little seen)
     covered: np.ndarray | None = None      # the cells whose landing square and the windows around it are seen whole
                                            # (what ``decided`` needs besides the noise)
-    column: np.ndarray | None = None       # the cells whose landing square's descent column was seen whole
+    column: np.ndarray | None = None       # the cells whose landing square's column was seen clear whole
 
     def counts(self) -> dict[str, int]:
         return {name: int(np.count_nonzero(self.verdict == code)) for code, name in VERDICT_NAMES.items()}
