@@ -256,24 +256,25 @@ def frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camera: np.
     sc = sigma * math.sqrt(1.0 - wf - params.fixed_fraction)
     return within_border(FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
                                     step_per_sigma, tan_slope_per_sigma, kernels.readonly(depth, np.float32),
-                                    float(noise.a1_per_m)), params)
+                                    float(noise.a1_per_m)), zc, params)
 
 
-def border_px(pixel_a: float, depth_m: float, intr: Intrinsics, params: FusionParams) -> float:
-    """How far inside the image border a frame measures cells (px): ``border_sigma`` times the sideways reach of
-    one pixel's depth error at the image's farthest side, ``a_1 z x r`` (a depth error ``a_1 z^2`` moves a sample
-    along its ray, ``r / f`` of it sideways, ``f / z`` px a metre)."""
+def border_px(pixel_a: float, depth_m: np.ndarray | float, intr: Intrinsics, params: FusionParams) -> np.ndarray:
+    """How far inside the image border a frame measures a cell at depth ``depth_m`` (px): ``border_sigma`` times the
+    sideways reach of one pixel's depth error at the image's farthest side, ``a_1 z x r`` (a depth error ``a_1 z^2``
+    moves a sample along its ray, ``r / f`` of it sideways, ``f / z`` px a metre)."""
     half = max(intr.cx, intr.width - intr.cx, intr.cy, intr.height - intr.cy)
-    return params.border_sigma * pixel_a * depth_m * half
+    return params.border_sigma * pixel_a * half * np.asarray(depth_m, np.float64)
 
 
-def within_border(m: FrameCells, params: FusionParams) -> FrameCells | None:
-    """The frame's cells whose centre, at its measured height, lies ``border_px`` or more inside the image (None:
-    none). A cell at the edge of what the frame sees gets the samples its noise pushed outwards (too far: low) and
-    none pushed in from beyond the view: its mean is biased, and only there (METHOD 2.3.6)."""
-    margin = border_px(m.pixel_a, m.depth_m, m.intrinsics, params)
-    if margin <= 0:
+def within_border(m: FrameCells, depth_m: np.ndarray, params: FusionParams) -> FrameCells | None:
+    """The frame's cells whose centre, at its measured height, lies ``border_px`` at their depth ``depth_m`` or more
+    inside the image (None: none). A cell at the edge of what the frame sees gets the samples its noise pushed
+    outwards (too far: low) and none pushed in from beyond the view: its mean is biased, and only there (METHOD
+    2.3.6). Each cell's own depth: a tilted camera's far side reaches farther."""
+    if params.border_sigma <= 0 or m.pixel_a <= 0:
         return m
+    margin = border_px(m.pixel_a, depth_m, m.intrinsics, params)
     intr = m.intrinsics
     u, v, front = project_cells(m.ix, m.iy, m.height_m, m.T_world_camera, intr, params.cell_m)
     with np.errstate(invalid="ignore"):

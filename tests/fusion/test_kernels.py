@@ -147,7 +147,7 @@ def numpy_frame_cells(depth_m: np.ndarray, intrinsics: Intrinsics, T_world_camer
         r2 = ((cells_x + 0.5) * params.cell_m - t[0]) ** 2 + ((cells_y + 0.5) * params.cell_m - t[1]) ** 2
         pose_var += r2 * params.pose_sigma_rad ** 2
     return within_border(FrameCells(cells_x, cells_y, h, spread, sw, sc, pose_var, t.copy(), T, intr, z_med,
-                                    step_per_sigma, tan_slope_per_sigma, depth, noise.a1_per_m), params)
+                                    step_per_sigma, tan_slope_per_sigma, depth, noise.a1_per_m), zc, params)
 
 
 def _floor(w: np.ndarray, offset: np.float32, inv: np.float32) -> np.ndarray:
