@@ -365,13 +365,11 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
             if free & bit:
                 entered = True
                 continue
-            pz = state[k, H] + column_m + lv * column_step - t[2]
-            zc = (r[0, 2] * px + r[1, 2] * py) + r[2, 2] * pz
+            uc, vc, zc = _pixel(px, py, state[k, H] + column_m + lv * column_step, r, t, cam)
             if zc <= 0:
                 break                  # this level and the ones above are behind the camera
-            inv = 1.0 / zc
-            ju = int(np.floor(cam[0] * ((r[0, 0] * px + r[1, 0] * py) + r[2, 0] * pz) * inv + cam[2] + 0.5))
-            jv = int(np.floor(cam[1] * ((r[0, 1] * px + r[1, 1] * py) + r[2, 1] * pz) * inv + cam[3] + 0.5))
+            ju = int(np.floor(uc + 0.5))
+            jv = int(np.floor(vc + 0.5))
             if ju < 0 or ju >= depth.shape[1] or jv < 0 or jv >= depth.shape[0]:
                 if entered or nadir_in_view:
                     break

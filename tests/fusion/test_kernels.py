@@ -277,8 +277,7 @@ def _column(grid: FusedGrid, view: CellView, k: np.ndarray, h: np.ndarray, m: Fr
     xc, yc, zc = (view.xy[i][:, None] + view.r_z[i] * pz for i in range(3))
     intr = view.intr
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / zc
-        u, v = intr.fx * xc * inv + intr.cx, intr.fy * yc * inv + intr.cy
+        u, v = intr.fx * xc / zc + intr.cx, intr.fy * yc / zc + intr.cy
     bits = np.left_shift(np.uint64(1), lv.astype(np.uint64))
     before = (grid.column[k][:, None] & bits[None, :]) != 0
     with np.errstate(invalid="ignore"):
