@@ -7,10 +7,10 @@ own local residuals would say about it without the truth.
 On flights rendered by benchmarks/fusion_render.py (true poses, exact depth beside the measured one), every
 frame goes through the fused method's own code (``FusedTerrain.add``, the run's noise estimate as
 benchmarks/fusion_matrix.py replays it). Per flight:
-- ``frame_spread``, ``frame_spread_scaled``: one frame's cell error (measured - exact depth through the same
-  cell measurement, ``measure_frame``; the frame's median error removed) over its stated one-frame std, without
-  and with the noise scale the innovations had asked for by then (robust spread 1.4826 MAD, median over
-  frames): is one look's noise right?
+- ``frame_spread``: one frame's cell error (measured - exact depth through the same cell measurement,
+  ``measure_frame``; the frame's median error removed) over its stated one-frame std (robust spread 1.4826 MAD,
+  median over frames): is one look's noise right? ``noise_scale_median``: the median over the open level cells
+  of the fused map's own noise scale (``grid.noise_scale``) at the end.
 - ``spread``: the fused cell error over its stated std on open level cells (``fusion_matrix.calibration``'s
   cells and bias), and its split into a long-wavelength part (the normalised error smoothed by a Gaussian
   of 2 and 6 cells, ``lp2``, ``lp6``) and the rest (``hp2``, ``hp6``): where the fused map is overconfident,
@@ -84,9 +84,9 @@ def frame_errors(fl: fmx.Flight, i: int, ft: Any) -> tuple[np.ndarray, ...] | No
     return (e - np.median(e)) / s1, m.ix[ia], m.iy[ia], u[ia], v[ia], np.array(m.depth_m)
 
 
-def one_frame(z: np.ndarray, ft: Any) -> tuple[float, float]:
-    """(spread, spread with the current noise scale) of a frame's normalised cell errors."""
-    return robust(z), robust(z / math.sqrt(ft.noise_scale()))
+def one_frame(z: np.ndarray) -> float:
+    """The spread of a frame's normalised cell errors."""
+    return robust(z)
 
 
 def _block_means(key: np.ndarray, z: np.ndarray, min_cells: int) -> dict[int, float]:
@@ -128,6 +128,7 @@ def fixed_parts(frames: list[tuple[np.ndarray, ...]], cell_m: float, focal_px: f
 
 
 def measure(path: Path) -> dict[str, Any]:
+    from slzcli.fusion import kernels
     from slzcli.fusion.grid import region, seen_bounds
     from slzcli.fusion.session import FusedTerrain
     from slzcli.fusion.verdict import _box, _plane_fit
@@ -138,18 +139,19 @@ def measure(path: Path) -> dict[str, Any]:
     for i in range(fl.n):
         fe = frame_errors(fl, i, ft)
         if fe is not None:
-            frames.append(one_frame(fe[0], ft))
+            frames.append(one_frame(fe[0]))
             errors.append(fe)
         ft.add(fl.depth[i], fl.intr, fl.T[i], fl.noise[i], 0, i)
-    out: dict[str, Any] = {"flight": path.name, **(fmx.parse_name(path.stem) or {}),
-                           "noise_scale_last": round(ft.noise_scale(), 3)}
+    out: dict[str, Any] = {"flight": path.name, **(fmx.parse_name(path.stem) or {})}
     if frames:
-        out["frame_spread"] = round(float(np.median([f[0] for f in frames])), 3)
-        out["frame_spread_scaled"] = round(float(np.median([f[1] for f in frames])), 3)
+        out["frame_spread"] = round(float(np.median(frames)), 3)
     b = seen_bounds(ft.grid) if ft.grid is not None else None
     if ft.grid is None or b is None:
         return out
     reg = region(ft.grid, *b)
+    g = ft.grid
+    raw_var = kernels.region_cells(g.owner, g.state, g.frames, g.rejected, g.column, g.blocked, *b,
+                                   g.params.side_cells, g.params.fixed_fraction)[1][1]    # before the noise scale
     h_true, level = fmx.cell_truth(fl.d, reg)
     ok = reg.seen & level & np.isfinite(reg.h) & (reg.var > 0)
     dist = cv2.distanceTransform(level.astype(np.uint8), cv2.DIST_L2, 5)
@@ -159,6 +161,7 @@ def measure(path: Path) -> dict[str, Any]:
     err = reg.h - h_true
     z = np.where(ok, (err - np.median(err[ok])) / np.sqrt(np.where(ok, reg.var, 1.0)), np.nan)
     out["spread"] = round(robust(z[open_]), 3)
+    out["noise_scale_median"] = round(float(np.median(reg.var[open_] / raw_var[open_])), 3)
     for n in LOOKS_BANDS:         # the cells seen by at least n frames, their own common bias removed
         sel = open_ & (reg.frames >= n)
         if np.count_nonzero(sel) >= 50:

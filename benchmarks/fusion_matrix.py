@@ -283,7 +283,7 @@ def measure_fused_path(fl: Flight) -> dict[str, Any]:
         "looks_median": float(np.median(reg.looks[reg.seen])) if reg.seen.any() else None,
         "verdict_cells": fm.counts(), "advice": None if adv is None else adv.as_dict(), "calibration": cal,
         "fuse_cpu_ms_median": float(np.median(cpu)), "fuse_cpu_ms_p90": float(np.percentile(cpu, 90)),
-        "verdict_cpu_ms_median": float(np.median(cpu_verdict)), "noise_scale_last": ft.noise_scale(),
+        "verdict_cpu_ms_median": float(np.median(cpu_verdict)),
         "grid_mb": round(ft.grid.nbytes() / 1e6, 1), "predicted_step_m": _predictions(fl, ft.params),
     }
 

@@ -134,7 +134,8 @@ def cell_noise(stereo: Stereo, cell_px: float, trials: int = 4) -> float:
 def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float, seed: int, frames: int,
         step_m: float, altitude_m: float = 8.0, block: Block | None = None, start_x: float | None = None,
         region_m: float = 8.0, noise_white: bool = False, slope_deg: float = 0.0,
-        slab: Slab | None = None) -> Iterator[tuple[int, Any, Any]]:
+        slab: Slab | None = None, rough_from_x: float | None = None,
+        rough_factor: float = 0.0) -> Iterator[tuple[int, Any, Any]]:
     """Fly ``frames`` frames ``step_m`` apart along world x (centred on 0) over the scene; yield, per frame,
     (index, FusedTerrain, FusedMaps of the ``region_m`` square around the origin). ``slope_deg`` tilts the
     ground about the y axis (its height x tan(slope_deg)); the block needs level ground."""
@@ -156,8 +157,31 @@ def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float,
         depth = exact_depth(T, block, slope_deg=slope_deg)
         if slab is not None:
             depth = slab_depth(T, slab, depth)
-        ft.add(stereo.measure(depth), INTR, T, noise, 0, i)
+        measured = stereo.measure(depth)
+        if rough_from_x is not None:
+            measured = ground_noise(T, depth, measured, ft.params.cell_m, stereo.rng, rough_from_x,
+                                    rough_factor * a_cell)
+        ft.add(measured, INTR, T, noise, 0, i)
         yield i, ft, ft.maps_around(0.0, 0.0, region_m)
+
+
+def ground_noise(T: np.ndarray, depth: np.ndarray, measured: np.ndarray, cell_m: float, rng: np.random.Generator,
+                 from_x: float, a_extra: float, intr: Intrinsics = INTR) -> np.ndarray:
+    """``measured`` with an error in inverse depth of std ``a_extra`` (1/m) added where the ground (world x, by the
+    exact ``depth``) lies at or beyond ``from_x``: one value per ground cell of ``cell_m`` and frame, so every
+    sample of a cell shares it (ground that measures worse than the camera's noise says: a rough or shiny
+    patch, relief within a cell)."""
+    u = (np.arange(intr.width) - intr.cx) / intr.fx
+    v = (np.arange(intr.height) - intr.cy) / intr.fy
+    rx, ry = np.meshgrid(u, v)
+    d = np.stack([rx, ry, np.ones_like(rx)], -1) @ T[:3, :3].T
+    x = T[0, 3] + depth * d[..., 0]
+    y = T[1, 3] + depth * d[..., 1]
+    ix, iy = np.floor(x / cell_m).astype(np.int64), np.floor(y / cell_m).astype(np.int64)
+    x0, y0 = ix.min(), iy.min()
+    e = rng.standard_normal((iy.max() - y0 + 1, ix.max() - x0 + 1))[iy - y0, ix - x0]
+    inv = 1.0 / measured + np.where(x >= from_x, a_extra * e, 0.0)
+    return (1.0 / inv).astype(np.float32)
 
 
 def cell_centres(reg: Any) -> tuple[np.ndarray, np.ndarray]:

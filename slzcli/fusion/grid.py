@@ -6,7 +6,7 @@ frame (a grid centred on the vehicle and blended index by index, as PX4's safe_l
 mixes ground whenever the vehicle moves). Memory is a window of ``side_cells`` x ``side_cells`` slots
 that follows the UAV: cell (ix, iy) lives in slot (iy mod side, ix mod side) with its indices as the
 slot's owner; a cell that comes into view where an older one, ``side_cells`` away, still sits takes the
-slot over. Memory is fixed (34 MB at the defaults) however long the flight.
+slot over. Memory is fixed (38 MB at the defaults) however long the flight.
 
 State per cell. The measurement of a frame (``measure.FrameCells``) is ``y = h + c + w``: the height h,
 an error c that the frame's stereo pattern shares with the next frames as long as the cell stays where
@@ -23,12 +23,17 @@ variance is its first measurement's, so nothing is wiped for being noisy (ETH el
 variance clamp sets cells above 0.03^2 m^2 to infinity, every D435 cell at 8 m). A cell whose frames are
 rejected more than ``two_heights_fraction`` of the time holds two heights (an overhang seen from two
 sides, a pole, something moving): it is refused, never safe.
+
+Noise scale. Every look also adds its normalised innovation squared to the cell; what a region reports is
+scaled by their mean over the landing footprint around each cell (``noise_scale``): the ground's own excess
+over the stated noise, where it is.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from slzcli.fusion import kernels
@@ -36,7 +41,6 @@ from slzcli.fusion.measure import FrameCells, FusionParams
 
 _EMPTY = np.iinfo(np.int64).min      # owner of a slot no cell has used yet
 _RHO_MAX = 1.0 - 1e-9               # guards 1 - rho^2 against round-off
-_FIELDS = 13                         # the float state of a cell, one row per slot (kernels names the fields)
 
 
 def cell_key(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
@@ -51,12 +55,13 @@ class FusedGrid:
     Slot k = (iy mod side) side + (ix mod side). ``state[k]`` holds the float fields (H, C: the height and
     the shared error; PHH, PHC, PCC: their covariance; SIGC, SIG1: the shared error's std and one frame's
     std at the last look; U, V: the cell's image position then; SPREAD: the largest within-cell height
-    std of an accepted frame; POSEV: the smallest pose variance; STEPR, TANR: the last look's limit ratios).
+    std of an accepted frame; POSEV: the smallest pose variance; STEPR, TANR: the last look's limit ratios;
+    NISS, NISN: the sum of its looks' normalised innovations squared and their number).
     """
 
     params: FusionParams
     owner: np.ndarray       # int64 (side^2,): cell_key of the cell in each slot (_EMPTY: none)
-    state: np.ndarray       # float64 (side^2, 13)
+    state: np.ndarray       # float64 (side^2, kernels.FIELDS)
     frames: np.ndarray      # int32 frames that measured the cell
     rejected: np.ndarray    # int32 of them rejected by the gate
     column: np.ndarray      # uint64: the levels of the column above the cell some frame saw free (kernels.update_cells)
@@ -67,9 +72,9 @@ class FusedGrid:
     @classmethod
     def empty(cls, params: FusionParams) -> FusedGrid:
         n = params.side_cells * params.side_cells
-        return cls(params, np.full(n, _EMPTY, np.int64), np.zeros((n, _FIELDS), np.float64), np.zeros(n, np.int32),
-                   np.zeros(n, np.int32), np.zeros(n, np.uint64), np.zeros(n, np.uint64), np.full(n, -1, np.int64),
-                   np.array([_EMPTY, _EMPTY], np.int64))
+        return cls(params, np.full(n, _EMPTY, np.int64), np.zeros((n, kernels.FIELDS), np.float64),
+                   np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n, np.uint64), np.zeros(n, np.uint64),
+                   np.full(n, -1, np.int64), np.array([_EMPTY, _EMPTY], np.int64))
 
     def nbytes(self) -> int:
         return sum(getattr(self, f).nbytes for f in self.__dataclass_fields__ if f != "params")
@@ -89,7 +94,6 @@ class FuseStats:
     new: int             # of them seen for the first time (or taking over a slot)
     rejected: int        # measurements the gate rejected
     median_shift_px: float   # median image shift of its cells since their last look
-    nis_median: float        # median normalised innovation squared of its cells seen before (chi-square 1: 0.455)
 
 
 def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
@@ -118,7 +122,7 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     def f64(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, np.float64)
 
-    new, rejected, nis = kernels.update_cells(
+    new, rejected = kernels.update_cells(
         grid.owner, grid.state, grid.frames, grid.rejected, grid.column, grid.blocked, grid.last_frame, k, owned, u_px,
         v_px, rho, ix, iy, y, f64(m.sigma_w_m), f64(m.sigma_c_m), f64(m.spread_m), f64(m.pose_var_m2),
         p.gate_sigma ** 2, max(1.0 - p.fixed_fraction, 1e-9), float(m.step_per_sigma), float(m.tan_slope_per_sigma),
@@ -126,8 +130,7 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
         float(m.pixel_a), float(p.confidence_sigma), _nadir_in_view(r, cam, intr.width, intr.height))
     _sweep(grid, m)
     med = float(kernels.median_inplace(shift[owned]))
-    nis_med = float(kernels.median_inplace(nis))
-    return FuseStats(len(m), int(new), int(rejected), med, nis_med)
+    return FuseStats(len(m), int(new), int(rejected), med)
 
 
 def _nadir_in_view(r: np.ndarray, cam: np.ndarray, width: int, height: int) -> bool:
@@ -196,15 +199,35 @@ class Region:
 def region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
     """Cells x0..x0+nx-1, y0..y0+ny-1 as dense arrays (``nx``, ``ny`` at most the window's side), gathered by one
     compiled pass (``kernels.region_cells``). The terrain's variance adds the part fixed to the ground, which
-    never averages (``fixed_fraction`` of one frame's variance); its looks are one frame's variance over it."""
+    never averages (``fixed_fraction`` of one frame's variance); its looks are one frame's variance over it; every
+    variance is scaled by the ground's own noise scale (``noise_scale``)."""
     s = grid.params.side_cells
     nx, ny = min(nx, s), min(ny, s)
     seen, f64, looks, frames, rejected, f32, column = kernels.region_cells(
         grid.owner, grid.state, grid.frames, grid.rejected, grid.column, grid.blocked, int(x0), int(y0), int(nx),
         int(ny), int(s), float(grid.params.fixed_fraction))
-    h, var, pose_var, p_hc, p_cc, sig_c, sig1 = f64
-    return Region(x0, y0, grid.params.cell_m, seen, h, var, pose_var, looks, frames, rejected, f32[0], f32[1], f32[2],
-                  column, p_hc, p_cc, sig_c, sig1)
+    h, var, pose_var, p_hc, p_cc, sig_c, sig1, nis_sum, nis_n = f64
+    q = noise_scale(seen, nis_sum, nis_n, grid.params.cells_per_footprint)
+    r = np.sqrt(q)
+    return Region(x0, y0, grid.params.cell_m, seen, h, q * var, pose_var, looks, frames, rejected, f32[0], f32[1],
+                  f32[2], column, q * p_hc, q * p_cc, r * sig_c, r * sig1)
+
+
+def noise_scale(seen: np.ndarray, nis_sum: np.ndarray, nis_n: np.ndarray, window_cells: float) -> np.ndarray:
+    """Per cell: how much the measurements of the ground around it scatter beyond their stated noise, the mean
+    normalised innovation squared of every look at the cells of the ``window_cells`` square around it (a landing
+    footprint), never below 1: an adaptive filter's noise scale, local. Why local: ground that measures worse than
+    the camera's noise estimate (relief within a cell, a car's edge that the samples' sideways blur mixes with the
+    asphalt) scales only itself; one scale per frame (the median over all its cells) let a parking lot's cars, half
+    of what a frame sees, make the level asphalt conservative (calibration 0.62-0.75) and their own cells
+    overconfident. Why a footprint and not the cell alone: the verdict takes the worst cell of a landing square,
+    and ~20 looks of one cell scatter their mean by ~0.3, pooled over a footprint's ~64 cells by ~0.04."""
+    n = max(1, round(window_cells))
+    zero = np.zeros_like(nis_sum)
+    num = cv2.boxFilter(np.where(seen, nis_sum, zero), -1, (n, n), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    den = cv2.boxFilter(np.where(seen, nis_n, zero), -1, (n, n), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, np.maximum(1.0, num / den), 1.0)
 
 
 def region_around(grid: FusedGrid, x_m: float, y_m: float, side_m: float) -> Region:

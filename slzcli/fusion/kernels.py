@@ -23,7 +23,8 @@ from numba import njit
 from slzcli.errors import ConfigError
 
 # the float fields of a grid slot (grid.FusedGrid.state's columns; grid.py names them)
-H, C, PHH, PHC, PCC, SIGC, SIG1, U, V, SPREAD, POSEV, STEPR, TANR = range(13)
+H, C, PHH, PHC, PCC, SIGC, SIG1, U, V, SPREAD, POSEV, STEPR, TANR, NISS, NISN = range(15)
+FIELDS = 15
 
 _jit = njit(cache=True, nogil=True, error_model="numpy")   # numpy's float errors: inf / nan, no exception
 _NONE = np.iinfo(np.int16).min     # a sample's cell in ``bin_samples`` when the sample is not kept
@@ -283,7 +284,8 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
                  sigma_w, sigma_c, spread, pose_var, gate2, sig1_den, step_ratio, tan_ratio, frame_index, column_m,
                  column_step, cell, r, t, cam, depth, free_a, free_k, nadir_in_view):
     """The Kalman update of a frame's cells in their slots (in place; grid.fuse says what each step means).
-    Returns (new cells, rejected, the normalised innovation squared of the cells held before, in order).
+    Returns (new cells, rejected). Every look at a cell held before adds its normalised innovation squared (at
+    most ``gate2``) to the cell's ``NISS`` and one to ``NISN`` (``grid.region``'s noise scale).
 
     Then the column above each cell, ``COLUMN_LEVELS`` levels ``column_step`` apart from ``column_m`` up:
     ``column`` gains the levels this frame saw free (its ``depth`` at the level's pixel beyond the level by
@@ -293,8 +295,6 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
     nadir as it rises: once out of the image it stays out when that point is in the view (``nadir_in_view``) or a
     lower level was in it."""
     n = slot.size
-    nis = np.empty(n, np.float64)
-    n_owned = 0
     n_new = 0
     n_rej = 0
     for c in range(n):
@@ -313,8 +313,8 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
         s_t = p_hh + 2.0 * p_hc + p_cc + sw2
         ok = innov * innov <= gate2 * (s_t + pose_var[c])
         if own:
-            nis[n_owned] = innov * innov / s_t
-            n_owned += 1
+            state[k, NISS] += _min(innov * innov / s_t, gate2)
+            state[k, NISN] += 1.0
             if ok:
                 kh = (p_hh + p_hc) / s_t
                 kc = (p_hc + p_cc) / s_t
@@ -337,6 +337,8 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
             state[k, PCC] = sc2
             state[k, SPREAD] = spread[c]
             state[k, POSEV] = pose_var[c]
+            state[k, NISS] = 0.0
+            state[k, NISN] = 0.0
             owner[k] = (ix[c] << 32) ^ (iy[c] & 0xFFFFFFFF)
             frames[k] = 0
             rejected[k] = 0
@@ -382,17 +384,17 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
                 else:
                     blocked[k] |= bit
         column[k] = free
-    return n_new, n_rej, nis[:n_owned]
+    return n_new, n_rej
 
 
 @_jit
 def region_cells(owner, state, frames, rejected, column, blocked, x0, y0, nx, ny, side, fixed_fraction):
     """Cells x0..x0+nx-1, y0..y0+ny-1 of the window as dense arrays, in one pass (``grid.region``'s gathers and
     selects, the same operations): seen, then the float64 fields H, the terrain variance (PHH + fixed_fraction
-    sig1^2), POSEV, PHC, PCC, SIGC, SIG1 (NaN unseen), looks (sig1^2 / variance, float32), frames, rejected
+    sig1^2), POSEV, PHC, PCC, SIGC, SIG1, NISS, NISN (NaN unseen), looks (sig1^2 / variance, float32), frames, rejected
     (0 unseen), SPREAD, STEPR, TANR (float32, 0 unseen), the column clear (``column_clear``; False unseen)."""
     seen = np.zeros((ny, nx), np.bool_)
-    f64 = np.full((7, ny, nx), np.nan)
+    f64 = np.full((9, ny, nx), np.nan)
     looks = np.zeros((ny, nx), np.float32)
     fr = np.zeros((ny, nx), np.int32)
     rej = np.zeros((ny, nx), np.int32)
@@ -415,6 +417,8 @@ def region_cells(owner, state, frames, rejected, column, blocked, x0, y0, nx, ny
             f64[4, j, i] = state[k, PCC]
             f64[5, j, i] = state[k, SIGC]
             f64[6, j, i] = sig1
+            f64[7, j, i] = state[k, NISS]
+            f64[8, j, i] = state[k, NISN]
             looks[j, i] = np.float32(sig1 * sig1 / var)
             fr[j, i] = frames[k]
             rej[j, i] = rejected[k]
@@ -545,12 +549,12 @@ def warm_up() -> None:
     pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)
     valid_depths(readonly(one, np.float32), 4)
     sweep(np.zeros(1, np.int64), 0, 0, 1, -1)
-    region_cells(np.zeros(1, np.int64), np.zeros((1, 13)), np.zeros(1, np.int32), np.zeros(1, np.int32),
+    region_cells(np.zeros(1, np.int64), np.zeros((1, FIELDS)), np.zeros(1, np.int32), np.zeros(1, np.int32),
                  np.zeros(1, np.uint64), np.zeros(1, np.uint64), 0, 0, 1, 1, 1, 0.0)
     i = np.zeros(1, np.int64)
     x = np.zeros(1)
     owner = np.zeros(1, np.int64)
-    state = np.zeros((1, 13))
+    state = np.zeros((1, FIELDS))
     slot, owned, u, v, _ = cell_shifts(owner, state, i, i, x, 1, 1.0, r, t, cam)
     bits = np.zeros(1, np.uint64)
     update_cells(owner, state, np.zeros(1, np.int32), np.zeros(1, np.int32), bits, bits.copy(),

@@ -45,6 +45,7 @@ class FusionParams:
     samples_per_cell: float
     white_fraction: float
     fixed_fraction: float
+    cells_per_footprint: float
     decorrelation_px: float
     gate_sigma: float
     two_heights_fraction: float
@@ -67,6 +68,7 @@ class FusionParams:
         cell = max(uav.footprint_m) / f.cells_per_footprint
         return cls(cell_m=cell, side_cells=max(8, math.ceil(f.window_m / cell)), samples_per_cell=f.samples_per_cell,
                    white_fraction=f.white_fraction, fixed_fraction=f.fixed_fraction,
+                   cells_per_footprint=f.cells_per_footprint,
                    decorrelation_px=f.decorrelation_px, gate_sigma=f.gate_sigma,
                    two_heights_fraction=f.two_heights_fraction, pose_sigma_m=f.pose_sigma_m,
                    pose_sigma_rad=math.radians(f.pose_sigma_deg),

@@ -8,7 +8,7 @@ another frame, so its cells start empty (``slam/segments.py``), and the memory s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -23,8 +23,7 @@ from slzcli.terrain.geometry import median_depth_m
 from slzcli.terrain.noise import DepthNoise
 from slzcli.types import Intrinsics
 
-_RECENT = 15                 # frames the motion and the noise scale are taken over (1 s at 15 Hz)
-_CHI2_1_MEDIAN = 0.454936   # median of a chi-square variable of one degree of freedom
+_RECENT = 15                 # frames the motion is taken over (1 s at 15 Hz)
 
 
 @dataclass
@@ -43,7 +42,6 @@ class FusedTerrain:
     focal_px: float = math.nan
     noise: DepthNoise | None = None
     camera_m: np.ndarray | None = None
-    nis: list[float] = field(default_factory=list)         # recent frames' noise scale the innovations asked for
     view: tuple[int, int, int, int] | None = None          # (x0, y0, x1, y1): the last frame's cells, inclusive
 
     def __post_init__(self) -> None:
@@ -58,16 +56,10 @@ class FusedTerrain:
         if segment != self.segment or self.grid is None:
             self.segment, self.grid = segment, FusedGrid.empty(self.params)
             self.shifts.clear()
-            self.nis.clear()
         cells = measure_frame(depth_m, intrinsics, T_world_camera, noise, self.config, self.params)
         stats = None
         if cells is not None:
-            g = math.sqrt(self.noise_scale())
-            if g > 1.0:
-                cells = replace(cells, sigma_w_m=cells.sigma_w_m * g, sigma_c_m=cells.sigma_c_m * g)
             stats = fuse(self.grid, cells, frame_index)
-            if math.isfinite(stats.nis_median):
-                self.nis = [*self.nis, stats.nis_median / _CHI2_1_MEDIAN * g * g][-_RECENT:]
             self.last = stats
             if math.isfinite(stats.median_shift_px):
                 self.shifts = [*self.shifts, stats.median_shift_px][-_RECENT:]
@@ -78,16 +70,6 @@ class FusedTerrain:
             self.view = (int(cells.ix.min()), int(cells.iy.min()), int(cells.ix.max()), int(cells.iy.max()))
         self.frames += 1
         return stats
-
-    def noise_scale(self) -> float:
-        """How much the measurement variance must grow for the innovations to fit the model (>= 1).
-
-        The noise estimate (``terrain/noise.py``) can read low (synth D435 on asphalt at 7.5 m: a cell's
-        error 0.145 m against 0.091 m estimated); the filter's own innovations then exceed their predicted
-        variance. The running median of their normalised squares over the recent frames, over its chi-square
-        median, scales the variance up, never down (an adaptive Kalman filter's noise scaling).
-        """
-        return max(1.0, float(np.median(self.nis))) if self.nis else 1.0
 
     def shift_per_frame_px(self) -> float:
         return float(np.median(self.shifts)) if self.shifts else 0.0

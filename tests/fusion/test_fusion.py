@@ -49,8 +49,10 @@ def test_decided_after_the_predicted_number_of_frames(seed: int, margin: float, 
     """A landing square beside a 0.3 m block (one frame's cell std 0.06 m at 8 m), flown over at 0.08 m a frame
     (18 px: every frame a new look): its noise limits come within ``decided_margin`` on the frame the worst
     cell's own filter, run forward from frame 2, said they would, and the square is never called unsafe.
-    Measured over seeds 0-5: margin 2 predicted 43-45, decided 0-2 frames before; margin 1 (unsafe_margin 2)
-    predicted 9, decided on it (seeds 0-3); allowed: 3 before, 1 after. With unsafe_margin 1 as well, seed 0
+    Measured over seeds 0-5 with the ground's own noise scale (``grid.noise_scale``, learnt from the innovations as
+    they come, so frame 2 cannot know it all): margin 2 predicted 43-50, decided 0-4 frames before; margin 1
+    (unsafe_margin 2) predicted 9-11, decided 0-2 after (without the scale: 0-2 before, 0 after); allowed: 5 before,
+    3 after. With unsafe_margin 1 as well, seed 0
     called this level square unsafe on 5 frames (noise alone failed its mask): hence the separate key."""
     block = Block(1.0, 3.0, -1.0, 1.0, 0.3)
     predicted = first = None
@@ -75,7 +77,7 @@ def test_decided_after_the_predicted_number_of_frames(seed: int, margin: float, 
             first = i
         assert fm.verdict[j, k] != UNSAFE
     assert predicted is not None and first is not None
-    assert predicted - 3 <= first <= predicted + 1
+    assert predicted - 5 <= first <= predicted + 3
 
 
 # steps just over the UAV's 0.09 m and where their edges fall in a cell (a fraction of the 0.082 m cell): seed i
@@ -217,6 +219,32 @@ def test_calibration_over_seeds(step_m: float) -> None:
     zz = np.concatenate(z)
     spread = float(np.std(zz - np.median(zz)))
     assert 0.8 <= spread <= 1.25
+
+
+@pytest.mark.parametrize(("step_m", "clean_range", "worse_range"),
+                         [(0.05, (0.8, 1.25), (0.6, 1.25)), (0.3, (0.75, 1.25), (0.8, 1.25))])
+def test_ground_that_measures_worse_is_stated_worse_and_the_rest_keeps_its_calibration(
+        step_m: float, clean_range: tuple[float, float], worse_range: tuple[float, float]) -> None:
+    """Most of the view measures worse than the noise estimate says (from x = -0.5 m on, every cell's measurement
+    carries 3 x its stated std more, new each frame: relief within a cell, a car's edge, shiny ground), the rest
+    is what the estimate says. Spread of the fused error over the stated std, pooled over seeds 0-4, on the clean
+    ground (x < -1.5 m) and on the worse (x > 0.5 m). Measured with the ground's own noise scale
+    (``grid.noise_scale``), slow (5 px a frame) / fast (37 px): clean 0.93 / 0.80 (as on level ground alone,
+    ``test_calibration_over_seeds``), worse 0.75 / 1.15 (slow: the excess is new every frame and averages, the scale
+    grows the whole variance). With one scale for the frame (the median of every cell's innovations) the clean
+    ground read 0.77 / 0.71 and the worse 1.47 / 1.93: the worse ground overconfident."""
+    clean, worse = [], []
+    for seed in SEEDS:
+        *_, (_, _, fm) = fly([], **NOISE, seed=seed, frames=20, step_m=step_m, region_m=6.0, rough_from_x=-0.5,
+                             rough_factor=3.0)
+        reg = fm.region
+        X, _ = cell_centres(reg)
+        z = reg.h / np.sqrt(reg.var)
+        clean.append(z[reg.seen & (X < -1.5)])
+        worse.append(z[reg.seen & (X > 0.5)])
+    for part, (lo, hi) in ((clean, clean_range), (worse, worse_range)):
+        zz = np.concatenate(part)
+        assert lo <= float(np.std(zz - np.median(zz))) <= hi
 
 
 def test_a_hover_stays_undecided_and_says_to_move() -> None:

@@ -19,8 +19,36 @@ from fusion_scene import INTR, Block, exact_depth, pose
 from slzcli.config import load_config
 from slzcli.errors import ConfigError
 from slzcli.fusion import kernels
-from slzcli.fusion.grid import _EMPTY, _RHO_MAX, FusedGrid, FuseStats, Region, cell_key, fuse, region, sweep_due
-from slzcli.fusion.kernels import COLUMN_LEVELS, PCC, PHC, PHH, POSEV, SIG1, SIGC, SPREAD, STEPR, TANR, C, H, U, V
+from slzcli.fusion.grid import (
+    _EMPTY,
+    _RHO_MAX,
+    FusedGrid,
+    FuseStats,
+    Region,
+    cell_key,
+    fuse,
+    noise_scale,
+    region,
+    sweep_due,
+)
+from slzcli.fusion.kernels import (
+    COLUMN_LEVELS,
+    NISN,
+    NISS,
+    PCC,
+    PHC,
+    PHH,
+    POSEV,
+    SIG1,
+    SIGC,
+    SPREAD,
+    STEPR,
+    TANR,
+    C,
+    H,
+    U,
+    V,
+)
 from slzcli.fusion.measure import (
     _MIN_SAMPLES,
     CellView,
@@ -210,8 +238,11 @@ def numpy_fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
         np.copyto(f[PCC], p_cc - kc * kc * s_t, where=acc)
         np.copyto(f[SPREAD], np.maximum(f[SPREAD], m.spread_m), where=acc)
         np.copyto(f[POSEV], np.minimum(f[POSEV], m.pose_var_m2), where=acc)
+        # every look at a cell held before, accepted or not: its innovation's normalised square, at most the gate's
+        np.copyto(f[NISS], f[NISS] + np.minimum(innov * innov / s_t, p.gate_sigma ** 2), where=owned)
+        np.copyto(f[NISN], f[NISN] + 1.0, where=owned)
     for row, value in ((H, y), (C, 0.0), (PHH, sc2 + sw2), (PHC, -sc2), (PCC, sc2), (SPREAD, m.spread_m),
-                       (POSEV, m.pose_var_m2)):
+                       (POSEV, m.pose_var_m2), (NISS, 0.0), (NISN, 0.0)):
         np.copyto(f[row], value, where=new)
     for row, value in ((U, u_px), (V, v_px), (SIGC, m.sigma_c_m),
                        (SIG1, np.sqrt((sc2 + sw2) / max(1.0 - p.fixed_fraction, 1e-9))),
@@ -231,10 +262,7 @@ def numpy_fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     _sweep(grid, m)
     so = shift[owned]
     med = float(np.median(so)) if so.size else float("nan")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        nis = innov[owned] ** 2 / s_t[owned]
-    nis_med = float(np.median(nis)) if nis.size else float("nan")
-    return FuseStats(len(m), int(np.count_nonzero(new)), int(np.count_nonzero(owned & ~ok)), med, nis_med)
+    return FuseStats(len(m), int(np.count_nonzero(new)), int(np.count_nonzero(owned & ~ok)), med)
 
 
 def _sweep(grid: FusedGrid, m: FrameCells) -> None:
@@ -424,7 +452,7 @@ def test_fuse_is_the_array_expressions_to_the_bit(seed: int) -> None:
         taken += int(np.count_nonzero(~owned & (got.owner[k] != _EMPTY)))
         a, b = fuse(got, cells, i), numpy_fuse(want, cells, i)
         assert a.cells == b.cells and a.new == b.new and a.rejected == b.rejected
-        assert np.array_equal([a.median_shift_px, a.nis_median], [b.median_shift_px, b.nis_median], equal_nan=True)
+        assert np.array_equal([a.median_shift_px], [b.median_shift_px], equal_nan=True)
         for name in ("owner", "state", "frames", "rejected", "column", "blocked", "last_frame", "swept_at"):
             u, v = getattr(got, name), getattr(want, name)
             assert np.array_equal(u, v, equal_nan=u.dtype.kind == "f"), (i, name)
@@ -447,18 +475,19 @@ def numpy_region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
     def f(i: int) -> np.ndarray:
         return np.where(seen, st[..., i], np.nan)
 
+    q = noise_scale(seen, f(NISS), f(NISN), grid.params.cells_per_footprint)
     sig1 = f(SIG1)
     var = f(PHH) + grid.params.fixed_fraction * sig1 * sig1
     with np.errstate(invalid="ignore", divide="ignore"):
         looks = np.where(seen, sig1 * sig1 / var, 0.0).astype(np.float32)
     zero = np.zeros(seen.shape)
-    return Region(x0, y0, grid.params.cell_m, seen, f(H), var, f(POSEV), looks,
+    return Region(x0, y0, grid.params.cell_m, seen, f(H), q * var, f(POSEV), looks,
                   np.where(seen, grid.frames[k], 0), np.where(seen, grid.rejected[k], 0),
                   np.where(seen, st[..., SPREAD], zero).astype(np.float32),
                   np.where(seen, st[..., STEPR], zero).astype(np.float32),
                   np.where(seen, st[..., TANR], zero).astype(np.float32),
                   seen & ((grid.column[k] & np.uint64(1)) != 0) & ((grid.blocked[k] & ~grid.column[k]) == 0),
-                  f(PHC), f(PCC), f(SIGC), sig1)
+                  q * f(PHC), q * f(PCC), np.sqrt(q) * f(SIGC), np.sqrt(q) * sig1)
 
 
 @pytest.mark.parametrize("seed", range(3))
