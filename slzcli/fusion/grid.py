@@ -203,17 +203,16 @@ def region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
     variance is scaled by the ground's own noise scale (``noise_scale``)."""
     s = grid.params.side_cells
     nx, ny = min(nx, s), min(ny, s)
-    seen, f64, looks, frames, rejected, f32, column = kernels.region_cells(
+    seen, f64, looks, frames, rejected, f32, column, nis = kernels.region_cells(
         grid.owner, grid.state, grid.frames, grid.rejected, grid.column, grid.blocked, int(x0), int(y0), int(nx),
         int(ny), int(s), float(grid.params.fixed_fraction))
-    h, var, pose_var, p_hc, p_cc, sig_c, sig1, nis_sum, nis_n = f64
-    q = noise_scale(seen, nis_sum, nis_n, grid.params.cells_per_footprint)
-    r = np.sqrt(q)
-    return Region(x0, y0, grid.params.cell_m, seen, h, q * var, pose_var, looks, frames, rejected, f32[0], f32[1],
-                  f32[2], column, q * p_hc, q * p_cc, r * sig_c, r * sig1)
+    kernels.scale_variances(f64, noise_scale(nis[0], nis[1], grid.params.cells_per_footprint))
+    h, var, pose_var, p_hc, p_cc, sig_c, sig1 = f64
+    return Region(x0, y0, grid.params.cell_m, seen, h, var, pose_var, looks, frames, rejected, f32[0], f32[1], f32[2],
+                  column, p_hc, p_cc, sig_c, sig1)
 
 
-def noise_scale(seen: np.ndarray, nis_sum: np.ndarray, nis_n: np.ndarray, window_cells: float) -> np.ndarray:
+def noise_scale(nis_sum: np.ndarray, nis_n: np.ndarray, window_cells: float) -> np.ndarray:
     """Per cell: how much the measurements of the ground around it scatter beyond their stated noise, the mean
     normalised innovation squared of every look at the cells of the ``window_cells`` square around it (a landing
     footprint), never below 1: an adaptive filter's noise scale, local. Why local: ground that measures worse than
@@ -223,11 +222,14 @@ def noise_scale(seen: np.ndarray, nis_sum: np.ndarray, nis_n: np.ndarray, window
     overconfident. Why a footprint and not the cell alone: the verdict takes the worst cell of a landing square,
     and ~20 looks of one cell scatter their mean by ~0.3, pooled over a footprint's ~64 cells by ~0.04."""
     n = max(1, round(window_cells))
-    zero = np.zeros_like(nis_sum)
-    num = cv2.boxFilter(np.where(seen, nis_sum, zero), -1, (n, n), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    den = cv2.boxFilter(np.where(seen, nis_n, zero), -1, (n, n), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(den > 0, np.maximum(1.0, num / den), 1.0)
+    def box(a: np.ndarray) -> np.ndarray:       # float32: sums of at most a few 10,000 looks
+        return np.asarray(cv2.boxFilter(a.astype(np.float32), -1, (n, n), normalize=False,
+                                        borderType=cv2.BORDER_CONSTANT))
+
+    num, den = box(nis_sum), box(nis_n)
+    q = np.ones(num.shape)
+    np.divide(num, den, out=q, where=den > 0)
+    return np.maximum(q, 1.0, out=q)
 
 
 def region_around(grid: FusedGrid, x_m: float, y_m: float, side_m: float) -> Region:

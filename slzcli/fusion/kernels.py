@@ -391,10 +391,12 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
 def region_cells(owner, state, frames, rejected, column, blocked, x0, y0, nx, ny, side, fixed_fraction):
     """Cells x0..x0+nx-1, y0..y0+ny-1 of the window as dense arrays, in one pass (``grid.region``'s gathers and
     selects, the same operations): seen, then the float64 fields H, the terrain variance (PHH + fixed_fraction
-    sig1^2), POSEV, PHC, PCC, SIGC, SIG1, NISS, NISN (NaN unseen), looks (sig1^2 / variance, float32), frames, rejected
-    (0 unseen), SPREAD, STEPR, TANR (float32, 0 unseen), the column clear (``column_clear``; False unseen)."""
+    sig1^2), POSEV, PHC, PCC, SIGC, SIG1 (NaN unseen), looks (sig1^2 / variance, float32), frames, rejected
+    (0 unseen), SPREAD, STEPR, TANR (float32, 0 unseen), the column clear (``column_clear``; False unseen), NISS and
+    NISN (0 unseen)."""
     seen = np.zeros((ny, nx), np.bool_)
-    f64 = np.full((9, ny, nx), np.nan)
+    f64 = np.full((7, ny, nx), np.nan)
+    nis = np.zeros((2, ny, nx))
     looks = np.zeros((ny, nx), np.float32)
     fr = np.zeros((ny, nx), np.int32)
     rej = np.zeros((ny, nx), np.int32)
@@ -417,8 +419,8 @@ def region_cells(owner, state, frames, rejected, column, blocked, x0, y0, nx, ny
             f64[4, j, i] = state[k, PCC]
             f64[5, j, i] = state[k, SIGC]
             f64[6, j, i] = sig1
-            f64[7, j, i] = state[k, NISS]
-            f64[8, j, i] = state[k, NISN]
+            nis[0, j, i] = state[k, NISS]
+            nis[1, j, i] = state[k, NISN]
             looks[j, i] = np.float32(sig1 * sig1 / var)
             fr[j, i] = frames[k]
             rej[j, i] = rejected[k]
@@ -426,7 +428,24 @@ def region_cells(owner, state, frames, rejected, column, blocked, x0, y0, nx, ny
             f32[1, j, i] = np.float32(state[k, STEPR])
             f32[2, j, i] = np.float32(state[k, TANR])
             col[j, i] = column_clear(column[k], blocked[k])
-    return seen, f64, looks, fr, rej, f32, col
+    return seen, f64, looks, fr, rej, f32, col, nis
+
+
+@_jit
+def scale_variances(f64, q):
+    """``region_cells``' variance fields scaled in place by the noise scale ``q`` (the variance, PHC, PCC) and its
+    square root (the stds SIGC, SIG1), in one pass; ``x * 1.0`` is ``x``, so cells at 1 are skipped."""
+    ny, nx = q.shape
+    for j in range(ny):
+        for i in range(nx):
+            s = q[j, i]
+            if s != 1.0:
+                r = np.sqrt(s)
+                f64[1, j, i] *= s
+                f64[3, j, i] *= s
+                f64[4, j, i] *= s
+                f64[5, j, i] *= r
+                f64[6, j, i] *= r
 
 
 @_jit
@@ -549,6 +568,7 @@ def warm_up() -> None:
     pixel_cells(readonly(one, f32), ray, ray, np.eye(3, dtype=f32), f32(0.0), f32(0.0), f32(1.0), 2, 2)
     valid_depths(readonly(one, np.float32), 4)
     sweep(np.zeros(1, np.int64), 0, 0, 1, -1)
+    scale_variances(np.ones((7, 1, 1)), np.full((1, 1), 2.0))
     region_cells(np.zeros(1, np.int64), np.zeros((1, FIELDS)), np.zeros(1, np.int32), np.zeros(1, np.int32),
                  np.zeros(1, np.uint64), np.zeros(1, np.uint64), 0, 0, 1, 1, 1, 0.0)
     i = np.zeros(1, np.int64)

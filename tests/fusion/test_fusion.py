@@ -247,6 +247,22 @@ def test_ground_that_measures_worse_is_stated_worse_and_the_rest_keeps_its_calib
         assert lo <= float(np.std(zz - np.median(zz))) <= hi
 
 
+def test_the_noise_scale_is_the_footprints_mean_innovation_and_never_below_one() -> None:
+    """Per cell, the mean normalised innovation squared over the footprint's square around it: ground whose looks
+    scatter 3 times their stated variance reads 3 once its footprint lies wholly on it, ground within its noise
+    (0.5) and unseen ground (no looks) 1; where the square straddles both, their looks' pooled mean."""
+    from slzcli.fusion.grid import noise_scale
+
+    nis_n = np.zeros((20, 20))
+    nis_n[:, 2:] = 10.0                     # two unseen columns, then ten looks a cell
+    nis_sum = np.where(np.arange(20) < 10, 0.5, 3.0)[None, :] * nis_n
+    q = noise_scale(nis_sum, nis_n, 4.0)    # a 4-cell square: columns i-2 .. i+1
+    assert np.all(q[:, :8] == 1.0)
+    assert np.allclose(q[:, 12:18], 3.0)
+    assert np.allclose(q[5, 10], (2 * 0.5 + 2 * 3.0) / 4)
+    assert np.all(noise_scale(np.zeros((5, 5)), np.zeros((5, 5)), 8.0) == 1.0)
+
+
 def test_a_hover_stays_undecided_and_says_to_move() -> None:
     """Hovering, the error that moves with the view never decorrelates: a frame's step limit of 0.33 m needs
     ~4 x 14 looks (the margin) and a hover gives 1 / (1 - white) = 1.25.

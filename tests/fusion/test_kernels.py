@@ -475,7 +475,8 @@ def numpy_region(grid: FusedGrid, x0: int, y0: int, nx: int, ny: int) -> Region:
     def f(i: int) -> np.ndarray:
         return np.where(seen, st[..., i], np.nan)
 
-    q = noise_scale(seen, f(NISS), f(NISN), grid.params.cells_per_footprint)
+    q = noise_scale(np.where(seen, st[..., NISS], 0.0), np.where(seen, st[..., NISN], 0.0),
+                    grid.params.cells_per_footprint)
     sig1 = f(SIG1)
     var = f(PHH) + grid.params.fixed_fraction * sig1 * sig1
     with np.errstate(invalid="ignore", divide="ignore"):
