@@ -69,13 +69,16 @@ constraints:
 	@git --no-pager diff --stat -- $(CONSTRAINTS) 2>/dev/null || true
 
 # Render a ground-truthed flight, read it, detect the landing site, simulate the IBVS descent.
-# The flight descends from 8 m to 3 m under the default D435-like stereo depth (848x480 infrared pair): the
-# high frames cannot vouch for a site (their noise hides steps the UAV cannot take), the low ones can. 30 frames
-# at 3 Hz: 4 of 4 ORB-SLAM3 runs committed a truly safe site; at 424x240 (faster to render) the noise doubles
-# and only the lowest frame vouched, 2 of 4 runs found no site. Progress shows on stderr throughout.
+# The flight descends from 7 m (the paper's scenario 3) to 2 m under the default D435-like stereo depth (848x480
+# infrared pair): the high frames cannot vouch for a site (their noise hides steps the UAV cannot take), the low
+# ones can. 30 frames at 3 Hz: 50 of 50 ORB-SLAM3 runs of `slz detect` committed a truly safe site (clearance
+# 1.9 m). From 8 m to 3 m 6 of 110 runs ended without one (the descent's sparse map-point clusters refused by the
+# raised-surface weighing or the acceptance test, as ORB-SLAM3's threads drew them): an honest answer, but a demo
+# should not hang on one draw. At 424x240 (faster to render) the noise doubles and only the lowest frame vouched.
+# Progress shows on stderr throughout.
 demo: $(STAMP)
 	@mkdir -p $(DEMO)
-	$(BIN)/slz synth parking_lot -o $(DEMO)/parking_lot.mcap --frames 30 --rate 3 --path descent --start 0,0,8 --force
+	$(BIN)/slz synth parking_lot -o $(DEMO)/parking_lot.mcap --frames 30 --rate 3 --path descent --scenario 3 --force
 	$(BIN)/slz info $(DEMO)/parking_lot.mcap
 	$(BIN)/slz detect $(DEMO)/parking_lot.mcap -o $(DEMO)/run --force
 	$(BIN)/slz land simulate $(DEMO)/run --offset 2,-1.5,8
