@@ -24,7 +24,7 @@ from slzcli.errors import ConfigError
 
 # the float fields of a grid slot (grid.FusedGrid.state's columns; grid.py names them)
 H, C, PHH, PHC, PCC, SIGC, SIG1, U, V, SPREAD, POSEV, STEPR, TANR, NISS, NISN = range(15)
-FIELDS = 15
+FIELDS = NISN + 1
 
 _jit = njit(cache=True, nogil=True, error_model="numpy")   # numpy's float errors: inf / nan, no exception
 _NONE = np.iinfo(np.int16).min     # a sample's cell in ``bin_samples`` when the sample is not kept
