@@ -94,16 +94,20 @@ class FuseStats:
     new: int             # of them seen for the first time (or taking over a slot)
     rejected: int        # measurements the gate rejected
     median_shift_px: float   # median image shift of its cells since their last look
+    nis_median: float        # median normalised innovation squared of its cells seen before (chi-square 1: 0.455)
 
 
-def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
+def fuse(grid: FusedGrid, m: FrameCells, frame_index: int, gate_scale: float = 1.0) -> FuseStats:
     """Add one frame's measurements to the grid (in place): two compiled loops over the frame's cells
     (``kernels``), the decorrelation's ``exp`` between them.
 
     Per cell: predict the shared error by the cell's image shift since its last look (the cell's centre at its
     estimated height projected into the frame: the mean pixel of its samples jitters with the depth noise, which
     moves samples across cell borders, and a hover would seem to move); gate the innovation on the cell's
-    variance, the measurement's and the pose's; update accepted looks, start new cells at h = y, c = 0 with the
+    variance, the measurement's and the pose's, the innovation's variance widened by ``gate_scale`` (how much the
+    frame's innovations exceed the stated noise, ``FusedTerrain.gate_scale``: the gate is for outliers, and a noise
+    estimate that reads low would otherwise reject good looks and refuse their cells as holding two heights);
+    update accepted looks, start new cells at h = y, c = 0 with the
     covariance of a flat prior, keep rejected ones. The update proper leaves the pose out: a frame's pose error
     is common to its cells (a height offset, a tilt over the view), not terrain; it widens the gate and the
     reported variance only."""
@@ -122,15 +126,16 @@ def fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     def f64(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, np.float64)
 
-    new, rejected = kernels.update_cells(
+    new, rejected, nis = kernels.update_cells(
         grid.owner, grid.state, grid.frames, grid.rejected, grid.column, grid.blocked, grid.last_frame, k, owned, u_px,
         v_px, rho, ix, iy, y, f64(m.sigma_w_m), f64(m.sigma_c_m), f64(m.spread_m), f64(m.pose_var_m2),
-        p.gate_sigma ** 2, max(1.0 - p.fixed_fraction, 1e-9), float(m.step_per_sigma), float(m.tan_slope_per_sigma),
-        int(frame_index), float(p.column_m), float(p.column_step_m), float(p.cell_m), r, t, cam, m.depth_image,
+        p.gate_sigma ** 2, float(gate_scale), max(1.0 - p.fixed_fraction, 1e-9), float(m.step_per_sigma),
+        float(m.tan_slope_per_sigma), int(frame_index), float(p.column_m), float(p.column_step_m), float(p.cell_m), r,
+        t, cam, m.depth_image,
         float(m.pixel_a), float(p.confidence_sigma), _nadir_in_view(r, cam, intr.width, intr.height))
     _sweep(grid, m)
     med = float(kernels.median_inplace(shift[owned]))
-    return FuseStats(len(m), int(new), int(rejected), med)
+    return FuseStats(len(m), int(new), int(rejected), med, float(kernels.median_inplace(nis)))
 
 
 def _nadir_in_view(r: np.ndarray, cam: np.ndarray, width: int, height: int) -> bool:

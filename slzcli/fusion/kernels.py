@@ -281,11 +281,13 @@ def column_clear(free, blocked):
 
 @_jit
 def update_cells(owner, state, frames, rejected, column, blocked, last_frame, slot, owned, u, v, rho, ix, iy, y,
-                 sigma_w, sigma_c, spread, pose_var, gate2, sig1_den, step_ratio, tan_ratio, frame_index, column_m,
-                 column_step, cell, r, t, cam, depth, free_a, free_k, nadir_in_view):
+                 sigma_w, sigma_c, spread, pose_var, gate2, gate_scale, sig1_den, step_ratio, tan_ratio, frame_index,
+                 column_m, column_step, cell, r, t, cam, depth, free_a, free_k, nadir_in_view):
     """The Kalman update of a frame's cells in their slots (in place; grid.fuse says what each step means).
-    Returns (new cells, rejected). Every look at a cell held before adds its normalised innovation squared (at
-    most ``gate2``) to the cell's ``NISS`` and one to ``NISN`` (``grid.region``'s noise scale).
+    Returns (new cells, rejected, the normalised innovation squared of the cells held before, in order). The gate
+    widens the innovation's variance by ``gate_scale`` (the frame's, ``grid.fuse``). Every look at a cell held
+    before adds its normalised innovation squared (at most ``gate2``) to the cell's ``NISS`` and one to ``NISN``
+    (``grid.region``'s noise scale).
 
     Then the column above each cell, ``COLUMN_LEVELS`` levels ``column_step`` apart from ``column_m`` up:
     ``column`` gains the levels this frame saw free (its ``depth`` at the level's pixel beyond the level by
@@ -295,6 +297,8 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
     nadir as it rises: once out of the image it stays out when that point is in the view (``nadir_in_view``) or a
     lower level was in it."""
     n = slot.size
+    nis = np.empty(n, np.float64)
+    n_owned = 0
     n_new = 0
     n_rej = 0
     for c in range(n):
@@ -311,9 +315,12 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
         p_cc = g * g * state[k, PCC] + (1.0 - rh * rh) * sc2
         innov = y[c] - (state[k, H] + cc)
         s_t = p_hh + 2.0 * p_hc + p_cc + sw2
-        ok = innov * innov <= gate2 * (s_t + pose_var[c])
+        ok = innov * innov <= gate2 * (gate_scale * s_t + pose_var[c])
         if own:
-            state[k, NISS] += _min(innov * innov / s_t, gate2)
+            e2 = innov * innov / s_t
+            nis[n_owned] = e2
+            n_owned += 1
+            state[k, NISS] += _min(e2, gate2)
             state[k, NISN] += 1.0
             if ok:
                 kh = (p_hh + p_hc) / s_t
@@ -384,7 +391,7 @@ def update_cells(owner, state, frames, rejected, column, blocked, last_frame, sl
                 else:
                     blocked[k] |= bit
         column[k] = free
-    return n_new, n_rej
+    return n_new, n_rej, nis[:n_owned]
 
 
 @_jit
@@ -578,5 +585,5 @@ def warm_up() -> None:
     slot, owned, u, v, _ = cell_shifts(owner, state, i, i, x, 1, 1.0, r, t, cam)
     bits = np.zeros(1, np.uint64)
     update_cells(owner, state, np.zeros(1, np.int32), np.zeros(1, np.int32), bits, bits.copy(),
-                 np.zeros(1, np.int64), slot, owned, u, v, x, i, i, x, x, x, x, x, 1.0, 1.0, 0.0, 0.0, 0, 1.0, 0.25,
-                 1.0, r, t, cam, readonly(one, np.float32), 0.0, 3.0, True)
+                 np.zeros(1, np.int64), slot, owned, u, v, x, i, i, x, x, x, x, x, 1.0, 1.0, 1.0, 0.0, 0.0, 0, 1.0,
+                 0.25, 1.0, r, t, cam, readonly(one, np.float32), 0.0, 3.0, True)

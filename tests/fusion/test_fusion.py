@@ -230,7 +230,7 @@ def test_ground_that_measures_worse_is_stated_worse_and_the_rest_keeps_its_calib
     is what the estimate says. Spread of the fused error over the stated std, pooled over seeds 0-4, on the clean
     ground (x < -1.5 m) and on the worse (x > 0.5 m). Measured with the ground's own noise scale
     (``grid.noise_scale``), slow (5 px a frame) / fast (37 px): clean 0.93 / 0.80 (as on level ground alone,
-    ``test_calibration_over_seeds``), worse 0.75 / 1.15 (slow: the excess is new every frame and averages, the scale
+    ``test_calibration_over_seeds``), worse 0.68 / 1.08 (slow: the excess is new every frame and averages, the scale
     grows the whole variance). With one scale for the frame (the median of every cell's innovations) the clean
     ground read 0.77 / 0.71 and the worse 1.47 / 1.93: the worse ground overconfident."""
     clean, worse = [], []

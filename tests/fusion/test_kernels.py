@@ -193,7 +193,7 @@ def _bounds(i: np.ndarray, keep: np.ndarray) -> tuple[int, int]:
     return int(lo), int(hi)
 
 
-def numpy_fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
+def numpy_fuse(grid: FusedGrid, m: FrameCells, frame_index: int, gate_scale: float = 1.0) -> FuseStats:
     """``grid.fuse`` in numpy: gathered rows updated in place, written back."""
     p = grid.params
     k, owned = grid.slots(m.ix, m.iy)
@@ -219,7 +219,7 @@ def numpy_fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     innov = y - (f[H] + c)
     s_t = p_hh + 2.0 * p_hc + p_cc + sw2
     # the gate holds the cell's variance, the measurement's and the pose's
-    ok = innov * innov <= (p.gate_sigma ** 2) * (s_t + m.pose_var_m2)
+    ok = innov * innov <= (p.gate_sigma ** 2) * (gate_scale * s_t + m.pose_var_m2)
     # the update proper leaves the pose out: a frame's pose error is common to its cells (a height offset,
     # a tilt over the view), not terrain; it widens the gate and the reported variance only
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -262,7 +262,10 @@ def numpy_fuse(grid: FusedGrid, m: FrameCells, frame_index: int) -> FuseStats:
     _sweep(grid, m)
     so = shift[owned]
     med = float(np.median(so)) if so.size else float("nan")
-    return FuseStats(len(m), int(np.count_nonzero(new)), int(np.count_nonzero(owned & ~ok)), med)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nis = innov[owned] ** 2 / s_t[owned]
+    nis_med = float(np.median(nis)) if nis.size else float("nan")
+    return FuseStats(len(m), int(np.count_nonzero(new)), int(np.count_nonzero(owned & ~ok)), med, nis_med)
 
 
 def _sweep(grid: FusedGrid, m: FrameCells) -> None:
@@ -450,9 +453,10 @@ def test_fuse_is_the_array_expressions_to_the_bit(seed: int) -> None:
         steep += not nadir_in_view(cells)
         k, owned = got.slots(cells.ix, cells.iy)
         taken += int(np.count_nonzero(~owned & (got.owner[k] != _EMPTY)))
-        a, b = fuse(got, cells, i), numpy_fuse(want, cells, i)
+        g = 1.0 + 0.5 * (i % 3)      # the gate widened by the frame's scale, as FusedTerrain does
+        a, b = fuse(got, cells, i, g), numpy_fuse(want, cells, i, g)
         assert a.cells == b.cells and a.new == b.new and a.rejected == b.rejected
-        assert np.array_equal([a.median_shift_px], [b.median_shift_px], equal_nan=True)
+        assert np.array_equal([a.median_shift_px, a.nis_median], [b.median_shift_px, b.nis_median], equal_nan=True)
         for name in ("owner", "state", "frames", "rejected", "column", "blocked", "last_frame", "swept_at"):
             u, v = getattr(got, name), getattr(want, name)
             assert np.array_equal(u, v, equal_nan=u.dtype.kind == "f"), (i, name)
