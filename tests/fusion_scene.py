@@ -134,8 +134,8 @@ def cell_noise(stereo: Stereo, cell_px: float, trials: int = 4) -> float:
 def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float, seed: int, frames: int,
         step_m: float, altitude_m: float = 8.0, block: Block | None = None, start_x: float | None = None,
         region_m: float = 8.0, noise_white: bool = False, slope_deg: float = 0.0,
-        slab: Slab | None = None, rough_from_x: float | None = None,
-        rough_factor: float = 0.0) -> Iterator[tuple[int, Any, Any]]:
+        slab: Slab | None = None, rough_from_x: float | None = None, rough_factor: float = 0.0,
+        estimate_factor: float = 1.0) -> Iterator[tuple[int, Any, Any]]:
     """Fly ``frames`` frames ``step_m`` apart along world x (centred on 0) over the scene; yield, per frame,
     (index, FusedTerrain, FusedMaps of the ``region_m`` square around the origin). ``slope_deg`` tilts the
     ground about the y axis (its height x tan(slope_deg)); the block needs level ground."""
@@ -150,7 +150,8 @@ def fly(config_sets: list[str], *, a_per_m: float, white: float, corr_px: float,
     ft = FusedTerrain(cfg, get_scorer(cfg.scoring, cfg.mask, "fuzzy"))
     stereo = Stereo(a_per_m, white, corr_px, seed)
     a_cell = cell_noise(stereo, ft.params.cell_m * INTR.fx / altitude_m)
-    noise = DepthNoise.white(a_cell, "known") if noise_white else DepthNoise.flat(a_cell, "known")
+    a_told = estimate_factor * a_cell
+    noise = DepthNoise.white(a_told, "known") if noise_white else DepthNoise.flat(a_told, "known")
     x0 = -0.5 * step_m * (frames - 1) if start_x is None else start_x
     for i in range(frames):
         T = pose(x0 + step_m * i, 0.0, altitude_m)
