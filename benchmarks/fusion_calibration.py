@@ -84,11 +84,6 @@ def frame_errors(fl: fmx.Flight, i: int, ft: Any) -> tuple[np.ndarray, ...] | No
     return (e - np.median(e)) / s1, m.ix[ia], m.iy[ia], u[ia], v[ia], np.array(m.depth_m)
 
 
-def one_frame(z: np.ndarray) -> float:
-    """The spread of a frame's normalised cell errors."""
-    return robust(z)
-
-
 def _block_means(key: np.ndarray, z: np.ndarray, min_cells: int) -> dict[int, float]:
     uk, inv = np.unique(key, return_inverse=True)
     sums, cnts = np.bincount(inv, z), np.bincount(inv)
@@ -139,7 +134,7 @@ def measure(path: Path) -> dict[str, Any]:
     for i in range(fl.n):
         fe = frame_errors(fl, i, ft)
         if fe is not None:
-            frames.append(one_frame(fe[0]))
+            frames.append(robust(fe[0]))
             errors.append(fe)
         ft.add(fl.depth[i], fl.intr, fl.T[i], fl.noise[i], 0, i)
     out: dict[str, Any] = {"flight": path.name, **(fmx.parse_name(path.stem) or {})}
