@@ -29,6 +29,16 @@ benchmarks/fusion_matrix.py replays it). Per flight:
   of every n x n cells (n = 3, 7, 15) over what their stated variances give (``verdict._plane_fit``; the
   depth-variance map's noise share), median over full windows (``_all``: every seen cell, relief included;
   ``_open``: the open level cells above): could a scale >= 1 from the map itself see the excess?
+- ``step_*``: is what the verdict refuses out of reach, or only out of its statement? The same frames' exact
+  depth fused beside the measured (``FusedTerrain.add`` alike): the step fitted across each open level cell
+  (``verdict.step_fits``, the verdict's windows) on both, their difference the fit's true error. Per direction
+  (``x``: a step between columns; the flights run along x) its robust spread in metres (``step_true_sd_*``), the
+  stated one (``step_stated_sd_*``: the verdict's limit over k, its stripes' scale included, median) and the
+  spread of their ratio (``step_spread_*``). ``step_pass``: the open level squares (every cell of the landing
+  square open level ground) whose step test passes as the verdict states it (the square and its windows beyond,
+  as ``fused_maps``); ``step_pass_true``: the same with each direction's limit times ``step_spread_*``, what a
+  test that knew the fit's true error would pass. Passing the step test is necessary for SAFE, so where
+  ``step_pass_true`` is 0 no k-sigma test on this flight's fused map could call level ground safe.
 """
 
 from __future__ import annotations
@@ -122,6 +132,53 @@ def fixed_parts(frames: list[tuple[np.ndarray, ...]], cell_m: float, focal_px: f
             "ground_fixed": round(ground_fixed, 3), "moving": round(total - image_fixed - ground_fixed, 3)}
 
 
+def step_reach(fl: fmx.Flight, ft: Any, exact: Any, b: tuple[int, int, int, int],
+               open_: np.ndarray) -> dict[str, Any]:
+    """The ``step_*`` columns of the docstring: the fused step fit's true error (measured - exact depth's
+    fusion) on the open level cells, and the squares its step test passes as stated and with its true error."""
+    from slzcli.fusion.grid import region
+    from slzcli.fusion.verdict import _odd, fused_maps, square_cells, step_fits
+
+    reg, rex = region(ft.grid, *b), region(exact.grid, *b)
+    fm = fused_maps(reg, fl.cfg, ft.params, fl.scorer)
+    both = reg.seen & rex.seen & np.isfinite(reg.h) & np.isfinite(rex.h)
+    n_fp = max(3, _odd(max(fl.cfg.uav.footprint_m) / reg.cell_m))
+    half = max(2, n_fp // 2)
+    fits = [step_fits(np.where(both, r.h, 0.0), both, n_fp, half) for r in (reg, rex)]
+    k, max_step = ft.params.confidence_sigma, fl.cfg.uav.max_step_m
+    step_min = fm.step_min_m.astype(np.float64)
+    out: dict[str, Any] = {}
+    lim, lim_true, s_abs = [], [], []
+    for axis, s, s_exact, scale, s_verdict in (("x", fits[0][0], fits[1][0], fm.steps.scale_x, fm.steps.x_m),
+                                               ("y", fits[0][1], fits[1][1], fm.steps.scale_y, fm.steps.y_m)):
+        sel = open_ & both & np.isfinite(s) & np.isfinite(s_exact) & np.isfinite(step_min)
+        if np.count_nonzero(sel) < 50:
+            return out
+        err, stated = (s - s_exact)[sel], scale * step_min[sel] / k
+        spread = robust(err / stated)
+        out[f"step_true_sd_{axis}"] = round(robust(err), 4)
+        out[f"step_stated_sd_{axis}"] = round(float(np.median(stated)), 4)
+        out[f"step_spread_{axis}"] = round(spread, 3)
+        lim.append(scale * step_min)
+        lim_true.append(spread * scale * step_min)
+        s_abs.append(s_verdict)
+    n_sq, reach = square_cells(ft.params.square_m, reg.cell_m), n_fp // 2
+
+    def erode(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
+        return cv2.erode(a.astype(np.uint8), np.ones((rows, cols), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                         borderValue=0) > 0
+
+    squares = erode(open_, n_sq, n_sq)
+    out["open_squares"] = int(np.count_nonzero(squares))
+    for name, (lx, ly) in (("step_pass", lim), ("step_pass_true", lim_true)):
+        with np.errstate(invalid="ignore"):
+            fx, fy = s_abs[0] + lx <= max_step, s_abs[1] + ly <= max_step
+        fine = erode(fx & fy, n_sq, n_sq) & erode(fx | np.isnan(s_abs[0]), n_sq + 2 * reach, n_sq)
+        fine &= erode(fy | np.isnan(s_abs[1]), n_sq, n_sq + 2 * reach)
+        out[name] = int(np.count_nonzero(fine & squares))
+    return out
+
+
 def measure(path: Path) -> dict[str, Any]:
     from slzcli.fusion import kernels
     from slzcli.fusion.grid import region, seen_bounds
@@ -130,6 +187,7 @@ def measure(path: Path) -> dict[str, Any]:
 
     fl = fmx.Flight(path, 3, [])
     ft = FusedTerrain(fl.cfg, fl.scorer)
+    exact = FusedTerrain(fl.cfg, fl.scorer)
     frames, errors = [], []
     for i in range(fl.n):
         fe = frame_errors(fl, i, ft)
@@ -137,6 +195,7 @@ def measure(path: Path) -> dict[str, Any]:
             frames.append(robust(fe[0]))
             errors.append(fe)
         ft.add(fl.depth[i], fl.intr, fl.T[i], fl.noise[i], 0, i)
+        exact.add(fl.d["depth_true"][i], fl.intr, fl.T[i], fl.noise[i], 0, i)
     out: dict[str, Any] = {"flight": path.name, **(fmx.parse_name(path.stem) or {})}
     if frames:
         out["frame_spread"] = round(float(np.median(frames)), 3)
@@ -182,6 +241,7 @@ def measure(path: Path) -> dict[str, Any]:
         out[f"local_{n}_all"] = round(math.sqrt(float(np.median(ratio[full]))), 3) if full.any() else None
         sel = full & open_
         out[f"local_{n}_open"] = round(math.sqrt(float(np.median(ratio[sel]))), 3) if sel.any() else None
+    out.update(step_reach(fl, ft, exact, b, open_))
     return out
 
 

@@ -212,9 +212,9 @@ def step_kernel(rows: int, half: int) -> tuple[np.ndarray, float]:
     return w, float(np.sum(w * w))
 
 
-def _steps(hc: np.ndarray, ok: np.ndarray, rows: int, half: int) -> tuple[np.ndarray, np.ndarray]:
-    """|s| of the step fitted across every cell along x (a step between columns, the kernel's rows running
-    along y) and along y, each NaN where its window is not fully seen."""
+def step_fits(hc: np.ndarray, ok: np.ndarray, rows: int, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """The step s fitted across every cell along x (a step between columns, the kernel's rows running along
+    y) and along y, signed (up towards +x / +y), each NaN where its window is not fully seen."""
     w, _ = step_kernel(rows, half)
     ok8 = ok.astype(np.uint8)
     out = []
@@ -222,7 +222,7 @@ def _steps(hc: np.ndarray, ok: np.ndarray, rows: int, half: int) -> tuple[np.nda
         est = cv2.filter2D(hc, cv2.CV_64F, kern, borderType=cv2.BORDER_CONSTANT)
         # every cell the kernel weighs is seen (beyond the region: not): a minimum, not a sum of ones
         full = cv2.erode(ok8, (kern != 0).astype(np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
-        out.append(np.where(full, np.abs(est), np.nan))
+        out.append(np.where(full, est, np.nan))
     return out[0], out[1]
 
 
@@ -337,7 +337,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # needs both upper bounds (estimate + limit) within the UAV's tolerance, UNSAFE a lower bound beyond it;
     # in between the noise still hides what the UAV cannot take
     half = max(2, n_fp // 2)
-    s_x, s_y = _steps(hc, ok, n_fp, half)
+    s_x, s_y = (np.abs(s) for s in step_fits(hc, ok, n_fp, half))
     # each direction's limit as its fitted steps scatter on this map (the errors' stripes are directional)
     scale_x, scale_y = step_noise_scale(s_x, step_min, k), step_noise_scale(s_y, step_min, k)
     lim_x, lim_y = scale_x * step_min, scale_y * step_min

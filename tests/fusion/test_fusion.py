@@ -191,12 +191,12 @@ def test_the_steps_stated_noise_follows_their_scatter_across_the_track() -> None
     scale the map estimates from its own fitted steps (1.64-2.00 per seed) brings the scatter across the
     track into 0.8-1.25 (measured 0.92-1.04 robust, 0.93-1.03 rms, per seed) and never lowers the stated
     noise along it (scale 1.0)."""
-    from slzcli.fusion.verdict import _steps, step_noise_scale
+    from slzcli.fusion.verdict import step_fits, step_noise_scale
     for seed in SEEDS:
         *_, (_, ft, fm) = fly([], a_per_m=0.0005, white=0.2, corr_px=2.0, seed=seed, frames=30, step_m=0.15)
         reg = fm.region
         hc = np.where(reg.seen, reg.h, 0.0)          # the truth is 0: the fit is its error
-        s_x, s_y = _steps(hc, reg.seen, 7, 3)
+        s_x, s_y = (np.abs(s) for s in step_fits(hc, reg.seen, 7, 3))
         sm = fm.step_min_m.astype(np.float64)
         k = ft.params.confidence_sigma
         assert step_noise_scale(s_x, sm, k) == 1.0

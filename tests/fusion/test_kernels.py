@@ -647,11 +647,11 @@ def test_pixel_cells_are_the_array_expressions(seed: int) -> None:
 
 def test_the_verdicts_shared_window_terms_and_step_windows_are_the_same_bits() -> None:
     """``verdict._plane_fit`` on the window terms the maps share gives what it gives from the heights alone, and
-    ``verdict._steps``' full windows (an erosion) are those of the sum of ones it replaced (random holes, a corner
+    ``verdict.step_fits``' full windows (an erosion) are those of the sum of ones it replaced (random holes, a corner
     unseen, every window size the maps use)."""
     import cv2
 
-    from slzcli.fusion.verdict import _plane_fit, _steps, _window_terms, step_kernel
+    from slzcli.fusion.verdict import _plane_fit, _window_terms, step_fits, step_kernel
 
     rng = np.random.default_rng(7)
     some = 0
@@ -668,12 +668,12 @@ def test_the_verdicts_shared_window_terms_and_step_windows_are_the_same_bits() -
                 assert np.array_equal(a, b, equal_nan=True)
         half = max(2, rows // 2)
         w, _ = step_kernel(rows, half)
-        got = _steps(hc, ok, rows, half)
+        got = step_fits(hc, ok, rows, half)
         for kern, s in zip((w, np.ascontiguousarray(w.T)), got, strict=True):
             ones = (kern != 0).astype(np.float64)
             est = cv2.filter2D(hc, cv2.CV_64F, kern, borderType=cv2.BORDER_CONSTANT)
             full = cv2.filter2D(ok.astype(np.float64), cv2.CV_64F, ones,
                                 borderType=cv2.BORDER_CONSTANT) >= ones.sum() - 0.5
-            assert np.array_equal(s, np.where(full, np.abs(est), np.nan), equal_nan=True)
+            assert np.array_equal(s, np.where(full, est, np.nan), equal_nan=True)
             some += int(0 < np.count_nonzero(full) < full.size)
     assert some >= 12       # windows full and not full were compared
