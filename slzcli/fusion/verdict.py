@@ -242,6 +242,30 @@ def step_noise_scale(s_abs: np.ndarray, step_min: np.ndarray, k: float) -> float
     return max(1.0, kernels.median_inplace(s_abs[fin] / (step_min[fin] / k)) / _HALF_NORMAL_MEDIAN)
 
 
+def _erode(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """Where every cell of the rows x cols window around a cell is set (beyond the region: not)."""
+    return cv2.erode(a.astype(np.uint8), np.ones((rows, cols), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                     borderValue=0) > 0
+
+
+def step_passes(s_x: np.ndarray, s_y: np.ndarray, lim_x: np.ndarray, lim_y: np.ndarray, n_sq: int, reach: int,
+                max_step_m: float) -> np.ndarray:
+    """The cells whose landing square (n_sq cells) passes the step test: |s| + limit within the UAV's step on every
+    window centred in the square (each fully seen), and on every window whose middle column crosses the square
+    centred up to ``reach`` cells beyond it along the line the step runs (y for a step between columns), where
+    seen. Why beyond: a step that ends in the square
+    (a block's corner) fills only part of the rows of a window centred there (the one centred on its end reads
+    (reach + 1) / rows of it: 0.057 m of a 0.095 m block's corner, called safe); the windows beyond read it whole
+    wherever it runs on for a footprint."""
+    with np.errstate(invalid="ignore"):
+        fine_x = s_x + lim_x <= max_step_m
+        fine_y = s_y + lim_y <= max_step_m
+    fine = _erode(fine_x & fine_y, n_sq, n_sq)
+    fine &= _erode(fine_x | np.isnan(s_x), n_sq + 2 * reach, n_sq)    # steps between columns, rows along y
+    fine &= _erode(fine_y | np.isnan(s_y), n_sq, n_sq + 2 * reach)
+    return fine
+
+
 def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object) -> FusedMaps:
     """The maps, score, mask and verdict of a region of the fused grid."""
     cell = reg.cell_m
@@ -346,8 +370,6 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # some level squares unsafe)
     kb = (k + 1.0) / k
     with np.errstate(invalid="ignore"):
-        fine_x = s_x + lim_x <= uav.max_step_m
-        fine_y = s_y + lim_y <= uav.max_step_m
         step_bad = (s_x - kb * lim_x > uav.max_step_m) | (s_y - kb * lim_y > uav.max_step_m)
         # the limits hold for a full window: a plane over a window cut by the edge of the seen ground is neither
         full = n_seen_fp >= n_fp * n_fp - 0.5
@@ -358,33 +380,22 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
     # not a finding)
     n_dec = n_sq + 2 * max(n_fp // 2, n_r // 2, 1) + 2 * (kk // 2)
     def square_within(m: float) -> np.ndarray:
-        return cv2.erode(limits_within(m).astype(np.uint8), np.ones((n_dec, n_dec), np.uint8),
-                         borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+        return _erode(limits_within(m), n_dec, n_dec)
 
     decided = square_within(params.decided_margin)
     # a failing mask is a finding only where the noise is well within the tolerances: near them, noise alone
     # fails the mask of level ground (the maps read it as roughness)
     mask_conclusive = decided if params.unsafe_margin == params.decided_margin else square_within(params.unsafe_margin)
-    # every estimate centred in the square, and every step estimate whose middle column crosses it: a step
-    # that ends in the square (the corner of a block) fills only part of the n_fp rows of a window centred
-    # there (the one centred on its end reads (reach + 1) / n_fp of it: 0.057 m of a 0.095 m block's
-    # corner, called safe); the windows centred up to ``reach`` rows beyond the square along the step read it
-    # whole wherever it runs on for a footprint
+    # the slope of every window centred in the square, the steps of those and of the windows beyond it
     reach = n_fp // 2
-    def erode(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
-        return cv2.erode(a.astype(np.uint8), np.ones((rows, cols), np.uint8), borderType=cv2.BORDER_CONSTANT,
-                         borderValue=0) > 0
-
-    fine = erode(fine_x & fine_y & slope_fine, n_sq, n_sq)
-    fine &= erode(fine_x | np.isnan(s_x), n_sq + 2 * reach, n_sq)    # steps between columns, rows along y
-    fine &= erode(fine_y | np.isnan(s_y), n_sq, n_sq + 2 * reach)
+    fine = _erode(slope_fine, n_sq, n_sq) & step_passes(s_x, s_y, lim_x, lim_y, n_sq, reach, uav.max_step_m)
     bad = steep | refused | step_bad      # a step between two neighbours only lowers the flatness map
     defect = cv2.dilate(bad.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
 
     verdict = np.full(hc.shape, UNSEEN, np.uint8)
     # the final descent's column above every cell of the landing square, not only its centre: the UAV's body comes
     # down over the whole square (a tree crown's rim beside a site overhangs its edge, not its middle)
-    column = erode(reg.column, n_sq, n_sq)
+    column = _erode(reg.column, n_sq, n_sq)
     safe = ok & mask & decided & fine & column
     patch, tests = raised_patches(reg, ok, safe, clear_score, raised_params(config))
     # a patch the rule refuses is not safe: UNSAFE where it is raised beyond doubt, UNDECIDED where its height is
@@ -401,7 +412,7 @@ def fused_maps(reg: Region, config: Config, params: FusionParams, scorer: object
         cells = cells & test
         left.append(int(np.count_nonzero(cells)))
     whole = ok & ok3 & okf & okr
-    covered = erode(ok, n_dec, n_dec)
+    covered = _erode(ok, n_dec, n_dec)
     funnel = CellFunnel(tuple(left), float(thr), float(clear_score[seen].max()) if seen.any() else None,
                         int(np.count_nonzero(whole)), n_fp * cell, int(np.count_nonzero(seen & mask & covered)),
                         n_dec * cell, int(np.count_nonzero(unsafe)), uav.max_step_m, uav.max_slope_deg,

@@ -206,6 +206,34 @@ def test_the_steps_stated_noise_follows_their_scatter_across_the_track() -> None
         assert 0.8 <= float(np.median(z)) / 0.6745 <= 1.25
 
 
+def test_the_step_test_reads_the_windows_beyond_the_square_along_the_step_only() -> None:
+    """``step_passes``: a square passes when every window centred in it is seen and within the limit; a window
+    beyond the square holds it back only along the line its step runs (a step between columns runs along y: the
+    windows up to ``reach`` rows beyond the square), and there only where seen."""
+    from slzcli.fusion.verdict import step_passes
+
+    n, n_sq, reach, lim = 41, 5, 3, np.full((41, 41), 0.03)
+    c = n // 2                                   # the square of the centre cell: columns and rows c-2 .. c+2
+
+    def centre_passes(s_x: np.ndarray, s_y: np.ndarray) -> bool:
+        return bool(step_passes(s_x, s_y, lim, lim, n_sq, reach, 0.09)[c, c])
+
+    level = np.full((n, n), 0.01)
+    assert centre_passes(level, level)
+    for col, row, held in ((c + 2, c, True),              # in the square
+                           (c, c + 2 + reach, True),      # beyond it along y, where the step runs
+                           (c, c + 3 + reach, False),     # farther than reach
+                           (c + 2 + reach, c, False)):    # beyond it across the step
+        s_x = level.copy()
+        s_x[row, col] = 0.07                               # 0.07 + 0.03 > 0.09
+        assert centre_passes(s_x, level) is not held, (col, row)
+    unseen = level.copy()
+    unseen[c + 2 + reach, c] = np.nan                      # beyond the square, not seen: no evidence against it
+    assert centre_passes(unseen, level)
+    unseen[c, c + 2] = np.nan                              # in the square, not seen: not passed
+    assert not centre_passes(unseen, level)
+
+
 @pytest.mark.parametrize("step_m", [0.0, 0.05, 0.3])
 def test_calibration_over_seeds(step_m: float) -> None:
     """Fused height error / stated std on a plane, pooled over seeds: its spread within 0.8-1.25 hovering
