@@ -274,15 +274,22 @@ def detect(runner, rec: Path, out: Path, *options: str) -> tuple[dict, str]:
     return json.loads(res.stdout), res.stderr
 
 
-# (scene, pitch, roll, seed, imu): tilts of 24 to 30 deg, three seeds, both ways of finding gravity.
+# (scene, pitch, roll, seed, imu, site): tilts of 24 to 30 deg, three seeds, both ways of finding gravity.
 # Measured over 3 seeds x 4 mounts x IMU/scene (docs/METHOD.md "Gravity from the recording"): every site
-# safe, mask precision >= 0.98 (min 0.983); the bound below is the 0.95.
-FLIGHTS = [("parking_lot", 22, 9, 0, True), ("playground", 15, -25, 1, False), ("parking_lot", 0, 30, 2, True)]
+# safe, mask precision >= 0.98 (min 0.983); the bound below is the 0.95. The mask's recall is what
+# gravity decides: 0.40-0.52 over the parking lot, 0.05-0.07 over the playground, 0 with the straight-down
+# mount (nothing safe); bound 0.02. Whether the playground's small safe patches hold a map-point cluster as
+# wide as the footprint depends on the machine (same code and versions: a site on seeds 0-2 where the table
+# was measured, none on seeds 0-1 on an AVX-512 Xeon, an honest "no"; not OpenCV's SIMD dispatch, numba's
+# target CPU or OpenBLAS's kernel: forcing each changed nothing): a site is asserted over the parking lot,
+# over the playground only that one, if committed, is truly safe.
+FLIGHTS = [("parking_lot", 22, 9, 0, True, True), ("playground", 15, -25, 1, False, False),
+           ("parking_lot", 0, 30, 2, True, True)]
 
 
-@pytest.mark.parametrize("scene, pitch, roll, seed, imu", FLIGHTS)
+@pytest.mark.parametrize("scene, pitch, roll, seed, imu, site", FLIGHTS)
 def test_a_tilted_flight_gives_a_truly_safe_site(tmp_path: Path, runner, scene: str, pitch: float, roll: float,
-                                                 seed: int, imu: bool) -> None:
+                                                 seed: int, imu: bool, site: bool) -> None:
     rec = tilted(tmp_path / "flight.mcap", scene, pitch, roll, seed, imu)
     s, err = detect(runner, rec, tmp_path / "run")
     gv = s["gravity"]
@@ -291,8 +298,11 @@ def test_a_tilted_flight_gives_a_truly_safe_site(tmp_path: Path, runner, scene: 
     # wobble and the IMU's 0.1 m/s^2 bias are in it: the truth at a frame is not the mount alone)
     assert g.angle_deg(np.array(gv["up_camera"]), up_of(pitch, roll)) < 4.0
     assert gv["tilt_deg"] == pytest.approx(g.angle_deg(up_of(pitch, roll), g.DOWN), abs=4.0)
-    assert s["status"] == "site" and s["ground_truth"]["site"]["safe"]
+    assert s["status"] in (("site",) if site else ("site", "no_safe_site"))
+    if s["status"] == "site":
+        assert s["ground_truth"]["site"]["safe"]
     assert s["ground_truth"]["mask"]["precision"] >= 0.95
+    assert s["ground_truth"]["mask"]["recall"] >= 0.02
     assert ("gravity from the scene alone" in err) == (not imu)
     run = json.loads((tmp_path / "run" / "run.json").read_text())
     assert run["recording"]["gravity"]["source"] == gv["source"]
