@@ -2,7 +2,10 @@
 one frame's cell error against its stated std, the fused cell error split by wavelength, and what the map's
 own local residuals would say about it without the truth.
 
-    python benchmarks/fusion_calibration.py --cache DIR [--flights GLOB] [--out FILE]
+    python benchmarks/fusion_calibration.py --cache DIR [--flights GLOB] [--stride N] [--set K=V] [--out FILE]
+
+``--stride N`` fuses every N-th frame only (the same flight N times as fast, N times fewer frames); ``--set``
+overrides config keys (what-ifs such as ``terrain.fusion.white_fraction=0.6``).
 
 On flights rendered by benchmarks/fusion_render.py (true poses, exact depth beside the measured one), every
 frame goes through the fused method's own code (``FusedTerrain.add``, the run's noise estimate as
@@ -137,7 +140,7 @@ def step_reach(fl: fmx.Flight, ft: Any, exact: Any, b: tuple[int, int, int, int]
     """The ``step_*`` columns of the docstring: the fused step fit's true error (measured - exact depth's
     fusion) on the open level cells, and the squares its step test passes as stated and with its true error."""
     from slzcli.fusion.grid import region
-    from slzcli.fusion.verdict import _odd, fused_maps, square_cells, step_fits
+    from slzcli.fusion.verdict import _erode, _odd, fused_maps, square_cells, step_fits, step_passes
 
     reg, rex = region(ft.grid, *b), region(exact.grid, *b)
     fm = fused_maps(reg, fl.cfg, ft.params, fl.scorer)
@@ -163,33 +166,25 @@ def step_reach(fl: fmx.Flight, ft: Any, exact: Any, b: tuple[int, int, int, int]
         lim_true.append(spread * scale * step_min)
         s_abs.append(s_verdict)
     n_sq, reach = square_cells(ft.params.square_m, reg.cell_m), n_fp // 2
-
-    def erode(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
-        return cv2.erode(a.astype(np.uint8), np.ones((rows, cols), np.uint8), borderType=cv2.BORDER_CONSTANT,
-                         borderValue=0) > 0
-
-    squares = erode(open_, n_sq, n_sq)
+    squares = _erode(open_, n_sq, n_sq)
     out["open_squares"] = int(np.count_nonzero(squares))
     for name, (lx, ly) in (("step_pass", lim), ("step_pass_true", lim_true)):
-        with np.errstate(invalid="ignore"):
-            fx, fy = s_abs[0] + lx <= max_step, s_abs[1] + ly <= max_step
-        fine = erode(fx & fy, n_sq, n_sq) & erode(fx | np.isnan(s_abs[0]), n_sq + 2 * reach, n_sq)
-        fine &= erode(fy | np.isnan(s_abs[1]), n_sq, n_sq + 2 * reach)
+        fine = step_passes(s_abs[0], s_abs[1], lx, ly, n_sq, reach, max_step)
         out[name] = int(np.count_nonzero(fine & squares))
     return out
 
 
-def measure(path: Path) -> dict[str, Any]:
+def measure(path: Path, stride: int = 1, sets: tuple[str, ...] = ()) -> dict[str, Any]:
     from slzcli.fusion import kernels
     from slzcli.fusion.grid import region, seen_bounds
     from slzcli.fusion.session import FusedTerrain
     from slzcli.fusion.verdict import _box, _plane_fit
 
-    fl = fmx.Flight(path, 3, [])
+    fl = fmx.Flight(path, 3, list(sets))
     ft = FusedTerrain(fl.cfg, fl.scorer)
     exact = FusedTerrain(fl.cfg, fl.scorer)
     frames, errors = [], []
-    for i in range(fl.n):
+    for i in range(0, fl.n, stride):
         fe = frame_errors(fl, i, ft)
         if fe is not None:
             frames.append(robust(fe[0]))
@@ -251,13 +246,17 @@ def main() -> None:
                     help="rendered flights (benchmarks/fusion_render.py --out)")
     ap.add_argument("--flights", action="append", default=[], help="glob of flight names within the cache "
                     "(repeatable; default: every flight)")
+    ap.add_argument("--stride", type=int, default=1, help="fuse every N-th frame only")
+    ap.add_argument("--set", action="append", default=[], help="config override K=V (repeatable)")
     a = ap.parse_args()
     rows = []
     for pat in a.flights or ["*"]:
         for p in sorted(glob.glob(str(a.cache / (pat + ".npz")))):
             if p.endswith(".tmp.npz") or fmx.parse_name(Path(p).stem) is None:
                 continue
-            row = measure(Path(p))
+            row = measure(Path(p), a.stride, tuple(a.set))
+            if a.stride > 1 or a.set:
+                row.update(stride=a.stride, sets=a.set)
             rows.append(row)
             print(" ".join(f"{k}={v}" for k, v in row.items() if k not in ("scene", "altitude_m", "sensor", "motion",
                                                                          "seed", "frames", "rate_hz")), flush=True)
