@@ -253,10 +253,9 @@ def step_passes(s_x: np.ndarray, s_y: np.ndarray, lim_x: np.ndarray, lim_y: np.n
     """The cells whose landing square (n_sq cells) passes the step test: |s| + limit within the UAV's step on every
     window centred in the square (each fully seen), and on every window whose middle column crosses the square
     centred up to ``reach`` cells beyond it along the line the step runs (y for a step between columns), where
-    seen. Why beyond: a step that ends in the square
-    (a block's corner) fills only part of the rows of a window centred there (the one centred on its end reads
-    (reach + 1) / rows of it: 0.057 m of a 0.095 m block's corner, called safe); the windows beyond read it whole
-    wherever it runs on for a footprint."""
+    seen. Why beyond: a step that ends in the square (a block's corner) fills only part of the rows of a window
+    centred there (the one centred on its end reads (reach + 1) / rows of it: 0.057 m of a 0.095 m block's
+    corner, called safe); the windows beyond read it whole wherever it runs on for a footprint."""
     with np.errstate(invalid="ignore"):
         fine_x = s_x + lim_x <= max_step_m
         fine_y = s_y + lim_y <= max_step_m
